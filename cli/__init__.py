@@ -1,0 +1,1 @@
+"""The `springc` command-line application (installed as the package `springc_cli`)."""

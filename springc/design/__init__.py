@@ -1,0 +1,1 @@
+"""Design tools: compute building-block parameters and write readable `.spr` files."""

@@ -1,0 +1,159 @@
+"""Fit mechanical Mel filters to triangular Mel filters (paper Sec. III.A, Eq. filter-response).
+
+Each bin of the filterbank is realised either by two coupled unit masses (the "two-mode"
+filter: a symmetric mode at `wa` and an antisymmetric mode at `wb = delta * wa`, driven with
+opposite-signed forces so that they cancel at DC) or, for comparison, by one damped mass (the
+"single-mode" Lorentzian). The fit is a least-squares match of the peak-normalised amplitude
+response to the triangle on a uniform frequency grid from 0 to `fmax`, initialised as in the
+paper: `wa` at the Mel centre, `delta = 1.1`, `alpha = 400` rad/s.
+
+The peak is pinned to the Mel centre, where the triangle peaks: left free, the least-squares fit
+moves the peak of the lowest bin 11% above its centre (for 8 bins from 20 Hz to 8 kHz), because
+neither response can follow the triangle's corner and the fit trades the peak position for a
+broader shoulder. Pinning costs little misfit and keeps the bins in Mel order. It is exact
+because the responses are scale invariant: H(w; s wa, delta, s alpha) = H(w / s; wa, delta,
+alpha), so the fit runs over the shape (delta and r = alpha / wa) and `wa` follows from the
+peak of the shape.
+
+The amplitude is what is fitted: the paper disregards the phase, and so do the features.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares, minimize_scalar
+
+from springc.design.filters import (
+    DEFAULT_FMAX,
+    DEFAULT_FMIN,
+    mel_edges,
+    mel_triangles,
+    single_mode_response,
+    two_mode_response,
+)
+
+KINDS = ("two-mode", "single-mode")
+INIT_DELTA = 1.1  # paper: initial relative spacing of the two modes
+INIT_ALPHA = 400.0  # paper: initial mass-proportional damping, rad/s
+GRID_POINTS = 4000  # fitting grid: about 2 Hz spacing up to 8 kHz, finer than the narrowest bin
+
+
+@dataclass(frozen=True)
+class MelFilter:
+    """One fitted filter. `fa` (Hz) is the first mode (the only one for single-mode), `delta`
+    the ratio wb/wa (1.0 for single-mode), `alpha` the damping per unit mass (rad/s), `gain` the
+    factor that makes the peak amplitude 1, `centre` the Mel centre (Hz) it was fitted to and
+    `misfit` the relative L2 error ||(|H| - T)|| / ||T|| on the fitting grid."""
+
+    kind: str
+    fa: float
+    delta: float
+    alpha: float
+    gain: float
+    centre: float
+    misfit: float
+
+    def response(self, f_hz) -> np.ndarray:
+        """Complex response at `f_hz` (displacement of the output mass), peak amplitude 1."""
+        return self.gain * _raw_response(self.kind, f_hz, self.fa, self.delta, self.alpha)
+
+    def peak_hz(self) -> float:
+        """Frequency (Hz) of the amplitude peak."""
+        return _peak(self.kind, self.fa, self.delta, self.alpha, exact=True)[0]
+
+    @property
+    def fb(self) -> float:
+        """Frequency (Hz) of the second (antisymmetric) mode."""
+        return self.delta * self.fa
+
+
+def fit_melbank(bins: int, fmin: float = DEFAULT_FMIN, fmax: float = DEFAULT_FMAX,
+                kind: str = "two-mode") -> list[MelFilter]:
+    """Fit `bins` mechanical filters of `kind` ("two-mode" or "single-mode") to the triangular
+    Mel filters between `fmin` and `fmax` (Hz); each returned filter has peak amplitude 1."""
+    if kind not in KINDS:
+        raise ValueError(f"unknown filter kind {kind!r}; expected one of {KINDS}")
+    if bins < 1 or not 0 <= fmin < fmax:
+        raise ValueError(f"need bins >= 1 and 0 <= fmin < fmax, got {bins}, {fmin}, {fmax}")
+    f = fitting_grid(fmax)
+    targets = mel_triangles(f, bins, fmin, fmax)
+    centres = mel_edges(bins, fmin, fmax)[1:-1]
+    return [_fit_one(kind, f, t, c) for t, c in zip(targets, centres)]
+
+
+def fitting_grid(fmax: float) -> np.ndarray:
+    """The uniform frequency grid (Hz) on which the misfit is measured: (0, fmax]."""
+    return np.linspace(0.0, fmax, GRID_POINTS + 1)[1:]
+
+
+def misfit(amplitude: np.ndarray, target: np.ndarray) -> float:
+    """Relative L2 misfit ||amplitude - target|| / ||target||."""
+    return float(np.linalg.norm(amplitude - target) / np.linalg.norm(target))
+
+
+def _raw_response(kind: str, f_hz, fa: float, delta: float, alpha: float) -> np.ndarray:
+    if kind == "two-mode":
+        return two_mode_response(f_hz, fa, delta, alpha)
+    if kind == "single-mode":
+        return single_mode_response(f_hz, fa, alpha)
+    raise ValueError(f"unknown filter kind {kind!r}")
+
+
+def _peak(kind: str, fa: float, delta: float, alpha: float,
+          exact: bool = False) -> tuple[float, float]:
+    """(frequency, amplitude) of the amplitude peak of the unnormalised response.
+
+    Both responses are smooth with one maximum in (0, inf); a log grid brackets it. In the fit, a
+    parabola through the three best points in log-log refines it, which keeps the normalised
+    response a smooth function of the parameters (the least-squares Jacobian needs that);
+    `exact` refines it to machine precision instead, for the final gain."""
+    hi = max(fa * delta, fa) * 4.0
+    f = np.geomspace(fa * 1e-3, hi, 2001)
+    amp = np.abs(_raw_response(kind, f, fa, delta, alpha))
+    i = int(np.clip(np.argmax(amp), 1, len(f) - 2))
+    lf, la = np.log(f[i - 1:i + 2]), np.log(amp[i - 1:i + 2])
+    if exact:
+        neg = lambda u: -np.abs(_raw_response(kind, np.exp(u), fa, delta, alpha))  # noqa: E731
+        res = minimize_scalar(neg, bounds=(lf[0], lf[2]), method="bounded",
+                              options={"xatol": 1e-12})
+        return float(np.exp(res.x)), float(-res.fun)
+    c2, c1, c0 = np.polyfit(lf - lf[1], la, 2)
+    shift = -c1 / (2 * c2) if c2 < 0 else 0.0
+    return float(np.exp(lf[1] + shift)), float(np.exp(c0 + c1 * shift + c2 * shift**2))
+
+
+def _unpack(kind: str, p: np.ndarray, centre: float) -> tuple[float, float, float]:
+    """Shape parameters -> (fa, delta, alpha) with the peak at `centre`; logs keep r > 0 and
+    delta > 1. The shape is (delta, r = alpha / wa); fa scales it so that the peak lands on the
+    centre."""
+    if kind == "two-mode":
+        delta, r = 1.0 + float(np.exp(p[0])), float(np.exp(p[1]))
+    else:
+        delta, r = 1.0, float(np.exp(p[0]))
+    unit_peak = _peak(kind, 1.0, delta, 2 * np.pi * r)[0]  # peak (Hz) of the shape at fa = 1 Hz
+    fa = centre / unit_peak
+    return fa, delta, 2 * np.pi * fa * r
+
+
+def _normalised_amplitude(kind: str, f: np.ndarray, p: np.ndarray, centre: float) -> np.ndarray:
+    fa, delta, alpha = _unpack(kind, p, centre)
+    return np.abs(_raw_response(kind, f, fa, delta, alpha)) / _peak(kind, fa, delta, alpha)[1]
+
+
+def _initial(kind: str, centre: float) -> np.ndarray:
+    """The paper's start: wa at the centre, delta = 1.1, alpha = 400 rad/s (as a shape)."""
+    r = INIT_ALPHA / (2 * np.pi * centre)
+    if kind == "two-mode":
+        return np.array([np.log(INIT_DELTA - 1.0), np.log(r)])
+    return np.array([np.log(r)])
+
+
+def _fit_one(kind: str, f: np.ndarray, target: np.ndarray, centre: float) -> MelFilter:
+    sol = least_squares(lambda p: _normalised_amplitude(kind, f, p, centre) - target,
+                        _initial(kind, centre), diff_step=1e-6, xtol=1e-12, ftol=1e-12)
+    fa, delta, alpha = _unpack(kind, sol.x, centre)
+    gain = 1.0 / _peak(kind, fa, delta, alpha, exact=True)[1]
+    err = misfit(np.abs(_raw_response(kind, f, fa, delta, alpha)) * gain, target)
+    return MelFilter(kind, fa, delta, alpha, gain, float(centre), err)

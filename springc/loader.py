@@ -1,0 +1,100 @@
+"""Loading generated kernels: the only module that imports numba.
+
+The source from `springc.codegen` is written to `<cache>/springc_kernel_<hash>.py` (a real
+file, so that numba's `cache=True` can store the compiled machine code beside it and a second
+process reuses it) and imported by path. The cache folder is `$SPRINGC_CACHE` or
+`~/.cache/springc/kernels`.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+
+from springc.codegen import kernel_hash
+
+_LOADED: dict[str, "Kernel"] = {}
+
+
+def cache_dir() -> Path:
+    """The kernel cache folder (created if missing)."""
+    folder = Path(os.environ.get("SPRINGC_CACHE") or Path.home() / ".cache/springc/kernels")
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+@dataclass
+class Kernel:
+    """A loaded kernel module: `run(**arrays)` calls the generated `run` with named arguments.
+
+    `compile_s` is the time of the first call (numba compiles, or loads its cache, lazily)."""
+
+    module: ModuleType
+    path: Path
+    digest: str
+    compile_s: float | None = None
+
+    @property
+    def args(self) -> tuple[str, ...]:
+        return self.module.ARGS
+
+    def run(self, **arrays) -> None:
+        """Call the generated `run`; missing or extra arguments are a programming error."""
+        missing = set(self.args) - set(arrays)
+        extra = set(arrays) - set(self.args)
+        if missing or extra:
+            raise TypeError(f"kernel arguments: missing {sorted(missing)}, extra {sorted(extra)}")
+        start = time.perf_counter()
+        self.module.run(*(arrays[name] for name in self.args))
+        if self.compile_s is None:
+            self.compile_s = time.perf_counter() - start
+
+
+def kernel_path(source: str) -> Path:
+    """Where the kernel for `source` lives in the cache."""
+    return cache_dir() / f"springc_kernel_{kernel_hash(source)}.py"
+
+
+def write_source(source: str) -> Path:
+    """Write `source` to its cache file (atomically; untouched if already there, so numba's
+    cache, keyed on the file's timestamp, stays valid)."""
+    path = kernel_path(source)
+    if path.exists() and path.read_text() == source:
+        return path
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    with os.fdopen(fd, "w") as fh:
+        fh.write(source)
+    os.replace(tmp, path)
+    return path
+
+
+def load(source: str) -> Kernel:
+    """Import the generated kernel (compiled lazily by numba, from its cache when present)."""
+    digest = kernel_hash(source)
+    if digest in _LOADED:
+        return _LOADED[digest]
+    import numba  # noqa: F401  (the one place numba is imported; fail early if missing)
+
+    path = write_source(source)
+    name = f"springc_kernel_{digest}"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    kernel = Kernel(module, path, digest)
+    _LOADED[digest] = kernel
+    return kernel
+
+
+def forget(digest: str | None = None) -> None:
+    """Drop loaded kernels from this process (to measure cached compile times)."""
+    for key in [digest] if digest else list(_LOADED):
+        module = _LOADED.pop(key, None)
+        if module is not None:
+            sys.modules.pop(module.module.__name__, None)

@@ -1,0 +1,321 @@
+"""The runtime: simulate a netlist for many input signals together, in lockstep.
+
+Time grid: the integration step is `h = tstep / substeps`; input signals are resampled to the
+input grid `1/tstep` and interpolated linearly at every stage time (see `springc.sources`).
+Outputs are recorded every `round(1 / (outrate h))` steps (default: every `tstep`), starting
+with the initial state at t = 0. Runs are simulated in batches of `batch` (one progress tick
+each); inside a batch the kernel runs chunks of runs in parallel, each chunk in lockstep.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from springc import codegen, loader, physics, reductions, sources
+from springc.audio import resample
+from springc.errors import SimulationError, UsageError
+from springc.integrators import DEFAULT_METHOD, TABLEAUX, get_tableau, max_stable_step
+from springc.ir import FlatNetlist, Probe
+
+DEFAULT_CHUNK = 32  # runs per parallel task: enough for the SIMD batch loop, few enough per core
+DEFAULT_BATCH = 256  # runs per kernel call (one progress-bar tick)
+CHECK_EVERY = 256  # steps between divergence checks
+LIMITS = {"float64": 1e30, "float32": 1e15}  # |x| or |v| beyond this counts as divergence
+
+
+@dataclass
+class SimResult:
+    """Simulation output: `t` (T,), `probes[label]` (runs, T), `reductions[spec]` (runs,)."""
+
+    t: np.ndarray
+    probes: dict[str, np.ndarray]
+    reductions: dict[str, np.ndarray]
+    runs: list[str]
+    info: dict[str, object] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Resolved simulation settings (netlist defaults with overrides applied)."""
+
+    tstep: float
+    tstop: float
+    substeps: int
+    method: str
+    precision: str
+    outrate: float
+
+    @property
+    def h(self) -> float:
+        return self.tstep / self.substeps
+
+    @property
+    def nsteps(self) -> int:
+        return int(round(self.tstop / self.h))
+
+    @property
+    def rec_every(self) -> int:
+        return max(1, int(round(1.0 / (self.outrate * self.h))))
+
+
+def settings(net: FlatNetlist, tstep=None, tstop=None, substeps=None, method=None,
+             precision=None, outrate=None, input_seconds: float | None = None) -> Settings:
+    """Resolve settings: explicit arguments win over `.options`, which win over `.tran`."""
+    opt = net.options
+    tstep = tstep or (net.tran.tstep if net.tran else None)
+    if tstep is None or tstep <= 0:
+        raise UsageError("no time step: the netlist has no .tran and no --tstep was given")
+    tstop = tstop or (net.tran.tstop if net.tran else input_seconds)
+    if tstop is None or tstop <= 0:
+        raise UsageError("no stop time: the netlist has no .tran and no --tstop was given")
+    substeps = int(substeps or opt.get("substeps", 1))
+    method = str(method or opt.get("method", DEFAULT_METHOD)).lower()
+    precision = str(precision or opt.get("precision", "float64")).lower()
+    outrate = float(outrate or opt.get("outrate", 1.0 / tstep))
+    if substeps < 1:
+        raise UsageError(f"substeps must be a positive integer, got {substeps}")
+    if method not in TABLEAUX:
+        raise UsageError(f"unknown integrator {method!r}", hint=f"known: {', '.join(TABLEAUX)}")
+    if precision not in LIMITS:
+        raise UsageError(f"unknown precision {precision!r}", hint="float64 or float32")
+    if outrate <= 0:
+        raise UsageError(f"output rate must be positive, got {outrate}")
+    return Settings(float(tstep), float(tstop), substeps, method, precision, outrate)
+
+
+def coefficient_arrays(net: FlatNetlist, dtype) -> dict[str, np.ndarray]:
+    """The kernel's coefficient and index arrays (names as in `codegen.accel_args`)."""
+    f = lambda a: np.ascontiguousarray(a, dtype=dtype)  # noqa: E731
+    i = lambda a: np.ascontiguousarray(a, dtype=np.int64)  # noqa: E731
+    s, d, c, q, b, p = (net.springs, net.duffings, net.couplings, net.quads, net.dashpots,
+                        net.monomials)
+    fi, fc = sources.input_forces(net), sources.common_forces(net)
+    force = net.forces
+    chans = [force.source[e].channel for e in fi]
+    return {
+        "minv": f(1.0 / net.mass()), "bloc": f(net.local_damping()),
+        "k_node": i(s.node), "k_k": f(s.k), "d_node": i(d.node), "d_l": f(d.l),
+        "c_i": i(c.i), "c_j": i(c.j), "c_k": f(c.k), "c_ka": f(c.k / c.a),
+        "q_i": i(q.i), "q_j": i(q.j), "q_g": f(q.g), "q_a": f(q.a), "q_g2a": f(2 * q.g / q.a),
+        "b_i": i(b.i), "b_j": i(b.j), "b_b": f(b.b),
+        "p_c": f(p.c), "p_ptr": i(p.ptr), "p_var": i(p.var), "p_exp": i(p.exp),
+        "fi_node": i(force.node[fi]), "fi_gain": f(force.gain[fi]), "fi_chan": i(chans),
+        "fc_node": i(force.node[fc]), "fc_gain": f(force.gain[fc]),
+    }
+
+
+def resolve_probes(net: FlatNetlist, probes) -> list[Probe]:
+    """Probes to record: the netlist's `.probe`s, or the given labels/`Probe`s."""
+    if probes is None:
+        return list(net.probes)
+    out = []
+    for p in probes:
+        if isinstance(p, Probe):
+            out.append(p)
+            continue
+        node, isv = reductions.parse_quantity(p, net)
+        out.append(Probe("v" if isv else "x", node, p.strip(), net.node_locs[node]))
+    return out
+
+
+def simulate(net: FlatNetlist, inputs=None, input_rate: float | None = None, *,
+             tstep=None, tstop=None, substeps=None, method=None, precision=None, outrate=None,
+             probes=None, reductions: tuple[str, ...] | list[str] = (), batch: int | None = None,
+             channel: int | None = None, progress: bool = False,
+             chunk: int | None = None) -> SimResult:
+    """Simulate `net` for every input signal.
+
+    `inputs`: None (one run, no input), an array (runs, channels, samples) sampled at
+    `input_rate` (default 1/tstep), or a list of sound files / folders. Returns a `SimResult`
+    with only the probed quantities and the requested reductions."""
+    tstep0 = tstep or (net.tran.tstep if net.tran else None)
+    signals, names, seconds = _gather_inputs(net, inputs, input_rate, tstep0, channel)
+    st = settings(net, tstep, tstop, substeps, method, precision, outrate, seconds)
+    plist = resolve_probes(net, probes)
+    rplan = reductions_plan(list(reductions), net)
+    opts = codegen.KernelOptions(st.method, st.precision, record=bool(plist), work=rplan.work,
+                                 dissipation=bool(rplan.damper_rows), msq=bool(rplan.msq))
+    start = time.perf_counter()
+    kernel = loader.load(codegen.generate(net, opts))
+    out = _run_batches(net, kernel, st, signals, names, plist, rplan, batch, chunk, progress)
+    out.info.update(wall_s=time.perf_counter() - start, kernel=str(kernel.path),
+                    compile_s=kernel.compile_s, settings=st)
+    return out
+
+
+reductions_plan = reductions.plan
+
+
+def _gather_inputs(net, inputs, input_rate, tstep, channel):
+    """Input signals at the input grid rate 1/tstep: (array or None, run names, seconds)."""
+    nch = sources.channels_used(net)
+    if inputs is None:
+        return None, ["run0"], None
+    if tstep is None:
+        raise UsageError("no time step: the netlist has no .tran and no --tstep was given")
+    rate = 1.0 / tstep
+    if isinstance(inputs, np.ndarray):
+        arr = np.asarray(inputs, dtype=np.float64)
+        if arr.ndim != 3:
+            raise UsageError(f"inputs must have shape (runs, channels, samples), got {arr.shape}")
+        if input_rate is not None and not math.isclose(input_rate, rate):
+            arr = np.stack([np.stack([resample(ch, input_rate, rate) for ch in run])
+                            for run in arr])
+        return arr, [f"run{r}" for r in range(len(arr))], arr.shape[2] / rate
+    paths = sources.expand_inputs(list(inputs))
+    arr = sources.read_inputs(paths, rate, nch, channel)
+    return arr, [str(p) for p in paths], arr.shape[2] / rate
+
+
+def _threads() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def _run_batches(net, kernel, st: Settings, signals, names, plist, rplan, batch, chunk,
+                 progress) -> SimResult:
+    runs = len(names)
+    batch = batch or DEFAULT_BATCH
+    dtype = np.dtype(st.precision)
+    tab = get_tableau(st.method)
+    coeffs = coefficient_arrays(net, dtype)
+    g = sources.common_table(net, st.nsteps, st.h, st.tstep, tab).astype(dtype)
+    chunks = []
+    bar = _progress(runs, progress)
+    for lo in range(0, runs, batch):
+        hi = min(runs, lo + batch)
+        part = None if signals is None else signals[lo:hi]
+        chunks.append(_run_one_batch(net, kernel, st, part, hi - lo, coeffs, g, plist, rplan,
+                                     chunk, names[lo:hi]))
+        if bar is not None:
+            bar.update(hi - lo)
+    if bar is not None:
+        bar.close()
+    t = np.arange(st.nsteps // st.rec_every + 1) * st.rec_every * st.h
+    probes = {p.label: np.concatenate([c[0][k] for c in chunks]) for k, p in enumerate(plist)}
+    reds = {k: np.concatenate([c[1][k] for c in chunks]) for k in chunks[0][1]}
+    return SimResult(t, probes, reds, list(names))
+
+
+def _progress(runs: int, enabled: bool):
+    if not enabled or runs <= 1:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=runs, unit="run", desc="simulating")
+
+
+def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rplan, chunk, names):
+    dtype = np.dtype(st.precision)
+    x0, v0 = net.initial_state()
+    nch = sources.channels_used(net)
+    nsamples = st.nsteps // st.substeps + 1
+    args = dict(coeffs)
+    args.update(
+        x0=np.repeat(x0[:, None], runs, 1).astype(dtype),
+        v0=np.repeat(v0[:, None], runs, 1).astype(dtype),
+        u=sources.kernel_inputs(signals, runs, nch, nsamples, dtype), g=g,
+        nsteps=st.nsteps, substeps=st.substeps, h=st.h,
+        chunk=chunk or min(DEFAULT_CHUNK, max(1, -(-runs // _threads()))),
+        check_every=CHECK_EVERY, limit=LIMITS[st.precision],
+        xf=np.zeros((net.n, runs), dtype), vf=np.zeros((net.n, runs), dtype),
+        status=np.zeros(runs, np.int64), bad_node=np.zeros(runs, np.int64),
+    )
+    T = st.nsteps // st.rec_every + 1
+    args.update(rec_every=st.rec_every, rec_node=np.array([p.node for p in plist], np.int64),
+                rec_isv=np.array([p.quantity == "v" for p in plist], np.bool_),
+                rec=np.zeros((len(plist), runs, T), dtype))
+    nf = len(net.forces)
+    args.update(work_in=np.zeros((len(sources.input_forces(net)), runs)),
+                work_c=np.zeros((len(sources.common_forces(net)), runs)))
+    rows = rplan.damper_rows
+    args.update(ds_i=np.array([r[0] for r in rows], np.int64),
+                ds_j=np.array([r[1] for r in rows], np.int64),
+                ds_b=np.array([r[2] for r in rows], dtype), diss=np.zeros((len(rows), runs)))
+    wins = [reductions.msq_window(r, st.h, st.nsteps) for r in rplan.msq]
+    args.update(ms_node=np.array([r.node for r in rplan.msq], np.int64),
+                ms_isv=np.array([r.isv for r in rplan.msq], np.bool_),
+                ms_lo=np.array([w[0] for w in wins], np.int64),
+                ms_hi=np.array([w[1] for w in wins], np.int64),
+                msq=np.zeros((len(wins), runs)))
+    kernel.run(**{k: args[k] for k in kernel.args})
+    _check_divergence(net, st, args, names)
+    work = np.zeros((nf, runs))
+    work[sources.input_forces(net)] = args["work_in"]
+    work[sources.common_forces(net)] = args["work_c"]
+    return list(args["rec"]), _finish_reductions(net, rplan, args, work, wins)
+
+
+def _finish_reductions(net, rplan, args, work, wins) -> dict[str, np.ndarray]:
+    xf, vf = args["xf"].astype(np.float64), args["vf"].astype(np.float64)
+    out: dict[str, np.ndarray] = {}
+    msq_rows = {r.spec: k for k, r in enumerate(rplan.msq)}
+    for r in rplan.items:
+        match r.kind:
+            case "final":
+                out[r.spec] = (vf if r.isv else xf)[r.node].copy()
+            case "msq":
+                k = msq_rows[r.spec]
+                out[r.spec] = args["msq"][k] / max(wins[k][2], 1)
+            case "work":
+                out[r.spec] = work[list(r.forces)].sum(axis=0)
+            case "dissipated":
+                out[r.spec] = args["diss"][rplan.damper_slices[r.spec]].sum(axis=0)
+            case "loss":
+                diss = args["diss"][rplan.damper_slices[r.spec]].sum(axis=0)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    out[r.spec] = -10.0 * np.log10(diss / work.sum(axis=0))
+            case "energy":
+                out[r.spec] = physics.energy(net, xf, vf)
+            case _:
+                raise TypeError(f"unhandled reduction kind {r.kind!r}")
+    return out
+
+
+def _check_divergence(net, st: Settings, args, names) -> None:
+    status = args["status"]
+    if not status.any():
+        return
+    r = int(np.flatnonzero(status)[0])
+    when = status[r] * st.h
+    node = net.nodes[int(args["bad_node"][r])]
+    raise SimulationError(
+        f"run {names[r]} diverged by t = {when:.6g} s: node {node} is NaN, infinite or beyond "
+        f"{LIMITS[st.precision]:g}",
+        hint=likely_cause(net, st),
+    )
+
+
+def likely_cause(net: FlatNetlist, st: Settings) -> str:
+    """Why a run may have diverged: the step against the linear stability limit when the
+    linearisation is small enough to diagonalise, and the other causes otherwise."""
+    others = ("a potential unbounded below (P elements), or an input too large for the "
+              "nonlinear elements (their stiffness grows with amplitude)")
+    if net.n > 3000:
+        return f"a step too large for the integrator, {others}"
+    hmax, _ = max_stable_step(get_tableau(st.method), linear_eigenvalues(net))
+    if st.h > hmax:
+        return (f"unstable step: h = {st.h:.4g} s exceeds the largest stable step "
+                f"{hmax:.4g} s of {st.method} for the linearised network; raise --substeps "
+                f"to at least {math.ceil(st.tstep / hmax)}")
+    return f"h = {st.h:.4g} s is linearly stable (limit {hmax:.4g} s), so likely {others}"
+
+
+def linear_eigenvalues(net: FlatNetlist) -> np.ndarray:
+    """Eigenvalues of the first-order linearisation at rest."""
+    minv = 1.0 / net.mass()
+    n = net.n
+    a = np.zeros((2 * n, 2 * n))
+    a[:n, n:] = np.eye(n)
+    a[n:, :n] = -minv[:, None] * physics.stiffness_matrix(net)
+    a[n:, n:] = -minv[:, None] * physics.damping_matrix(net)
+    return np.linalg.eigvals(a)
+

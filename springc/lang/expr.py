@@ -1,0 +1,226 @@
+"""Numbers with SPICE suffixes and the evaluator of parameter expressions.
+
+The evaluator walks `ast` expression nodes itself (never Python's `eval`). Values are floats,
+or numpy arrays for `.data` names, which may only be indexed. Every failure is a
+`NetlistError` at the position of the offending name, operator or call.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import re
+
+import numpy as np
+
+from springc.errors import NetlistError, SourceLoc
+from springc.lang import ast
+
+SUFFIXES = {"t": 1e12, "g": 1e9, "meg": 1e6, "k": 1e3, "m": 1e-3, "u": 1e-6, "n": 1e-9,
+            "p": 1e-12, "f": 1e-15}
+_NUMBER = re.compile(r"([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)(meg|[tgkmunpf])?(.*)",
+                     re.IGNORECASE | re.DOTALL)
+_UNIT = re.compile(r"[A-Za-z]*")
+
+CONSTANTS = {"pi": math.pi, "e": math.e}
+
+
+def read_number(text: str) -> float | None:
+    """The value of a number literal with an optional scale suffix and unit letters
+    (`1k` = 1000, `1M` = 1e-3, `1meg` = 1e6, `50Hz` = 50, `10ms` = 0.01); None if malformed
+    (`1k5`: a digit after the suffix)."""
+    match = _NUMBER.fullmatch(text)
+    if match is None:
+        return None
+    mantissa, suffix, unit = match.groups()
+    if not _UNIT.fullmatch(unit):
+        return None
+    scale = SUFFIXES[suffix.lower()] if suffix else 1.0
+    return float(mantissa) * scale
+
+
+class Env:
+    """A scope of named values (floats or arrays) with a parent scope to fall back on."""
+
+    __slots__ = ("vars", "parent")
+
+    def __init__(self, vars: dict[str, object] | None = None, parent: Env | None = None) -> None:
+        self.vars = vars if vars is not None else {}
+        self.parent = parent
+
+    def lookup(self, name: str) -> object | None:
+        """The value bound to `name` here or in an enclosing scope, or None."""
+        env: Env | None = self
+        while env is not None:
+            value = env.vars.get(name)
+            if value is not None:
+                return value
+            env = env.parent
+        return CONSTANTS.get(name)
+
+    def names(self) -> set[str]:
+        """Every name visible from here (for suggestions)."""
+        out = set(CONSTANTS)
+        env: Env | None = self
+        while env is not None:
+            out.update(env.vars)
+            env = env.parent
+        return out
+
+
+def closest(name: str, candidates) -> str | None:
+    """The candidate most similar to `name`, for 'did you mean' hints."""
+    found = difflib.get_close_matches(name, sorted(candidates), n=1, cutoff=0.6)
+    return found[0] if found else None
+
+
+def undefined(name: str, loc: SourceLoc, env: Env, what: str = "parameter") -> NetlistError:
+    """The error for an undefined name, suggesting the closest defined one."""
+    guess = closest(name, env.names())
+    hint = f"did you mean '{guess}'?" if guess else "define it with .param"
+    return NetlistError(f"undefined {what} '{name}'", loc, hint)
+
+
+def evaluate(expr: ast.Expr, env: Env) -> float | np.ndarray:
+    """The value of `expr` in `env` (a float, or an array for a bare `.data` name)."""
+    match expr:
+        case ast.Num(value=value):
+            return value
+        case ast.Var(name=name, loc=loc):
+            value = env.lookup(name)
+            if value is None:
+                raise undefined(name, loc, env)
+            return value
+        case ast.Binary(op=op, left=left, right=right, loc=loc):
+            return _binary(op, scalar(left, env), scalar(right, env), loc)
+        case ast.Unary(op=op, operand=operand):
+            value = scalar(operand, env)
+            return -value if op == "-" else value
+        case ast.Call(func=func, args=args, loc=loc):
+            return _call(func, [scalar(a, env) for a in args], loc)
+        case ast.Index(name=name, indices=indices, loc=loc):
+            return _index(name, [scalar(i, env) for i in indices], env, loc)
+        case _:
+            raise TypeError(f"not an expression node: {expr!r}")
+
+
+def scalar(expr: ast.Expr, env: Env) -> float:
+    """The value of `expr`, which must be a number (not a whole array)."""
+    value = evaluate(expr, env)
+    if isinstance(value, np.ndarray):
+        raise NetlistError(f"'{expr.name}' is an array of shape {value.shape}",
+                           expr.loc, f"index it, e.g. {expr.name}[0]")
+    return value
+
+
+def integer(expr: ast.Expr, env: Env, what: str) -> int:
+    """The value of `expr` as an int; an error unless it is a whole number."""
+    value = scalar(expr, env)
+    if not float(value).is_integer():
+        raise NetlistError(f"{what} must be an integer, got {value:g}", expr.loc)
+    return int(value)
+
+
+def _binary(op: str, a: float, b: float, loc: SourceLoc) -> float:
+    try:
+        match op:
+            case "+":
+                return a + b
+            case "-":
+                return a - b
+            case "*":
+                return a * b
+            case "/":
+                return a / b
+            case "**":
+                return _power(a, b, loc)
+            case "<":
+                return float(a < b)
+            case "<=":
+                return float(a <= b)
+            case ">":
+                return float(a > b)
+            case ">=":
+                return float(a >= b)
+            case "==":
+                return float(a == b)
+            case "!=":
+                return float(a != b)
+            case _:
+                raise TypeError(f"unknown operator {op!r}")
+    except ZeroDivisionError:
+        raise NetlistError("division by zero", loc) from None
+    except OverflowError:
+        raise NetlistError(f"overflow in '{op}'", loc) from None
+
+
+def _power(a: float, b: float, loc: SourceLoc) -> float:
+    # Python's float power gives a complex number for a negative base and a fractional
+    # exponent; mathematically there is no real value, so that is a domain error.
+    if a < 0 and not float(b).is_integer():
+        raise NetlistError(f"a negative number ({a:g}) to a fractional power ({b:g}) is not real",
+                           loc)
+    if a == 0 and b < 0:
+        raise NetlistError("division by zero (0 to a negative power)", loc)
+    return float(a) ** b
+
+
+def _domain(pred, message: str):
+    """A check on a one-argument function's input: (predicate, message)."""
+    return (pred, message)
+
+
+_POSITIVE = _domain(lambda x: x > 0, "needs a positive argument")
+# name -> (implementation, number of arguments or None for 2 or more, domain check or None)
+FUNCTIONS = {
+    "sqrt": (math.sqrt, 1, _domain(lambda x: x >= 0, "needs a non-negative argument")),
+    "exp": (math.exp, 1, None),
+    "log": (math.log, 1, _POSITIVE),
+    "log10": (math.log10, 1, _POSITIVE),
+    "sin": (math.sin, 1, None),
+    "cos": (math.cos, 1, None),
+    "tan": (math.tan, 1, None),
+    "abs": (abs, 1, None),
+    "floor": (lambda x: float(math.floor(x)), 1, None),
+    "ceil": (lambda x: float(math.ceil(x)), 1, None),
+    "min": (min, None, None),
+    "max": (max, None, None),
+}
+
+
+def _call(func: str, args: list[float], loc: SourceLoc) -> float:
+    entry = FUNCTIONS.get(func)
+    if entry is None:
+        guess = closest(func, FUNCTIONS)
+        hint = f"did you mean '{guess}'?" if guess else f"known: {', '.join(FUNCTIONS)}"
+        raise NetlistError(f"unknown function '{func}'", loc, hint)
+    impl, arity, domain = entry
+    if arity is None and len(args) < 2:
+        raise NetlistError(f"{func}() takes 2 or more arguments, got {len(args)}", loc)
+    if arity is not None and len(args) != arity:
+        raise NetlistError(f"{func}() takes {arity} argument, got {len(args)}", loc)
+    if domain is not None and not domain[0](args[0]):
+        raise NetlistError(f"{func}() {domain[1]}, got {args[0]:g}", loc)
+    try:
+        return float(impl(*args))
+    except OverflowError:
+        raise NetlistError(f"overflow in {func}({', '.join(f'{a:g}' for a in args)})",
+                           loc) from None
+    except ValueError as exc:  # e.g. floor(inf)
+        raise NetlistError(f"{func}() failed: {exc}", loc) from None
+
+
+def _index(name: str, indices: list[float], env: Env, loc: SourceLoc) -> float:
+    array = env.lookup(name)
+    if array is None:
+        raise undefined(name, loc, env, "array")
+    if not isinstance(array, np.ndarray):
+        raise NetlistError(f"'{name}' is a number, not a .data array; it cannot be indexed", loc)
+    if len(indices) != array.ndim:
+        raise NetlistError(f"'{name}' has {array.ndim} dimension(s) but {len(indices)} "
+                           f"index(es) were given", loc)
+    for axis, (i, size) in enumerate(zip(indices, array.shape)):
+        if not float(i).is_integer() or not 0 <= i < size:
+            raise NetlistError(f"index {i:g} out of range for axis {axis} of '{name}' "
+                               f"(size {size}, indices 0..{size - 1})", loc)
+    return float(array[tuple(int(i) for i in indices)])

@@ -3,3 +3,7 @@
 from __future__ import annotations
 
 ALL: list = []
+
+from springc_cli import kws  # noqa: E402  (springc train, springc eval)
+
+ALL += [kws.train_cmd, kws.eval_cmd]

@@ -1,0 +1,82 @@
+"""`springc train` and `springc eval`: the keyword spotter of the paper, trained and tested."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from springc.kws.digital import FILTERBANKS, FeatureSettings
+from springc.kws.train import REALISATIONS, TASKS, TrainOptions
+from springc_cli.common import run_user_errors
+
+_REALISATION = click.Choice(REALISATIONS)
+
+
+@click.command("train")
+@click.option("--data", "data", required=True, type=click.Path(path_type=Path),
+              help="Data set folder in the GSCD layout (e.g. from `springc data synth`).")
+@click.option("--bins", "-n", default=8, show_default=True, help="Mel filter bins n.")
+@click.option("--delays", "-m", default=3, show_default=True, help="Delays per bin m.")
+@click.option("--realisation", type=_REALISATION, default="digital", show_default=True)
+@click.option("--baseline", is_flag=True, help="Same as --realisation baseline.")
+@click.option("--filterbank", type=click.Choice(FILTERBANKS), default="two-mode",
+              show_default=True)
+@click.option("--task", type=click.Choice(TASKS), default="kws12", show_default=True,
+              help="kws12: GSCD's 12 classes; digits-pairs: one/two/three/four pairwise.")
+@click.option("--td", default=0.032, show_default=True, help="Delay between taps (s).")
+@click.option("--tau", default=80.0, show_default=True, help="Readout time constant (s).")
+@click.option("--fc", default=50.0, show_default=True, help="Low-pass cut-off (Hz).")
+@click.option("--feature-rate", default=1000.0, show_default=True, help="Rate of x_i(t) (Hz).")
+@click.option("--jobs", "-j", default=0, help="Worker processes (0: all cores).")
+@click.option("--seed", default=0, show_default=True, help="Augmentation seed.")
+@click.option("--no-cache", is_flag=True, help="Recompute features, ignore the cache.")
+@click.option("-o", "--out", required=True, type=click.Path(path_type=Path),
+              help="Model folder to write.")
+@run_user_errors
+def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, tau, fc,
+              feature_rate, jobs, seed, no_cache, out) -> None:
+    """Train the keyword spotter and write a model folder with weights and a test report."""
+    from springc.kws.train import train
+
+    settings = FeatureSettings(bins=bins, delays=delays, filterbank=filterbank, td=td, tau=tau,
+                               fc=fc, feature_rate=feature_rate)
+    opts = TrainOptions(data=data, out=out, settings=settings,
+                        realisation="baseline" if baseline else realisation, task=task,
+                        jobs=jobs, seed=seed, use_cache=not no_cache)
+    report = train(opts)
+    click.echo(_summary(report))
+    click.echo(f"model written to {out}")
+
+
+@click.command("eval")
+@click.argument("model_dir", type=click.Path(path_type=Path))
+@click.option("--data", type=click.Path(path_type=Path), default=None,
+              help="Data set folder (default: the one the model was trained on).")
+@click.option("--realisation", type=_REALISATION, default=None,
+              help="Must match the model's (default: the model's).")
+@click.option("--json", "as_json", is_flag=True, help="Print accuracy, n, per_class as JSON.")
+@click.option("--jobs", "-j", default=0, help="Worker processes (0: all cores).")
+@click.option("--no-cache", is_flag=True, help="Recompute features, ignore the cache.")
+@run_user_errors
+def eval_cmd(model_dir, data, realisation, as_json, jobs, no_cache) -> None:
+    """Evaluate a trained model on the test split (testing_list.txt) of a data set."""
+    from springc.kws.evaluate import evaluate
+
+    report = evaluate(model_dir, data, realisation, jobs=jobs, use_cache=not no_cache)
+    if as_json:
+        keys = ("accuracy", "n", "per_class") + (("pairs",) if "pairs" in report else ())
+        click.echo(json.dumps({k: report[k] for k in keys}))
+    else:
+        click.echo(_summary(report))
+
+
+def _summary(report: dict) -> str:
+    lines = [f"test accuracy {100 * report['accuracy']:.2f}% on {report['n']} clips"]
+    for name, r in report.get("pairs", {}).items():
+        paper = f" (paper: {100 * r['paper']:.1f}%)" if r.get("paper") else ""
+        lines.append(f"  {name:12s} {100 * r['accuracy']:6.2f}% of {r['n']}{paper}")
+    for cls, tpr in report["per_class"].items():
+        lines.append(f"  {cls:12s} TPR {'n/a' if tpr is None else f'{100 * tpr:6.2f}%'}")
+    return "\n".join(lines)

@@ -1,0 +1,88 @@
+"""Classification reports: accuracy, confusion matrix (CSV and PNG), true-positive rate per
+class (the paper's Fig. 8c-d)."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+
+def confusion(y_true: np.ndarray, y_pred: np.ndarray, classes: list[str]) -> np.ndarray:
+    """Counts, rows = true class, columns = predicted class, in the order of `classes`."""
+    index = {c: i for i, c in enumerate(classes)}
+    out = np.zeros((len(classes), len(classes)), dtype=np.int64)
+    np.add.at(out, ([index[c] for c in y_true], [index[c] for c in y_pred]), 1)
+    return out
+
+
+def true_positive_rates(conf: np.ndarray) -> np.ndarray:
+    """Per class: correct / occurrences (NaN for a class absent from the test split)."""
+    totals = conf.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(totals > 0, np.diag(conf) / totals, np.nan)
+
+
+def summary(y_true: np.ndarray, y_pred: np.ndarray, classes: list[str]) -> dict:
+    """{"accuracy", "n", "per_class": {class: TPR or None}, "confusion": [[...]], "classes"}."""
+    conf = confusion(y_true, y_pred, classes)
+    tpr = true_positive_rates(conf)
+    return {
+        "accuracy": float(np.trace(conf) / max(conf.sum(), 1)),
+        "n": int(conf.sum()),
+        "per_class": {c: (None if np.isnan(r) else float(r)) for c, r in zip(classes, tpr)},
+        "classes": list(classes),
+        "confusion": conf.tolist(),
+    }
+
+
+def write_confusion_csv(path: Path, conf: np.ndarray, classes: list[str]) -> None:
+    """Counts with a header row of predicted classes and a first column of true classes."""
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["true\\predicted", *classes])
+        for c, row in zip(classes, conf):
+            w.writerow([c, *row.tolist()])
+
+
+def write_per_class_csv(path: Path, conf: np.ndarray, classes: list[str]) -> None:
+    """class, test clips, correct, true-positive rate."""
+    tpr = true_positive_rates(conf)
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["class", "clips", "correct", "tpr"])
+        for c, row, r, k in zip(classes, conf, tpr, range(len(classes))):
+            w.writerow([c, int(row.sum()), int(row[k]), "" if np.isnan(r) else f"{r:.4f}"])
+
+
+def plot_confusion(path: Path, conf: np.ndarray, classes: list[str], title: str) -> None:
+    """Row-normalised confusion matrix beside the true-positive rate per class (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = conf.sum(axis=1, keepdims=True)
+    norm = np.divide(conf, rows, out=np.zeros(conf.shape), where=rows > 0)
+    k = len(classes)
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(6 + 0.45 * k, 0.45 * k + 2),
+                                 gridspec_kw={"width_ratios": [k, 3]})
+    ax.imshow(norm, cmap="Blues", vmin=0, vmax=1)
+    for i, j in np.ndindex(conf.shape):
+        if conf[i, j]:
+            ax.text(j, i, f"{norm[i, j]:.2f}", ha="center", va="center", fontsize=7,
+                    color="white" if norm[i, j] > 0.5 else "black")
+    ax.set_xticks(range(k), classes, rotation=60, ha="right")
+    ax.set_yticks(range(k), classes)
+    ax.set_xlabel("predicted")
+    ax.set_ylabel("true")
+    ax.set_title(title)
+    bx.barh(range(k), np.nan_to_num(np.diag(norm)), color="tab:blue")
+    bx.set_ylim(k - 0.5, -0.5)
+    bx.set_yticks(range(k), [])
+    bx.set_xlim(0, 1)
+    bx.set_xlabel("true-positive rate")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -1,0 +1,105 @@
+"""Linear classifiers on fixed feature vectors: the paper's SVM (squared hinge, l2, primal,
+one-versus-rest; scikit-learn's LinearSVC / liblinear) and, for the baseline, logistic
+regression. Features are standardised for the optimiser; the stored model is mapped back to
+raw feature space so that the physical readout c . Phi + b gives exactly the same decision.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from sklearn.exceptions import ConvergenceWarning
+from sklearn.linear_model import LogisticRegression
+from sklearn.svm import LinearSVC
+
+from springc.errors import DataError
+
+SVM_GRID = (1e-3, 1e-2, 1e-1, 1.0, 10.0)  # regularisation C, chosen on the validation split
+LOGREG_GRID = (1e-3, 1e-2, 1e-1)
+
+
+@dataclass
+class LinearModel:
+    """decision = features @ coef.T + intercept, in raw feature space. Multiclass: one row
+    per class, prediction by argmax. Binary: one row, classes[1] where the decision is > 0."""
+
+    coef: np.ndarray  # (rows, N)
+    intercept: np.ndarray  # (rows,)
+    classes: np.ndarray  # (K,) str
+
+    def decision(self, features: np.ndarray) -> np.ndarray:
+        """Readouts, shape (samples, rows)."""
+        return np.asarray(features, dtype=np.float64) @ self.coef.T + self.intercept
+
+    def predict(self, features: np.ndarray) -> np.ndarray:
+        """Predicted class names."""
+        d = self.decision(features)
+        if len(self.classes) == 2:
+            return self.classes[(d[:, 0] > 0).astype(int)]
+        return self.classes[np.argmax(d, axis=1)]
+
+
+@dataclass(frozen=True)
+class Standardiser:
+    """z = (x - mean) / scale, fitted on the training split; constant features get scale 1."""
+
+    mean: np.ndarray
+    scale: np.ndarray
+
+    @classmethod
+    def fit(cls, x: np.ndarray) -> "Standardiser":
+        scale = x.std(axis=0)
+        return cls(x.mean(axis=0), np.where(scale > 0, scale, 1.0))
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        return (x - self.mean) / self.scale
+
+    def to_raw(self, coef: np.ndarray, intercept: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Weights on z -> weights on x: w.z + b = (w/scale).x + (b - (w/scale).mean)."""
+        raw = coef / self.scale
+        return raw, intercept - raw @ self.mean
+
+
+def _estimator(kind: str, c: float, binary: bool):
+    if kind == "svm":
+        return LinearSVC(C=c, loss="squared_hinge", penalty="l2", dual=False, max_iter=5000)
+    if kind == "logreg":
+        return LogisticRegression(C=c, max_iter=500)
+    raise ValueError(f"unknown classifier kind {kind!r}")
+
+
+def fit_linear(x: np.ndarray, y: np.ndarray, c: float, kind: str = "svm") -> LinearModel:
+    """Fit one classifier with regularisation `c` on features x (samples, N), labels y."""
+    classes = np.unique(y)
+    if len(classes) < 2:
+        raise DataError("training split", f"needs at least two classes, found {list(classes)}")
+    std = Standardiser.fit(x)
+    est = _estimator(kind, c, len(classes) == 2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)  # the validation score judges it
+        est.fit(std(x), y)
+    coef, intercept = std.to_raw(est.coef_, np.atleast_1d(est.intercept_))
+    return LinearModel(coef, intercept, est.classes_.astype(str))
+
+
+def accuracy(model: LinearModel, x: np.ndarray, y: np.ndarray) -> float:
+    """Fraction of samples classified correctly."""
+    return float(np.mean(model.predict(x) == y))
+
+
+def select(x_train: np.ndarray, y_train: np.ndarray, x_val: np.ndarray, y_val: np.ndarray,
+           kind: str = "svm", grid: tuple[float, ...] = SVM_GRID,
+           ) -> tuple[LinearModel, float, dict[float, float]]:
+    """Fit one model per C in `grid`, keep the best on the validation split (ties: smaller C,
+    the stronger regularisation). Returns (model, C, {C: validation accuracy})."""
+    scores: dict[float, float] = {}
+    best: tuple[float, float, LinearModel] | None = None
+    for c in grid:
+        model = fit_linear(x_train, y_train, c, kind)
+        scores[c] = accuracy(model, x_val, y_val) if len(y_val) else float("nan")
+        if best is None or scores[c] > best[0]:
+            best = (scores[c], c, model)
+    assert best is not None, "empty regularisation grid"
+    return best[2], best[1], scores

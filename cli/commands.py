@@ -4,6 +4,10 @@ from __future__ import annotations
 
 ALL: list = []
 
+from springc_cli import design  # noqa: E402  (springc design ...)
+
+ALL += design.COMMANDS
+
 from springc_cli import kws  # noqa: E402  (springc train, springc eval)
 
 ALL += [kws.train_cmd, kws.eval_cmd]

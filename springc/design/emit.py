@@ -106,3 +106,16 @@ def write_atomic(path: str | Path, text: str) -> Path:
         os.unlink(tmp)
         raise
     return path
+
+
+def params_text(prefix: str, values: dict[str, float], title: str, example: str) -> str:
+    """A `.param` file: a comment naming the design, `prefix_name=value` lines, and an example
+    instance line (commented out) that uses them."""
+    w = SprWriter()
+    w.comment(title)
+    w.comment("Written by `springc design`; `.include` this file and use the parameters, e.g.")
+    w.comment(f"  {example}")
+    w.blank()
+    for key, value in values.items():
+        w.params(**{f"{prefix}_{key}": value})
+    return w.text()

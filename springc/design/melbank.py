@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares, minimize_scalar
 
+from springc.design.emit import SprWriter, num, write_atomic
 from springc.design.filters import (
     DEFAULT_FMAX,
     DEFAULT_FMIN,
@@ -33,6 +34,7 @@ from springc.design.filters import (
     single_mode_response,
     two_mode_response,
 )
+from springc.errors import UsageError
 
 KINDS = ("two-mode", "single-mode")
 INIT_DELTA = 1.1  # paper: initial relative spacing of the two modes
@@ -74,9 +76,9 @@ def fit_melbank(bins: int, fmin: float = DEFAULT_FMIN, fmax: float = DEFAULT_FMA
     """Fit `bins` mechanical filters of `kind` ("two-mode" or "single-mode") to the triangular
     Mel filters between `fmin` and `fmax` (Hz); each returned filter has peak amplitude 1."""
     if kind not in KINDS:
-        raise ValueError(f"unknown filter kind {kind!r}; expected one of {KINDS}")
+        raise UsageError(f"unknown filter kind {kind!r}; expected one of {KINDS}")
     if bins < 1 or not 0 <= fmin < fmax:
-        raise ValueError(f"need bins >= 1 and 0 <= fmin < fmax, got {bins}, {fmin}, {fmax}")
+        raise UsageError(f"need bins >= 1 and 0 <= fmin < fmax, got {bins}, {fmin}, {fmax}")
     f = fitting_grid(fmax)
     targets = mel_triangles(f, bins, fmin, fmax)
     centres = mel_edges(bins, fmin, fmax)[1:-1]
@@ -98,7 +100,7 @@ def _raw_response(kind: str, f_hz, fa: float, delta: float, alpha: float) -> np.
         return two_mode_response(f_hz, fa, delta, alpha)
     if kind == "single-mode":
         return single_mode_response(f_hz, fa, alpha)
-    raise ValueError(f"unknown filter kind {kind!r}")
+    raise UsageError(f"unknown filter kind {kind!r}")
 
 
 def _peak(kind: str, fa: float, delta: float, alpha: float,
@@ -157,3 +159,73 @@ def _fit_one(kind: str, f: np.ndarray, target: np.ndarray, centre: float) -> Mel
     gain = 1.0 / _peak(kind, fa, delta, alpha, exact=True)[1]
     err = misfit(np.abs(_raw_response(kind, f, fa, delta, alpha)) * gain, target)
     return MelFilter(kind, fa, delta, alpha, gain, float(centre), err)
+
+
+@dataclass(frozen=True)
+class Melbank:
+    """Both fits of one filterbank, for reporting and writing."""
+
+    bins: int
+    fmin: float
+    fmax: float
+    two_mode: tuple[MelFilter, ...]
+    single_mode: tuple[MelFilter, ...]
+
+    def filters(self, kind: str) -> tuple[MelFilter, ...]:
+        """The filters of `kind`."""
+        return self.two_mode if kind == "two-mode" else self.single_mode
+
+
+def design_melbank(bins: int, fmin: float = DEFAULT_FMIN,
+                   fmax: float = DEFAULT_FMAX) -> Melbank:
+    """Fit both kinds of filter to the same Mel triangles."""
+    return Melbank(bins, fmin, fmax, tuple(fit_melbank(bins, fmin, fmax, "two-mode")),
+                   tuple(fit_melbank(bins, fmin, fmax, "single-mode")))
+
+
+def misfit_table(bank: Melbank) -> str:
+    """Per-bin centre, fitted parameters and misfit of both kinds, as aligned text."""
+    rows = [f"{'bin':>3} {'centre Hz':>10} {'fa Hz':>10} {'delta':>7} {'alpha':>9} "
+            f"{'misfit 2-mode':>13} {'misfit 1-mode':>13}"]
+    for i, (two, one) in enumerate(zip(bank.two_mode, bank.single_mode)):
+        rows.append(f"{i:3d} {two.centre:10.2f} {two.fa:10.2f} {two.delta:7.4f} "
+                    f"{two.alpha:9.2f} {two.misfit:13.4f} {one.misfit:13.4f}")
+    two = np.mean([f.misfit for f in bank.two_mode])
+    one = np.mean([f.misfit for f in bank.single_mode])
+    rows.append(f"{'mean':>43} {two:13.4f} {one:13.4f}")
+    return "\n".join(rows)
+
+
+def melbank_text(bank: Melbank, kind: str = "two-mode", name: str = "melbank") -> str:
+    """`.spr` text: a header with the fit report, then `.subckt name out0 .. ch=0` built from
+    the standard library's `melfilter` (two-mode) or `melfilter1` (single-mode)."""
+    w = SprWriter()
+    w.comment(f"{name}: {bank.bins} mechanical Mel filters ({kind}) fitted to triangular Mel "
+              f"filters from {num(bank.fmin)} Hz to {num(bank.fmax)} Hz by `springc design "
+              f"melbank` (paper Sec. III.A, Eq. filter-response, Fig. 4). Peak response 1 at "
+              f"each Mel centre; misfit = ||(|H| - T)|| / ||T|| on a uniform grid to fmax.")
+    w.comment("Ports: out0 .. out{N-1}, the filter outputs (m per unit input). Param: ch, the "
+              "input channel that drives every filter.")
+    w.comment("")
+    w.lines.extend(f"* {line}" for line in misfit_table(bank).splitlines())
+    w.blank()
+    w.include("melfilter.spr")
+    w.blank()
+    w.subckt(name, [f"out{i}" for i in range(bank.bins)], {"ch": 0})
+    for i, f in enumerate(bank.filters(kind)):
+        if kind == "two-mode":
+            w.statement(f"Xb{i}", f"out{i}", "melfilter", f"fa={num(f.fa)}",
+                        f"delta={num(f.delta)}", f"alpha={num(f.alpha)}", "ch={ch}",
+                        f"gain={num(f.gain)}")
+        else:
+            w.statement(f"Xb{i}", f"out{i}", "melfilter1", f"f0={num(f.fa)}",
+                        f"alpha={num(f.alpha)}", "ch={ch}", f"gain={num(f.gain)}")
+    w.ends(name)
+    return w.text()
+
+
+def write_melbank(bank: Melbank, path, kind: str = "two-mode", name: str = "melbank"):
+    """Write `melbank_text` to `path` atomically."""
+    if kind not in KINDS:
+        raise UsageError(f"unknown filter kind {kind!r}; expected one of {KINDS}")
+    return write_atomic(path, melbank_text(bank, kind, name))

@@ -1,0 +1,145 @@
+"""`springc design ...`: compute building-block parameters and write readable `.spr` files."""
+
+from __future__ import annotations
+
+import click
+import numpy as np
+
+from springc.design import blocks, melbank, mvm
+from springc.design.emit import params_text, write_atomic
+from springc.design.filters import DEFAULT_FMAX, DEFAULT_FMIN
+from springc_cli.common import plot_option, run_user_errors
+
+OUT = click.option("-o", "--output", "output", type=click.Path(dir_okay=False), required=True,
+                   help="The .spr file to write.")
+
+
+@click.group("design")
+def design() -> None:
+    """Design building blocks (Mel filterbank, MVM, delay line, readout, low-pass) and write
+    them as .spr files."""
+
+
+@design.command("melbank")
+@click.option("--bins", type=click.IntRange(1, 512), required=True, help="Number of Mel bins.")
+@click.option("--fmin", type=float, default=DEFAULT_FMIN, show_default=True, help="Hz.")
+@click.option("--fmax", type=float, default=DEFAULT_FMAX, show_default=True, help="Hz.")
+@click.option("--kind", type=click.Choice(melbank.KINDS), default="two-mode", show_default=True,
+              help="Filter written to the file (both are fitted and reported).")
+@click.option("--name", default="melbank", show_default=True, help="Subcircuit name.")
+@OUT
+@plot_option
+@run_user_errors
+def melbank_cmd(bins: int, fmin: float, fmax: float, kind: str, name: str, output: str,
+                plot_path: str | None) -> None:
+    """Fit BINS mechanical filters to triangular Mel filters and write `.subckt NAME out0 ..
+    out{BINS-1} ch=0`; prints the misfit per bin for the two-mode and single-mode fits."""
+    bank = melbank.design_melbank(bins, fmin, fmax)
+    melbank.write_melbank(bank, output, kind=kind, name=name)
+    click.echo(melbank.misfit_table(bank))
+    click.echo(f"wrote {output} ({kind} filters, subcircuit {name})")
+    if plot_path:
+        from springc import figures
+
+        figures.plot_melbank(bank, plot_path)
+        click.echo(f"wrote {plot_path}")
+
+
+@design.command("mvm")
+@click.option("--matrix", type=click.Path(dir_okay=False), required=True,
+              help="Orthogonal N x N matrix Q (.npy).")
+@click.option("--mass", "m", type=float, default=1e-3, show_default=True,
+              help="Mass of the delay-line sites it is matched to (kg); the block uses half.")
+@click.option("--kc", type=float, default=10.0, show_default=True,
+              help="Coupling of the delay lines it is matched to (N/m).")
+@click.option("--damping", "b", type=float, default=None,
+              help="Matched damping of the delay lines (N s/m; default sqrt(mass kc)); the "
+                   "block uses half.")
+@click.option("--stiffness", type=float, default=None,
+              help="Stiffness d of the non-zero modes (N/m; default 100 kc).")
+@OUT
+@run_user_errors
+def mvm_cmd(matrix: str, m: float, kc: float, b: float | None, stiffness: float | None,
+            output: str) -> None:
+    """Write `.subckt mvm in0 .. out{N-1}`: a matrix-vector multiplier whose zero modes are
+    exactly [I; Q] (zero-mode engineering)."""
+    q = mvm.load_matrix(matrix)
+    d = mvm.design_mvm(q, m=m, b=b, kc=kc, stiffness=stiffness)
+    mvm.write_mvm(d, output, source=matrix)
+    click.echo(f"N = {d.n}: {len(d.couplings)} couplings, stiffness d = {d.stiffness:g} N/m, "
+               f"stiff modes at {d.stiff_mode_hz():.4g} Hz (delay-line band edge "
+               f"{d.band_edge_hz():.4g} Hz)")
+    err = float(np.max(np.abs(d.assembled_stiffness() - d.K)) / d.stiffness)
+    click.echo(f"elements reproduce K = d [[I, -Q^T], [-Q, I]] to {err:.2g} relative")
+    click.echo(f"wrote {output}")
+
+
+@design.command("delayline")
+@click.option("--td", type=float, required=True, help="Delay per site (s).")
+@click.option("--kc", type=float, default=10.0, show_default=True, help="Coupling (N/m).")
+@click.option("--prefix", default="dl", show_default=True, help="Prefix of the .param names.")
+@OUT
+@run_user_errors
+def delayline_cmd(td: float, kc: float, prefix: str, output: str) -> None:
+    """Delay-line parameters for delay TD per site: m = td^2 kc, kl = 1e-6 kc, matched
+    damping sqrt(m kc); written as `.param` lines."""
+    p = blocks.delayline_params(td, kc)
+    values = {"m": p.m, "kc": p.kc, "kl": p.kl, "b": p.b_match, "td": p.td}
+    text = params_text(
+        prefix, values,
+        f"delay line: {td:g} s per site with kc = {kc:g} N/m (paper Eq. dispersion_rel)",
+        f"Xd in out delayline n=<sites> td={{{prefix}_td}} kc={{{prefix}_kc}} term=1")
+    _write_params(output, text, values, prefix)
+
+
+@design.command("readout")
+@click.option("--tau", type=float, required=True, help="Integration time constant (s).")
+@click.option("--qr", type=float, default=blocks.READOUT_Q, show_default=True,
+              help="Quality factor (< 0.5).")
+@click.option("--mass", "m", type=float, default=1.0, show_default=True, help="kg.")
+@click.option("--kext", type=float, default=0.0, show_default=True,
+              help="Stiffness supplied from outside, e.g. the sum of g a of the quadratic "
+                   "couplings (N/m).")
+@click.option("--prefix", default="ro", show_default=True, help="Prefix of the .param names.")
+@OUT
+@run_user_errors
+def readout_cmd(tau: float, qr: float, m: float, kext: float, prefix: str, output: str) -> None:
+    """Leaky-integrator readout with time constant TAU: tau = 2Q / (w (1 - sqrt(1 - 4Q^2)));
+    written as `.param` lines."""
+    p = blocks.readout_params(tau, qr, m, kext)
+    values = {"m": p.m, "k": p.k_local, "ktotal": p.k_total, "b": p.b, "omega": p.omega,
+              "tau": p.tau}
+    text = params_text(
+        prefix, values, f"readout: tau = {tau:g} s, Q = {qr:g}, m = {m:g} kg, external "
+        f"stiffness {kext:g} N/m (paper Sec. III.B)",
+        f"Xr r readout tau={{{prefix}_tau}} qr={qr:g} m={{{prefix}_m}} kext={kext:g}")
+    _write_params(output, text, values, prefix)
+
+
+@design.command("lowpass")
+@click.option("--fc", type=float, required=True, help="Cutoff frequency (Hz).")
+@click.option("--k", "k", type=float, default=1.0, show_default=True, help="Stiffness (N/m).")
+@click.option("--bext", type=float, default=0.0, show_default=True,
+              help="Damping supplied by attached delay lines (N s/m).")
+@click.option("--prefix", default="lp", show_default=True, help="Prefix of the .param names.")
+@OUT
+@run_user_errors
+def lowpass_cmd(fc: float, k: float, bext: float, prefix: str, output: str) -> None:
+    """Critically damped low-pass with cutoff FC: m = k / (2 pi fc)^2, b = 2 k / (2 pi fc);
+    written as `.param` lines."""
+    p = blocks.lowpass_params(fc, k, bext)
+    values = {"m": p.m, "k": p.k, "b": p.b, "btotal": p.b_total, "fc": p.fc}
+    text = params_text(
+        prefix, values, f"low-pass: fc = {fc:g} Hz, k = {k:g} N/m, critically damped",
+        f"Xlp node lowpass fc={{{prefix}_fc}} k={{{prefix}_k}} bext={bext:g}")
+    _write_params(output, text, values, prefix)
+
+
+def _write_params(output: str, text: str, values: dict[str, float], prefix: str) -> None:
+    write_atomic(output, text)
+    for key, value in values.items():
+        click.echo(f"{prefix}_{key} = {value:.10g}")
+    click.echo(f"wrote {output}")
+
+
+COMMANDS = [design]

@@ -15,7 +15,7 @@ from lark import Lark, Token, Transformer, v_args
 from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput, UnexpectedToken
 
 from springc.errors import NetlistError, SourceLoc, register_source
-from springc.lang import ast
+from springc.lang import ast, fastpath
 from springc.lang.expr import read_number
 
 _LARK = Lark.open("grammar.lark", rel_to=__file__, parser="lalr", propagate_positions=True,
@@ -28,21 +28,45 @@ _STRING_OR_SEMI = re.compile(r"\"[^\"]*\"|'[^']*'|;")
 def parse(text: str, filename: str) -> ast.Netlist:
     """Parse .spr source `text` (named `filename` in messages) into an `ast.Netlist`."""
     register_source(filename, text)
+    lines = _clean(text)
+    fast, problems = _fast_lines(lines, filename)
     builder = _ToAst(filename)
+    # lark parses every line the fast path left (same line numbers: the others are blanked)
+    rest = "\n".join("" if i in fast else line for i, line in enumerate(lines)) + "\n"
     try:
-        tree = _LARK.parse(_clean(text))
+        tree = _LARK.parse(rest)
     except UnexpectedInput as err:
         raise _syntax_error(err, filename) from None
-    statements = builder.transform(tree).children
-    if builder.problems:
-        message, loc = builder.problems[0]
+    slow = builder.transform(tree).children
+    problems += builder.problems
+    if problems:
+        message, loc = min(problems, key=lambda p: (p[1].line, p[1].col))
         raise NetlistError(message, loc, "a digit may not follow a scale suffix; "
                            "write 1.5k for 1500")
+    statements = sorted([*fast.values(), *slow], key=lambda s: (s.loc.line, s.loc.col))
     return ast.Netlist(filename, _nest(statements, filename))
 
 
-def _clean(text: str) -> str:
-    """The text with `*` comment lines and `;` comments blanked and nothing after `.end`;
+def _fast_lines(lines: list[str], filename: str) -> tuple[dict, list]:
+    """Statements of the lines the fast path can read, by line index, and the malformed
+    numbers met; continued lines (`+`) and anything unusual are left to lark."""
+    fast: dict[int, ast.Statement] = {}
+    problems: list[tuple[str, SourceLoc]] = []
+    continued = False  # whether the line after the current one continues it
+    for i in range(len(lines) - 1, -1, -1):
+        stripped = lines[i].lstrip()
+        if not stripped:
+            continue
+        if not continued and stripped[0] != "+":
+            stmt = fastpath.statement(lines[i], i + 1, filename, problems)
+            if stmt is not None:
+                fast[i] = stmt
+        continued = stripped[0] == "+"
+    return fast, problems
+
+
+def _clean(text: str) -> list[str]:
+    """The lines with `*` comment lines and `;` comments blanked and nothing after `.end`;
     every remaining character keeps its line and column."""
     out = []
     for line in text.splitlines():
@@ -54,7 +78,7 @@ def _clean(text: str) -> str:
         elif ";" in line:
             line = _cut_comment(line)
         out.append(line)
-    return "\n".join(out) + "\n"
+    return out
 
 
 def _cut_comment(line: str) -> str:

@@ -1,0 +1,64 @@
+"""Time the .spr front end on a generated netlist of about 10,000 elements.
+
+    python scripts/bench_frontend.py [--elements 10000] [--repeat 3]
+
+The netlist is a long chain (mass, spring and coupling per site, values as expressions) plus
+a dense all-to-all block of couplings; parse and elaborate are timed separately (best of
+`--repeat` runs) and printed with the element count.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+
+from springc.lang import elaborate, parse
+
+
+def generate(elements: int) -> str:
+    """Netlist text: about half the elements in a chain, half in an all-to-all block."""
+    block = int((1 + math.sqrt(1 + 4 * elements)) / 2)  # block*(block-1)/2 + block ~ n/2
+    sites = (elements - block * (block - 1) // 2 - block) // 3
+    lines = [".title front-end benchmark", ".param m0=1m kc=10 kl={1e-6*kc}"]
+    for i in range(sites):
+        lines.append(f"M{i} n{i} m={{m0}} b=0.01")
+        lines.append(f"K{i} n{i} k={{kl}}")
+        lines.append(f"C{i} n{i} n{i + 1} k={{kc*(1 + {i % 7}/10)}}")
+    lines.append(f"M{sites} n{sites} m=m0")
+    for i in range(block):
+        lines.append(f"Mb{i} b{i} m=1 b=0.1")
+    for i in range(block):
+        for j in range(i + 1, block):
+            lines.append(f"Cb{i}_{j} b{i} b{j} k=0.5 a=1")
+    lines.append("Cjoin n0 b0 k=1")
+    lines.append(".probe x(n0) x(b0)")
+    lines.append(".tran 10u 1")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    """Generate, then time parse and elaborate."""
+    cli = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    cli.add_argument("--elements", type=int, default=10_000)
+    cli.add_argument("--repeat", type=int, default=3)
+    args = cli.parse_args()
+    text = generate(args.elements)
+    best_parse = best_elab = math.inf
+    for _ in range(args.repeat):
+        t0 = time.perf_counter()
+        tree = parse(text, "<bench>")
+        t1 = time.perf_counter()
+        net = elaborate(tree)
+        t2 = time.perf_counter()
+        best_parse, best_elab = min(best_parse, t1 - t0), min(best_elab, t2 - t1)
+    count = sum(net.element_counts().values())
+    print(f"elements {count}, nodes {net.n}, lines {text.count(chr(10))}, "
+          f"bytes {len(text)}")
+    print(f"parse     {best_parse * 1e3:8.1f} ms")
+    print(f"elaborate {best_elab * 1e3:8.1f} ms")
+    print(f"total     {(best_parse + best_elab) * 1e3:8.1f} ms")
+
+
+if __name__ == "__main__":
+    main()

@@ -11,3 +11,11 @@ ALL += design.COMMANDS
 from springc_cli import kws  # noqa: E402  (springc train, springc eval)
 
 ALL += [kws.train_cmd, kws.eval_cmd]
+
+from springc_cli import export  # noqa: E402  (springc export --spice)
+
+ALL += [export.export_cmd]
+
+from springc_cli import sim  # noqa: E402  (springc sim)
+
+ALL += [sim.sim_cmd]

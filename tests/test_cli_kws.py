@@ -1,0 +1,81 @@
+"""`springc train` and `springc eval` through click and as the installed command."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from springc_cli.main import main
+from test_kws_train import make_corpus
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory):
+    root = tmp_path_factory.mktemp("cli")
+    os.environ["SPRINGC_CACHE"] = str(root / "cache")
+    data = make_corpus(root / "data")
+    model = root / "model"
+    result = CliRunner().invoke(main, ["train", "--data", str(data), "--bins", "4",
+                                       "--delays", "2", "-j", "1", "-o", str(model)])
+    assert result.exit_code == 0, result.output
+    return data, model, result.output
+
+
+def test_train_prints_accuracy_and_writes_the_folder(env):
+    data, model, output = env
+    assert "test accuracy" in output and f"model written to {model}" in output
+    assert (model / "confusion.png").stat().st_size > 1000
+
+
+def test_eval_json(env):
+    data, model, _ = env
+    result = CliRunner().invoke(main, ["eval", str(model), "--data", str(data), "--json"])
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.output)
+    assert set(report) == {"accuracy", "n", "per_class"}
+    saved = json.loads((model / "report.json").read_text())
+    assert report["accuracy"] == saved["accuracy"] and report["n"] == saved["n"]
+
+
+def test_installed_command_runs(env):
+    data, model, _ = env
+    proc = subprocess.run(["springc", "eval", str(model), "--json", "-j", "1"],
+                          capture_output=True, text=True, env=os.environ)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["n"] > 0
+
+
+@pytest.mark.parametrize("args,message", [
+    (["train", "--data", "{root}/nowhere", "-o", "{root}/m"], "no such data folder"),
+    (["train", "--data", "{data}", "--realisation", "mass-spring", "-o", "{root}/m"],
+     "mass-spring realisation is not available"),
+    (["train", "--data", "{data}", "--bins", "1", "-o", "{root}/m"], "--bins must be"),
+    (["train", "--data", "{data}", "--td", "0.0315", "-o", "{root}/m"], "td * feature rate"),
+    (["eval", "{root}/nomodel"], "no such model folder"),
+    (["eval", "{model}", "--realisation", "baseline"], "trained with the digital"),
+    (["eval", "{model}", "--data", "{root}/nowhere"], "no such data folder"),
+])
+def test_bad_input_exits_1_with_a_message(env, tmp_path, args, message):
+    data, model, _ = env
+    args = [a.format(root=tmp_path, data=data, model=model) for a in args]
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 1, result.output
+    assert message in result.output
+    assert "Traceback" not in result.output and "INTERNAL" not in result.output
+    assert not (tmp_path / "m").exists()
+
+
+def test_eval_of_a_model_missing_weights(env, tmp_path):
+    import shutil
+
+    data, model, _ = env
+    shutil.copytree(model, tmp_path / "m2")
+    (tmp_path / "m2" / "weights.npz").unlink()
+    result = CliRunner().invoke(main, ["eval", str(tmp_path / "m2")])
+    assert result.exit_code == 1
+    assert "weights.npz: missing from the model folder" in result.output

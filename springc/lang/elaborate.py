@@ -53,6 +53,14 @@ DIRECTIVES = ("title", "param", "data", "include", "subckt", "ends", "for", "end
 # name -> (smallest, largest) number of arguments
 SOURCE_ARITY = {"in": (0, 1), "sin": (2, 3), "gauss": (3, 3), "step": (2, 2),
                 "pwl": (2, None), "wav": (1, 2)}
+_SOURCE_HINTS = {
+    "in": "in(k): channel k of the simulator's input signals (default 0)",
+    "sin": "sin(amp freq [phase]): amp sin(2 pi freq t + phase)",
+    "gauss": "gauss(amp t0 sigma): amp exp(-(t - t0)^2 / (2 sigma^2))",
+    "step": "step(amp t0)",
+    "pwl": "pwl(t1 v1 t2 v2 ...): pairs with increasing times",
+    "wav": 'wav("file.wav" [channel]): a sound file, path relative to the netlist',
+}
 
 
 def search_dirs(lib_dirs: list[Path] | None = None) -> list[Path]:
@@ -70,7 +78,7 @@ def elaborate(tree: ast.Netlist, lib_dirs: list[Path] | None = None) -> FlatNetl
 class _Defs:
     """Subcircuit definitions visible in a scope, and the environment their instances see."""
 
-    __slots__ = ("table", "parent", "env")
+    __slots__ = ("env", "parent", "table")
 
     def __init__(self, table: dict[str, ast.Subckt], parent: _Defs | None, env: Env) -> None:
         self.table, self.parent, self.env = table, parent, env
@@ -389,11 +397,10 @@ class _Elaborator:
         if letter == "P":
             self._monomial(full, plain, factors, p, loc, scope, stmt)
             return
-        count = spec.nodes + (1 if letter == "F" and not calls else 0)
-        nodes = self._nodes(name, spec, plain, count, scope, stmt.loc)
         if letter == "F":
             source = self._source(calls, plain, name, scope.env, stmt.loc)
-            nodes = nodes[:1]
+            plain = plain[:1] if not calls else plain  # a bare `in` is the source, not a node
+        nodes = self._nodes(name, spec, plain, spec.nodes, scope, stmt.loc)
         if letter == "B":
             if nodes[0] == GROUND:
                 nodes.reverse()  # the dashpot is symmetric; the IR wants ground second
@@ -437,7 +444,7 @@ class _Elaborator:
     def _source(self, calls, plain, name: str, env: Env, loc: SourceLoc) -> Source:
         """The force signal of an `F` element: a call like `sin(1 50)` or the bare word `in`."""
         if not calls:
-            word = plain[-1] if len(plain) == 2 else None
+            word = plain[1] if len(plain) == 2 else None
             if isinstance(word, ast.Word) and word.plain and word.parts[0].lower() == "in":
                 return Source("in", (), 0)
             raise NetlistError(f"{name}: a force needs a node and a source", loc,
@@ -568,7 +575,7 @@ class _Elaborator:
             if key in self.nodes:
                 raise NetlistError(f"node '{key}' was used before {full} was instantiated, but "
                                    f"'{port}' is a port of it", loc,
-                                   f"name the node connected to the port instead")
+                                   "name the node connected to the port instead")
             self.aliases[key] = node
 
     # --- directives ----------------------------------------------------------------------
@@ -782,7 +789,7 @@ def _read_array(path: Path, loc: SourceLoc) -> np.ndarray:
             array = np.load(path, allow_pickle=False)
         else:
             array = np.loadtxt(path, delimiter=",", ndmin=1, comments="#")
-    except Exception as exc:  # numpy raises several types for corrupt or non-numeric files
+    except Exception as exc:  # noqa: BLE001 - numpy raises many types for bad files
         raise NetlistError(f"data file '{path}' cannot be read: {exc}", loc) from None
     if array.dtype.kind not in "biuf" or array.ndim == 0 or array.size == 0:
         raise NetlistError(f"data file '{path}' does not hold a non-empty numeric array "

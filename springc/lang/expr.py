@@ -10,14 +10,15 @@ from __future__ import annotations
 import difflib
 import math
 import re
+from decimal import Decimal
 
 import numpy as np
 
 from springc.errors import NetlistError, SourceLoc
 from springc.lang import ast
 
-SUFFIXES = {"t": 1e12, "g": 1e9, "meg": 1e6, "k": 1e3, "m": 1e-3, "u": 1e-6, "n": 1e-9,
-            "p": 1e-12, "f": 1e-15}
+# scale suffix -> power of ten (applied exactly, so that 20u is the double nearest 2e-5)
+SUFFIXES = {"t": 12, "g": 9, "meg": 6, "k": 3, "m": -3, "u": -6, "n": -9, "p": -12, "f": -15}
 _NUMBER = re.compile(r"([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)(meg|[tgkmunpf])?(.*)",
                      re.IGNORECASE | re.DOTALL)
 _UNIT = re.compile(r"[A-Za-z]*")
@@ -35,14 +36,15 @@ def read_number(text: str) -> float | None:
     mantissa, suffix, unit = match.groups()
     if not _UNIT.fullmatch(unit):
         return None
-    scale = SUFFIXES[suffix.lower()] if suffix else 1.0
-    return float(mantissa) * scale
+    if not suffix:
+        return float(mantissa)
+    return float(Decimal(mantissa).scaleb(SUFFIXES[suffix.lower()]))
 
 
 class Env:
     """A scope of named values (floats or arrays) with a parent scope to fall back on."""
 
-    __slots__ = ("vars", "parent")
+    __slots__ = ("parent", "vars")
 
     def __init__(self, vars: dict[str, object] | None = None, parent: Env | None = None) -> None:
         self.vars = vars if vars is not None else {}

@@ -41,8 +41,8 @@ def parse(text: str, filename: str) -> ast.Netlist:
     problems += builder.problems
     if problems:
         message, loc = min(problems, key=lambda p: (p[1].line, p[1].col))
-        raise NetlistError(message, loc, "a digit may not follow a scale suffix; "
-                           "write 1.5k for 1500")
+        raise NetlistError(message, loc, "a number may end in one scale suffix (t g meg k m "
+                           "u n p f) and unit letters, not digits: write 1.5k for 1500")
     statements = sorted([*fast.values(), *slow], key=lambda s: (s.loc.line, s.loc.col))
     return ast.Netlist(filename, _nest(statements, filename))
 

@@ -19,3 +19,7 @@ ALL += [export.export_cmd]
 from springc_cli import sim  # noqa: E402  (springc sim)
 
 ALL += [sim.sim_cmd]
+
+from springc_cli import export  # noqa: E402  (springc export --spice)
+
+ALL += [export.export_cmd]

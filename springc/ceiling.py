@@ -25,7 +25,6 @@ from __future__ import annotations
 import functools
 import time
 from collections.abc import Callable
-from functools import lru_cache
 
 import numba
 import numpy as np
@@ -151,9 +150,15 @@ def _report(n_dof, batch, precision, threads, n_pad, steps, seconds, flops_per_s
     flops_per_second = loop_flops * dof_steps / seconds
     itemsize = np.dtype(precision).itemsize
     return {
-        "n_dof": n_dof, "batch": batch, "precision": precision, "threads": threads,
-        "steps": steps, "seconds": seconds, "n_pad": n_pad,
-        "flops_per_dof_step": loop_flops, "flops_per_step_rated": float(flops_per_step),
+        "n_dof": n_dof,
+        "batch": batch,
+        "precision": precision,
+        "threads": threads,
+        "steps": steps,
+        "seconds": seconds,
+        "n_pad": n_pad,
+        "flops_per_dof_step": loop_flops,
+        "flops_per_step_rated": float(flops_per_step),
         "flops_per_second": flops_per_second,
         "bytes_per_second": bytes_per_dof_step(itemsize) * dof_steps / seconds,
         "dof_steps_per_second": dof_steps / seconds,
@@ -172,7 +177,7 @@ def _coefficients(dtype: type) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return coef, np.array(_RK4_C, dtype=dtype), np.array(_RK4_W, dtype=dtype)
 
 
-@lru_cache(maxsize=None)
+@functools.cache
 def _kernel(n_pad: int):
     """The ceiling loop with `n_pad` (a compile-time constant, so the chain is unrolled and the
     lane loop vectorised) padding FMAs per stage. Returns the jitted function."""

@@ -15,10 +15,12 @@ then B-sources (behavioural current sources) written in the position voltages; n
 differentiates them symbolically for its Newton iterations.
 
 Signals: `sin` and `gauss` become B-sources in `time`; `step`, `pwl`, `in(k)` and `wav(...)`
-become PWL current sources (ngspice places a breakpoint at every PWL corner). A sound file is
-written inline as one PWL point per sample, linear in between, which is the simulator's own
-interpolation; ngspice has no PWL-from-file input outside XSPICE, and an inline list keeps the
-exported circuit one self-contained file, at about 40 bytes per sample.
+become PWL current sources (ngspice places a breakpoint at every PWL corner). Sampled signals
+follow the simulator's conventions (`springc.sources`): resampled to the input grid 1/tstep,
+linear in between, zero after the end. They are written inline, one PWL point per sample:
+ngspice has no PWL-from-file input outside XSPICE's `filesource`, and an inline list keeps the
+exported circuit one self-contained file, at about 40 bytes per sample (1 s at 32 kHz: about 1.3 MB).
+`in(k)` signals are not part of a netlist: they must be bound at export (`SpiceOptions.inputs`).
 
 Initial conditions x0, v0 go into `.ic` (node voltages) and the inductors' `ic=` currents; the
 transient runs with `uic` so ngspice starts from them instead of an operating point.
@@ -31,23 +33,29 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from springc.audio import read_audio
+from springc.audio import load_audio, resample
 from springc.errors import NetlistError, SourceLoc
 from springc.ir import GROUND, FlatNetlist, Source
 
 # ngspice reads long PWL lists fine, but lines are folded for editors and diff tools.
 _POINTS_PER_LINE = 8
+# ngspice restarts its integration with a first-order step after every breakpoint, i.e. at
+# every sample of a sampled signal, and at reltol 1e-6 lets that cost about 1e-3 relative
+# error on an audio-driven filter; 1e-9 brings it to about 2e-5, at about 6 times the time.
+RELTOL = 1e-6
+RELTOL_SAMPLED = 1e-9
 
 
 @dataclass(frozen=True)
 class SpiceOptions:
     """How to export: the transient (defaults: the netlist's `.tran`), solver tolerances and
-    the signals bound to `in(k)` channels (channel -> (samples, sample rate))."""
+    the signals bound to `in(k)` channels (channel -> (samples, sample rate); resampled to the
+    input grid 1/tstep as the simulator does)."""
 
     tstop: float | None = None
     tstep: float | None = None
     tmax: float | None = None  # largest internal step; default tstep
-    reltol: float = 1e-6
+    reltol: float | None = None  # default: RELTOL, or RELTOL_SAMPLED with sampled signals
     method: str = "trap"
     inputs: dict[int, tuple[np.ndarray, float]] = field(default_factory=dict)
     control: bool = True  # append a .control block that runs and writes the probes
@@ -86,6 +94,14 @@ def transient(net: FlatNetlist, options: SpiceOptions) -> tuple[float, float, fl
     return float(tstep), float(tstop), float(tmax)
 
 
+def reltol(net: FlatNetlist, options: SpiceOptions) -> float:
+    """ngspice's relative tolerance: as given, else tighter when sampled signals drive `net`."""
+    if options.reltol is not None:
+        return options.reltol
+    sampled = any(s.kind in ("in", "wav") for s in net.forces.source)
+    return RELTOL_SAMPLED if sampled else RELTOL
+
+
 def export_spice(net: FlatNetlist, options: SpiceOptions | None = None) -> str:
     """The ngspice netlist of `net` (text). Raises NetlistError, located at the element, for
     what cannot be exported (an `in(k)` channel without a signal bound to it)."""
@@ -97,9 +113,9 @@ def export_spice(net: FlatNetlist, options: SpiceOptions | None = None) -> str:
     lines += _position_integrators(pos)
     lines += _linear_elements(net)
     lines += _nonlinear_elements(net)
-    lines += _forces(net, options, tstop)
+    lines += _forces(net, options, 1.0 / tstep)
     lines += _initial_conditions(net, pos)
-    lines.append(f".options method={options.method} reltol={_num(options.reltol)}")
+    lines.append(f".options method={options.method} reltol={_num(reltol(net, options))}")
     lines.append(f".tran {_num(tstep)} {_num(tstop)} 0 {_num(tmax)} uic")
     if options.control:
         lines += control_block(list(probe_vectors(net).values()), options.data_file)
@@ -255,17 +271,27 @@ def _monomials(net: FlatNetlist) -> list[str]:
     return lines
 
 
-def _forces(net: FlatNetlist, options: SpiceOptions, tstop: float) -> list[str]:
+def _forces(net: FlatNetlist, options: SpiceOptions, grid_rate: float) -> list[str]:
     f, lines = net.forces, ["", "* external forces (current sources)"]
     for e in range(len(f)):
         lines.append(_comment("F", f.names[e], f.locs[e]))
-        lines += _force(e, int(f.node[e]), f.gain[e], f.source[e], f.locs[e], options)
+        signal = _Signal(f.source[e], f.gain[e], f.locs[e], grid_rate)
+        lines += _force(e, int(f.node[e]), signal, options)
     return lines
 
 
-def _force(
-    e: int, node: int, gain: float, src: Source, loc: SourceLoc, options: SpiceOptions
-) -> list[str]:
+@dataclass(frozen=True)
+class _Signal:
+    """One force's source with its gain, location and the input grid rate 1/tstep."""
+
+    src: Source
+    gain: float
+    loc: SourceLoc
+    grid_rate: float
+
+
+def _force(e: int, node: int, sig: _Signal, options: SpiceOptions) -> list[str]:
+    src, gain = sig.src, sig.gain
     match src.kind:
         case "sin":
             amp, freq, phase = (tuple(src.args) + (0.0,))[:3]
@@ -283,10 +309,12 @@ def _force(
             ts, vs = _pwl_from_zero(np.array(src.args[0::2]), np.array(src.args[1::2]))
             return _pwl_source(e, node, ts, gain * vs)
         case "in":
-            samples, rate = _bound_input(src.channel, loc, options)
-            return _pwl_source(e, node, *_sampled(samples, rate, gain))
+            samples, rate = _bound_input(src.channel, sig.loc, options)
+            samples = resample(samples, rate, sig.grid_rate)
+            return _pwl_source(e, node, *_sampled(samples, sig.grid_rate, gain))
         case "wav":
-            return _pwl_source(e, node, *_sampled(*read_audio(src.path), gain))
+            samples = load_audio(src.path, sig.grid_rate, 0)  # channel 0, as the simulator
+            return _pwl_source(e, node, *_sampled(samples, sig.grid_rate, gain))
         case _:
             raise TypeError(f"unknown source kind {src.kind!r}")
 
@@ -317,8 +345,11 @@ def _pwl_from_zero(ts: np.ndarray, vs: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 
 def _pwl_source(e: int, node: int, ts: np.ndarray, vs: np.ndarray) -> list[str]:
-    pairs = [f"{_num(t)} {_num(v)}" for t, v in zip(ts, vs)]
-    rows = [" ".join(pairs[k : k + _POINTS_PER_LINE]) for k in range(0, len(pairs), _POINTS_PER_LINE)]
+    # 12 significant digits: far below the integrator's error, and a third shorter than repr
+    pairs = [f"{t:.12g} {v:.12g}" for t, v in zip(ts.tolist(), vs.tolist())]
+    rows = [
+        " ".join(pairs[k : k + _POINTS_PER_LINE]) for k in range(0, len(pairs), _POINTS_PER_LINE)
+    ]
     head = f"If{e} 0 {velocity_node(node)} PWL({rows[0]}"
     return [head] + [f"+ {row}" for row in rows[1:]] + ["+ )"]
 

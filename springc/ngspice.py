@@ -27,8 +27,10 @@ from springc.ir import FlatNetlist
 
 _DATA_FILE = "probes.txt"
 # Lines that end the circuit or run it; run_ngspice supplies its own.
-_CONTROL = re.compile(r"^\s*\.control\b.*?^\s*\.endc\b[^\n]*\n?", re.I | re.M | re.S)
-_TRAN_OR_END = re.compile(r"^\s*\.(tran|end)\b[^\n]*\n?", re.I | re.M)
+_CONTROL = re.compile(
+    r"^\s*\.control\b.*?^\s*\.endc\b[^\n]*\n?", re.IGNORECASE | re.MULTILINE | re.DOTALL
+)
+_TRAN_OR_END = re.compile(r"^\s*\.(tran|end)\b[^\n]*\n?", re.IGNORECASE | re.MULTILINE)
 
 
 def ngspice_path() -> str:
@@ -84,7 +86,11 @@ def _with_control(text: str, tstop: float, tstep: float, tmax: float, vectors: l
 def _run(exe: str, folder: Path, timeout: float) -> str:
     try:
         proc = subprocess.run(
-            [exe, "-b", "circuit.cir"], cwd=folder, capture_output=True, text=True,
+            [exe, "-b", "circuit.cir"],
+            check=False,
+            cwd=folder,
+            capture_output=True,
+            text=True,
             timeout=timeout,
         )
     except subprocess.TimeoutExpired:

@@ -1,0 +1,80 @@
+"""`springc export --spice`: a netlist as an ngspice circuit (force-current analogy), for
+cross-checks with the most trusted circuit simulator."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import click
+from springc_cli.common import run_user_errors
+
+from springc import sources
+from springc.design.emit import write_atomic
+from springc.errors import UsageError
+from springc.export_spice import SpiceOptions, export_spice, transient
+from springc.ir import FlatNetlist
+
+
+@click.command("export")
+@click.argument("netlist", type=click.Path(dir_okay=False))
+@click.option("--spice", "spice", is_flag=True, help="Write an ngspice circuit (the only format).")
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(dir_okay=False),
+    required=True,
+    help="Circuit file to write (e.g. out.cir); written atomically.",
+)
+@click.option("--tstep", type=float, default=None, help="Output step, s (default: .tran).")
+@click.option("--tstop", type=float, default=None, help="Stop time, s (default: .tran).")
+@click.option(
+    "--tmax",
+    type=float,
+    default=None,
+    help="Largest internal step of ngspice, s (default: the output step).",
+)
+@click.option(
+    "--reltol",
+    type=float,
+    default=None,
+    help="ngspice's relative tolerance (default 1e-6; 1e-9 with sampled inputs, which make "
+    "ngspice restart its integration at every sample).",
+)
+@click.option(
+    "--input",
+    "input_path",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Sound file whose channel k feeds in(k) (resampled to 1/tstep, inlined).",
+)
+@click.option(
+    "--channel", type=int, default=None, help="Feed in(0) from this channel of --input instead."
+)
+@run_user_errors
+def export_cmd(netlist, spice, output, tstep, tstop, tmax, reltol, input_path, channel) -> None:
+    """Export NETLIST (.spr) to another simulator's format; with --spice, an ngspice circuit:
+    velocities are node voltages, masses capacitors, springs inductors, dampers resistors,
+    nonlinear forces B-sources. Run it with `ngspice -b OUT`; probes go to springc_probes.txt."""
+    if not spice:
+        raise UsageError("choose the output format: --spice (ngspice) is the one available")
+    from springc.lang import load_file
+
+    net = load_file(netlist)
+    options = SpiceOptions(tstop=tstop, tstep=tstep, tmax=tmax, reltol=reltol)
+    options = _bind_inputs(net, options, input_path, channel)
+    write_atomic(output, export_spice(net, options))
+    click.echo(f"wrote {output}", err=True)
+
+
+def _bind_inputs(
+    net: FlatNetlist, options: SpiceOptions, path: str | None, channel: int | None
+) -> SpiceOptions:
+    """The options with the --input file's channels bound to in(k), read as `springc sim`
+    reads them (one run)."""
+    if path is None:
+        return options
+    tstep, _, _ = transient(net, options)
+    rate = 1.0 / tstep
+    signals = sources.read_inputs([Path(path)], rate, sources.channels_used(net), channel)[0]
+    return replace(options, inputs={k: (sig, rate) for k, sig in enumerate(signals)})

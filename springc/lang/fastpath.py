@@ -146,7 +146,7 @@ def _number(text: str, loc: SourceLoc, problems: list) -> ast.Num:
     value = read_number(text)
     if value is None:
         problems.append((f"malformed number '{text}'", loc))
-        value = float("nan")
+        value = 0.0  # never used: parse() raises the problem
     return ast.Num(value, text, loc)
 
 

@@ -128,7 +128,7 @@ class _ToAst(Transformer):
         loc = self._loc(token)
         if value is None:
             self.problems.append((f"malformed number '{token}'", loc))
-            value = float("nan")
+            value = 0.0  # never used: parse() raises the problem
         return ast.Num(value, str(token), loc)
 
     def string(self, token: Token) -> ast.Str:

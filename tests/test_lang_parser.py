@@ -35,7 +35,7 @@ def test_continuation_keeps_line_and_column() -> None:
     stmt = _one("M1 a m=1\n* comment inside\n\n+   b=2 ; trailing\n  + x0={x}\n")
     assert [a.key for a in stmt.args[1:]] == ["m", "b", "x0"]
     assert (stmt.args[2].loc.line, stmt.args[2].loc.col) == (4, 5)
-    assert (stmt.args[3].value.loc.line, stmt.args[3].value.loc.col) == (5, 9)
+    assert (stmt.args[3].value.loc.line, stmt.args[3].value.loc.col) == (5, 8)
 
 
 def test_comments_and_end() -> None:
@@ -62,6 +62,7 @@ def test_title_takes_the_rest_of_the_line() -> None:
 def test_argument_kinds() -> None:
     stmt = _one('F1 a sin(1, 50Hz {p}) gain=-2k wav("x.wav") in\n')
     node, call, gain, wav, bare = stmt.args
+    assert node.parts == ("a",)
     assert isinstance(call, ast.CallArg) and call.name == "sin" and len(call.args) == 3
     assert call.args[1].value == 50.0 and call.args[1].text == "50Hz"
     assert gain.value.value == -2000.0

@@ -137,7 +137,7 @@ class _Line:
                 return ast.Str(text[1:-1], self.loc(col))
             case "brace":
                 expr = _Expr(_tokens(_EXPR_TOKEN, text[1:-1], col), self).parse()
-                return ast.Brace(expr, expr.loc)
+                return ast.Brace(expr, self.loc(col))
             case _:
                 raise _Bail
 

@@ -134,8 +134,8 @@ class _ToAst(Transformer):
     def string(self, token: Token) -> ast.Str:
         return ast.Str(token[1:-1], self._loc(token))
 
-    def brace(self, expr) -> ast.Brace:
-        return ast.Brace(expr, expr.loc)
+    def brace(self, lbrace: Token, expr) -> ast.Brace:
+        return ast.Brace(expr, self._loc(lbrace))
 
     def word(self, token: Token) -> ast.Word:
         return ast.Word((str(token),), self._loc(token))
@@ -262,7 +262,7 @@ _READABLE = {
     "STRING": "a quoted string", "DIRECTIVE": "a directive", "TITLE": ".title",
     "_NL": "end of line", "$END": "end of file", "COMPARE": "a comparison",
     "ADD_OP": "'+' or '-'", "MUL_OP": "'*' or '/'", "POW": "'**'", "RBRACE": "'}'",
-    "CLOSE_MORE": "'}'", "CLOSE_END": "'}'",
+    "CLOSE_MORE": "'}'", "CLOSE_END": "'}'", "LBRACE": "'{'",
 }
 
 

@@ -8,6 +8,10 @@ from springc_cli import design  # noqa: E402  (springc design ...)
 
 ALL += design.COMMANDS
 
+from springc_cli import figures  # noqa: E402  (springc figures OUTDIR)
+
+ALL += figures.COMMANDS
+
 from springc_cli import kws  # noqa: E402  (springc train, springc eval)
 
 ALL += [kws.train_cmd, kws.eval_cmd]

@@ -14,6 +14,8 @@ import textwrap
 from collections.abc import Iterable
 from pathlib import Path
 
+import numpy as np
+
 from springc.errors import DataError
 
 WIDTH = 100
@@ -24,13 +26,12 @@ def num(value: float) -> str:
     v = float(value)
     if not math.isfinite(v):
         raise ValueError(f"cannot write the non-finite number {v} into a netlist")
-    if v == int(v) and abs(v) < 1e15:
-        return str(int(v))
-    text = repr(v)
-    if "e" not in text:
-        return text
-    mantissa, exp = text.split("e")
-    return f"{mantissa}e{int(exp)}"
+    plain = repr(v).removesuffix(".0")
+    mantissa, _, exp = np.format_float_scientific(v, unique=True, trim="-").partition("e")
+    sci = f"{mantissa}e{int(exp)}"
+    if "e" in plain:  # repr's own exponent form: write it in the same style
+        plain = sci
+    return plain if len(plain) <= len(sci) + 1 else sci  # 1000 reads better than 1e3
 
 
 class SprWriter:

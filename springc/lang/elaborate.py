@@ -291,8 +291,9 @@ class _Elaborator:
 
     def _text(self, word: ast.Word, env: Env) -> str:
         """The name `word` spells, with its `{expr}` interpolations evaluated."""
-        if word.plain:
-            return word.parts[0]
+        parts = word.parts
+        if len(parts) == 1 and parts[0].__class__ is str:
+            return parts[0]
         out = []
         for part in word.parts:
             if isinstance(part, str):

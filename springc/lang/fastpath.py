@@ -40,23 +40,30 @@ def statement(line: str, lineno: int, file: str, problems: list) -> ast.Statemen
     appended to `problems` as (message, loc), as the lark transformer does."""
     try:
         tokens = _tokens(_LINE_TOKEN, line, 0)
+        if not tokens:
+            return None
         return _Line(tokens, lineno, file, problems).statement()
     except _Bail:
         return None
 
 
+_END = ("end", "", 0)  # sentinel after the last token, so look-ahead needs no bounds checks
+
+
 def _tokens(pattern: re.Pattern, text: str, offset: int) -> list[tuple[str, str, int]]:
-    """(kind, text, 1-based column) of every token; _Bail on anything else."""
+    """(kind, text, 1-based column) of every token, then `_END`; _Bail on anything else."""
     out, pos, end = [], 0, len(text.rstrip())
     while pos < end:
         match = pattern.match(text, pos)
         if match is None:
             raise _Bail
         kind = match.lastgroup
-        if kind == "brace" and _GLUED.match(text, match.end()):
+        pos = match.end()
+        if kind == "brace" and _GLUED.match(text, pos):
             raise _Bail  # `{a}b`, `{a}{b}`: lark reads these as (bad) interpolated names
         out.append((kind, match.group(kind), match.start(kind) + 1 + offset))
-        pos = match.end()
+    if out:
+        out.append(_END)
     return out
 
 
@@ -70,57 +77,50 @@ class _Line:
     def loc(self, col: int) -> SourceLoc:
         return SourceLoc(self.file, self.lineno, col)
 
-    def peek(self, k: int = 0) -> tuple[str, str, int] | None:
-        j = self.i + k
-        return self.tokens[j] if j < len(self.tokens) else None
-
     def take(self) -> tuple[str, str, int]:
-        token = self.peek()
-        if token is None:
+        token = self.tokens[self.i]
+        if token is _END:
             raise _Bail
         self.i += 1
         return token
 
-    def statement(self) -> ast.Statement | None:
-        if not self.tokens:
-            return None
+    def statement(self) -> ast.Statement:
         kind, text, col = self.take()
         args = []
-        while self.peek() is not None:
+        while self.tokens[self.i] is not _END:
             args.append(self.arg())
+        loc = SourceLoc(self.file, self.lineno, col)
         if kind == "name":
-            name = ast.Word((text,), self.loc(col))
-            return ast.Element(name, tuple(args), name.loc)
+            return ast.Element(ast.Word((text,), loc), tuple(args), loc)
         if kind == "dir" and text.lower() != ".title":
-            return ast.Directive(text[1:].lower(), tuple(args), self.loc(col))
+            return ast.Directive(text[1:].lower(), tuple(args), loc)
         raise _Bail
 
     def arg(self):
-        kind, text, col = self.peek()
-        after = self.peek(1)
-        if kind == "name" and after is not None and after[0] == "op":
-            if after[1] == "=":
+        kind, text, col = self.tokens[self.i]
+        after = self.tokens[self.i + 1]
+        if kind == "name" and after[0] == "op":
+            op = after[1]
+            if op == "=":
                 self.i += 2
-                return ast.Keyword(text, self.value(), self.loc(col))
-            if after[1] == "(":
+                return ast.Keyword(text, self.value(), SourceLoc(self.file, self.lineno, col))
+            if op == "(":
                 self.i += 2
-                return ast.CallArg(text, self.call_args(), self.loc(col))
-            if after[1] == "^":
+                return ast.CallArg(text, self.call_args(), SourceLoc(self.file, self.lineno, col))
+            if op == "^":
                 self.i += 2
-                node = ast.Word((text,), self.loc(col))
+                node = ast.Word((text,), SourceLoc(self.file, self.lineno, col))
                 return ast.Factor(node, self.value(), node.loc)
         return self.value()
 
     def call_args(self) -> tuple:
         args: list = []
         while True:
-            token = self.peek()
-            if token is None:
-                raise _Bail
-            if token[1] == ")" and token[0] == "op":
+            kind, text, _ = self.tokens[self.i]
+            if kind == "op" and text == ")":
                 self.i += 1
                 return tuple(args)
-            if token[1] == "," and token[0] == "op":
+            if kind == "op" and text == ",":
                 if not args:
                     raise _Bail
                 self.i += 1
@@ -128,18 +128,17 @@ class _Line:
 
     def value(self) -> ast.Value:
         kind, text, col = self.take()
-        match kind:
-            case "num":
-                return _number(text, self.loc(col), self.problems)
-            case "name":
-                return ast.Word((text,), self.loc(col))
-            case "str":
-                return ast.Str(text[1:-1], self.loc(col))
-            case "brace":
-                expr = _Expr(_tokens(_EXPR_TOKEN, text[1:-1], col), self).parse()
-                return ast.Brace(expr, self.loc(col))
-            case _:
-                raise _Bail
+        loc = SourceLoc(self.file, self.lineno, col)
+        if kind == "num":
+            return _number(text, loc, self.problems)
+        if kind == "name":
+            return ast.Word((text,), loc)
+        if kind == "brace":
+            expr = _Expr(_tokens(_EXPR_TOKEN, text[1:-1], col), self).parse()
+            return ast.Brace(expr, loc)
+        if kind == "str":
+            return ast.Str(text[1:-1], loc)
+        raise _Bail
 
 
 def _number(text: str, loc: SourceLoc, problems: list) -> ast.Num:
@@ -157,21 +156,23 @@ class _Expr:
         self.tokens, self.i, self.line = tokens, 0, line
 
     def parse(self) -> ast.Expr:
+        if not self.tokens:
+            raise _Bail  # `{}`
         expr = self.compare()
-        if self.i != len(self.tokens):
+        if self.tokens[self.i] is not _END:
             raise _Bail
         return expr
 
     def peek_op(self) -> str | None:
-        if self.i < len(self.tokens) and self.tokens[self.i][0] == "op":
-            return self.tokens[self.i][1]
-        return None
+        kind, text, _ = self.tokens[self.i]
+        return text if kind == "op" else None
 
     def take(self) -> tuple[str, str, int]:
-        if self.i >= len(self.tokens):
+        token = self.tokens[self.i]
+        if token is _END:
             raise _Bail
         self.i += 1
-        return self.tokens[self.i - 1]
+        return token
 
     def compare(self) -> ast.Expr:
         left = self.sum()

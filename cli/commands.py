@@ -27,3 +27,7 @@ ALL += [sim.sim_cmd]
 from springc_cli import export  # noqa: E402  (springc export --spice)
 
 ALL += [export.export_cmd]
+
+from springc_cli import data  # noqa: E402  (springc data synth, springc data info)
+
+ALL += data.COMMANDS

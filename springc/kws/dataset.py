@@ -247,9 +247,10 @@ def folder_audio(folder: Path, problems: list[str]) -> list[tuple[Path, str | No
 
 def word_clips(root: Path, problems: list[str]) -> list[Clip]:
     """Every usable recording under the word folders, with its split."""
+    folders = word_folders(root)
     where = held_out(root, problems)
     clips = []
-    for folder in word_folders(root):
+    for folder in folders:
         for path, _ in folder_audio(folder, problems):
             split = where.get(f"{folder.name}/{path.name}", "train")
             clips.append(Clip(path, folder.name, label_of(folder.name), split,

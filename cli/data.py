@@ -1,0 +1,95 @@
+"""`springc data synth` and `springc data info`: the offline speech corpus and a look at any
+GSCD-layout data set."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import click
+
+from springc.kws.dataset import CLASSES, SPLITS, WORDS
+from springc_cli.common import plot_option, run_user_errors
+
+
+@click.group("data")
+def data_group() -> None:
+    """Speech data for keyword spotting (GSCD layout)."""
+
+
+@data_group.command("synth")
+@click.argument("out", type=click.Path(path_type=Path))
+@click.option("--clips", "-n", default=2400, show_default=True, help="Clips to synthesise.")
+@click.option("--seed", default=0, show_default=True, help="Seed of every random choice.")
+@click.option("--jobs", "-j", default=0, help="Worker processes (0: all cores).")
+@click.option("--words", default=None,
+              help="Comma-separated subset of the 35 GSCD words (default: all).")
+@run_user_errors
+def synth_cmd(out: Path, clips: int, seed: int, jobs: int, words: str | None) -> None:
+    """Write a GSCD-layout corpus into the new folder OUT from the installed text-to-speech
+    engines (espeak-ng, flite, festival), with speaker-disjoint splits and background noise."""
+    from springc.kws.synth import synthesise
+
+    chosen = tuple(w.strip() for w in words.split(",") if w.strip()) if words else WORDS
+    report = synthesise(out, clips=clips, seed=seed, jobs=jobs or os.cpu_count() or 1,
+                        words=chosen)
+    splits = ", ".join(f"{s} {report.per_split.get(s, 0)}" for s in SPLITS)
+    click.echo(f"{report.clips} clips ({splits}) from {report.voices} voices of "
+               f"{report.speakers} speakers; noise files: {', '.join(report.noise_files)}")
+    click.echo(f"corpus written to {report.out}")
+
+
+@data_group.command("info")
+@click.argument("folder", type=click.Path(path_type=Path))
+@click.option("--silence", default=0.1, show_default=True,
+              help="Silence clips per split, as a fraction of its word clips.")
+@plot_option
+@run_user_errors
+def info_cmd(folder: Path, silence: float, plot_path: str | None) -> None:
+    """Count the clips of a GSCD-layout data set per split and label; list bad files."""
+    from springc.kws.dataset import open_dataset
+
+    ds = open_dataset(folder, silence_per_split=silence)
+    click.echo(counts_table(ds.counts()))
+    speakers = {s: len({c.speaker for c in ds.split(s) if c.label != "_silence_"})
+                for s in SPLITS}
+    click.echo("speakers: " + ", ".join(f"{s} {n}" for s, n in speakers.items()))
+    click.echo(f"noise files: {len(ds.noise_files)}; problems: {len(ds.problems)}")
+    if plot_path:
+        plot_counts(ds.counts(), Path(plot_path))
+        click.echo(f"plot written to {plot_path}")
+
+
+def counts_table(counts: dict[str, dict[str, int]]) -> str:
+    """A text table: one row per label, one column per split, totals last."""
+    width = max(map(len, CLASSES + ("total",)))
+    lines = [f"{'label':<{width}}" + "".join(f"{s:>12}" for s in SPLITS)]
+    for label in CLASSES:
+        lines.append(f"{label:<{width}}" + "".join(f"{counts[s][label]:>12}" for s in SPLITS))
+    lines.append(f"{'total':<{width}}" + "".join(f"{sum(counts[s].values()):>12}" for s in SPLITS))
+    return "\n".join(lines)
+
+
+def plot_counts(counts: dict[str, dict[str, int]], path: Path) -> None:
+    """A grouped bar chart of clips per label and split (PNG, written atomically)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    fig, ax = plt.subplots(figsize=(10, 4))
+    x = np.arange(len(CLASSES))
+    for k, split in enumerate(SPLITS):
+        ax.bar(x + (k - 1) * 0.27, [counts[split][c] for c in CLASSES], 0.27, label=split)
+    ax.set_xticks(x, CLASSES, rotation=45, ha="right")
+    ax.set_ylabel("clips")
+    ax.legend()
+    fig.tight_layout()
+    tmp = path.with_name(path.name + ".tmp.png")
+    fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+COMMANDS = [data_group]

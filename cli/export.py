@@ -7,13 +7,14 @@ from dataclasses import replace
 from pathlib import Path
 
 import click
-from springc_cli.common import run_user_errors
+from springc_cli.common import plot_option, run_user_errors
 
 from springc import sources
 from springc.design.emit import write_atomic
 from springc.errors import UsageError
 from springc.export_spice import SpiceOptions, export_spice, transient
 from springc.ir import FlatNetlist
+from springc.ngspice import CrossCheck, cross_check, plot_cross_check
 
 
 @click.command("export")
@@ -51,8 +52,29 @@ from springc.ir import FlatNetlist
 @click.option(
     "--channel", type=int, default=None, help="Feed in(0) from this channel of --input instead."
 )
+@click.option(
+    "--compare",
+    is_flag=True,
+    help="Also run the circuit in ngspice and the netlist in springc, and print the relative "
+    "L2 difference of every probe and both wall times.",
+)
+@click.option("--substeps", type=int, default=None, help="springc substeps for --compare.")
+@plot_option
 @run_user_errors
-def export_cmd(netlist, spice, output, tstep, tstop, tmax, reltol, input_path, channel) -> None:
+def export_cmd(
+    netlist,
+    spice,
+    output,
+    tstep,
+    tstop,
+    tmax,
+    reltol,
+    input_path,
+    channel,
+    compare,
+    substeps,
+    plot_path,
+) -> None:
     """Export NETLIST (.spr) to another simulator's format; with --spice, an ngspice circuit:
     velocities are node voltages, masses capacitors, springs inductors, dampers resistors,
     nonlinear forces B-sources. Run it with `ngspice -b OUT`; probes go to springc_probes.txt."""
@@ -65,6 +87,25 @@ def export_cmd(netlist, spice, output, tstep, tstop, tmax, reltol, input_path, c
     options = _bind_inputs(net, options, input_path, channel)
     write_atomic(output, export_spice(net, options))
     click.echo(f"wrote {output}", err=True)
+    if plot_path and not compare:
+        raise UsageError("--plot shows the comparison: add --compare")
+    if compare:
+        check = cross_check(net, options, substeps)
+        click.echo(_summary(check))
+        if plot_path:
+            plot_cross_check(check, plot_path)
+            click.echo(f"wrote {plot_path}", err=True)
+
+
+def _summary(check: CrossCheck) -> str:
+    """Per-probe differences and the two simulators' speeds, one line each."""
+    lines = [
+        f"{label}: relative L2 difference springc vs ngspice {err:.2e}"
+        for label, err in check.errors.items()
+    ]
+    for name, seconds in (("ngspice", check.ngspice_seconds), ("springc", check.springc_seconds)):
+        lines.append(f"{name}: {seconds:.3f} s wall, {seconds / check.tstop:.3g} s per simulated s")
+    return "\n".join(lines)
 
 
 def _bind_inputs(

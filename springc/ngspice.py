@@ -11,11 +11,14 @@ import re
 import shutil
 import subprocess
 import tempfile
+import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from springc.errors import SimulationError
+from springc.audio import resample
+from springc.errors import SimulationError, UsageError
 from springc.export_spice import (
     SpiceOptions,
     control_block,
@@ -75,6 +78,100 @@ def simulate_ngspice(
     options = options or SpiceOptions()
     tstep, tstop, tmax = transient(net, options)
     return run_ngspice(export_spice(net, options), tstop, tstep, probe_vectors(net), tmax)
+
+
+@dataclass
+class CrossCheck:
+    """springc's simulator against ngspice on one exported network (one run).
+
+    `t` and `springc[label]` are springc's output grid; `ngspice[label]` is ngspice's trace
+    interpolated onto it (its own steps are finer than the grid); `errors[label]` is the
+    relative L2 difference; `*_seconds` are wall times (springc's includes compilation unless
+    its kernel cache is warm) and `tstop` the simulated time."""
+
+    t: np.ndarray
+    springc: dict[str, np.ndarray]
+    ngspice: dict[str, np.ndarray]
+    errors: dict[str, float]
+    springc_seconds: float
+    ngspice_seconds: float
+    tstop: float
+
+
+def cross_check(net: FlatNetlist, options: SpiceOptions, substeps: int | None = None) -> CrossCheck:
+    """Simulate `net` with springc (RK4 unless its options say otherwise, `substeps` per
+    output step) and with ngspice, from the same inputs, and compare every probe."""
+    from springc.simulate import simulate  # the simulator is heavy: import on use
+
+    if not net.probes:
+        raise UsageError("nothing to compare: the netlist has no .probe")
+    tstep, tstop, _ = transient(net, options)
+    start = time.perf_counter()
+    t_ng, traces = simulate_ngspice(net, options)
+    ngspice_seconds = time.perf_counter() - start
+    start = time.perf_counter()
+    res = simulate(
+        net,
+        _input_array(options, 1 / tstep),
+        1 / tstep,
+        tstep=tstep,
+        tstop=tstop,
+        substeps=substeps,
+    )
+    springc_seconds = time.perf_counter() - start
+    ours = {label: res.probes[label][0] for label in traces}
+    theirs = {label: np.interp(res.t, t_ng, trace) for label, trace in traces.items()}
+    errors = {label: _rel_l2(ours[label], theirs[label]) for label in traces}
+    return CrossCheck(res.t, ours, theirs, errors, springc_seconds, ngspice_seconds, tstop)
+
+
+def plot_cross_check(check: CrossCheck, path: str | Path) -> None:
+    """PNG: every probe from both simulators, and their difference, against time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from springc.results import atomic_path
+
+    labels = list(check.errors)
+    fig, axes = plt.subplots(
+        len(labels), 2, sharex=True, squeeze=False, figsize=(11, 1.8 + 1.8 * len(labels))
+    )
+    for row, label in zip(axes, labels):
+        row[0].plot(check.t, check.ngspice[label], lw=1.6, color="0.7", label="ngspice")
+        row[0].plot(check.t, check.springc[label], lw=0.7, color="C0", label="springc")
+        row[0].set_ylabel(label)
+        row[1].plot(check.t, check.springc[label] - check.ngspice[label], lw=0.7, color="C3")
+        row[1].set_title(
+            f"springc - ngspice (relative L2 {check.errors[label]:.1e})", fontsize="small"
+        )
+    axes[0, 0].legend(fontsize="small", loc="upper right")
+    for ax in axes[-1]:
+        ax.set_xlabel("t (s)")
+    fig.tight_layout()
+    with atomic_path(path, ".png") as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+
+def _input_array(options: SpiceOptions, rate: float) -> np.ndarray | None:
+    """The bound in(k) signals as springc's (1, channels, samples) input array at `rate`."""
+    if not options.inputs:
+        return None
+    channels = max(options.inputs) + 1
+    rows = [np.zeros(1)] * channels
+    for k, (samples, rate_in) in options.inputs.items():
+        rows[k] = resample(np.asarray(samples, dtype=np.float64), rate_in, rate)
+    out = np.zeros((1, channels, max(len(r) for r in rows)))
+    for k, row in enumerate(rows):
+        out[0, k, : len(row)] = row
+    return out
+
+
+def _rel_l2(got: np.ndarray, want: np.ndarray) -> float:
+    norm = float(np.linalg.norm(want))
+    return float(np.linalg.norm(got - want)) / norm if norm > 0 else float(np.linalg.norm(got))
 
 
 def _with_control(text: str, tstop: float, tstep: float, tmax: float, vectors: list[str]) -> str:

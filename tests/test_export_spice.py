@@ -23,7 +23,8 @@ from springc.audio import load_audio
 from springc.errors import NetlistError, SimulationError, SourceLoc
 from springc.export_spice import SpiceOptions, export_spice, probe_vectors
 from springc.ir import FlatNetlist, IRBuilder, Source, Tran
-from springc.ngspice import run_ngspice, simulate_ngspice
+from springc.lang import load_text
+from springc.ngspice import cross_check, plot_cross_check, run_ngspice, simulate_ngspice
 from springc.sources import analytic
 
 needs_ngspice = pytest.mark.skipif(
@@ -358,9 +359,27 @@ def test_cli_export_writes_a_circuit_that_ngspice_runs(tmp_path):
     spr, wav = cli_case(tmp_path)
     out = tmp_path / "bp.cir"
     res = CliRunner().invoke(
-        main, ["export", "--spice", str(spr), "-o", str(out), "--input", str(wav)]
+        main,
+        [
+            "export",
+            "--spice",
+            str(spr),
+            "-o",
+            str(out),
+            "--input",
+            str(wav),
+            "--compare",
+            "--substeps",
+            "4",
+        ],
     )
     assert res.exit_code == 0, res.output
+    # the file's 320 samples at 16 kHz end at 0.02 s: springc and ngspice see the same signal
+    for label in ("x(xa)", "x(xb)"):
+        diff = re.search(
+            rf"{re.escape(label)}: relative L2 difference .* ([0-9.e+-]+)\n", res.output
+        )
+        assert diff and float(diff.group(1)) < 1e-4, res.output
     run = subprocess.run(
         ["ngspice", "-b", out.name], cwd=tmp_path, capture_output=True, check=False
     )
@@ -392,3 +411,22 @@ def test_cli_requires_a_format(tmp_path):
     res = CliRunner().invoke(main, ["export", str(spr), "-o", str(tmp_path / "x.cir")])
     assert res.exit_code == 1
     assert "--spice" in res.output
+
+
+@needs_ngspice
+def test_springc_simulator_agrees_with_ngspice_on_an_audio_driven_filter(tmp_path):
+    """The cross-check the export is for: the two-mode band-pass filter of the language spec
+    driven by noise through in(0), springc's RK4 kernel (4 substeps) against ngspice."""
+    net = load_text(SPR, "bp.spr")
+    rate = 1 / net.tran.tstep
+    signal = np.random.default_rng(0).normal(0, 0.1, int(0.02 * rate))
+    check = cross_check(net, SpiceOptions(inputs={0: (signal, rate)}), substeps=4)
+    assert check.t[-1] == pytest.approx(0.02) and len(check.t) == 641
+    for label in ("x(xa)", "x(xb)"):
+        assert check.errors[label] == pytest.approx(
+            rel_l2(check.springc[label], check.ngspice[label])
+        )
+        assert check.errors[label] < 1e-4, label  # measured 1.2e-5 and 2.5e-5
+    assert check.springc_seconds > 0 and check.ngspice_seconds > 0
+    plot_cross_check(check, tmp_path / "check.png")
+    assert (tmp_path / "check.png").read_bytes()[:4] == b"\x89PNG"

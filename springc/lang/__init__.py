@@ -9,7 +9,8 @@ from pathlib import Path
 
 from springc.errors import NetlistError
 from springc.ir import FlatNetlist
-from springc.lang.elaborate import STDLIB_DIR, elaborate, search_dirs
+from springc.lang.elaborate import elaborate
+from springc.lang.files import STDLIB_DIR, search_dirs
 from springc.lang.parser import parse
 
 __all__ = ["STDLIB_DIR", "elaborate", "load_file", "load_text", "parse", "search_dirs"]

@@ -226,3 +226,54 @@ def _index(name: str, indices: list[float], env: Env, loc: SourceLoc) -> float:
             raise NetlistError(f"index {i:g} out of range for axis {axis} of '{name}' "
                                f"(size {size}, indices 0..{size - 1})", loc)
     return float(array[tuple(int(i) for i in indices)])
+
+
+# --- values of arguments (a number, a parameter name or a brace expression) ---------------
+
+
+def value(arg: ast.Value, env: Env) -> float:
+    """The number an argument stands for: a literal, a parameter or a `{...}` expression."""
+    match arg:
+        case ast.Num(value=number):
+            return number
+        case ast.Brace(expr=expr):
+            return scalar(expr, env)
+        case ast.Word():
+            name = name_text(arg, env)
+            found = env.lookup(name)
+            if found is None:
+                raise undefined(name, arg.loc, env)
+            if isinstance(found, np.ndarray):
+                raise NetlistError(f"'{name}' is an array", arg.loc,
+                                   f"index it in braces, e.g. {{{name}[0]}}")
+            return found
+        case ast.Str():
+            raise NetlistError(f"expected a number, not the string \"{arg.text}\"", arg.loc)
+        case _:
+            raise NetlistError("expected a number", arg.loc)
+
+
+def int_value(arg: ast.Value, env: Env, what: str) -> int:
+    """`value(arg)` as an int; an error naming `what` unless it is a whole number."""
+    number = value(arg, env)
+    if not float(number).is_integer():
+        raise NetlistError(f"{what} must be an integer, got {number:g}", arg.loc)
+    return int(number)
+
+
+def name_text(word: ast.Word, env: Env) -> str:
+    """The name `word` spells, with its `{expr}` interpolations evaluated (`n{i}` -> `n3`)."""
+    parts = word.parts
+    if len(parts) == 1 and parts[0].__class__ is str:
+        return parts[0]
+    out = []
+    for part in parts:
+        if isinstance(part, str):
+            out.append(part)
+            continue
+        number = integer(part, env, "an interpolation in a name")
+        if number < 0:
+            raise NetlistError(f"an interpolation in a name gives {number}; names take "
+                               "non-negative integers", part.loc)
+        out.append(str(number))
+    return "".join(out)

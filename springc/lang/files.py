@@ -1,0 +1,128 @@
+"""The files a netlist names: `.include` (search path, cycles, each file once per scope) and
+`.data` arrays (.npy, .csv). Every failure is a `NetlistError` at the directive naming the
+file and the reason.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from springc.errors import NetlistError, SourceLoc
+from springc.lang import ast
+
+STDLIB_DIR = Path(__file__).resolve().parents[2] / "netlists" / "lib"
+
+
+def search_dirs(lib_dirs: list[Path] | None = None) -> list[Path]:
+    """Folders searched for `.include` after the including file's own folder: `lib_dirs`,
+    the standard library, then the folders of the SPRINGC_PATH environment variable."""
+    extra = [Path(p) for p in os.environ.get("SPRINGC_PATH", "").split(os.pathsep) if p]
+    return [Path(p) for p in (lib_dirs or [])] + [STDLIB_DIR] + extra
+
+
+def beside(name: ast.Str) -> Path:
+    """The path a quoted file name stands for: relative to the file it is written in."""
+    path = Path(name.text)
+    return path if path.is_absolute() else Path(name.loc.file).parent / path
+
+
+def display(path: Path) -> str:
+    """`path` relative to the working directory when it lies below it (shorter messages)."""
+    try:
+        return str(path.relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)
+
+
+class Includes:
+    """Splices included files into statement lists; parses each file once."""
+
+    def __init__(self, lib_dirs: list[Path] | None) -> None:
+        self.dirs = search_dirs(lib_dirs)
+        self.parsed: dict[str, ast.Netlist] = {}
+
+    def expand(self, tree: ast.Netlist) -> list:
+        """The statements of `tree` with every `.include` replaced by the included ones."""
+        main = Path(tree.file)
+        key = str(main.resolve()) if main.is_file() else tree.file
+        return self._expand(tree.statements, (key,), set())
+
+    def _expand(self, stmts, chain: tuple[str, ...], seen: set[str]) -> list:
+        # `seen` holds the files already included in this scope: a second include is skipped,
+        # so libraries may include what they use without clashing with their users
+        out: list = []
+        for stmt in stmts:
+            match stmt:
+                case ast.Directive(name="include"):
+                    out.extend(self._include(stmt, chain, seen))
+                case ast.Subckt(body=body):
+                    out.append(replace(stmt, body=tuple(self._expand(body, chain, set()))))
+                case ast.For(body=body):
+                    out.append(replace(stmt, body=tuple(self._expand(body, chain, seen))))
+                case _:
+                    out.append(stmt)
+        return out
+
+    def _include(self, stmt: ast.Directive, chain: tuple[str, ...], seen: set[str]) -> list:
+        if len(stmt.args) != 1 or not isinstance(stmt.args[0], ast.Str):
+            raise NetlistError(".include takes one quoted file name", stmt.loc,
+                               'write .include "file.spr"')
+        path = self._find(stmt.args[0])
+        key = str(path)
+        if key in chain:
+            names = " -> ".join(Path(k).name for k in chain[chain.index(key):] + (key,))
+            raise NetlistError(f"include cycle: {names}", stmt.loc,
+                               "remove one of the .include lines")
+        if key in seen:
+            return []
+        seen.add(key)
+        tree = self._parse(path, stmt.args[0])
+        return self._expand(tree.statements, chain + (key,), seen)
+
+    def _find(self, name: ast.Str) -> Path:
+        candidates = [Path(name.loc.file).parent] + self.dirs
+        for folder in candidates:
+            path = folder / name.text
+            if path.is_file():
+                return path.resolve()
+        looked = ", ".join(str(d) for d in candidates)
+        raise NetlistError(f"cannot find include file '{name.text}'", name.loc,
+                           f"looked in: {looked}")
+
+    def _parse(self, path: Path, name: ast.Str) -> ast.Netlist:
+        from springc.lang.parser import parse  # the parser imports nothing from here
+
+        key = str(path)
+        if key not in self.parsed:
+            try:
+                text = path.read_text(encoding="utf-8")
+            except (OSError, UnicodeDecodeError) as exc:
+                raise NetlistError(f"cannot read include file '{path}': {exc}",
+                                   name.loc) from None
+            self.parsed[key] = parse(text, display(path))
+        return self.parsed[key]
+
+
+def read_array(path: Path, loc: SourceLoc) -> np.ndarray:
+    """A numeric array from a .npy or .csv file; errors name the file and the reason."""
+    suffix = path.suffix.lower()
+    if suffix not in (".npy", ".csv"):
+        raise NetlistError(f"data file '{path}': unsupported type '{suffix}'", loc,
+                           "use a .npy or .csv file")
+    if not path.is_file():
+        raise NetlistError(f"data file '{path}' not found", loc)
+    try:
+        if suffix == ".npy":
+            array = np.load(path, allow_pickle=False)
+        else:
+            array = np.loadtxt(path, delimiter=",", ndmin=1, comments="#")
+    except Exception as exc:  # noqa: BLE001 - numpy raises many types for bad files
+        raise NetlistError(f"data file '{path}' cannot be read: {exc}", loc) from None
+    if array.dtype.kind not in "biuf" or array.ndim == 0 or array.size == 0:
+        raise NetlistError(f"data file '{path}' does not hold a non-empty numeric array "
+                           f"(dtype {array.dtype}, shape {array.shape})", loc)
+    return np.ascontiguousarray(array, dtype=np.float64)

@@ -99,12 +99,16 @@ def measure_ceiling(
     `flops_per_second`, `bytes_per_second`, `dof_steps_per_second` and
     `run_seconds_per_wall_second` at `rate`, and the loop's own `flops_per_dof_step`."""
     dtype = _dtype(precision)
-    threads = _set_threads(threads)
-    n_pad = padding_for(flops_per_step)
-    state = make_state(n_dof, batch, dtype, threads)
-    kernel = functools.partial(_kernel(n_pad), *state, *_coefficients(dtype))
-    kernel(2)  # warm-up: compile, first touch
-    steps, seconds = _timed(kernel, min_seconds)
+    previous = numba.get_num_threads()
+    try:
+        threads = _set_threads(threads)
+        n_pad = padding_for(flops_per_step)
+        state = make_state(n_dof, batch, dtype, threads)
+        kernel = functools.partial(_kernel(n_pad), *state, *_coefficients(dtype))
+        kernel(2)  # warm-up: compile, first touch
+        steps, seconds = _timed(kernel, min_seconds)
+    finally:
+        numba.set_num_threads(previous)  # the caller's kernels keep their thread count
     return _report(n_dof, batch, precision, threads, n_pad, steps, seconds, flops_per_step, rate)
 
 
@@ -224,8 +228,12 @@ def _kernel(n_pad: int):
 def run_loop(state: tuple[np.ndarray, ...], n_pad: int, steps: int, threads: int = 1) -> None:
     """Advance `state` (x, v, kx, kv, ax, av from `make_state`) by `steps` steps of the
     ceiling loop, one thread per chunk (at most `threads`)."""
-    _set_threads(threads)
-    _kernel(n_pad)(*state, *_coefficients(state[0].dtype.type), steps)
+    previous = numba.get_num_threads()
+    try:
+        _set_threads(threads)
+        _kernel(n_pad)(*state, *_coefficients(state[0].dtype.type), steps)
+    finally:
+        numba.set_num_threads(previous)
 
 
 def reference_steps(state: tuple[np.ndarray, ...], n_pad: int, steps: int) -> None:

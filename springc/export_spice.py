@@ -172,6 +172,8 @@ def _header(net: FlatNetlist, pos: list[int]) -> list[str]:
     lines += [f"*   {i}: {name}" for i, name in enumerate(net.nodes)]
     if not pos:
         lines.append("* (no position nodes needed)")
+    if net.acs:
+        lines.append("* note: the netlist's .ac analyses are not exported (transient only)")
     return lines
 
 

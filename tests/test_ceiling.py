@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 import pytest
 
@@ -70,6 +71,7 @@ def test_run_seconds_per_wall_second_formula():
 
 @pytest.mark.parametrize("precision", ["float64", "float32"])
 def test_measurement_reports_consistent_positive_numbers(precision):
+    numba.set_num_threads(1)
     r = ceiling.measure_ceiling(
         20, 8, precision, threads=2, flops_per_step=70.0, rate=32000.0, min_seconds=0.02
     )

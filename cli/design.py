@@ -56,7 +56,7 @@ def melbank_cmd(bins: int, fmin: float, fmax: float, kind: str, name: str, outpu
               help="Matched damping of the delay lines (N s/m; default sqrt(mass kc)); the "
                    "block uses half.")
 @click.option("--stiffness", type=float, default=None,
-              help="Stiffness d of the non-zero modes (N/m; default 100 kc).")
+              help="Stiffness d of the non-zero modes (N/m; default 1000 kc).")
 @OUT
 @run_user_errors
 def mvm_cmd(matrix: str, m: float, kc: float, b: float | None, stiffness: float | None,

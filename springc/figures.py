@@ -23,6 +23,7 @@ from scipy.linalg import subspace_angles
 from springc import physics
 from springc.design import blocks
 from springc.design.filters import mel_triangles
+from springc.design.emit import num
 from springc.design.melbank import Melbank, design_melbank, fitting_grid
 from springc.design.mvm import MvmDesign, design_mvm, write_mvm
 from springc.ir import FlatNetlist
@@ -155,7 +156,7 @@ def mvm_netlist(design: MvmDesign, folder: Path, u: np.ndarray) -> FlatNetlist:
     """Write the design to `folder/mvm.spr` and load a netlist that drives input i with force
     u_i in(0)."""
     path = write_mvm(design, folder / "mvm.spr")
-    forces = "\n".join(f"F{i} in{i} in(0) gain={ui!r}" for i, ui in enumerate(u))
+    forces = "\n".join(f"F{i} in{i} in(0) gain={num(ui)}" for i, ui in enumerate(u))
     text = MVM_NET.format(path=path, ports=" ".join(design.nodes), forces=forces)
     return load_text(text, str(folder / "top.spr"))
 
@@ -184,13 +185,17 @@ def experiment_mvm(n: int = 24, seed: int = 0, f_hz: np.ndarray | None = None) -
 
 
 def _zero_modes(net: FlatNetlist, count: int) -> tuple[np.ndarray, np.ndarray]:
-    """The `count` lowest modes (shapes, eigenvalues of M^-1 K) from the linear analysis."""
-    from springc.linear import modes
+    """The `count` lowest undamped modes (shapes, eigenvalues of M^-1 K) of the compiler's
+    linearisation; the linear analysis must report exactly `count` zero modes."""
+    from springc.linear import linearise, modes
 
-    md = modes(net)
-    order = np.argsort(np.asarray(md.eigenvalues).real)[:count]
-    shapes = np.asarray(md.shapes)
-    return shapes[:, order].real, np.asarray(md.eigenvalues)[order].real
+    found = modes(net).zero_count
+    if found != count:
+        raise AssertionError(f"linear analysis reports {found} zero modes, expected {count}")
+    lin = linearise(net)
+    sq = np.sqrt(lin.M.diagonal())
+    omega2, vecs = np.linalg.eigh(lin.K.toarray() / np.outer(sq, sq))
+    return vecs[:, :count] / sq[:, None], omega2[:count]
 
 
 def _driven(net: FlatNetlist, f_hz: np.ndarray) -> np.ndarray:

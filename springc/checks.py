@@ -1,0 +1,379 @@
+"""The physics checks of a flat netlist (spec: "Checks the compiler makes", physics part).
+
+Passes, in order: element signs, nodes without mass, the whole potential (only components
+with `P` elements can violate it: every other element is non-negative on its own), and the
+time step of the configured integrator against the linearisation at rest. Each finding is a
+`Diagnostic` at the element's source location with a hint; later passes run only when the
+earlier ones found no error (they need positive masses and a sound potential).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize
+
+from springc import linear
+from springc.errors import CheckError, Diagnostic, SourceLoc
+from springc.integrators import DEFAULT_METHOD, TABLEAUX
+from springc.ir import FlatNetlist
+
+
+@dataclass
+class CheckResult:
+    """All diagnostics, and the linear analysis computed on the way (None if not reached)."""
+
+    diagnostics: list[Diagnostic]
+    modes: linear.Modes | None = None
+    step: linear.StepLimit | None = None
+    method: str = DEFAULT_METHOD
+    tstep: float | None = None  # effective step: .tran tstep / substeps
+
+    @property
+    def errors(self) -> list[Diagnostic]:
+        return [d for d in self.diagnostics if d.severity == "error"]
+
+    @property
+    def notes(self) -> list[Diagnostic]:
+        """Warnings and infos."""
+        return [d for d in self.diagnostics if d.severity != "error"]
+
+
+def check(net: FlatNetlist, method: str | None = None) -> CheckResult:
+    """Run every check; raise `CheckError` with all error diagnostics if there is any.
+    `method` overrides `.options method=`."""
+    result = diagnose(net, method)
+    if result.errors:
+        raise CheckError(result.errors)
+    return result
+
+
+def diagnose(net: FlatNetlist, method: str | None = None) -> CheckResult:
+    """Run every check and return all diagnostics without raising."""
+    diags = element_signs(net) + massless_nodes(net)
+    if diags:
+        return CheckResult(diags)
+    diags = whole_potential(net)
+    if diags:
+        return CheckResult(diags)
+    return time_step(net, method)
+
+
+# --- element signs ----------------------------------------------------------------------
+
+def _rules(net: FlatNetlist):
+    """(letter, failing mask, message template, values, hint) for every sign rule."""
+    m, k, d, c, q, b = (net.masses, net.springs, net.duffings, net.couplings, net.quads,
+                        net.dashpots)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c_ratio, q_ratio = c.k / c.a, q.g / q.a
+    return [
+        ("M", ~(m.m > 0), "mass m={:g} must be > 0", m.m, "every mass must be positive"),
+        ("M", ~(m.b >= 0), "damping b={:g} must be >= 0", m.b,
+         "negative damping feeds energy in; use b=0 for no damping"),
+        ("K", ~(k.k >= 0), "stiffness k={:g} must be >= 0", k.k,
+         "a negative spring makes the rest state unstable"),
+        ("D", ~(d.l >= 0), "Duffing coefficient l={:g} must be >= 0", d.l,
+         "V = l/4 x^4 with l < 0 is unbounded below"),
+        ("C", ~(c.a != 0), "leverage a={:g} must be != 0", c.a,
+         "V = k/(2a) (x_i - a x_j)^2 divides by a"),
+        ("C", (c.a != 0) & ~(c_ratio >= 0), "k/a={:g} must be >= 0", c_ratio,
+         "k and a must have the same sign"),
+        ("Q", ~(q.a != 0), "leverage a={:g} must be != 0", q.a,
+         "V = g/(2a) (x_i^2 - a x_j)^2 divides by a"),
+        ("Q", (q.a != 0) & ~(q_ratio >= 0), "g/a={:g} must be >= 0", q_ratio,
+         "g and a must have the same sign"),
+        ("B", ~(b.b >= 0), "dashpot b={:g} must be >= 0", b.b,
+         "negative damping feeds energy in"),
+    ]
+
+
+def element_signs(net: FlatNetlist) -> list[Diagnostic]:
+    """One error per element that breaks a sign rule of the element table."""
+    tables = net.tables()
+    out = []
+    for letter, bad, template, values, hint in _rules(net):
+        for e in np.nonzero(bad)[0]:
+            table = tables[letter]
+            msg = f"{table.names[e]}: {template.format(values[e])}"
+            out.append(Diagnostic("error", msg, table.locs[e], hint))
+    out += _exponents(net)
+    return out
+
+
+def _exponents(net: FlatNetlist) -> list[Diagnostic]:
+    p = net.monomials
+    out = []
+    for k in np.nonzero(p.exp < 0)[0]:
+        e = int(np.searchsorted(p.ptr, k, side="right") - 1)
+        msg = (f"{p.names[e]}: exponent {int(p.exp[k])} of {net.nodes[p.var[k]]} must be a "
+               f"non-negative integer")
+        out.append(Diagnostic("error", msg, p.locs[e], "P elements are polynomials"))
+    return out
+
+
+# --- nodes without mass ----------------------------------------------------------------
+
+def massless_nodes(net: FlatNetlist) -> list[Diagnostic]:
+    """An error for every node that no `M` element declares, at the first element naming it."""
+    has_mass = np.zeros(net.n, bool)
+    has_mass[net.masses.node] = True
+    out = []
+    for node in np.nonzero(~has_mass)[0]:
+        name, loc = _first_mention(net, int(node))
+        msg = f"node '{net.nodes[node]}' has no mass (named by {name}, but no M element declares it)"
+        hint = f"add an M element on '{net.nodes[node]}', e.g. 'M_{net.nodes[node]} {net.nodes[node]} m=1'"
+        out.append(Diagnostic("error", msg, loc, hint))
+    return out
+
+
+def _first_mention(net: FlatNetlist, node: int) -> tuple[str, SourceLoc]:
+    """Name and location of the element or probe that names `node` first in the source."""
+    found = []
+    columns = {"K": ["node"], "D": ["node"], "C": ["i", "j"], "Q": ["i", "j"], "B": ["i", "j"],
+               "F": ["node"]}
+    tables = net.tables()
+    for letter, cols in columns.items():
+        table = tables[letter]
+        for col in cols:
+            for e in np.nonzero(getattr(table, col) == node)[0]:
+                found.append((table.names[e], table.locs[e]))
+    p = net.monomials
+    for k in np.nonzero(p.var == node)[0]:
+        e = int(np.searchsorted(p.ptr, k, side="right") - 1)
+        found.append((p.names[e], p.locs[e]))
+    found += [(f"probe {pr.label}", pr.loc) for pr in net.probes if pr.node == node]
+    if not found:
+        return f"node '{net.nodes[node]}'", net.node_locs[node]
+    return min(found, key=lambda f: (f[1].file != net.file, f[1].line, f[1].col))
+
+
+# --- whole potential -------------------------------------------------------------------
+
+def whole_potential(net: FlatNetlist) -> list[Diagnostic]:
+    """Positive semidefinite stiffness at rest and V bounded below, for every connected
+    component that holds a `P` element (the only elements that can break either)."""
+    p = net.monomials
+    if len(p) == 0:
+        return []
+    _, labels = linear.component_labels(net)
+    lin = linear.linearise(net)
+    firsts = {}
+    for e in range(len(p)):
+        if p.ptr[e + 1] > p.ptr[e]:
+            firsts.setdefault(int(labels[p.var[p.ptr[e]]]), e)
+    out = []
+    for comp, e in firsts.items():
+        nodes = np.nonzero(labels == comp)[0]
+        found = _component_potential(net, lin, nodes)
+        if found:
+            out.append(Diagnostic("error", f"{p.names[e]}: {found[0]}", p.locs[e], found[1]))
+    return out
+
+
+def _component_potential(net, lin, nodes: np.ndarray) -> tuple[str, str] | None:
+    """(message, hint) if the potential restricted to this component is not acceptable."""
+    hess = lin.K[nodes][:, nodes].toarray()
+    vals, vecs = np.linalg.eigh(hess)
+    if vals[0] < -1e-9 * max(abs(vals).max(), 1e-300):
+        msg = (f"the stiffness matrix at rest is not positive semidefinite: curvature "
+               f"{vals[0]:.6g} along {_direction(net, nodes, vecs[:, 0])}")
+        return msg, "the rest state would be unstable; check the signs of the P coefficients"
+    direction = _Polynomial.of_component(net, nodes).unbounded_direction()
+    if direction is None:
+        return None
+    msg = (f"the potential is not bounded below: V decreases without bound along "
+           f"{_direction(net, nodes, direction, signed=True)}")
+    return msg, ("add a higher even-order term (e.g. a D element) or fix the signs and "
+                 "exponents of the P elements so that V stays bounded below")
+
+
+def _direction(net: FlatNetlist, nodes: np.ndarray, vec: np.ndarray, signed: bool = False,
+               count: int = 4) -> str:
+    """'x1=0.707, x2=0.707' for the largest components of a unit direction (its sign kept
+    when `signed`, else chosen so that the largest component is positive)."""
+    vec = vec / np.linalg.norm(vec)
+    if not signed and vec[np.argmax(np.abs(vec))] < 0:
+        vec = -vec
+    order = np.argsort(-np.abs(vec), kind="stable")[:count]
+    parts = [f"{net.nodes[nodes[j]]}={vec[j]:.3g}" for j in order if abs(vec[j]) > 1e-3]
+    more = ", ..." if len(nodes) > count and abs(vec[order[-1]]) > 1e-3 else ""
+    return "(" + ", ".join(parts) + more + ")"
+
+
+@dataclass
+class _Polynomial:
+    """V restricted to one component: sum_t coef[t] prod_j x_j^exps[t, j] (local indices)."""
+
+    coef: np.ndarray
+    exps: np.ndarray
+
+    @classmethod
+    def of_component(cls, net: FlatNetlist, nodes: np.ndarray) -> _Polynomial:
+        local = {int(g): j for j, g in enumerate(nodes)}
+        terms: dict[tuple, float] = {}
+        for coef, powers in _terms(net, local):
+            key = tuple(sorted(powers.items()))
+            terms[key] = terms.get(key, 0.0) + coef
+        keys = [k for k, v in terms.items() if v != 0]
+        exps = np.zeros((len(keys), len(nodes)), np.int64)
+        for t, key in enumerate(keys):
+            for var, e in key:
+                exps[t, var] += e
+        return cls(np.array([terms[k] for k in keys]), exps)
+
+    def __call__(self, x: np.ndarray) -> float:
+        return float(self.coef @ np.prod(x[None, :] ** self.exps, axis=1))
+
+    def grad(self, x: np.ndarray) -> np.ndarray:
+        safe = self.exps - np.eye(len(x), dtype=np.int64)[:, None, :]  # (var, term, var)
+        mono = np.prod(np.where(safe >= 0, x[None, None, :] ** np.maximum(safe, 0), 0.0), axis=2)
+        return (mono * self.exps.T) @ self.coef
+
+    def top(self) -> _Polynomial:
+        """The homogeneous part of the highest degree."""
+        deg = self.exps.sum(axis=1)
+        keep = deg == deg.max(initial=0)
+        return _Polynomial(self.coef[keep], self.exps[keep])
+
+    def sphere_min(self, radius: float, starts: np.ndarray) -> tuple[float, np.ndarray]:
+        """Smallest V on the sphere |x| = radius, by local searches from several starts."""
+        def fun(y):
+            norm = np.linalg.norm(y)
+            u = y / norm
+            g = self.grad(radius * u) * radius
+            return self(radius * u), (g - u * (u @ g)) / norm
+        best = (np.inf, starts[0])
+        for y0 in starts:
+            res = minimize(fun, y0, jac=True, method="BFGS", options={"maxiter": 200})
+            if res.fun < best[0]:
+                best = (float(res.fun), res.x / np.linalg.norm(res.x))
+        return best
+
+    def unbounded_direction(self) -> np.ndarray | None:
+        """A unit direction along which V decreases without bound, or None if V is bounded
+        below. A top-degree part negative somewhere on the unit sphere gives it directly; one
+        that is >= 0 but vanishes somewhere needs a search on growing spheres."""
+        if len(self.coef) == 0:
+            return None
+        starts = _starts(self.exps.shape[1])
+        top = self.top()
+        scale = np.abs(top.coef).max()
+        low, u = top.sphere_min(1.0, starts)
+        if low < -1e-9 * scale:
+            return u
+        if low > 1e-6 * scale:
+            return None
+        return self._growing_spheres(starts, u)
+
+    def _growing_spheres(self, starts: np.ndarray, hint: np.ndarray) -> np.ndarray | None:
+        mins, u = [], hint
+        for radius in 10.0 ** np.arange(-2, 7):
+            low, u = self.sphere_min(radius, np.vstack([u, hint, starts]))
+            mins.append(low)
+        last = mins[-3:]
+        falling = all(v < 0 for v in last) and last[1] < 1.5 * last[0] and last[2] < 1.5 * last[1]
+        return u if falling else None
+
+
+def _starts(n: int, seeds: int = 8) -> np.ndarray:
+    """Seeded random directions plus the coordinate axes (both signs) for small n."""
+    rng = np.random.default_rng(0)
+    out = [rng.normal(size=(seeds, n))]
+    if n <= 12:
+        out += [np.eye(n), -np.eye(n)]
+    return np.vstack(out)
+
+
+def _terms(net: FlatNetlist, local: dict[int, int]):
+    """(coefficient, {local var: power}) for every potential term inside the component."""
+    s, d, c, q, p = net.springs, net.duffings, net.couplings, net.quads, net.monomials
+    for e in range(len(s)):
+        if int(s.node[e]) in local:
+            yield s.k[e] / 2, {local[int(s.node[e])]: 2}
+    for e in range(len(d)):
+        if int(d.node[e]) in local:
+            yield d.l[e] / 4, {local[int(d.node[e])]: 4}
+    for e in range(len(c)):
+        if int(c.i[e]) in local:
+            i, j, k, a = local[int(c.i[e])], local[int(c.j[e])], c.k[e], c.a[e]
+            yield from [(k / (2 * a), {i: 2}), (-k, _mul({i: 1}, {j: 1})), (k * a / 2, {j: 2})]
+    for e in range(len(q)):
+        if int(q.i[e]) in local:
+            i, j, g, a = local[int(q.i[e])], local[int(q.j[e])], q.g[e], q.a[e]
+            yield from [(g / (2 * a), {i: 4}), (-g, _mul({i: 2}, {j: 1})), (g * a / 2, {j: 2})]
+    for e in range(len(p)):
+        factors = range(p.ptr[e], p.ptr[e + 1])
+        if len(factors) and int(p.var[factors[0]]) in local:
+            powers: dict[int, int] = {}
+            for k in factors:
+                powers = _mul(powers, {local[int(p.var[k])]: int(p.exp[k])})
+            yield p.c[e], powers
+
+
+def _mul(a: dict[int, int], b: dict[int, int]) -> dict[int, int]:
+    out = dict(a)
+    for var, e in b.items():
+        out[var] = out.get(var, 0) + e
+    return out
+
+
+# --- time step -------------------------------------------------------------------------
+
+def _method(net: FlatNetlist, method: str | None) -> tuple[str, list[Diagnostic]]:
+    name = str(method or net.options.get("method", DEFAULT_METHOD)).lower()
+    if name in TABLEAUX:
+        return name, []
+    loc = None if method else net.option_locs.get("method")
+    msg = f"unknown integrator '{name}'"
+    return DEFAULT_METHOD, [Diagnostic("error", msg, loc, f"known: {', '.join(TABLEAUX)}")]
+
+
+def _substeps(net: FlatNetlist) -> tuple[int, list[Diagnostic]]:
+    raw = net.options.get("substeps", 1)
+    try:
+        value = float(raw)
+    except (TypeError, ValueError):
+        value = float("nan")
+    if value >= 1 and value == int(value):
+        return int(value), []
+    loc = net.option_locs.get("substeps")
+    msg = f"substeps={raw} must be a positive integer"
+    return 1, [Diagnostic("error", msg, loc, "the step is .tran tstep divided by substeps")]
+
+
+def time_step(net: FlatNetlist, method: str | None = None) -> CheckResult:
+    """Modes of the linearisation, zero modes as infos, and the configured step against the
+    integrator's stability limit."""
+    name, diags = _method(net, method)
+    substeps, more = _substeps(net)
+    diags += more
+    found = linear.modes(net)
+    step = linear.step_limit(found, name)
+    diags += [_zero_info(net, z) for z in found.zero_modes]
+    h = net.tran.tstep / substeps if net.tran else None
+    if h is not None and not h <= step.dt * (1 + 1e-9):
+        diags.append(_unstable(net, name, h, substeps, step))
+    return CheckResult(diags, found, step, name, h)
+
+
+def _zero_info(net: FlatNetlist, zero: linear.ZeroModes) -> Diagnostic:
+    loc = net.node_locs[net.nodes.index(zero.nodes[0][0])]
+    hint = "legal (free bodies, matrix-vector multipliers); such motion is never restored"
+    return Diagnostic("info", zero.describe(), loc, hint)
+
+
+def _unstable(net, method: str, h: float, substeps: int, step: linear.StepLimit) -> Diagnostic:
+    mode = step.mode.describe() if step.mode else "linearisation"
+    sub = f" (tstep / substeps={substeps})" if substeps > 1 else ""
+    msg = (f"time step {h:.6g} s{sub} is unstable for {method}: the {mode} needs a step "
+           f"<= {step.dt:.6g} s (largest stable step)")
+    if step.dt > 0:
+        need = math.ceil(h / step.dt * (1 + 1e-9))
+        hint = (f"use .tran tstep <= {step.dt * substeps:.6g}, or .options "
+                f"substeps={need * substeps}")
+    else:
+        hint = f"{method} is unstable for this mode at any step; choose another method"
+    return Diagnostic("error", msg, net.tran.loc, hint)

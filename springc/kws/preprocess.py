@@ -97,5 +97,8 @@ def centre_utterance(x: np.ndarray, rate: float) -> np.ndarray:
 
 
 def preprocess(x: np.ndarray, rate: float, cutoff_hz: float = 75.0) -> np.ndarray:
-    """The paper's pre-processing: centre the utterance, then remove the slow background."""
-    return remove_background(centre_utterance(x, rate), rate, cutoff_hz)
+    """The paper's pre-processing of one clip: the utterance centred in the window, without
+    its background below about `cutoff_hz`. The background goes first so that a slow drift,
+    which can carry more energy than the speech, does not pull the centre (the filter is
+    time-invariant, so the order changes nothing else but the zero-filled ends)."""
+    return centre_utterance(remove_background(x, rate, cutoff_hz), rate)

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from springc import physics
 from springc.errors import NetlistError
@@ -297,3 +299,24 @@ def test_load_file_errors_are_user_errors(tmp_path: Path) -> None:
     (tmp_path / "bin.spr").write_bytes(b"\xff\xfe\x00bad")
     with pytest.raises(NetlistError, match="cannot read the netlist"):
         load_file(tmp_path / "bin.spr")
+
+
+PIECES = ["M1", "K1", "X1", "C2", "Q1", "B1", "P1", "F1", "R1", ".param", ".subckt", ".ends",
+          ".for", ".endfor", ".probe", ".tran", ".ac", ".options", ".data", ".include", ".title",
+          "a", "b", "0", "n{i}", "X1.a", "{i}", "i", "1", "-1", "2.5k", "1k5", "m=1", "k=2",
+          "a=0", "c=1", "gain=2", "=", "(", ")", ",", "^", "{", "}", "a^2", "sin(1 2)", "in(0)",
+          "in", "pwl(0 0 1 1)", 'wav("x.wav")', "x(a)", "v(b)", "method=rk4", '"f.csv"',
+          "{1/0}", "{a+}", "cell", "p=1", "+", "*", "; c", "\n", "\n", "\n+"]
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.sampled_from(PIECES), min_size=1, max_size=30))
+def test_any_input_gives_a_netlist_or_a_user_error(pieces: list[str]) -> None:
+    # never an internal error: bad input is a NetlistError with a location, good input a
+    # structurally valid IR
+    try:
+        net = load_text(" ".join(pieces), "fuzz.spr")
+    except NetlistError as err:
+        assert err.loc is not None and err.format().startswith("fuzz.spr:")
+    else:
+        net.validate()

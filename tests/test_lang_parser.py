@@ -41,6 +41,8 @@ def test_continuation_keeps_line_and_column() -> None:
 def test_comments_and_end() -> None:
     tree = parse("* title-like comment\nM1 a m=1 ; c\n;only comment\n.END\nK1 a k=1\n", "t")
     assert [s.name.parts[0] for s in tree.statements] == ["M1"]
+    tree = parse("M1 a m=1\n  .end ; done\nK1 a k=1\n", "t")
+    assert len(tree.statements) == 1
 
 
 def test_semicolon_inside_string_is_not_a_comment() -> None:

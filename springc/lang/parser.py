@@ -70,13 +70,12 @@ def _clean(text: str) -> list[str]:
     every remaining character keeps its line and column."""
     out = []
     for line in text.splitlines():
-        if _END.match(line):
-            break
-        stripped = line.lstrip()
-        if stripped.startswith("*"):
+        if line.lstrip().startswith("*"):
             line = ""
         elif ";" in line:
             line = _cut_comment(line)
+        if _END.match(line):
+            break
         out.append(line)
     return out
 

@@ -1,0 +1,63 @@
+"""`springc ac` (frequency response) and `springc modes` (eigenmodes) of the linearisation."""
+
+from __future__ import annotations
+
+import json
+
+import click
+
+from springc_cli.common import plot_option, run_user_errors
+
+
+@click.command("ac")
+@click.argument("netlist", type=click.Path(dir_okay=False))
+@click.option("--node", default=None, help="Output node (default: the .ac directive's).")
+@click.option("--input", "channel", type=int, default=None,
+              help="Input channel k of the F ... in(k) elements (default: .ac's, else 0).")
+@click.option("--fmin", type=float, default=None, help="Lowest frequency, Hz.")
+@click.option("--fmax", type=float, default=None, help="Highest frequency, Hz.")
+@click.option("--points", type=int, default=None, help="Number of log-spaced frequencies.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="CSV file: f_hz,mag,phase_rad.")
+@plot_option
+@run_user_errors
+def ac_cmd(netlist, node, channel, fmin, fmax, points, output, plot_path) -> None:
+    """Frequency response H(f) = X(f)/U(f) of the linearisation at rest."""
+    from springc import lang
+    from springc.analyses import ac
+    from springc.errors import UsageError
+
+    net = lang.load_file(netlist)
+    spec = net.acs[0] if net.acs else None
+    if node is None:
+        if spec is None:
+            raise UsageError("no output node: give --node or an .ac directive")
+        node = net.nodes[spec.node]
+    if channel is None:
+        channel = spec.input if spec else 0
+    base = ac.default_sweep(net)
+    sweep = ac.Sweep(fmin or base.fmin, fmax or base.fmax, points or base.points)
+    result = ac.response(net, node, sweep.frequencies(), channel)
+    ac.write_csv(result, output)
+    if plot_path:
+        ac.plot(result, plot_path)
+    peak = int(result.mag.argmax())
+    click.echo(f"wrote {output}: {len(result.f_hz)} points, {sweep.fmin:g}-{sweep.fmax:g} Hz; "
+               f"peak |H| {result.mag[peak]:.6g} at {result.f_hz[peak]:.6g} Hz")
+
+
+@click.command("modes")
+@click.argument("netlist", type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
+@click.option("--count", type=int, default=None, help="Show only the N slowest modes.")
+@run_user_errors
+def modes_cmd(netlist: str, as_json: bool, count: int | None) -> None:
+    """Eigenfrequencies, damping rates, Q factors, dominant nodes and zero modes."""
+    from springc import lang
+    from springc.analyses.modes import mode_report, mode_text
+
+    report = mode_report(lang.load_file(netlist), count)
+    click.echo(json.dumps(report) if as_json else mode_text(report))
+
+
+COMMANDS = [ac_cmd, modes_cmd]

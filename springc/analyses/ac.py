@@ -1,0 +1,166 @@
+"""Small-signal frequency response of the linearisation at rest (`.ac`, `springc ac`).
+
+H(f) = X_node(f) / U(f) solves (K - w^2 M + i w B) X = F for every frequency, where F holds
+the gains of every `F ... in(k)` element of the chosen input channel k. Small networks solve
+all frequencies at once with batched dense LU; larger ones factor a sparse matrix per
+frequency.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
+
+from springc import linear
+from springc.errors import UsageError
+from springc.ir import FlatNetlist
+
+DENSE_MAX = 400  # networks up to this many dofs are solved with batched dense LU
+DEFAULT_POINTS = 200
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """Log-spaced frequencies from fmin to fmax (Hz), `points` of them."""
+
+    fmin: float
+    fmax: float
+    points: int
+
+    def frequencies(self) -> np.ndarray:
+        if not (0 < self.fmin < self.fmax) or self.points < 2:
+            raise UsageError(f"bad sweep: need 0 < fmin < fmax and points >= 2 (got fmin="
+                             f"{self.fmin:g}, fmax={self.fmax:g}, points={self.points})")
+        return np.geomspace(self.fmin, self.fmax, self.points)
+
+
+@dataclass
+class AcResult:
+    """Complex response H at frequencies `f_hz` of node `node` to input channel `channel`."""
+
+    node: str
+    channel: int
+    f_hz: np.ndarray
+    h: np.ndarray
+
+    @property
+    def mag(self) -> np.ndarray:
+        return np.abs(self.h)
+
+    @property
+    def phase(self) -> np.ndarray:
+        """Phase in radians, in (-pi, pi]."""
+        return np.angle(self.h)
+
+
+def input_vector(net: FlatNetlist, channel: int) -> np.ndarray:
+    """Force per unit input: the gains of the `F ... in(channel)` elements, summed per node."""
+    f = net.forces
+    driven = np.array([s.kind == "in" and s.channel == channel for s in f.source], bool)
+    if not driven.any():
+        raise UsageError(f"no F element is driven by in({channel}); the frequency response "
+                         f"needs at least one", hint="add e.g. 'F1 <node> in(0)'")
+    out = np.zeros(net.n)
+    np.add.at(out, f.node[driven], f.gain[driven])
+    return out
+
+
+def response(net: FlatNetlist, node: str, f_hz: np.ndarray, channel: int = 0) -> AcResult:
+    """H(f) = X_node / U of the linearisation at rest, at frequencies `f_hz` (Hz)."""
+    if node not in net.nodes:
+        raise UsageError(f"unknown node '{node}'", hint=_near(net, node))
+    target = net.nodes.index(node)
+    force = input_vector(net, channel)
+    lin = linear.linearise(net)
+    w = 2 * np.pi * np.asarray(f_hz, dtype=np.float64)
+    solve = _dense if net.n <= DENSE_MAX else _sparse
+    return AcResult(node, channel, np.asarray(f_hz, dtype=np.float64),
+                    solve(lin, force, w, target))
+
+
+def _near(net: FlatNetlist, node: str) -> str:
+    import difflib
+
+    close = difflib.get_close_matches(node, net.nodes, n=3)
+    return f"did you mean {', '.join(close)}?" if close else "node names are case-sensitive"
+
+
+def _dense(lin: linear.Linearisation, force: np.ndarray, w: np.ndarray, target: int):
+    k, m, b = lin.K.toarray(), lin.M.toarray(), lin.B.toarray()
+    n = len(force)
+    chunk = max(1, 4_000_000 // max(n * n, 1))  # bound memory of the stacked systems
+    out = np.empty(len(w), complex)
+    for lo in range(0, len(w), chunk):
+        ww = w[lo:lo + chunk, None, None]
+        system = k[None] - ww**2 * m[None] + 1j * ww * b[None]
+        rhs = np.broadcast_to(force.astype(complex), (len(ww), n))[..., None]
+        out[lo:lo + chunk] = np.linalg.solve(system, rhs)[:, target, 0]
+    return out
+
+
+def _sparse(lin: linear.Linearisation, force: np.ndarray, w: np.ndarray, target: int):
+    k, m, b = (x.astype(complex).tocsc() for x in (lin.K, lin.M, lin.B))
+    out = np.empty(len(w), complex)
+    for idx, ww in enumerate(w):
+        out[idx] = sla.spsolve(sp.csc_matrix(k - ww**2 * m + 1j * ww * b), force)[target]
+    return out
+
+
+def default_sweep(net: FlatNetlist) -> Sweep:
+    """From `.ac` if present, else a decade below the slowest to a decade above the fastest
+    mode (1 Hz to 10 kHz if there are none)."""
+    if net.acs:
+        ac = net.acs[0]
+        return Sweep(ac.fstart, ac.fstop, ac.points)
+    found = linear.modes(net)
+    f = found.freqs_hz[found.freqs_hz > 0]
+    if len(f) == 0:
+        return Sweep(1.0, 1e4, DEFAULT_POINTS)
+    return Sweep(float(f.min()) / 10, float(f.max()) * 10, DEFAULT_POINTS)
+
+
+def write_csv(result: AcResult, path: str | Path) -> None:
+    """Columns exactly `f_hz,mag,phase_rad`, written atomically (temp file, then rename)."""
+    table = np.column_stack([result.f_hz, result.mag, result.phase])
+    _atomic(path, lambda f: np.savetxt(f, table, delimiter=",", header="f_hz,mag,phase_rad",
+                                       comments="", fmt="%.17g"))
+
+
+def plot(result: AcResult, path: str | Path) -> None:
+    """PNG: magnitude (log-log) over phase (rad), written atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (top, bottom) = plt.subplots(2, 1, sharex=True, figsize=(7, 5.5))
+    top.loglog(result.f_hz, result.mag)
+    top.set_ylabel("|H| (displacement / input)")
+    top.set_title(f"frequency response of x({result.node}) to in({result.channel})")
+    top.grid(True, which="both", alpha=0.3)
+    bottom.semilogx(result.f_hz, result.phase)
+    bottom.set_ylabel("phase (rad)")
+    bottom.set_xlabel("frequency (Hz)")
+    bottom.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    _atomic(path, lambda f: fig.savefig(f, format="png", dpi=120))
+    plt.close(fig)
+
+
+def _atomic(path: str | Path, write) -> None:
+    """Write through `write(file)` to a temp file in the target folder, then rename."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent or ".", prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

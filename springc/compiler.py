@@ -1,0 +1,132 @@
+"""`build`: the front end, then the checks, then a summary of what was built.
+
+    load_file(path) -> FlatNetlist -> checks.check(net) -> BuildReport
+
+The report is what `springc build` prints (text or one JSON object, spec "Machine-readable
+outputs"): degrees of freedom, element counts, instances, the fastest mode of the
+linearisation and the largest stable step of the configured integrator.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from springc import checks, lang
+from springc.errors import Diagnostic
+from springc.ir import FlatNetlist
+
+
+@dataclass
+class BuildReport:
+    """Summary of a netlist that passed every check."""
+
+    file: str
+    title: str
+    dofs: int
+    elements: dict[str, int]
+    instances: int
+    instances_by_subckt: dict[str, int]
+    omega_max: float  # largest undamped eigenfrequency, rad/s
+    fastest_nodes: list[tuple[str, float]]  # dominant nodes of the mode that limits the step
+    fastest_mode: str  # that mode, described for people ('' if none)
+    method: str
+    dt_max: float  # largest stable step of `method`, s (inf: nothing limits it)
+    tstep: float | None  # configured step (.tran tstep / substeps), s
+    substeps: int
+    zero_modes: int
+    modes_complete: bool
+    notes: list[Diagnostic] = field(default_factory=list)
+
+    @property
+    def f_max_hz(self) -> float:
+        return self.omega_max / (2 * math.pi)
+
+    def to_json(self) -> dict:
+        """The spec's keys (`dofs`, `elements`, `omega_max`, `dt_max`) and the rest; an
+        unlimited `dt_max` is null."""
+        return {
+            "file": self.file,
+            "title": self.title,
+            "dofs": self.dofs,
+            "elements": dict(self.elements),
+            "instances": self.instances,
+            "instances_by_subckt": dict(self.instances_by_subckt),
+            "omega_max": self.omega_max,
+            "f_max_hz": self.f_max_hz,
+            "fastest_mode": self.fastest_mode,
+            "fastest_nodes": [{"node": n, "amplitude": a} for n, a in self.fastest_nodes],
+            "method": self.method,
+            "dt_max": self.dt_max if math.isfinite(self.dt_max) else None,
+            "tstep": self.tstep,
+            "substeps": self.substeps,
+            "zero_modes": self.zero_modes,
+            "modes_complete": self.modes_complete,
+            "diagnostics": [{"severity": d.severity, "message": d.message,
+                             "loc": str(d.loc) if d.loc else None} for d in self.notes],
+        }
+
+    def summary(self) -> str:
+        """Human-readable text."""
+        counts = ", ".join(f"{k}={v}" for k, v in self.elements.items()) or "none"
+        lines = [f"{self.file}: {self.title or '(untitled)'}",
+                 f"  dofs        {self.dofs}",
+                 f"  elements    {counts}",
+                 f"  instances   {self.instances}" + _by_subckt(self.instances_by_subckt),
+                 f"  omega_max   {self.omega_max:.6g} rad/s ({self.f_max_hz:.6g} Hz)",
+                 f"  fastest     {self.fastest_mode or '-'}",
+                 f"  dt_max      {_seconds(self.dt_max)} ({self.method})",
+                 f"  step        {_step(self)}"]
+        if self.zero_modes:
+            lines.append(f"  zero modes  {self.zero_modes}")
+        return "\n".join(lines + [d.format() for d in self.notes])
+
+
+def _by_subckt(counts: dict[str, int]) -> str:
+    return " (" + ", ".join(f"{k}: {v}" for k, v in counts.items()) + ")" if counts else ""
+
+
+def _seconds(value: float) -> str:
+    return f"{value:.6g} s" if math.isfinite(value) else "unlimited"
+
+
+def _step(report: BuildReport) -> str:
+    if report.tstep is None:
+        return "no .tran"
+    sub = f" (tstep / {report.substeps})" if report.substeps > 1 else ""
+    return f"{report.tstep:.6g} s{sub}, stable"
+
+
+def build(path: str | Path, *, lib_dirs: list[Path] | None = None,
+          method: str | None = None) -> BuildReport:
+    """Load, check and summarise the netlist at `path`; `method` overrides `.options
+    method=`. Raises `NetlistError` (syntax, semantics) or `CheckError` (all failed checks)."""
+    net = lang.load_file(path, lib_dirs)
+    return report_for(net, method)
+
+
+def report_for(net: FlatNetlist, method: str | None = None) -> BuildReport:
+    """Check an already elaborated netlist and summarise it."""
+    result = checks.check(net, method)
+    found, step = result.modes, result.step
+    mode = step.mode
+    return BuildReport(
+        file=net.file,
+        title=net.title,
+        dofs=net.n,
+        elements=net.element_counts(),
+        instances=len(net.instances),
+        instances_by_subckt=dict(Counter(i.subckt for i in net.instances)),
+        omega_max=found.omega_max,
+        fastest_nodes=mode.dominant() if mode else [],
+        fastest_mode=mode.describe() if mode else "",
+        method=result.method,
+        dt_max=step.dt,
+        tstep=result.tstep,
+        substeps=int(net.options.get("substeps", 1)),
+        zero_modes=found.zero_count,
+        modes_complete=found.complete,
+        notes=result.notes,
+    )

@@ -142,3 +142,11 @@ def test_syntax_errors(text: str, message: str, where: tuple, hint: str | None) 
 def test_block_errors(text: str, message: str, line: int) -> None:
     err = _syntax(text)
     assert message in err.message and err.loc.line == line
+
+
+def test_the_first_error_in_the_file_is_reported() -> None:
+    # a malformed number (found by the fast path) before a syntax error (found by lark)
+    err = _syntax("M1 a m=1\nK1 a k=2k2\nK2 a k=(1)\n")
+    assert err.message == "malformed number '2k2'" and err.loc.line == 2
+    err = _syntax("K2 a k=(1)\nK1 a k=2k2\n")
+    assert err.message == "syntax error: unexpected '('" and err.loc.line == 1

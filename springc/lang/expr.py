@@ -41,6 +41,13 @@ def read_number(text: str) -> float | None:
     return float(Decimal(mantissa).scaleb(SUFFIXES[suffix.lower()]))
 
 
+def bad_number(text: str, loc: SourceLoc) -> tuple[str, SourceLoc, str]:
+    """(message, loc, hint) for a number literal `read_number` rejects."""
+    hint = ("a number may end in one scale suffix (t g meg k m u n p f) and unit letters, "
+            "not digits: write 1.5k for 1500")
+    return f"malformed number '{text}'", loc, hint
+
+
 class Env:
     """A scope of named values (floats or arrays) with a parent scope to fall back on."""
 

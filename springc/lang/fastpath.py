@@ -15,7 +15,7 @@ import re
 
 from springc.errors import SourceLoc
 from springc.lang import ast
-from springc.lang.expr import read_number
+from springc.lang.expr import bad_number, read_number
 
 _NAME = r"[A-Za-z_][A-Za-z0-9_]*(?:\.[A-Za-z_][A-Za-z0-9_]*)*(?![A-Za-z0-9_.{])"
 _NUMBER = r"(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?[A-Za-z0-9_]*"
@@ -37,7 +37,7 @@ class _Bail(Exception):
 
 def statement(line: str, lineno: int, file: str, problems: list) -> ast.Statement | None:
     """The statement on `line`, or None to leave the line to lark. Malformed numbers are
-    appended to `problems` as (message, loc), as the lark transformer does."""
+    appended to `problems` (see `expr.bad_number`), as the lark transformer does."""
     try:
         tokens = _tokens(_LINE_TOKEN, line, 0)
         if not tokens:
@@ -144,7 +144,7 @@ class _Line:
 def _number(text: str, loc: SourceLoc, problems: list) -> ast.Num:
     value = read_number(text)
     if value is None:
-        problems.append((f"malformed number '{text}'", loc))
+        problems.append(bad_number(text, loc))
         value = 0.0  # never used: parse() raises the problem
     return ast.Num(value, text, loc)
 

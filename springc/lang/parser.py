@@ -1,10 +1,11 @@
 """Text to AST: `parse(text, filename) -> ast.Netlist`.
 
 Three steps: `_clean` blanks comments and everything after `.end` without moving any
-character, so lark's line and column are the user's; lark parses the grammar (`grammar.lark`)
-and `_ToAst` maps its tree to frozen `ast` nodes; `_nest` groups `.subckt`/`.ends` and
-`.for`/`.endfor` into blocks. Syntax errors become `NetlistError`s that quote the line with a
-caret and say in words what was expected.
+character, so lark's line and column are the user's; the grammar (`grammar.lark`, read by lark
+and mapped to frozen `ast` nodes by `_ToAst`) gives the statements, except for the simple
+one-line ones that `fastpath` reads to the same AST much faster; `_nest` groups
+`.subckt`/`.ends` and `.for`/`.endfor` into blocks. Syntax errors become `NetlistError`s that
+quote the line with a caret and say in words what was expected.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput
 
 from springc.errors import NetlistError, SourceLoc, register_source
 from springc.lang import ast, fastpath
-from springc.lang.expr import read_number
+from springc.lang.expr import bad_number, read_number
 
 _LARK = Lark.open("grammar.lark", rel_to=__file__, parser="lalr", propagate_positions=True,
                   maybe_placeholders=False)
@@ -34,15 +35,15 @@ def parse(text: str, filename: str) -> ast.Netlist:
     # lark parses every line the fast path left (same line numbers: the others are blanked)
     rest = "\n".join("" if i in fast else line for i, line in enumerate(lines)) + "\n"
     try:
-        tree = _LARK.parse(rest)
+        slow = builder.transform(_LARK.parse(rest)).children
     except UnexpectedInput as err:
-        raise _syntax_error(err, filename) from None
-    slow = builder.transform(tree).children
+        syntax = _syntax_error(err, filename)
+        problems.append((syntax.message, syntax.loc, syntax.diagnostic.hint))
+        slow = []
     problems += builder.problems
-    if problems:
-        message, loc = min(problems, key=lambda p: (p[1].line, p[1].col))
-        raise NetlistError(message, loc, "a number may end in one scale suffix (t g meg k m "
-                           "u n p f) and unit letters, not digits: write 1.5k for 1500")
+    if problems:  # the first in the file, whichever reader found it
+        message, loc, hint = min(problems, key=lambda p: (p[1].line, p[1].col))
+        raise NetlistError(message, loc, hint)
     statements = sorted([*fast.values(), *slow], key=lambda s: (s.loc.line, s.loc.col))
     return ast.Netlist(filename, _nest(statements, filename))
 
@@ -51,7 +52,7 @@ def _fast_lines(lines: list[str], filename: str) -> tuple[dict, list]:
     """Statements of the lines the fast path can read, by line index, and the malformed
     numbers met; continued lines (`+`) and anything unusual are left to lark."""
     fast: dict[int, ast.Statement] = {}
-    problems: list[tuple[str, SourceLoc]] = []
+    problems: list[tuple[str, SourceLoc, str]] = []
     continued = False  # whether the line after the current one continues it
     for i in range(len(lines) - 1, -1, -1):
         stripped = lines[i].lstrip()
@@ -99,7 +100,7 @@ class _ToAst(Transformer):
     def __init__(self, filename: str) -> None:
         super().__init__()
         self.file = filename
-        self.problems: list[tuple[str, SourceLoc]] = []
+        self.problems: list[tuple[str, SourceLoc, str]] = []
 
     def _loc(self, token: Token) -> SourceLoc:
         return SourceLoc(self.file, token.line, token.column)
@@ -126,7 +127,7 @@ class _ToAst(Transformer):
         value = read_number(token)
         loc = self._loc(token)
         if value is None:
-            self.problems.append((f"malformed number '{token}'", loc))
+            self.problems.append(bad_number(str(token), loc))
             value = 0.0  # never used: parse() raises the problem
         return ast.Num(value, str(token), loc)
 

@@ -23,11 +23,12 @@ from springc_cli.common import plot_option, run_user_errors
 @run_user_errors
 def ac_cmd(netlist, node, channel, fmin, fmax, points, output, plot_path) -> None:
     """Frequency response H(f) = X(f)/U(f) of the linearisation at rest."""
-    from springc import lang
+    from springc import checks, lang
     from springc.analyses import ac
     from springc.errors import UsageError
 
     net = lang.load_file(netlist)
+    checks.check_static(net)
     spec = net.acs[0] if net.acs else None
     if node is None:
         if spec is None:
@@ -53,10 +54,12 @@ def ac_cmd(netlist, node, channel, fmin, fmax, points, output, plot_path) -> Non
 @run_user_errors
 def modes_cmd(netlist: str, as_json: bool, count: int | None) -> None:
     """Eigenfrequencies, damping rates, Q factors, dominant nodes and zero modes."""
-    from springc import lang
+    from springc import checks, lang
     from springc.analyses.modes import mode_report, mode_text
 
-    report = mode_report(lang.load_file(netlist), count)
+    net = lang.load_file(netlist)
+    checks.check_static(net)
+    report = mode_report(net, count)
     click.echo(json.dumps(report) if as_json else mode_text(report))
 
 

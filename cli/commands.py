@@ -31,3 +31,11 @@ ALL += [export.export_cmd]
 from springc_cli import data  # noqa: E402  (springc data synth, springc data info)
 
 ALL += data.COMMANDS
+
+from springc_cli import build  # noqa: E402  (springc build)
+
+ALL += build.COMMANDS
+
+from springc_cli import analyses  # noqa: E402  (springc ac, springc modes)
+
+ALL += analyses.COMMANDS

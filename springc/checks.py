@@ -50,6 +50,15 @@ def check(net: FlatNetlist, method: str | None = None) -> CheckResult:
     return result
 
 
+def check_static(net: FlatNetlist) -> None:
+    """The checks that do not involve the time step (for analyses of the linearisation):
+    raise `CheckError` if any fails."""
+    diags = element_signs(net) + massless_nodes(net)
+    diags = diags or whole_potential(net)
+    if diags:
+        raise CheckError(diags)
+
+
 def diagnose(net: FlatNetlist, method: str | None = None) -> CheckResult:
     """Run every check and return all diagnostics without raising."""
     diags = element_signs(net) + massless_nodes(net)
@@ -181,13 +190,27 @@ def _component_potential(net, lin, nodes: np.ndarray) -> tuple[str, str] | None:
         msg = (f"the stiffness matrix at rest is not positive semidefinite: curvature "
                f"{vals[0]:.6g} along {_direction(net, nodes, vecs[:, 0])}")
         return msg, "the rest state would be unstable; check the signs of the P coefficients"
-    direction = _Polynomial.of_component(net, nodes).unbounded_direction()
+    poly = _Polynomial.of_component(net, nodes)
+    if poly.degree() <= 2:
+        direction = _quadratic_escape(poly, vals, vecs)
+    else:
+        direction = poly.unbounded_direction()
     if direction is None:
         return None
     msg = (f"the potential is not bounded below: V decreases without bound along "
            f"{_direction(net, nodes, direction, signed=True)}")
     return msg, ("add a higher even-order term (e.g. a D element) or fix the signs and "
                  "exponents of the P elements so that V stays bounded below")
+
+
+def _quadratic_escape(poly: _Polynomial, vals: np.ndarray, vecs: np.ndarray) -> np.ndarray | None:
+    """A PSD quadratic plus a linear term g.x is bounded below iff g has no part in the null
+    space of the Hessian; if it has, V falls linearly along minus that part."""
+    linear_part = poly.exps.sum(axis=1) == 1
+    g = poly.exps[linear_part].T @ poly.coef[linear_part]
+    null = vecs[:, vals <= 1e-9 * max(abs(vals).max(), 1e-300)]
+    escape = -(null @ (null.T @ g))
+    return escape if np.linalg.norm(escape) > 1e-9 * max(np.linalg.norm(g), 1e-300) else None
 
 
 def _direction(net: FlatNetlist, nodes: np.ndarray, vec: np.ndarray, signed: bool = False,
@@ -232,6 +255,13 @@ class _Polynomial:
         mono = np.prod(np.where(safe >= 0, x[None, None, :] ** np.maximum(safe, 0), 0.0), axis=2)
         return (mono * self.exps.T) @ self.coef
 
+    def degree(self) -> int:
+        return int(self.exps.sum(axis=1).max(initial=0))
+
+    def magnitude(self, x: np.ndarray) -> float:
+        """Sum of |term| at x: the scale against which round-off in V(x) is judged."""
+        return float(np.abs(self.coef) @ np.abs(np.prod(x[None, :] ** self.exps, axis=1)))
+
     def top(self) -> _Polynomial:
         """The homogeneous part of the highest degree."""
         deg = self.exps.sum(axis=1)
@@ -272,7 +302,8 @@ class _Polynomial:
         mins, u = [], hint
         for radius in 10.0 ** np.arange(-2, 7):
             low, u = self.sphere_min(radius, np.vstack([u, hint, starts]))
-            mins.append(low)
+            # A minimum within round-off of zero is no evidence of descent.
+            mins.append(low if low < -1e-10 * self.magnitude(radius * u) else 0.0)
         last = mins[-3:]
         falling = all(v < 0 for v in last) and last[1] < 1.5 * last[0] and last[2] < 1.5 * last[1]
         return u if falling else None

@@ -1,0 +1,281 @@
+"""The GSCD-layout reader on hand-made folders: splits, the 12-class mapping, silence clips,
+augmentation, and every bad-input path (each reported by file name)."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+import soundfile as sf
+
+from springc.errors import DataError, UsageError
+from springc.kws.dataset import (CLASSES, CLIP_SAMPLES, COMMANDS, NOISE_REGIONS, SAMPLE_RATE,
+                                 WORDS, Clip, NoiseBank, label_of, load_clip, open_dataset,
+                                 speaker_of)
+
+RATE = SAMPLE_RATE
+NOISE_S = 15  # s: the held-out tenths are 1.5 s, enough for a 1 s silence clip
+SPEAKERS = ["0a7c2a8d", "1b2c3d4e", "2c3d4e5f", "3d4e5f60", "4e5f6071"]  # 3 train, 1 val, 1 test
+
+
+def _tone(hz: float, seconds: float = 1.0, rate: int = RATE) -> np.ndarray:
+    t = np.arange(int(seconds * rate)) / rate
+    return 0.3 * np.sin(2 * np.pi * hz * t) * np.hanning(len(t))
+
+
+def make_gscd(root: Path, words=("yes", "no", "cat", "zero"), per_speaker: int = 2) -> Path:
+    """word/<speaker>_nohash_<k>.wav, split lists (speaker 3 validation, 4 test), a noise file."""
+    val, test = [], []
+    for w, word in enumerate(words):
+        (root / word).mkdir(parents=True)
+        for s, spk in enumerate(SPEAKERS):
+            for k in range(per_speaker):
+                name = f"{word}/{spk}_nohash_{k}.wav"
+                sf.write(root / name, _tone(300 + 100 * w + 10 * s), RATE, subtype="PCM_16")
+                (val if s == 3 else test if s == 4 else []).append(name)
+    (root / "validation_list.txt").write_text("\n".join(val) + "\n")
+    (root / "testing_list.txt").write_text("\n".join(test) + "\n")
+    (root / "_background_noise_").mkdir()
+    noise = 0.1 * np.random.default_rng(0).standard_normal(NOISE_S * RATE)
+    sf.write(root / "_background_noise_" / "white_noise.wav", noise, RATE, subtype="PCM_16")
+    return root
+
+
+@pytest.fixture
+def gscd(tmp_path) -> Path:
+    return make_gscd(tmp_path / "gscd")
+
+
+def test_constants_describe_the_12_class_task():
+    assert len(WORDS) == 35 and len(set(WORDS)) == 35
+    assert COMMANDS == WORDS[:10]
+    assert CLASSES == COMMANDS + ("_unknown_", "_silence_")
+    assert label_of("yes") == "yes" and label_of("marvin") == "_unknown_"
+    assert speaker_of("0a7c2a8d_nohash_3.wav") == "0a7c2a8d"
+
+
+def test_splits_labels_and_speakers_follow_the_lists(gscd):
+    ds = open_dataset(gscd)
+    assert ds.problems == []
+    words = [c for c in ds.clips if c.word != "_silence_"]
+    assert len(words) == 4 * 5 * 2
+    for clip in words:
+        expected = {"3d4e5f60": "validation", "4e5f6071": "test"}.get(clip.speaker, "train")
+        assert clip.split == expected
+        assert clip.label == {"cat": "_unknown_", "zero": "_unknown_"}.get(clip.word, clip.word)
+        assert clip.path.parent.name == clip.word
+    assert {c.split for c in words} == {"train", "validation", "test"}
+    counts = ds.counts()
+    assert counts["train"]["yes"] == 6 and counts["train"]["_unknown_"] == 12
+    assert counts["validation"]["no"] == 2 and counts["test"]["_unknown_"] == 4
+    assert ds.noise_files == [gscd / "_background_noise_" / "white_noise.wav"]
+
+
+def test_silence_clips_come_from_each_splits_own_part_of_the_noise(gscd):
+    ds = open_dataset(gscd, silence_per_split=0.5, seed=3)
+    n = NOISE_S * RATE
+    for split in ("train", "validation", "test"):
+        words = [c for c in ds.split(split) if c.word != "_silence_"]
+        silence = [c for c in ds.split(split) if c.word == "_silence_"]
+        assert len(silence) == round(0.5 * len(words))
+        lo, hi = NOISE_REGIONS[split]
+        for clip in silence:
+            assert clip.label == "_silence_"
+            assert lo * n <= clip.offset and clip.offset + CLIP_SAMPLES <= hi * n
+            x = load_clip(clip, preprocess=False)
+            noise, _ = sf.read(clip.path, start=clip.offset, frames=CLIP_SAMPLES)
+            np.testing.assert_allclose(x, noise)
+    again = open_dataset(gscd, silence_per_split=0.5, seed=3)
+    assert again.clips == ds.clips
+    assert open_dataset(gscd, silence_per_split=0.5, seed=4).clips != ds.clips
+
+
+def test_clip_keys_are_stable_and_unique(gscd):
+    ds = open_dataset(gscd, silence_per_split=0.5)
+    keys = [c.key() for c in ds.clips]
+    assert len(set(keys)) == len(keys)
+    assert "yes/0a7c2a8d_nohash_0.wav@0" in keys
+
+
+def test_subset_and_split(gscd):
+    ds = open_dataset(gscd)
+    digits = ds.subset(words=("zero",))
+    assert {c.word for c in digits.clips} == {"zero"}
+    assert {c.label for c in ds.subset(labels=("yes", "_silence_")).clips} == {"yes", "_silence_"}
+    with pytest.raises(UsageError, match="unknown word"):
+        ds.subset(words=("banana",))
+    with pytest.raises(UsageError, match="unknown split"):
+        ds.split("training")
+
+
+def test_load_clip_pads_short_clips_and_preprocesses(tmp_path):
+    root = make_gscd(tmp_path / "d")
+    short = root / "yes" / "5f607182_nohash_0.wav"
+    sf.write(short, _tone(500, 0.5), RATE, subtype="PCM_16")
+    clip = next(c for c in open_dataset(root).clips if c.path == short)
+    raw = load_clip(clip, preprocess=False)
+    assert raw.shape == (CLIP_SAMPLES,) and raw.dtype == np.float64
+    assert np.all(raw[RATE // 2:] == 0.0)
+    centred = load_clip(clip)
+    e = centred ** 2
+    assert np.dot(np.arange(RATE), e) / e.sum() == pytest.approx(RATE / 2, abs=0.005 * RATE)
+
+
+def test_augmentation_adds_noise_to_training_clips_only(gscd):
+    ds = open_dataset(gscd)
+    bank = NoiseBank(ds.noise_files)
+    train = ds.split("train")[0]
+    clean = load_clip(train, preprocess=False)
+    mixed = [load_clip(train, augment=True, rng=np.random.default_rng(i), noise=bank,
+                       preprocess=False) for i in range(300)]
+    noisy = np.mean([not np.array_equal(m, clean) for m in mixed])
+    # Binomial(300, 0.8): 0.8 +- 4.5 standard deviations.
+    assert abs(noisy - 0.8) < 4.5 * np.sqrt(0.8 * 0.2 / 300)
+    gains = [np.std(m - clean) / 0.1 for m in mixed if not np.array_equal(m, clean)]
+    assert 0.0 < min(gains) and max(gains) <= 0.1 * 1.05
+    same = load_clip(train, augment=True, rng=np.random.default_rng(7), noise=bank)
+    np.testing.assert_array_equal(same, load_clip(train, augment=True,
+                                                  rng=np.random.default_rng(7), noise=bank))
+    held = ds.split("validation")[0]
+    np.testing.assert_array_equal(load_clip(held, augment=True, noise=bank), load_clip(held))
+
+
+def test_noise_bank_plays_only_the_training_part(tmp_path):
+    path = tmp_path / "steps.wav"
+    # +0.5 in the training 80 %, -0.5 in the held-out 20 %.
+    x = np.where(np.arange(20 * RATE) < 16 * RATE, 0.5, -0.5)
+    sf.write(path, x, RATE, subtype="FLOAT")
+    bank = NoiseBank([path], probability=1.0, max_gain=1.0)
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        assert np.all(bank.mix(np.zeros(CLIP_SAMPLES), rng) >= 0.0)
+    with pytest.raises(DataError, match="no noise recording"):
+        sf.write(tmp_path / "short.wav", np.zeros(RATE), RATE)
+        NoiseBank([tmp_path / "short.wav"])
+
+
+# -- bad input ---------------------------------------------------------------------------------
+
+
+def test_bad_files_are_named_and_skipped_or_converted(gscd, caplog):
+    slow = gscd / "yes" / "5f607182_nohash_0.wav"
+    sf.write(slow, _tone(400, rate=8000), 8000, subtype="PCM_16")
+    stereo = gscd / "no" / "5f607182_nohash_0.wav"
+    two = np.stack([_tone(400), _tone(2000)], axis=1)
+    sf.write(stereo, two, RATE, subtype="FLOAT")
+    empty = gscd / "cat" / "5f607182_nohash_0.wav"
+    sf.write(empty, np.zeros(0), RATE, subtype="PCM_16")
+    garbage = gscd / "zero" / "5f607182_nohash_0.wav"
+    garbage.write_bytes(b"this is not a sound file\n" * 10)
+    notes = gscd / "zero" / "README.txt"
+    notes.write_text("hello")
+    with caplog.at_level(logging.WARNING, logger="springc.data"):
+        ds = open_dataset(gscd)
+    by_file = {Path(p.split(": ")[0]): p for p in ds.problems}
+    assert "resampled" in by_file[slow] and "8000 Hz" in by_file[slow]
+    assert "2 channels; the first is used" in by_file[stereo]
+    assert "no samples; skipped" in by_file[empty]
+    assert "cannot read as audio" in by_file[garbage] and "skipped" in by_file[garbage]
+    assert "not a sound file" in by_file[notes]
+    assert len(ds.problems) == 5
+    for problem in ds.problems:
+        assert problem in caplog.text
+    paths = {c.path for c in ds.clips}
+    assert slow in paths and stereo in paths and empty not in paths and garbage not in paths
+    # Conversions happen on loading, with a warning naming the file.
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="springc.data"):
+        x = load_clip(next(c for c in ds.clips if c.path == stereo), preprocess=False)
+    np.testing.assert_allclose(x, two[:, 0], atol=1e-7)
+    assert str(stereo) in caplog.text
+    y = load_clip(next(c for c in ds.clips if c.path == slow), preprocess=False)
+    assert y.shape == (CLIP_SAMPLES,)
+    spectrum = np.abs(np.fft.rfft(y))
+    assert np.argmax(spectrum) == 400  # a 400 Hz tone stays at 400 Hz after resampling
+
+
+def test_loading_a_file_that_went_bad_names_it(gscd):
+    clip = open_dataset(gscd).clips[0]
+    clip.path.write_bytes(b"")
+    with pytest.raises(DataError, match=str(clip.path)):
+        load_clip(clip)
+
+
+def test_missing_or_empty_folders(tmp_path):
+    with pytest.raises(DataError, match="no such data folder"):
+        open_dataset(tmp_path / "absent")
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(DataError, match="not a folder"):
+        open_dataset(tmp_path / "file")
+    (tmp_path / "empty" / "_background_noise_").mkdir(parents=True)
+    with pytest.raises(DataError, match="no word folders"):
+        open_dataset(tmp_path / "empty")
+
+
+def test_missing_noise_folder_is_a_problem_not_an_error(gscd):
+    for f in (gscd / "_background_noise_").iterdir():
+        f.unlink()
+    (gscd / "_background_noise_").rmdir()
+    ds = open_dataset(gscd)
+    assert ds.noise_files == [] and not any(c.word == "_silence_" for c in ds.clips)
+    assert any("no background-noise folder" in p for p in ds.problems)
+
+
+def test_missing_split_list_is_named(gscd):
+    (gscd / "testing_list.txt").unlink()
+    with pytest.raises(DataError) as err:
+        open_dataset(gscd)
+    assert err.value.path == str(gscd / "testing_list.txt")
+    assert "split list missing" in err.value.format()
+
+
+@pytest.mark.parametrize("line", ["yes", "yes/a/b.wav", "yes/notes.txt", "/yes.wav"])
+def test_malformed_split_list_line_is_named_with_its_line(gscd, line):
+    path = gscd / "validation_list.txt"
+    path.write_text(path.read_text() + line + "\n")
+    count = len(path.read_text().splitlines())
+    with pytest.raises(DataError) as err:
+        open_dataset(gscd)
+    assert err.value.path == f"{path}:{count}"
+    assert repr(line) in err.value.reason
+
+
+def test_unreadable_split_list_is_named(gscd):
+    (gscd / "validation_list.txt").write_bytes(b"\xff\xfe\x00bad")
+    with pytest.raises(DataError, match="cannot read the split list"):
+        open_dataset(gscd)
+
+
+def test_a_clip_in_both_lists_is_an_error(gscd):
+    entry = (gscd / "validation_list.txt").read_text().splitlines()[0]
+    with open(gscd / "testing_list.txt", "a") as f:
+        f.write(entry + "\n")
+    with pytest.raises(DataError, match="also in validation_list.txt"):
+        open_dataset(gscd)
+
+
+def test_list_entries_without_files_are_problems(gscd):
+    with open(gscd / "testing_list.txt", "a") as f:
+        f.write("yes/ffffffff_nohash_0.wav\n")
+    ds = open_dataset(gscd)
+    assert len(ds.problems) == 1
+    assert "yes/ffffffff_nohash_0.wav names no file" in ds.problems[0]
+    assert "testing_list.txt:" in ds.problems[0]
+
+
+def test_folders_that_are_not_gscd_words_are_unknown(gscd, caplog):
+    (gscd / "banana").mkdir()
+    sf.write(gscd / "banana" / "0a7c2a8d_nohash_0.wav", _tone(700), RATE)
+    with caplog.at_level(logging.WARNING, logger="springc.data"):
+        ds = open_dataset(gscd)
+    assert {c.label for c in ds.clips if c.word == "banana"} == {"_unknown_"}
+    assert "banana: not one of the 35 GSCD words" in caplog.text
+
+
+def test_clip_is_hashable_and_frozen():
+    clip = Clip(Path("yes/a_nohash_0.wav"), "yes", "yes", "train", "a")
+    assert {clip: 1}[clip] == 1
+    with pytest.raises(AttributeError):
+        clip.word = "no"  # type: ignore[misc]

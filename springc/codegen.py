@@ -26,7 +26,8 @@ class KernelOptions:
     """Everything besides the element kinds that changes the generated text.
 
     `record`: store probe trajectories; `work`: accumulate input work per force element;
-    `dissipation`: accumulate energy dissipated in dampers; `msq`: windowed mean squares."""
+    `dissipation`: accumulate energy dissipated in dampers; `msq`: windowed mean squares;
+    `gram`: leaky Gram sums of node-pair products (springc.reductions `gram`)."""
 
     method: str = "rk4"
     precision: str = "float64"
@@ -34,6 +35,7 @@ class KernelOptions:
     work: bool = False
     dissipation: bool = False
     msq: bool = False
+    gram: bool = False
 
 
 @dataclass(frozen=True)
@@ -103,6 +105,8 @@ def run_args(feat: Features, opts: KernelOptions) -> list[str]:
         names += ["ds_i", "ds_j", "ds_b", "diss"]
     if opts.msq:
         names += ["ms_node", "ms_isv", "ms_lo", "ms_hi", "msq"]
+    if opts.gram:
+        names += ["gr_i", "gr_j", "gr_g", "gr_w", "gr_decay", "gram"]
     names += ["xf", "vf", "status", "bad_node"]
     return names
 
@@ -120,7 +124,7 @@ def generate(net: FlatNetlist, options: KernelOptions) -> str:
         f"# options: {asdict(options)}",
         f"# integrator: {tab.name} ({tab.description})",
         f"# dofs: {net.n}; elements: {net.element_counts()}",
-        f"# kernel-hash: {digest}",
+        f"# body-hash: {digest}",
         "",
     ]
     return "\n".join(header) + body
@@ -132,10 +136,8 @@ def source_hash(text: str) -> str:
 
 
 def kernel_hash(source: str) -> str:
-    """The hash recorded in a generated source's header."""
-    for line in source.splitlines():
-        if line.startswith("# kernel-hash: "):
-            return line.split(": ", 1)[1].strip()
+    """The hash naming a kernel's cache file: of the whole text, header included, so a cached
+    file is never rewritten with another header (which would invalidate numba's cache)."""
     return source_hash(source)
 
 
@@ -419,6 +421,8 @@ def _emit_step_end(c: _Code, opts: KernelOptions) -> None:
         c("        for b in range(nb_):")
         c("            q = v[ms_node[m], b] if ms_isv[m] else x[ms_node[m], b]")
         c("            msacc[m, b] += q * q")
+    if opts.gram:
+        _emit_gram_step(c)
     if opts.record:
         c("if k1 % rec_every == 0:")
         c("    r = k1 // rec_every")
@@ -450,6 +454,22 @@ def _emit_step_end(c: _Code, opts: KernelOptions) -> None:
     c.dedent()
 
 
+def _emit_gram_step(c: _Code) -> None:
+    # Leaky sum: decay every group by exp(-h/tau), then add this step's weighted products;
+    # stays bounded (no exp(t/tau) growth) and needs no stored trajectory.
+    c("for gq in range(gracc.shape[0]):")
+    c("    dg = gr_decay[gq]")
+    c("    for b in range(nb_):")
+    c("        gracc[gq, b] *= dg")
+    c("for p in range(gr_i.shape[0]):")
+    c("    xi_ = x[gr_i[p]]")
+    c("    xj_ = x[gr_j[p]]")
+    c("    gp = gr_g[p]")
+    c("    wp = gr_w[p]")
+    c("    for b in range(nb_):")
+    c("        gracc[gp, b] += wp * xi_[b] * xj_[b]")
+
+
 def _emit_reduction_init(c: _Code, opts: KernelOptions) -> None:
     if opts.work:
         c("w_in = np.zeros((work_in.shape[0], nb_))")
@@ -458,6 +478,11 @@ def _emit_reduction_init(c: _Code, opts: KernelOptions) -> None:
         c("dsacc = np.zeros((ds_i.shape[0], nb_))")
     if opts.msq:
         c("msacc = np.zeros((ms_node.shape[0], nb_))")
+    if opts.gram:
+        c("gracc = np.zeros((gram.shape[0], nb_))")
+        c("for p in range(gr_i.shape[0]):")
+        c("    for b in range(nb_):")
+        c("        gracc[gr_g[p], b] += gr_w[p] * x[gr_i[p], b] * x[gr_j[p], b]")
 
 
 def _emit_reduction_store(c: _Code, opts: KernelOptions) -> None:
@@ -468,6 +493,8 @@ def _emit_reduction_store(c: _Code, opts: KernelOptions) -> None:
         pairs.append(("dsacc", "diss"))
     if opts.msq:
         pairs.append(("msacc", "msq"))
+    if opts.gram:
+        pairs.append(("gracc", "gram"))
     for local, out in pairs:
         c(f"for r in range({local}.shape[0]):")
         c("    for b in range(nb_):")

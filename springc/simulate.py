@@ -140,7 +140,8 @@ def simulate(net: FlatNetlist, inputs=None, input_rate: float | None = None, *,
     plist = resolve_probes(net, probes)
     rplan = reductions_plan(list(reductions), net)
     opts = codegen.KernelOptions(st.method, st.precision, record=bool(plist), work=rplan.work,
-                                 dissipation=bool(rplan.damper_rows), msq=bool(rplan.msq))
+                                 dissipation=bool(rplan.damper_rows), msq=bool(rplan.msq),
+                                 gram=bool(rplan.gram))
     start = time.perf_counter()
     kernel = loader.load(codegen.generate(net, opts))
     out = _run_batches(net, kernel, st, signals, names, plist, rplan, batch, chunk, progress)
@@ -246,15 +247,17 @@ def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rplan, chun
                 ms_lo=np.array([w[0] for w in wins], np.int64),
                 ms_hi=np.array([w[1] for w in wins], np.int64),
                 msq=np.zeros((len(wins), runs)))
+    ngram = sum(r.gram.groups for r in rplan.gram)
+    args.update(reductions.gram_arrays(rplan, st.h, dtype), gram=np.zeros((ngram, runs)))
     kernel.run(**{k: args[k] for k in kernel.args})
     _check_divergence(net, st, args, names)
     work = np.zeros((nf, runs))
     work[sources.input_forces(net)] = args["work_in"]
     work[sources.common_forces(net)] = args["work_c"]
-    return list(args["rec"]), _finish_reductions(net, rplan, args, work, wins)
+    return list(args["rec"]), _finish_reductions(net, rplan, args, work, wins, st)
 
 
-def _finish_reductions(net, rplan, args, work, wins) -> dict[str, np.ndarray]:
+def _finish_reductions(net, rplan, args, work, wins, st) -> dict[str, np.ndarray]:
     xf, vf = args["xf"].astype(np.float64), args["vf"].astype(np.float64)
     out: dict[str, np.ndarray] = {}
     msq_rows = {r.spec: k for k, r in enumerate(rplan.msq)}
@@ -275,6 +278,10 @@ def _finish_reductions(net, rplan, args, work, wins) -> dict[str, np.ndarray]:
                     out[r.spec] = -10.0 * np.log10(diss / work.sum(axis=0))
             case "energy":
                 out[r.spec] = physics.energy(net, xf, vf)
+            case "gram":
+                acc = args["gram"][rplan.gram_slices[r.spec]]
+                out[r.spec] = reductions.gram_finish(r, acc, args["x0"].astype(np.float64), xf,
+                                                     st.h, st.nsteps * st.h)
             case _:
                 raise TypeError(f"unhandled reduction kind {r.kind!r}")
     return out

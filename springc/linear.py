@@ -327,24 +327,25 @@ def _record_modes(nodes, lam, shapes, raw: _Raw) -> None:
 
 
 def _sparse_component(net, lin: Linearisation, nodes: np.ndarray, raw: _Raw) -> None:
-    """Fastest modes of a large component: shift-invert Lanczos just above a Gershgorin bound
-    of the stiffness and damping spectra, then each mode's eigenvalue pair from its modal
-    mass, damping and stiffness."""
+    """Fastest modes of a large component. Candidates: the highest and the lowest undamped
+    modes (shift-invert Lanczos above a Gershgorin bound and just below zero) and the most
+    damped directions; each gives the eigenvalue pair of its modal mass, damping and
+    stiffness. Exact when damping does not couple the undamped modes (e.g. b = alpha m):
+    oscillating modes are fastest at the top of the spectrum, overdamped ones at the bottom."""
     m = net.mass()[nodes]
     isq = sp.diags(1.0 / np.sqrt(m))
     kt = (isq @ lin.K[nodes][:, nodes] @ isq).tocsc()
     bt = (isq @ lin.B[nodes][:, nodes] @ isq).tocsc()
     kvals, kvecs = _top_eigs(kt)
-    bvecs = _top_damping_vectors(bt)
+    low, lvecs = _sparse_zero_modes(net, kt, nodes, m, kvals, raw)
     raw.omega2_max = max(raw.omega2_max, float(kvals.max(initial=0.0)))
     raw.complete = False
-    for phi in np.hstack([kvecs, bvecs]).T:
-        w2, gamma = float(phi @ (kt @ phi)), float(phi @ (bt @ phi))
-        for lam in np.roots([1.0, gamma, w2]):
-            if abs(lam) > 0 and lam.imag >= 0:
-                raw.lam.append(complex(lam))
-                raw.shapes.append((nodes, phi / np.sqrt(m)))
-    _sparse_zero_modes(net, kt, nodes, m, kvals, raw)
+    cand = np.hstack([kvecs, lvecs, _top_damping_vectors(bt)]).T
+    w2 = np.einsum("ij,ij->i", cand, (kt @ cand.T).T)
+    gamma = np.einsum("ij,ij->i", cand, (bt @ cand.T).T)
+    lam = _pair_roots(gamma, np.maximum(w2, 0.0))
+    shapes = np.vstack([cand, cand]).T / np.sqrt(m)[:, None]
+    _record_modes(nodes, lam, shapes, raw)
 
 
 def _top_eigs(mat: sp.csc_matrix) -> tuple[np.ndarray, np.ndarray]:
@@ -369,16 +370,23 @@ def _top_damping_vectors(bt: sp.csc_matrix) -> np.ndarray:
     return _top_eigs(bt)[1]
 
 
-def _sparse_zero_modes(net, kt, nodes, m, kvals, raw: _Raw) -> None:
+def _sparse_zero_modes(net, kt, nodes, m, kvals, raw: _Raw) -> tuple[np.ndarray, np.ndarray]:
+    """Record the zero modes of a large component; return its lowest modes (values, vectors
+    in mass-weighted coordinates)."""
+    n = len(nodes)
     scale = float(kvals.max(initial=0.0))
-    if scale == 0.0:
-        _record_zero(net, nodes, np.zeros(len(nodes)), np.diag(1 / np.sqrt(m)), raw)
-        return
-    k = min(SPARSE_MODES, len(nodes) - 1)
+    if scale == 0.0:  # no stiffness at all: every node moves freely
+        weight = 1 / np.sqrt(m)
+        top = np.argsort(-weight, kind="stable")[:3]
+        names = [(net.nodes[nodes[t]], float(weight[t] / weight.max())) for t in top]
+        raw.zero.append(ZeroModes(n, names))
+        return np.zeros(0), np.zeros((n, 0))
+    k = min(SPARSE_MODES, n - 1)
     low, vecs = sla.eigsh(kt, k=k, sigma=-ZERO_TOL * scale, which="LM")
     zero = np.abs(low) <= ZERO_TOL**2 * scale
     _record_zero(net, nodes, np.where(zero, 0.0, scale), vecs / np.sqrt(m)[:, None], raw,
                  at_least=bool(zero.all()))
+    return low, vecs
 
 
 def _assemble(raw: _Raw, names: list[str]) -> Modes:

@@ -1,0 +1,181 @@
+"""Linear analysis: the sparse linearisation against the reference physics, components,
+modes against analytic spectra, and the step limit against the RK stability polynomials."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from springc import linear, physics
+from springc.integrators import TABLEAUX, max_stable_step
+from springc.ir import IRBuilder
+
+
+def _mixed():
+    """Every element kind, P terms of degree 1 to 3, dashpots to ground and between nodes."""
+    b = IRBuilder()
+    for idx, name in enumerate("abcde"):
+        b.mass(f"M{name}", name, 1.0 + idx, b=0.1 * idx)
+    b.spring("Ka", "a", 3.0)
+    b.duffing("Da", "a", 5.0)
+    b.coupling("Cab", "a", "b", 2.0, a=1.5)
+    b.coupling("Cbc", "b", "c", -1.0, a=-0.5)
+    b.quad("Qcd", "c", "d", 0.7, a=2.0)
+    b.dashpot("Bd0", "d", "0", 0.3)
+    b.dashpot("Bde", "d", "e", 0.4)
+    b.monomial("P2", 0.25, [("e", 1), ("a", 1)])
+    b.monomial("P3", 0.5, [("e", 2)])
+    b.monomial("P4", 1.0, [("b", 2), ("c", 1)])
+    return b.finish()
+
+
+def test_linearisation_matches_the_reference_physics() -> None:
+    net = _mixed()
+    lin = linear.linearise(net)
+    np.testing.assert_allclose(lin.K.toarray(), physics.stiffness_matrix(net), atol=1e-14)
+    np.testing.assert_allclose(lin.B.toarray(), physics.damping_matrix(net), atol=1e-14)
+    np.testing.assert_allclose(lin.M.diagonal(), net.mass())
+
+
+def test_components() -> None:
+    b = IRBuilder()
+    for name in ["a", "b", "c", "d", "e", "f"]:
+        b.mass(f"M{name}", name, 1.0)
+    b.coupling("C1", "a", "c", 1.0)
+    b.dashpot("B1", "d", "0", 1.0)  # ground joins nothing
+    b.dashpot("B2", "b", "e", 1.0)
+    b.monomial("P1", 1.0, [("f", 2), ("d", 2)])
+    parts = linear.components(b.finish())
+    assert [list(p) for p in parts] == [[0, 2], [1, 4], [3, 5]]
+
+
+def _chain(n: int, k: float, m: float, alpha: float = 0.0):
+    """n masses, nearest-neighbour couplings k, both ends held by springs k (fixed ends)."""
+    b = IRBuilder()
+    for i in range(n):
+        b.mass(f"M{i}", f"n{i}", m, b=alpha * m)
+    b.spring("KL", "n0", k)
+    b.spring("KR", f"n{n - 1}", k)
+    for i in range(n - 1):
+        b.coupling(f"C{i}", f"n{i}", f"n{i + 1}", k)
+    return b.finish()
+
+
+@pytest.mark.parametrize("n", [1, 7, 40, 400])
+def test_chain_spectrum(n: int) -> None:
+    """Fixed-end chain: omega_j = 2 sqrt(k/m) sin(j pi / (2(n+1))), j = 1..n (400: sparse)."""
+    k, m = 3.0, 2.0
+    found = linear.modes(_chain(n, k, m))
+    top = 2 * np.sqrt(k / m) * np.sin(n * np.pi / (2 * (n + 1)))
+    assert found.omega_max == pytest.approx(top, rel=1e-12)
+    assert found.complete == (n <= linear.DENSE_MAX)
+    if found.complete:
+        theory = 2 * np.sqrt(k / m) * np.sin(np.arange(1, n + 1) * np.pi / (2 * (n + 1)))
+        np.testing.assert_allclose(2 * np.pi * found.freqs_hz, theory, rtol=1e-10)
+        assert np.all(np.isinf(found.q_factors)) and np.all(found.damping_rates == 0)
+
+
+def test_single_oscillator_step_limits_match_the_stability_polynomials() -> None:
+    """dt_max * w is the imaginary-axis limit of each tableau: 2 sqrt 2 for the RK4 family,
+    sqrt 3 for the third-order schemes, 0 for midpoint."""
+    w = 2 * np.pi * 440
+    b = IRBuilder()
+    b.mass("M", "a", 0.5)
+    b.spring("K", "a", 0.5 * w**2)
+    net = b.finish()
+    expected = {"rk4": 2 * np.sqrt(2), "rk38": 2 * np.sqrt(2), "ssprk3": np.sqrt(3),
+                "heun3": np.sqrt(3), "midpoint": 0.0}
+    assert set(expected) == set(TABLEAUX)
+    for method, limit in expected.items():
+        assert linear.dt_max(net, method) * w == pytest.approx(limit, abs=1e-6), method
+
+
+def test_damped_modes_are_exact() -> None:
+    """A damped two-mass system with non-proportional damping (dense eig path) against the
+    eigenvalues of the first-order matrix computed by scipy."""
+    b = IRBuilder()
+    b.mass("M1", "a", 1.0, b=0.3)
+    b.mass("M2", "b", 2.0)
+    b.spring("K1", "a", 4.0)
+    b.coupling("C", "a", "b", 1.0)
+    net = b.finish()
+    found = linear.modes(net)
+    a = linear.linearise(net).first_order().toarray()
+    ref = scipy.linalg.eigvals(a)
+    ref = np.sort_complex(ref[ref.imag > 0])
+    np.testing.assert_allclose(np.sort_complex(found.eigenvalues), ref, rtol=1e-10)
+    np.testing.assert_allclose(np.sort(found.q_factors), np.sort(abs(ref) / (-2 * ref.real)),
+                               rtol=1e-9)
+
+
+def test_mass_proportional_damping_modes() -> None:
+    """b = alpha m (the paper's damping): every mode decays at alpha/2 and keeps its
+    undamped natural frequency |lambda| = omega_j."""
+    alpha, k, m, n = 0.4, 5.0, 1.5, 6
+    found = linear.modes(_chain(n, k, m, alpha))
+    theory = 2 * np.sqrt(k / m) * np.sin(np.arange(1, n + 1) * np.pi / (2 * (n + 1)))
+    np.testing.assert_allclose(2 * np.pi * found.freqs_hz, theory, rtol=1e-10)
+    np.testing.assert_allclose(found.damping_rates, alpha / 2, rtol=1e-10)
+    np.testing.assert_allclose(found.q_factors, theory / alpha, rtol=1e-10)
+
+
+def test_sparse_path_agrees_with_the_dense_one(monkeypatch) -> None:
+    net = _chain(350, 2.0, 1.0, alpha=30.0)
+    sparse = linear.step_limit(linear.modes(net))
+    monkeypatch.setattr(linear, "DENSE_MAX", 1000)
+    dense_modes = linear.modes(net)
+    dense = linear.step_limit(dense_modes)
+    assert dense_modes.complete
+    assert sparse.dt == pytest.approx(dense.dt, rel=1e-9)
+    assert sparse.mode.lam == pytest.approx(dense.mode.lam, rel=1e-9)
+
+
+def test_step_limit_equals_the_brute_force_minimum() -> None:
+    """The candidate pruning of `step_limit` must not change the answer."""
+    found = linear.modes(_mixed_damped())
+    dt, _ = max_stable_step(TABLEAUX["rk4"], found.eigenvalues)
+    assert linear.step_limit(found, "rk4").dt == pytest.approx(dt, rel=1e-12)
+
+
+def _mixed_damped():
+    rng = np.random.default_rng(3)
+    b = IRBuilder()
+    for i in range(12):
+        b.mass(f"M{i}", f"n{i}", rng.uniform(0.5, 2), b=rng.uniform(0, 3))
+        b.spring(f"K{i}", f"n{i}", rng.uniform(1, 50))
+    for i in range(11):
+        b.coupling(f"C{i}", f"n{i}", f"n{i + 1}", rng.uniform(1, 20))
+    return b.finish()
+
+
+def test_zero_modes_of_a_free_body_and_a_free_chain() -> None:
+    b = IRBuilder()
+    b.mass("M", "free", 1.0, b=2.0)
+    found = linear.modes(b.finish())
+    assert found.zero_count == 1
+    # The damped free body keeps one real mode: velocity decays at b/m.
+    assert found.eigenvalues == pytest.approx([-2.0])
+    free_chain = _chain(400, 1.0, 1.0)
+    free_chain.springs.node = free_chain.springs.node[:0]
+    free_chain.springs.k = free_chain.springs.k[:0]
+    free_chain.springs.names, free_chain.springs.locs = [], []
+    found = linear.modes(free_chain)
+    assert found.zero_count == 1 and not found.zero_modes[0].at_least
+
+
+def test_mode_shape_and_dominant_nodes() -> None:
+    """Two equal masses joined by a spring, one held: the fast mode is mostly antisymmetric."""
+    b = IRBuilder()
+    b.mass("M1", "a", 1.0)
+    b.mass("M2", "b", 1.0)
+    b.coupling("C", "a", "b", 1.0)
+    b.spring("K", "a", 1.0)
+    found = linear.modes(b.finish())
+    fast = found.mode(len(found) - 1)
+    # K = [[2, -1], [-1, 1]]: omega^2 = (3 + sqrt 5)/2, shape (1, (1 - sqrt 5)/2).
+    assert fast.omega == pytest.approx(np.sqrt((3 + np.sqrt(5)) / 2), rel=1e-12)
+    assert fast.shape["a"] == pytest.approx(1.0)
+    assert fast.shape["b"] == pytest.approx((1 - np.sqrt(5)) / 2, rel=1e-10)
+    assert [name for name, _ in fast.dominant()] == ["a", "b"]
+    assert linear.fastest_mode(b.finish()).omega == pytest.approx(fast.omega)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import multiprocessing
+import multiprocessing.util
 import os
 import shutil
 import sys
@@ -45,6 +46,7 @@ BABBLE_SOURCES = (Path("/usr/share/codec2/wav"), Path("/usr/share/sounds/alsa"))
 NOISE_FILES = {"white_noise": 45, "pink_noise": 50, "brown_noise": 40, "babble": 60,
                "hum": 35}  # seconds each
 PARTIAL_MARK = ".springc-partial"
+SCRATCH = ".scratch"
 
 
 @dataclass(frozen=True)
@@ -95,7 +97,8 @@ def split_speakers(voices: list[Voice], seed: int) -> dict[str, str]:
                 continue
             have = {e for s, sp in split_of.items() if sp == split for e in engines[s]}
             split_of[max(free, key=lambda s: len(engines[s] - have))] = split
-    target = {s: SPLIT_SHARES[s] * len(order) for s in SPLITS}
+    held = max(int(round(SPLIT_SHARES["test"] * len(order))), 1) if len(order) >= 3 else 0
+    target = {"train": len(order) - 2 * held, "validation": held, "test": held}
     for speaker in order:
         if speaker not in split_of:
             count = Counter(split_of.values())
@@ -290,7 +293,10 @@ _WORKER: dict = {}
 
 
 def _init_worker(out: str, use_babble: bool) -> None:
-    _WORKER.update(out=Path(out), speaker=Speaker(),
+    # Scratch files live inside the unfinished corpus, so nothing is left behind on failure.
+    speaker = Speaker(Path(out) / SCRATCH)
+    multiprocessing.util.Finalize(speaker, speaker.close, exitpriority=10)
+    _WORKER.update(out=Path(out), speaker=speaker,
                    sources=babble_sources() if use_babble else [])
 
 
@@ -307,23 +313,27 @@ def _render_one(plan: ClipPlan) -> tuple[int, str | None]:
 def render_all(plans: list[ClipPlan], out: Path, jobs: int, use_babble: bool) -> dict[int, str]:
     """Render every plan into `out` with `jobs` processes; {index: failure} for clips that
     could not be made. Shows a progress bar (clips done, rate, time left)."""
-    failures: dict[int, str] = {}
-    bar = tqdm(total=len(plans), desc="synthesising", unit="clip", file=sys.stderr,
-               disable=None)
-    with bar:
-        if jobs <= 1:
-            _init_worker(str(out), use_babble)
-            try:
-                results = map(_render_one, plans)
-                failures = _collect(results, bar)
-            finally:
-                _WORKER.pop("speaker").close()
-        else:
-            # fork: workers start at once; each opens its own festival on first use.
-            ctx = multiprocessing.get_context("fork")
-            with ctx.Pool(jobs, _init_worker, (str(out), use_babble)) as pool:
-                failures = _collect(pool.imap_unordered(_render_one, plans, chunksize=4), bar)
+    if jobs <= 1:
+        _init_worker(str(out), use_babble)
+        try:
+            with progress(len(plans)) as bar:
+                return _collect(map(_render_one, plans), bar)
+        finally:
+            _WORKER.pop("speaker").close()
+    # fork: workers start at once (before the progress bar's thread exists); each opens its
+    # own festival on first use.
+    ctx = multiprocessing.get_context("fork")
+    with ctx.Pool(jobs, _init_worker, (str(out), use_babble)) as pool:
+        with progress(len(plans)) as bar:
+            failures = _collect(pool.imap_unordered(_render_one, plans, chunksize=4), bar)
+        pool.close()  # a clean exit lets each worker stop its festival
+        pool.join()
     return failures
+
+
+def progress(total: int) -> tqdm:
+    """A progress bar on stderr: clips done, rate and time left (hidden when not a terminal)."""
+    return tqdm(total=total, desc="synthesising", unit="clip", file=sys.stderr, disable=None)
 
 
 def _collect(results, bar) -> dict[int, str]:
@@ -381,7 +391,7 @@ def prepare_output(out: Path) -> Path:
         if not (tmp / PARTIAL_MARK).is_file():
             raise UsageError(f"{tmp} exists and is not an unfinished springc corpus; remove it")
         shutil.rmtree(tmp)  # left by an interrupted run
-    tmp.mkdir(parents=True)
+    (tmp / SCRATCH).mkdir(parents=True)
     (tmp / PARTIAL_MARK).write_text("an unfinished `springc data synth`; safe to delete\n")
     return tmp
 
@@ -445,6 +455,7 @@ def synthesise(out, *, clips: int = DEFAULT_CLIPS, seed: int = 0, jobs: int = 0,
             raise DataError(str(out), "every clip failed to synthesise")
         write_lists(tmp, plans, failures)
         write_voices(tmp, voices, split_of, plans, failures)
+        shutil.rmtree(tmp / SCRATCH)
         (tmp / PARTIAL_MARK).unlink()
         tmp.rename(out)
     except BaseException:

@@ -48,16 +48,18 @@ class Voice:
     spec: str  # what the engine is given: an espeak voice+variant, a flite or festival voice
 
 
-def run(args: list[str], stdin: str | None = None, timeout: float = 60.0) -> bytes:
-    """stdout of a command; SynthesisError when it fails."""
+def run(args: list[str], stdin: str | None = None, timeout: float = 60.0,
+        error_word: str | None = None) -> bytes:
+    """stdout of a command; SynthesisError when it fails, or when its stderr holds
+    `error_word` (flite exits 0 after falling back to its default voice)."""
     try:
         done = subprocess.run(args, input=None if stdin is None else stdin.encode(),
                               capture_output=True, timeout=timeout, check=False)
     except (OSError, subprocess.TimeoutExpired) as exc:
         raise SynthesisError(f"{args[0]}: {exc}") from None
-    if done.returncode != 0:
-        raise SynthesisError(f"{' '.join(args)}: exit {done.returncode}: "
-                             f"{done.stderr.decode(errors='replace').strip()[:200]}")
+    stderr = done.stderr.decode(errors="replace").strip()
+    if done.returncode != 0 or (error_word and error_word in stderr):
+        raise SynthesisError(f"{' '.join(args)}: exit {done.returncode}: {stderr[:200]}")
     return done.stdout
 
 
@@ -167,8 +169,8 @@ class Speaker:
     """Speaks words with any voice; keeps one `festival --pipe` process open (starting one
     costs far more than a word) and a scratch folder for flite. Use as a context manager."""
 
-    def __init__(self) -> None:
-        self.scratch = Path(tempfile.mkdtemp(prefix="springc-tts-"))
+    def __init__(self, scratch_root: Path | None = None) -> None:
+        self.scratch = Path(tempfile.mkdtemp(prefix="springc-tts-", dir=scratch_root))
         self.festival: subprocess.Popen | None = None
         self.festival_voice = ""
 
@@ -207,8 +209,8 @@ class Speaker:
         out.unlink(missing_ok=True)
         run(["flite", "-voice", voice.spec, "-t", text, "-o", str(out),
              "--setf", f"duration_stretch={stretch:.4f}",
-             "--setf", f"int_f0_target_mean={100 * pitch:.2f}"])
-        if not out.is_file():  # flite exits 0 even when the voice does not load
+             "--setf", f"int_f0_target_mean={100 * pitch:.2f}"], error_word="Error")
+        if not out.is_file():
             raise SynthesisError(f"{voice.id}: flite wrote no file")
         return decode_wav(out.read_bytes(), voice.id)
 

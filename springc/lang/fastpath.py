@@ -42,9 +42,12 @@ def statement(line: str, lineno: int, file: str, problems: list) -> ast.Statemen
         tokens = _tokens(_LINE_TOKEN, line, 0)
         if not tokens:
             return None
-        return _Line(tokens, lineno, file, problems).statement()
+        found: list = []  # kept only if the whole line is read
+        stmt = _Line(tokens, lineno, file, found).statement()
     except _Bail:
         return None
+    problems.extend(found)
+    return stmt
 
 
 _END = ("end", "", 0)  # sentinel after the last token, so look-ahead needs no bounds checks

@@ -107,6 +107,7 @@ def test_passes_the_compiler_checks(design, tmp_path):
                    f".tran 1e-4 0.01\n")
     report = build(top)
     assert report.dofs == 2 * N
+    assert report.zero_modes == N
     assert report.to_json()["elements"] == {"M": 2 * N, "C": N * N, "P": 2 * N}
 
 

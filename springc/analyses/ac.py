@@ -87,7 +87,7 @@ def response(net: FlatNetlist, node: str, f_hz: np.ndarray, channel: int = 0) ->
 def _near(net: FlatNetlist, node: str) -> str:
     import difflib
 
-    close = difflib.get_close_matches(node, net.nodes, n=3)
+    close = difflib.get_close_matches(node, net.nodes, n=3, cutoff=0.5)
     return f"did you mean {', '.join(close)}?" if close else "node names are case-sensitive"
 
 

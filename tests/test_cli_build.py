@@ -1,0 +1,121 @@
+"""`springc build`, `springc ac` and `springc modes` through click's CliRunner, and `build`
+once as a real subprocess of the installed `springc`."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from springc.design.filters import two_mode_response
+from springc_cli.main import main
+
+FILTER = """\
+.title two-mode band-pass filter
+.param wa={2*pi*1000} delta=1.1 alpha=400
+Ma xa m=1 b={alpha}
+Mb xb m=1 b={alpha}
+Ka xa k={wa**2}
+Kb xb k={wa**2}
+Cab xa xb k={(delta**2 - 1) * wa**2 / 2}
+Fa xa in(0) gain={alpha * (1 + delta**2) * wa**2}
+Fb xb in(0) gain={alpha * (1 - delta**2) * wa**2}
+.probe x(xa) x(xb)
+.tran {1/64000} 1
+.ac xb 200 5000 points=50
+"""
+
+
+@pytest.fixture
+def netlist(tmp_path):
+    path = tmp_path / "filter.spr"
+    path.write_text(FILTER)
+    return path
+
+
+def _run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+
+
+def test_build_json(netlist) -> None:
+    res = _run("build", netlist, "--json")
+    assert res.exit_code == 0, res.output
+    data = json.loads(res.output)
+    assert data["dofs"] == 2 and data["elements"] == {"M": 2, "K": 2, "C": 1, "F": 2}
+    assert data["omega_max"] == pytest.approx(1.1 * 2 * np.pi * 1000, rel=1e-12)
+    assert data["dt_max"] > 1 / 64000
+
+
+def test_build_text_and_kernel(netlist, tmp_path) -> None:
+    kernel = tmp_path / "kernel.py"
+    res = _run("build", netlist, "--emit-kernel", kernel, "--method", "rk38")
+    assert res.exit_code == 0, res.output
+    assert "omega_max" in res.output and "(rk38)" in res.output
+    text = kernel.read_text()
+    assert "def " in text and "rk38" in text
+
+
+def test_build_error_exits_1_with_location_and_caret(tmp_path) -> None:
+    bad = tmp_path / "bad.spr"
+    bad.write_text(FILTER.replace("64000", "1000"))
+    res = _run("build", bad)
+    assert res.exit_code == 1
+    assert f"{bad}:11:1: error: time step 0.001 s is unstable for rk4" in res.output
+    assert "   11 | .tran {1/1000} 1\n      | ^" in res.output
+    assert "Traceback" not in res.output
+
+
+def test_ac_writes_csv_and_plot(netlist, tmp_path) -> None:
+    out, png = tmp_path / "h.csv", tmp_path / "h.png"
+    res = _run("ac", netlist, "--node", "xb", "-o", out, "--plot", png)
+    assert res.exit_code == 0, res.output
+    table = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert out.read_text().startswith("f_hz,mag,phase_rad\n") and table.shape == (50, 3)
+    np.testing.assert_allclose(table[[0, -1], 0], [200, 5000], rtol=1e-12)
+    h = two_mode_response(table[:, 0], 1000.0, 1.1, 400.0)
+    np.testing.assert_allclose(table[:, 1], np.abs(h), rtol=1e-6)
+    np.testing.assert_allclose(table[:, 2], np.angle(h), atol=1e-6)
+    assert png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_ac_options_override_the_directive(netlist, tmp_path) -> None:
+    out = tmp_path / "h.csv"
+    res = _run("ac", netlist, "--fmin", 10, "--fmax", 100, "--points", 3, "-o", out)
+    assert res.exit_code == 0, res.output
+    np.testing.assert_allclose(np.loadtxt(out, delimiter=",", skiprows=1)[:, 0], [10, 31.6227766,
+                                                                                 100], rtol=1e-8)
+
+
+def test_ac_bad_node_exits_1_and_writes_nothing(netlist, tmp_path) -> None:
+    out = tmp_path / "h.csv"
+    res = _run("ac", netlist, "--node", "nope", "-o", out)
+    assert res.exit_code == 1 and "unknown node 'nope'" in res.output
+    assert not out.exists()
+
+
+def test_modes_json_and_text(netlist) -> None:
+    res = _run("modes", netlist, "--json")
+    assert res.exit_code == 0, res.output
+    rows = json.loads(res.output)["modes"]
+    np.testing.assert_allclose([r["freq_hz"] for r in rows], [1000, 1100], rtol=1e-12)
+    np.testing.assert_allclose([r["damping_rate"] for r in rows], [200, 200], rtol=1e-12)
+    text = _run("modes", netlist, "--count", 1).output
+    assert "1000" in text and "1100 " not in text
+
+
+@pytest.mark.skipif(shutil.which("springc") is None, reason="springc not installed")
+def test_installed_springc_build(netlist, tmp_path) -> None:
+    proc = subprocess.run(["springc", "build", str(netlist), "--json"], capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["dofs"] == 2
+    bad = tmp_path / "bad.spr"
+    bad.write_text("M1 a m=0\n")
+    proc = subprocess.run(["springc", "build", str(bad)], capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 1
+    assert f"{bad}:1:1: error: M1: mass m=0 must be > 0" in proc.stderr

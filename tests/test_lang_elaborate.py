@@ -94,6 +94,14 @@ def test_probe_inside_a_subcircuit_is_labelled_with_the_instance_path() -> None:
         ("v(X7.in)", "X7.in"), ("x(X7.a)", "n")]
 
 
+def test_a_node_named_only_by_a_force_or_probe_is_still_a_node() -> None:
+    # the IR can hold it; springc.checks reports that it carries no mass
+    net = _load("M1 a m=1\nF1 b sin(1 2)\n.probe x(c) v(b)\n.ac c 1 2\n")
+    assert net.nodes == ["a", "b", "c"]
+    assert [(p.label, p.node) for p in net.probes] == [("x(c)", 2), ("v(b)", 1)]
+    assert net.acs[0].node == 2
+
+
 def test_ground_reaches_an_element_through_a_port() -> None:
     err = _error(SUBCKT.replace("X2 out q cell", "X2 out 0 cell"))
     assert err.message == "M: a mass cannot connect to ground (0)"
@@ -264,7 +272,7 @@ def test_analyses_options_and_title() -> None:
     ("text", "message", "line"),
     [
         (".subckt s a\n.tran 1 2\n.ends\nX1 n s\n", ".tran is only allowed at the top level", 2),
-        ("M1 a m=1\n.ac b 1 10\n", "unknown node 'b'", 2),
+        ("M1 a m=1\n.ac Xq.b 1 10\n", "unknown node 'Xq.b'", 2),
         ("M1 a m=1\n.ac a 10 1\n", ".ac needs 0 < fstart <= fstop", 2),
         ("M1 a m=1\n.ac a 1 10 pts=3\n", ".ac has no parameter 'pts'", 2),
         (".options method=rk4\n.options method=rk38\n", "option 'method' set twice", 2),

@@ -388,10 +388,10 @@ class _Elaborator:
                                    "probe x(node) (position) or v(node) (velocity)")
             if len(arg.args) != 1:
                 raise NetlistError(f"{arg.name}() takes one node", arg.loc)
-            written = scope.prefix + self._written(arg.args[0], scope.env)
+            written = self._written(arg.args[0], scope.env)
             node = self._node(arg.args[0], scope)
             loc = self._loc(arg.loc, scope)
-            label = f"{arg.name}({written})"
+            label = f"{arg.name}({scope.prefix}{written})"
             self.deferred.append(lambda q=quantity, n=node, lb=label, lc=loc, w=written:
                                  self._add_probe(q, n, lb, lc, w))
 
@@ -409,11 +409,16 @@ class _Elaborator:
         self.b.probe(quantity, node, label, loc=loc)
 
     def _known_node(self, node: str, written: str, loc: SourceLoc) -> None:
+        """An error for ground, and for a hierarchical name (`X1.a`) that names no node of
+        the instance. A plain name that no element names still becomes a node (the checks
+        report that it has no mass)."""
         if node == GROUND:
             raise NetlistError(f"'{written}' is ground, which does not move", loc)
-        if node not in self.nodes:
+        if node not in self.nodes and "." in written:
             guess = closest(node, self.nodes)
-            hint = f"did you mean '{guess}'?" if guess else "no element names this node"
+            hint = (f"did you mean '{guess}'?" if guess else
+                    f"no element of {written.rsplit('.', 1)[0]} names a node "
+                    f"'{written.rsplit('.', 1)[1]}'")
             raise NetlistError(f"unknown node '{written}'", loc, hint)
 
     def _tran(self, stmt: ast.Directive, scope: _Scope) -> None:

@@ -1,0 +1,296 @@
+"""The runtime against physics: analytic solutions, matrix exponentials, scipy, conservation.
+
+Numba compiles each distinct kernel once (cached on disk); the networks here are chosen so
+that few kernels serve many tests (parameters are runtime arguments)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import soundfile as sf
+from scipy.integrate import solve_ivp
+from scipy.linalg import expm
+
+from springc import physics
+from springc.errors import SimulationError
+from springc.integrators import amplification, get_tableau, stability_polynomial
+from springc.ir import IRBuilder, Source, Tran
+from springc.reference import solve_ivp_reference
+from springc.simulate import simulate
+
+W0 = 2 * np.pi * 10.0  # oscillator natural frequency (rad/s)
+WF = 2 * np.pi * 8.0  # drive frequency
+B_LOCAL, B_POT, AMP = 25.0, 15.0, 2.0
+ALL_REDUCTIONS = ["work:in", "dissipated:all", "dissipated:M1", "dissipated:B1", "energy",
+                  "msq:x(a):0.5:1.5", "final:x(a)", "loss:all"]
+
+
+def oscillator(tstep: float = 1e-3, tstop: float = 3.0) -> object:
+    """m x'' + (b_local + b_pot) x' + w0^2 x = AMP sin(wf t), from rest."""
+    b = IRBuilder("driven damped oscillator")
+    b.mass("M1", "a", 1.0, B_LOCAL)
+    b.spring("K1", "a", W0**2)
+    b.dashpot("B1", "a", "0", B_POT)
+    b.force("F1", "a", Source("sin", (AMP, WF / (2 * np.pi))))
+    b.probe("x", "a")
+    b.probe("v", "a")
+    b.tran = Tran(tstep, tstop, None)
+    return b.finish()
+
+
+def sim_osc(tstep: float, tstop: float = 3.0, **kw):
+    """Every oscillator run requests the same reductions, so they all share one kernel."""
+    return simulate(oscillator(tstep, tstop), reductions=ALL_REDUCTIONS, **kw)
+
+
+def exact_oscillator(t: np.ndarray) -> np.ndarray:
+    """Exact (x, v) from rest via the matrix exponential of the system augmented with the
+    drive's own oscillator (s' = wf c, c' = -wf s)."""
+    bt = B_LOCAL + B_POT
+    a = np.array([[0, 1, 0, 0], [-W0**2, -bt, AMP, 0], [0, 0, 0, WF], [0, 0, -WF, 0]])
+    y0 = np.array([0.0, 0.0, 0.0, 1.0])
+    return np.stack([expm(a * tk) @ y0 for tk in t])[:, :2].T
+
+
+def test_driven_oscillator_matches_analytic_steady_state():
+    res = sim_osc(2.5e-4)
+    t, x = res.t, res.probes["x(a)"][0]
+    late = t > 2.0  # transient decays as exp(-20 t)
+    design = np.stack([np.sin(WF * t[late]), np.cos(WF * t[late])], axis=1)
+    (cs, cc), *_ = np.linalg.lstsq(design, x[late], rcond=None)
+    h = 1.0 / (W0**2 - WF**2 + 1j * (B_LOCAL + B_POT) * WF)
+    assert abs(np.hypot(cs, cc) / (AMP * abs(h)) - 1) < 5e-9
+    assert abs(np.arctan2(cc, cs) - np.angle(h)) < 5e-9
+
+
+def test_rk4_global_error_order_is_four():
+    errors = []
+    for tstep in (4e-3, 2e-3, 1e-3):
+        res = sim_osc(tstep, tstop=1.0)
+        exact = exact_oscillator(res.t)[0]
+        errors.append(np.abs(res.probes["x(a)"][0] - exact).max())
+    ratios = np.array(errors[:-1]) / np.array(errors[1:])
+    assert np.all(np.abs(ratios - 16) < 1.0), ratios
+
+
+def test_other_scheme_has_its_order():
+    errors = []
+    for tstep in (2e-3, 1e-3):
+        res = sim_osc(tstep, tstop=1.0, method="ssprk3")
+        errors.append(np.abs(res.probes["x(a)"][0] - exact_oscillator(res.t)[0]).max())
+    assert abs(errors[0] / errors[1] - 8) < 0.8
+
+
+def test_reductions_match_scipy_energy_integrals():
+    res = sim_osc(2.5e-4, tstop=2.0)
+    bt = B_LOCAL + B_POT
+
+    def rhs(t, y):  # x, v, input work, dissipated local, dissipated dashpot
+        f = AMP * np.sin(WF * t)
+        return [y[1], f - bt * y[1] - W0**2 * y[0], f * y[1], B_LOCAL * y[1] ** 2,
+                B_POT * y[1] ** 2]
+
+    ref = solve_ivp(rhs, (0, 2.0), np.zeros(5), method="DOP853", rtol=1e-12, atol=1e-16).y[:, -1]
+    red = res.reductions
+    assert red["work:in"][0] == pytest.approx(ref[2], rel=1e-8)
+    assert red["dissipated:M1"][0] == pytest.approx(ref[3], rel=1e-8)
+    assert red["dissipated:B1"][0] == pytest.approx(ref[4], rel=1e-8)
+    assert red["dissipated:all"][0] == pytest.approx(red["dissipated:M1"][0]
+                                                     + red["dissipated:B1"][0], rel=1e-12)
+    energy = 0.5 * ref[1] ** 2 + 0.5 * W0**2 * ref[0] ** 2
+    assert red["energy"][0] == pytest.approx(energy, rel=1e-8)
+    # energy balance: final energy = work in - dissipated (to RK4's error)
+    assert red["energy"][0] == pytest.approx(red["work:in"][0] - red["dissipated:all"][0],
+                                             rel=1e-7)
+    loss = -10 * np.log10(red["dissipated:all"][0] / red["work:in"][0])
+    assert red["loss:all"][0] == pytest.approx(loss, rel=1e-12)
+
+
+def test_msq_and_final_match_the_recorded_trajectory():
+    res = sim_osc(1e-3, tstop=2.0, outrate=1e3)
+    t, x = res.t, res.probes["x(a)"][0]
+    window = (t > 0.5 + 1e-9) & (t <= 1.5 + 1e-9)
+    assert res.reductions["msq:x(a):0.5:1.5"][0] == pytest.approx(np.mean(x[window] ** 2),
+                                                                  rel=1e-12)
+    assert res.reductions["final:x(a)"][0] == x[-1]
+
+
+def test_substeps_and_outrate_set_the_grid():
+    res = sim_osc(1e-3, tstop=0.5, substeps=4, outrate=500)
+    assert res.t[1] == pytest.approx(2e-3) and len(res.t) == 251
+    exact = exact_oscillator(res.t)
+    assert np.abs(res.probes["v(a)"][0] - exact[1]).max() < 5e-9 * np.abs(exact[1]).max()
+
+
+def test_float32_agrees_with_float64_to_single_precision():
+    lo = sim_osc(1e-3, tstop=1.0, precision="float32").probes["x(a)"][0]
+    hi = sim_osc(1e-3, tstop=1.0).probes["x(a)"][0]
+    assert lo.dtype == np.float32
+    assert np.abs(lo - hi).max() < 1e-5 * np.abs(hi).max()
+
+
+def test_divergence_names_time_node_and_unstable_step():
+    with pytest.raises(SimulationError) as info:
+        sim_osc(0.05, tstop=100.0)
+    err = info.value.format()
+    assert "node a" in err and "diverged by t =" in err
+    assert "unstable step" in err and "largest stable step" in err
+
+
+# --- linear networks: exact discretisation and energy conservation -----------------------
+
+def linear_net(damped: bool, n: int = 6):
+    """A chain with springs to ground, leverage couplings (a != 1) and dashpots; initial
+    displacement and velocity, no forces."""
+    b = IRBuilder("linear chain")
+    rng = np.random.default_rng(3)
+    for i in range(n):
+        b.mass(f"M{i}", f"n{i}", rng.uniform(0.5, 2), rng.uniform(0.5, 2) * damped,
+               x0=rng.uniform(-1, 1), v0=rng.uniform(-5, 5))
+        b.spring(f"K{i}", f"n{i}", rng.uniform(50, 200))
+    for i in range(n - 1):
+        b.coupling(f"C{i}", f"n{i}", f"n{i + 1}", rng.uniform(100, 300),
+                   a=1.3 if i % 2 else 1.0)
+        b.dashpot(f"B{i}", f"n{i}", f"n{i + 1}", rng.uniform(0.1, 1) * damped)
+    for i in range(n):
+        b.probe("x", f"n{i}")
+        b.probe("v", f"n{i}")
+    b.tran = Tran(2e-3, 2.0, None)
+    return b.finish()
+
+
+def first_order_matrix(net) -> np.ndarray:
+    n = net.n
+    minv = 1 / net.mass()
+    a = np.zeros((2 * n, 2 * n))
+    a[:n, n:] = np.eye(n)
+    a[n:, :n] = -minv[:, None] * physics.stiffness_matrix(net)
+    a[n:, n:] = -minv[:, None] * physics.damping_matrix(net)
+    return a
+
+
+def state_matrix(res, net) -> np.ndarray:
+    xs = [res.probes[f"x({name})"][0] for name in net.nodes]
+    vs = [res.probes[f"v({name})"][0] for name in net.nodes]
+    return np.array(xs + vs)
+
+
+def test_linear_network_matches_exact_discretisation_and_matrix_exponential():
+    net = linear_net(damped=True)
+    res = simulate(net, reductions=["energy"])
+    y = state_matrix(res, net)
+    a = first_order_matrix(net)
+    h = net.tran.tstep
+    # one RK4 step of a linear system is the matrix polynomial R(hA), R from the tableau
+    coeffs = stability_polynomial(get_tableau("rk4"))
+    step = sum(c * np.linalg.matrix_power(h * a, k) for k, c in enumerate(coeffs))
+    y0 = y[:, 0]
+    powers = [y0]
+    for _ in range(len(res.t) - 1):
+        powers.append(step @ powers[-1])
+    discrete = np.array(powers).T
+    scale = np.abs(y).max()
+    assert np.abs(y - discrete).max() < 1e-12 * scale * len(res.t) ** 0.5
+    exact = np.array([expm(a * t) @ y0 for t in res.t[::50]]).T
+    err = np.abs(y[:, ::50] - exact).max() / scale
+    w_max = np.abs(np.linalg.eigvals(a)).max()
+    # global RK4 error bound of the fastest mode: t * (w h)^5 / 120 per unit amplitude
+    assert 1e-12 < err < 2.0 * w_max * (w_max * h) ** 4 / 120
+
+
+def test_undamped_chain_conserves_energy_to_rk4_drift():
+    net = linear_net(damped=False)
+    res = simulate(net, reductions=["energy"])
+    x0, v0 = net.initial_state()
+    e0 = physics.energy(net, x0, v0)
+    # modal energies: each mode loses |R(i w h)|^2 per step (RK4 is dissipative)
+    k, m = physics.stiffness_matrix(net), net.mass()
+    w2, modes = np.linalg.eigh(k / np.sqrt(np.outer(m, m)))
+    q, p = modes.T @ (np.sqrt(m) * x0), modes.T @ (np.sqrt(m) * v0)
+    modal = 0.5 * (p**2 + w2 * q**2)
+    h, nsteps = net.tran.tstep, len(res.t) - 1
+    gain = np.abs(amplification(get_tableau("rk4"), 1j * np.sqrt(w2) * h)) ** (2 * nsteps)
+    predicted = np.sum(modal * gain)
+    e_end = res.reductions["energy"][0]
+    assert 1e-8 < (e0 - e_end) / e0 < 1e-3  # a real drift of the expected sign
+    assert e_end == pytest.approx(predicted, rel=1e-10)
+
+
+# --- nonlinear networks against DOP853 --------------------------------------------------
+
+def nonlinear_net(in_gain: float = 2.0, sin_gain: float = 0.0):
+    """Duffing, quadratic coupling, leverage coupling, dashpots between nodes and to ground,
+    a monomial, a sine drive and an input channel."""
+    b = IRBuilder("nonlinear network")
+    b.mass("M1", "a", 1.0, 3.0)
+    b.mass("M2", "c", 2.0, 0.0, x0=0.1)
+    b.mass("M3", "d", 0.5, 1.0)
+    b.spring("K1", "a", 100.0)
+    b.spring("K2", "c", 50.0)
+    b.spring("K3", "d", 80.0)
+    b.duffing("D1", "a", 1e3)
+    b.coupling("C1", "a", "c", 20.0, a=1.5)
+    b.quad("Q1", "c", "d", 30.0, a=0.7)
+    b.dashpot("B1", "a", "d", 2.0)
+    b.dashpot("B2", "c", "0", 0.5)
+    b.monomial("P1", 5.0, [("a", 2), ("d", 2)])
+    b.force("F1", "a", Source("sin", (5.0, 2.0, 0.3)))
+    b.force("F2", "d", Source("in", channel=0), in_gain)
+    b.force("F3", "d", Source("sin", (1.0, 5.0)), sin_gain)
+    b.probe("x", "a")
+    b.probe("v", "d")
+    b.probe("x", "c")
+    b.tran = Tran(1e-3, 1.0, None)
+    return b.finish()
+
+
+def smooth_inputs(runs: int, samples: int = 1001) -> np.ndarray:
+    t = np.arange(samples) * 1e-3
+    freqs = 1.0 + np.arange(runs)[:, None]
+    return np.sin(2 * np.pi * freqs * t)[:, None, :] * 0.5
+
+
+def test_nonlinear_network_matches_dop853():
+    net = nonlinear_net()
+    u = smooth_inputs(1)
+    res = simulate(net, u, substeps=16)
+    t, ref, _ = solve_ivp_reference(net, u, tstep=1e-3, tstop=1.0, rtol=1e-10, atol=1e-13)
+    for label, want in ref.items():
+        got = res.probes[label][0]
+        assert np.abs(got - want[0]).max() < 1e-10 * np.abs(want).max(), label
+
+
+def test_batch_equals_runs_one_at_a_time():
+    net = nonlinear_net()
+    u = np.random.default_rng(5).standard_normal((5, 1, 1001))
+    together = simulate(net, u)
+    for r in range(5):
+        alone = simulate(net, u[r:r + 1])
+        for label, arr in together.probes.items():
+            np.testing.assert_allclose(arr[r], alone.probes[label][0], rtol=0, atol=1e-12)
+
+
+def test_sound_file_input_equals_analytic_source(tmp_path):
+    t = np.arange(1001) * 1e-3
+    wav = tmp_path / "sine.wav"
+    sf.write(wav, np.sin(2 * np.pi * 5.0 * t), 1000, subtype="DOUBLE")
+    from_file = simulate(nonlinear_net(in_gain=1.5, sin_gain=0.0), [wav])
+    from_array = simulate(nonlinear_net(in_gain=1.5, sin_gain=0.0), np.sin(2 * np.pi * 5 * t)
+                          [None, None, :])
+    analytic = simulate(nonlinear_net(in_gain=0.0, sin_gain=1.5))
+    assert from_file.runs == [str(wav)]
+    for label, want in analytic.probes.items():
+        np.testing.assert_allclose(from_file.probes[label], from_array.probes[label],
+                                   rtol=0, atol=1e-14)
+        # linear interpolation between samples: relative error ~ (w tstep)^2 / 8 = 1.2e-4
+        assert np.abs(from_file.probes[label] - want).max() < 2e-4 * np.abs(want).max()
+
+
+def test_input_resampled_from_another_rate():
+    t = np.arange(4001) / 4000
+    u = np.sin(2 * np.pi * 3.0 * t)[None, None, :]
+    res = simulate(nonlinear_net(), u, input_rate=4000.0)
+    ref = simulate(nonlinear_net(), np.sin(2 * np.pi * 3.0 * t[::4])[None, None, :])
+    for label, want in ref.probes.items():
+        assert np.abs(res.probes[label][0, :900] - want[0, :900]).max() < 1e-4 * np.abs(
+            want).max()

@@ -427,6 +427,8 @@ def synthesise(out, *, clips: int = DEFAULT_CLIPS, seed: int = 0, jobs: int = 0,
     words = check_words(tuple(words))
     if clips < len(words):
         raise UsageError(f"--clips {clips} is fewer than the {len(words)} words")
+    if out.exists():  # before the seconds spent finding voices
+        raise UsageError(f"{out} already exists; choose a new folder or remove it")
     notes: list[str] = []
     if voices is None:
         voices, notes = installed_voices(engines)

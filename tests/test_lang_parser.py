@@ -150,3 +150,10 @@ def test_the_first_error_in_the_file_is_reported() -> None:
     assert err.message == "malformed number '2k2'" and err.loc.line == 2
     err = _syntax("K2 a k=(1)\nK1 a k=2k2\n")
     assert err.message == "syntax error: unexpected '('" and err.loc.line == 1
+
+
+def test_deep_nesting_is_read_or_a_user_error() -> None:
+    deep = "M1 a m={" + "(" * 1000 + "1" + ")" * 1000 + "}\n"
+    assert parse(deep, "t.spr").statements[0].args[1].value.expr.value == 1.0
+    err = _syntax("M1 a m={" + "-" * 5000 + "1}\n")
+    assert err.message == "t.spr: an expression is nested too deeply to read"

@@ -32,7 +32,11 @@ TOP_ONLY = ("tran", "ac", "options")
 
 def elaborate(tree: ast.Netlist, lib_dirs: list[Path] | None = None) -> FlatNetlist:
     """Flatten a parsed netlist (with its includes and subcircuits) into a `FlatNetlist`."""
-    return _Elaborator(tree.file, lib_dirs).run(tree)
+    try:
+        return _Elaborator(tree.file, lib_dirs).run(tree)
+    except RecursionError:
+        raise NetlistError(f"{tree.file}: subcircuits or expressions are nested too deeply "
+                           "to elaborate") from None
 
 
 class _Defs:

@@ -44,7 +44,7 @@ def statement(line: str, lineno: int, file: str, problems: list) -> ast.Statemen
             return None
         found: list = []  # kept only if the whole line is read
         stmt = _Line(tokens, lineno, file, found).statement()
-    except _Bail:
+    except (_Bail, RecursionError):  # deep parentheses: lark's LALR parser does not recurse
         return None
     problems.extend(found)
     return stmt

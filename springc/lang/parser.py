@@ -36,6 +36,8 @@ def parse(text: str, filename: str) -> ast.Netlist:
     rest = "\n".join("" if i in fast else line for i, line in enumerate(lines)) + "\n"
     try:
         slow = builder.transform(_LARK.parse(rest)).children
+    except RecursionError:
+        raise NetlistError(f"{filename}: an expression is nested too deeply to read") from None
     except UnexpectedInput as err:
         syntax = _syntax_error(err, filename)
         problems.append((syntax.message, syntax.loc, syntax.diagnostic.hint))

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 
 import click
-
 from springc_cli.common import plot_option, run_user_errors
 
 

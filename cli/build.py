@@ -8,7 +8,6 @@ import tempfile
 from pathlib import Path
 
 import click
-
 from springc_cli.common import run_user_errors
 
 
@@ -22,20 +21,16 @@ from springc_cli.common import run_user_errors
 @run_user_errors
 def build_cmd(netlist: str, as_json: bool, emit_kernel: str | None, method: str | None) -> None:
     """Parse, elaborate and check NETLIST; print dofs, elements, fastest mode and dt_max."""
-    from springc import compiler, lang
+    from springc import compiler
 
-    net = lang.load_file(netlist)
-    report = compiler.report_for(net, method)
+    report = compiler.build(netlist, method=method)
     if emit_kernel:
-        _emit_kernel(net, report.method, Path(emit_kernel))
+        _write(Path(emit_kernel), compiler.kernel_source(report))
     click.echo(json.dumps(report.to_json()) if as_json else report.summary())
 
 
-def _emit_kernel(net, method: str, path: Path) -> None:
-    from springc.codegen import KernelOptions, generate
-
-    precision = str(net.options.get("precision", "float64"))
-    text = generate(net, KernelOptions(method=method, precision=precision))
+def _write(path: Path, text: str) -> None:
+    """Atomically: a temp file beside `path`, then rename."""
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:

@@ -132,8 +132,9 @@ def massless_nodes(net: FlatNetlist) -> list[Diagnostic]:
     out = []
     for node in np.nonzero(~has_mass)[0]:
         name, loc = _first_mention(net, int(node))
-        msg = f"node '{net.nodes[node]}' has no mass (named by {name}, but no M element declares it)"
-        hint = f"add an M element on '{net.nodes[node]}', e.g. 'M_{net.nodes[node]} {net.nodes[node]} m=1'"
+        node_name = net.nodes[node]
+        msg = f"node '{node_name}' has no mass (named by {name}, but no M element declares it)"
+        hint = f"add an M element on '{node_name}', e.g. 'M_{node_name} {node_name} m=1'"
         out.append(Diagnostic("error", msg, loc, hint))
     return out
 

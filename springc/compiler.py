@@ -39,6 +39,7 @@ class BuildReport:
     zero_modes: int
     modes_complete: bool
     notes: list[Diagnostic] = field(default_factory=list)
+    net: FlatNetlist | None = field(default=None, repr=False)  # what was built
 
     @property
     def f_max_hz(self) -> float:
@@ -129,4 +130,14 @@ def report_for(net: FlatNetlist, method: str | None = None) -> BuildReport:
         zero_modes=found.zero_count,
         modes_complete=found.complete,
         notes=result.notes,
+        net=net,
     )
+
+
+def kernel_source(report: BuildReport) -> str:
+    """The generated simulation kernel of a built netlist, for its configured method and
+    precision (`springc build --emit-kernel`)."""
+    from springc.codegen import KernelOptions, generate  # code generation only when asked
+
+    precision = str(report.net.options.get("precision", "float64"))
+    return generate(report.net, KernelOptions(method=report.method, precision=precision))

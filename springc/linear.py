@@ -11,7 +11,7 @@ shift-invert Lanczos for the fastest modes only, which is all the step limit nee
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import scipy.sparse as sp
@@ -52,7 +52,8 @@ def linearise(net: FlatNetlist) -> Linearisation:
     `physics.damping_matrix(net)` but sparse and vectorised (10^4 elements in milliseconds)."""
     n = net.n
     mass = sp.diags(net.mass()).tocsr()
-    return Linearisation(mass, _sparse(n, *_damping_entries(net)), _sparse(n, *_stiffness_entries(net)))
+    damping = _sparse(n, *_damping_entries(net))
+    return Linearisation(mass, damping, _sparse(n, *_stiffness_entries(net)))
 
 
 def _sparse(n: int, rows, cols, vals) -> sp.csr_matrix:
@@ -337,7 +338,7 @@ def _sparse_component(net, lin: Linearisation, nodes: np.ndarray, raw: _Raw) -> 
     kt = (isq @ lin.K[nodes][:, nodes] @ isq).tocsc()
     bt = (isq @ lin.B[nodes][:, nodes] @ isq).tocsc()
     kvals, kvecs = _top_eigs(kt)
-    low, lvecs = _sparse_zero_modes(net, kt, nodes, m, kvals, raw)
+    _, lvecs = _sparse_zero_modes(net, kt, nodes, m, kvals, raw)
     raw.omega2_max = max(raw.omega2_max, float(kvals.max(initial=0.0)))
     raw.complete = False
     cand = np.hstack([kvecs, lvecs, _top_damping_vectors(bt)]).T
@@ -427,12 +428,12 @@ def step_limit(found: Modes, method: str = DEFAULT_METHOD) -> StepLimit:
     return StepLimit(method, float(dt), found.mode(int(cand[arg])) if arg >= 0 else None)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _ray_range(tab: Tableau) -> tuple[float, float]:
     """Bounds on the stable |h lambda| over directions of the closed left half-plane (first
     exit of |R| > 1 along each ray, on a grid, widened to cover the grid's spacing)."""
-    angles = np.linspace(np.pi / 2, np.pi, 91)
-    radii = np.linspace(0.0, 8.0, 4001)[1:]
+    angles = np.linspace(np.pi / 2, np.pi, 46)
+    radii = np.linspace(0.0, 8.0, 1601)[1:]
     z = radii[:, None] * np.exp(1j * angles)[None, :]
     bad = np.abs(amplification(tab, z)) > 1 + 1e-12
     first = np.where(bad.any(axis=0), radii[np.argmax(bad, axis=0)], np.inf)

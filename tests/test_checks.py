@@ -14,7 +14,7 @@ import pytest
 
 from springc import checks
 from springc.errors import CheckError, SourceLoc
-from springc.integrators import stability_polynomial, get_tableau
+from springc.integrators import get_tableau, stability_polynomial
 from springc.ir import IRBuilder, Tran
 from springc.lang import load_file
 
@@ -136,7 +136,7 @@ def test_bounded_polynomial_is_accepted() -> None:
 def test_vanishing_top_form_needs_the_sphere_search() -> None:
     """Q's quartic (x1^4/2) vanishes along x2: with -x2 the potential falls along the valley
     x2 = x1^2; with +x2^2 instead it is bounded."""
-    quad = lambda b: b.quad("Q1", "x1", "x2", 1.0)  # noqa: E731
+    quad = lambda b: b.quad("Q1", "x1", "x2", 1.0)
     msg, = _errors(_poly([(-1, [("x2", 1)])], quad))
     u = _direction(msg)
     assert u["x2"] > 0.99
@@ -252,7 +252,7 @@ def test_large_network_checks_through_the_sparse_path() -> None:
     for i in range(n):
         b.mass(f"M{i}", f"n{i}", m)
     b.spring("KL", "n0", k)
-    b.spring(f"KR", f"n{n - 1}", k)
+    b.spring("KR", f"n{n - 1}", k)
     for i in range(n - 1):
         b.coupling(f"C{i}", f"n{i}", f"n{i + 1}", k)
     for i in range(60):

@@ -41,8 +41,8 @@ def mode_text(report: dict) -> str:
     """A table for people."""
     lines = [f"{report['file']}: {report['dofs']} dofs, {report['total_modes']} modes"
              + ("" if report["complete"] else " (large components: fastest modes only)"),
-             f"{'#':>4} {'f (Hz)':>12} {'omega (rad/s)':>14} {'rate (1/s)':>11} {'Q':>9}  "
-             f"dominant nodes"]
+             (f"{'#':>4} {'f (Hz)':>12} {'omega (rad/s)':>14} {'rate (1/s)':>11} {'Q':>9}  "
+              "dominant nodes")]
     for idx, row in enumerate(report["modes"]):
         q = "inf" if row["q"] is None else f"{row['q']:.4g}"
         nodes = ", ".join(f"{d['node']} ({d['amplitude']:.2f})" for d in row["dominant"])

@@ -1,6 +1,19 @@
 """The .spr language front end: text -> AST (`parse`) -> flat IR (`elaborate`).
 
-`load_file` and `load_text` do both. See shared/design/spr-language.md for the language.
+`load_file` and `load_text` do both. The language is shared/design/spr-language.md; where the
+spec is silent this front end does the following (tests/cases/ok shows each):
+- `.include` looks in the including file's folder, then `lib_dirs`, `STDLIB_DIR` and the
+  SPRINGC_PATH folders; a file already included in the same scope is skipped (libraries may
+  include what they use), a cycle is an error naming the chain.
+- Parameter keys of elements are case-insensitive (`M1 a M=1`), subcircuit parameters are not.
+- `{expr}` interpolation works in any name, not only inside `.for`; element lines may name
+  nodes inside instances (`C1 X1.a b`), a port resolving to the node bound to it.
+- A subcircuit defined inside another is visible only there; `.tran`, `.ac`, `.options` are
+  top-level only; a second `.tran`, `.title` or option key is an error; `.title` lines of
+  included files are ignored.
+- `B 0 a` is stored as `B a 0`; ground elsewhere is an error. A node named only by `F`,
+  `.probe` or `.ac` becomes a node (the checks report that it has no mass).
+- `sin(amp freq)` gets phase 0 in the IR; `wav("file" [channel])` takes an optional channel.
 """
 
 from __future__ import annotations

@@ -320,6 +320,52 @@ def experiment_readout(tau: float = 80.0, qr: float = blocks.READOUT_Q, n: int =
     return ReadoutDecay(res.t, res.probes["x(xl)"][0], x_r, window, float(1 / rate), tau)
 
 
+# ---------------------------------------------------------------- feature-extraction chain
+FEATURE_NET = """\
+.title one channel of the mass-spring feature extraction (paper Fig. 7a)
+.include "featurechain.spr"
+Xc lp featurechain fa={fa} delta={delta} alpha={alpha} ch=0 gain={gain} g={g} a={a}
++ fc={fc} klp={klp} nd={nd} sites={sites} td={td} kc={kc}
+"""
+
+
+@dataclass(frozen=True)
+class Features:
+    """A tone burst at a filter's centre through the feature chain: the filter output x_f,
+    the feature (low-pass mass) and its delayed copies at the far ends of the nd delay lines,
+    with their arrival times (centroids of x^2) and the design delay td."""
+
+    t: np.ndarray
+    x_f: np.ndarray
+    lp: np.ndarray
+    delayed: np.ndarray  # (nd, T)
+    arrival_lp: float
+    arrival: np.ndarray  # (nd,)
+    td: float
+
+
+def experiment_features(bin_index: int = 3, nd: int = 2, td: float = 0.032,
+                        sites: int = 4, sigma: float = 0.05) -> Features:
+    """The `bin_index` filter of the 8-bin bank, squarer (g = 1, a = 1e-4), 50 Hz low-pass
+    (k = 100) and `nd` delay lines of `sites` sites per `td`; input a tone at the Mel centre
+    with a Gaussian envelope of width `sigma` (long enough that the feature's spectrum stays in
+    the flat part of the lines' dispersion)."""
+    flt = design_melbank(8).two_mode[bin_index]
+    net = load_text(FEATURE_NET.format(fa=num(flt.fa), delta=num(flt.delta),
+                                       alpha=num(flt.alpha), gain=num(flt.gain), g=1, a=1e-4,
+                                       fc=50, klp=100, nd=nd, sites=sites, td=td, kc=KC))
+    tstep, t0 = 1 / 32000, 4 * sigma
+    tstop = t0 + 4 * sigma + nd * td
+    t = np.arange(int(round(tstop / tstep)) + 1) * tstep
+    tone = _gauss(t, t0, sigma) * np.sin(2 * np.pi * flt.centre * t)
+    labels = ["x(Xc.f)", "x(lp)"] + [f"x(Xc.d{j})" for j in range(1, nd + 1)]
+    res = simulate(net, tone[None, None, :], 1 / tstep, tstep=tstep, tstop=tstop,
+                   outrate=16000.0, probes=labels, reductions=REDUCTIONS)
+    x = np.stack([res.probes[label][0] for label in labels])
+    arrival = (x**2 @ res.t) / (x**2).sum(axis=1)
+    return Features(res.t, x[0], x[1], x[2:], float(arrival[1]), arrival[2:], td)
+
+
 # ---------------------------------------------------------------- plots
 def _pyplot():
     import matplotlib
@@ -470,7 +516,24 @@ def plot_readout(r: ReadoutDecay, path: str | Path) -> Path:
     return _save(fig, path)
 
 
-FIGURES = ("melbank", "dispersion", "pulse", "mvm", "energetics", "readout")
+def plot_features(c: Features, path: str | Path) -> Path:
+    """Paper Fig. 7: the filter output, the feature (squared, compressed, low-passed) and its
+    delayed copies."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    ax[0].plot(c.t, c.x_f, color="gray", lw=0.5)
+    ax[0].set(ylabel="filter output x_f (m)", title="tone burst at the filter's Mel centre")
+    ax[1].plot(c.t, c.lp, color="purple", label=f"feature (low-pass mass), t = "
+               f"{c.arrival_lp:.4f} s")
+    for j, (x, when) in enumerate(zip(c.delayed, c.arrival), start=1):
+        ax[1].plot(c.t, x, label=f"delay line {j}: t = {when:.4f} s "
+                   f"(+{(when - c.arrival_lp) / c.td:.3f} td)")
+    ax[1].set(xlabel="t (s)", ylabel="displacement (m)", title=f"td = {c.td * 1e3:g} ms")
+    ax[1].legend(fontsize=8)
+    return _save(fig, path)
+
+
+FIGURES = ("melbank", "dispersion", "pulse", "mvm", "energetics", "readout", "features")
 
 
 def write_figures(outdir: str | Path,
@@ -524,5 +587,12 @@ def _run_readout(path: Path) -> dict[str, float]:
     return {"tau_measured_s": r.tau_measured, "tau_design_s": r.tau_design}
 
 
-_RUNNERS = {"melbank": _run_melbank, "dispersion": _run_dispersion, "pulse": _run_pulse,
+def _run_features(path: Path) -> dict[str, float]:
+    c = experiment_features()
+    plot_features(c, path)
+    lags = (c.arrival - c.arrival_lp) / c.td
+    return {f"delay_line_{j}_lag_td": float(lag) for j, lag in enumerate(lags, start=1)}
+
+
+_RUNNERS = {"features": _run_features, "melbank": _run_melbank, "dispersion": _run_dispersion, "pulse": _run_pulse,
             "mvm": _run_mvm, "energetics": _run_energetics, "readout": _run_readout}

@@ -24,8 +24,10 @@ def data_group() -> None:
 @click.option("--jobs", "-j", default=0, help="Worker processes (0: all cores).")
 @click.option("--words", default=None,
               help="Comma-separated subset of the 35 GSCD words (default: all).")
+@plot_option
 @run_user_errors
-def synth_cmd(out: Path, clips: int, seed: int, jobs: int, words: str | None) -> None:
+def synth_cmd(out: Path, clips: int, seed: int, jobs: int, words: str | None,
+              plot_path: str | None) -> None:
     """Write a GSCD-layout corpus into the new folder OUT from the installed text-to-speech
     engines (espeak-ng, flite, festival), with speaker-disjoint splits and background noise."""
     from springc.kws.synth import synthesise
@@ -37,6 +39,9 @@ def synth_cmd(out: Path, clips: int, seed: int, jobs: int, words: str | None) ->
     click.echo(f"{report.clips} clips ({splits}) from {report.voices} voices of "
                f"{report.speakers} speakers; noise files: {', '.join(report.noise_files)}")
     click.echo(f"corpus written to {report.out}")
+    if plot_path:
+        plot_examples(report.out, Path(plot_path))
+        click.echo(f"plot written to {plot_path}")
 
 
 @data_group.command("info")
@@ -86,6 +91,36 @@ def plot_counts(counts: dict[str, dict[str, int]], path: Path) -> None:
     ax.set_ylabel("clips")
     ax.legend()
     fig.tight_layout()
+    save_png(fig, path)
+
+
+def plot_examples(root: Path, path: Path, count: int = 12) -> None:
+    """Spectrograms of `count` clips of a corpus, spread over its words and voices (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import soundfile as sf
+
+    files = sorted(root.glob("*/*_nohash_*.wav"))
+    picked = files[:: max(len(files) // count, 1)][:count]
+    fig, axes = plt.subplots(3, 4, figsize=(14, 8), squeeze=False)
+    for ax, wav in zip(axes.flat, picked):
+        x, rate = sf.read(str(wav))
+        ax.specgram(x, NFFT=512, Fs=rate, noverlap=384, cmap="magma", vmin=-130)
+        ax.set_title(f"{wav.parent.name}/{wav.name}", fontsize=8)
+    for ax in axes.flat[len(picked):]:
+        ax.axis("off")
+    fig.supxlabel("time (s)")
+    fig.supylabel("frequency (Hz)")
+    fig.tight_layout()
+    save_png(fig, path)
+
+
+def save_png(fig, path: Path) -> None:
+    """Write a figure atomically (temporary file, then rename) and close it."""
+    import matplotlib.pyplot as plt
+
     tmp = path.with_name(path.name + ".tmp.png")
     fig.savefig(tmp, dpi=100)
     plt.close(fig)

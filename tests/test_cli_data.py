@@ -76,11 +76,12 @@ def test_synth_refuses_bad_requests(tmp_path):
 def test_installed_springc_synthesises_and_reads_back(tmp_path):
     out = tmp_path / "corpus"
     done = subprocess.run(["springc", "data", "synth", str(out), "--clips", "12", "--seed", "2",
-                           "--words", "yes,no", "--jobs", "2"],
+                           "--words", "yes,no", "--jobs", "2", "--plot", str(tmp_path / "ex.png")],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert "12 clips (train" in done.stdout and f"corpus written to {out}" in done.stdout
     assert len(list((out / "yes").iterdir())) == 6
+    assert (tmp_path / "ex.png").read_bytes()[:4] == b"\x89PNG"
     x, rate = sf.read(next((out / "no").iterdir()))
     assert rate == 16000 and x.shape == (16000,) and np.max(np.abs(x)) > 0.005
     info = subprocess.run(["springc", "data", "info", str(out)], capture_output=True, text=True,

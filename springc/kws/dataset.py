@@ -13,12 +13,14 @@ multi-channel ones converted, and each is named in `Dataset.problems` and logged
 from __future__ import annotations
 
 import logging
+import sys
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import soundfile as sf
+from tqdm import tqdm
 
 from springc.audio import AUDIO_SUFFIXES, resample
 from springc.errors import DataError, UsageError
@@ -250,7 +252,9 @@ def word_clips(root: Path, problems: list[str]) -> list[Clip]:
     folders = word_folders(root)
     where = held_out(root, problems)
     clips = []
-    for folder in folders:
+    # GSCD has 105,829 files: reading their headers takes a while, so show progress.
+    for folder in tqdm(folders, desc="reading headers", unit="word", file=sys.stderr,
+                       disable=None, leave=False):
         for path, _ in folder_audio(folder, problems):
             split = where.get(f"{folder.name}/{path.name}", "train")
             clips.append(Clip(path, folder.name, label_of(folder.name), split,

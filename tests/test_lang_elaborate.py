@@ -109,6 +109,20 @@ def test_ground_reaches_an_element_through_a_port() -> None:
     assert "(in instance X2.Xl)" in err.format()
 
 
+def test_elements_may_name_nodes_inside_instances() -> None:
+    net = _load(".subckt s p\nM1 p m=1\nM2 q m=1\n.ends\nX1 n s\nC1 X1.q X1.p K=3\n")
+    assert net.nodes == ["n", "X1.q"]
+    assert (net.couplings.i[0], net.couplings.j[0], net.couplings.k[0]) == (1, 0, 3.0)
+
+
+def test_element_keys_are_case_insensitive_subcircuit_keys_are_not() -> None:
+    net = _load("M1 a M=2 B=1 X0=0.5\n")
+    assert (net.masses.m[0], net.masses.b[0], net.masses.x0[0]) == (2.0, 1.0, 0.5)
+    err = _error(".subckt s p k=1\nM p m={k}\n.ends\nX1 n s K=2\n")
+    assert err.message == "X1: subcircuit 's' has no parameter 'K'"
+    assert err.diagnostic.hint == "did you mean 'k'?"
+
+
 def test_dashpot_to_ground_either_way() -> None:
     net = _load("M1 a m=1\nB1 a 0 b=1\nB2 0 a b=2\n")
     assert list(net.dashpots.j) == [GROUND, GROUND] and list(net.dashpots.b) == [1.0, 2.0]

@@ -78,8 +78,13 @@ class Env:
 
 
 def closest(name: str, candidates) -> str | None:
-    """The candidate most similar to `name`, for 'did you mean' hints."""
-    found = difflib.get_close_matches(name, sorted(candidates), n=1, cutoff=0.6)
+    """The candidate most similar to `name`, for 'did you mean' hints (a candidate that
+    differs only in case first: names are case-sensitive, people often are not)."""
+    candidates = sorted(candidates)
+    for candidate in candidates:
+        if candidate.lower() == name.lower():
+            return candidate
+    found = difflib.get_close_matches(name, candidates, n=1, cutoff=0.6)
     return found[0] if found else None
 
 

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import click
 import numpy as np
+from springc_cli.common import plot_option, run_user_errors
 
 from springc.design import blocks, melbank, mvm
 from springc.design.emit import params_text, write_atomic
 from springc.design.filters import DEFAULT_FMAX, DEFAULT_FMIN
-from springc_cli.common import plot_option, run_user_errors
 
 OUT = click.option("-o", "--output", "output", type=click.Path(dir_okay=False), required=True,
                    help="The .spr file to write.")

@@ -5,10 +5,10 @@ from __future__ import annotations
 import json
 
 import click
+from springc_cli.common import run_user_errors
 
 from springc import figures
 from springc.design.emit import write_atomic
-from springc_cli.common import run_user_errors
 
 
 @click.command("figures")

@@ -22,8 +22,8 @@ from scipy.linalg import subspace_angles
 
 from springc import physics
 from springc.design import blocks
-from springc.design.filters import mel_triangles
 from springc.design.emit import num
+from springc.design.filters import mel_triangles
 from springc.design.melbank import Melbank, design_melbank, fitting_grid
 from springc.design.mvm import MvmDesign, design_mvm, write_mvm
 from springc.ir import FlatNetlist
@@ -67,7 +67,7 @@ def experiment_pulse(n: int = 60, td: float = TD, kc: float = KC,
     sigma, tstep = 5 * td, td / 10
     t0 = 4 * sigma
     tstop = t0 + n * td + 8 * sigma
-    force = _gauss(np.arange(int(round(tstop / tstep)) + 1) * tstep, t0, sigma)
+    force = _gauss(np.arange(round(tstop / tstep) + 1) * tstep, t0, sigma)
     labels = [f"v({_site(i, n)})" for i in sites]
     res = simulate(net, force[None, None, :], 1 / tstep, tstep=tstep, tstop=tstop,
                    probes=labels, reductions=REDUCTIONS)
@@ -253,7 +253,7 @@ def experiment_energetics(amplitudes: np.ndarray | None = None, n: int = 40, g: 
                                           kl=p.kl, g=g, a=a))
     sigma, tstep = 5 * TD, TD / 10
     tstop = 8 * sigma + 2 * n * TD
-    t = np.arange(int(round(tstop / tstep)) + 1) * tstep
+    t = np.arange(round(tstop / tstep) + 1) * tstep
     dgauss = -(t - 4 * sigma) / sigma**2 * _gauss(t, 4 * sigma, sigma)
     inputs = (amps[:, None] * 2 * p.b_match * dgauss[None, :])[:, None, :]
     specs = ("work:Fl", "work:Fq", "dissipated:Mln", "dissipated:Mqn")
@@ -264,7 +264,7 @@ def experiment_energetics(amplitudes: np.ndarray | None = None, n: int = 40, g: 
     r = res.reductions
     e_in, e_out = r["work:Fq"], r["dissipated:Mqn"]
     lo, hi = slice(0, fit_points), slice(len(amps) - fit_points, None)
-    slope = lambda s: float(np.polyfit(np.log(e_in[s]), np.log(e_out[s]), 1)[0])  # noqa: E731
+    slope = lambda s: float(np.polyfit(np.log(e_in[s]), np.log(e_out[s]), 1)[0])
     return Energetics(amps, r["work:Fl"], r["dissipated:Mln"], e_in, e_out, slope(lo),
                       slope(hi))
 
@@ -308,7 +308,7 @@ def experiment_readout(tau: float = 80.0, qr: float = blocks.READOUT_Q, n: int =
     sigma, tstep = 5 * TD, TD / 10
     t_pulse = 8 * sigma + n * TD
     tstop = t_pulse + 3.5 * tau
-    t = np.arange(int(round(t_pulse / tstep)) + 1) * tstep
+    t = np.arange(round(t_pulse / tstep) + 1) * tstep
     dgauss = -(t - 4 * sigma) / sigma**2 * _gauss(t, 4 * sigma, sigma)
     inputs = (amplitude * 2 * p.b_match * dgauss)[None, None, :]
     res = simulate(net, inputs, 1 / tstep, tstep=tstep, tstop=tstop, outrate=100.0,
@@ -356,7 +356,7 @@ def experiment_features(bin_index: int = 3, nd: int = 2, td: float = 0.032,
                                        fc=50, klp=100, nd=nd, sites=sites, td=td, kc=KC))
     tstep, t0 = 1 / 32000, 4 * sigma
     tstop = t0 + 4 * sigma + nd * td
-    t = np.arange(int(round(tstop / tstep)) + 1) * tstep
+    t = np.arange(round(tstop / tstep) + 1) * tstep
     tone = _gauss(t, t0, sigma) * np.sin(2 * np.pi * flt.centre * t)
     labels = ["x(Xc.f)", "x(lp)"] + [f"x(Xc.d{j})" for j in range(1, nd + 1)]
     res = simulate(net, tone[None, None, :], 1 / tstep, tstep=tstep, tstop=tstop,
@@ -415,7 +415,7 @@ def plot_melbank(bank: Melbank, path: str | Path) -> Path:
 def _plot_modes(ax, bank: Melbank, f: np.ndarray, k: int) -> None:
     flt = bank.two_mode[k]
     w, wa, wb = 2 * np.pi * f, 2 * np.pi * flt.fa, 2 * np.pi * flt.fb
-    mode = lambda w0: flt.gain * flt.alpha * w0**2 / (w0**2 - w**2 + 1j * flt.alpha * w)  # noqa
+    mode = lambda w0: flt.gain * flt.alpha * w0**2 / (w0**2 - w**2 + 1j * flt.alpha * w)
     ax.plot(f, np.abs(flt.response(f)), color="gray", label="filter (difference)")
     ax.plot(f, np.abs(mode(wa)), color="blue", label=f"mode a, {flt.fa:.0f} Hz")
     ax.plot(f, np.abs(mode(wb)), color="red", label=f"mode b, {flt.fb:.0f} Hz")
@@ -594,5 +594,6 @@ def _run_features(path: Path) -> dict[str, float]:
     return {f"delay_line_{j}_lag_td": float(lag) for j, lag in enumerate(lags, start=1)}
 
 
-_RUNNERS = {"features": _run_features, "melbank": _run_melbank, "dispersion": _run_dispersion, "pulse": _run_pulse,
-            "mvm": _run_mvm, "energetics": _run_energetics, "readout": _run_readout}
+_RUNNERS = {"melbank": _run_melbank, "dispersion": _run_dispersion, "pulse": _run_pulse,
+            "mvm": _run_mvm, "energetics": _run_energetics, "readout": _run_readout,
+            "features": _run_features}

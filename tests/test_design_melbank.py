@@ -79,9 +79,9 @@ def test_other_ranges_and_bin_counts():
     assert all(f.misfit < 0.25 for f in bank)
 
 
-@pytest.mark.parametrize("kwargs", [dict(kind="triple"), dict(bins=0), dict(fmin=9000)])
+@pytest.mark.parametrize("kwargs", [{"kind": "triple"}, {"bins": 0}, {"fmin": 9000}])
 def test_bad_arguments_are_user_errors(kwargs):
-    args = dict(bins=4, fmin=20.0, fmax=8000.0, kind="two-mode") | kwargs
+    args = {"bins": 4, "fmin": 20.0, "fmax": 8000.0, "kind": "two-mode"} | kwargs
     with pytest.raises(UsageError):
         fit_melbank(**args)
 

@@ -3,6 +3,7 @@ Fig. 3d) with m = 1e-3, k_c = 10, k_l = 1e-5."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -52,7 +53,7 @@ def test_chain_structure_for_any_length(n):
     assert counts == {"M": n, "K": n, "C": n - 1}
     pairs = {(net.nodes[i], net.nodes[j]) for i, j in zip(net.couplings.i, net.couplings.j)}
     chain = ["a"] + [f"Xd.s{i}" for i in range(2, n)] + ["b"]
-    assert pairs == set(zip(chain[:-1], chain[1:]))
+    assert pairs == set(itertools.pairwise(chain))
 
 
 def test_terminations_are_matched():

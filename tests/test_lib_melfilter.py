@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from springc_cli.main import main
 
 from springc.analyses.ac import response
 from springc.design.filters import mel_edges, single_mode_response, two_mode_response
 from springc.design.melbank import design_melbank, melbank_text
 from springc.lang import load_text
-from springc_cli.main import main
 
 FA, DELTA, ALPHA, GAIN = 1234.5, 1.17, 650.0, 3.7e-4
 
@@ -38,7 +38,7 @@ def test_output_is_the_b_mass_the_other_mass_carries_the_sum():
     f = np.geomspace(1, 1e4, 50)
     w, wa = 2 * np.pi * f, 2 * np.pi * FA
     wb = DELTA * wa
-    mode = lambda w0: ALPHA * w0**2 / (w0**2 - w**2 + 1j * ALPHA * w)  # noqa: E731
+    mode = lambda w0: ALPHA * w0**2 / (w0**2 - w**2 + 1j * ALPHA * w)
     assert response(net, "Xf.a", f).h == pytest.approx(GAIN * (mode(wa) + mode(wb)), rel=1e-9)
     dc = np.array([1e-3])
     out, a = response(net, "out", dc).h[0], response(net, "Xf.a", dc).h[0]

@@ -117,7 +117,7 @@ def _peak(kind: str, fa: float, delta: float, alpha: float,
     i = int(np.clip(np.argmax(amp), 1, len(f) - 2))
     lf, la = np.log(f[i - 1:i + 2]), np.log(amp[i - 1:i + 2])
     if exact:
-        neg = lambda u: -np.abs(_raw_response(kind, np.exp(u), fa, delta, alpha))  # noqa: E731
+        neg = lambda u: -np.abs(_raw_response(kind, np.exp(u), fa, delta, alpha))
         res = minimize_scalar(neg, bounds=(lf[0], lf[2]), method="bounded",
                               options={"xatol": 1e-12})
         return float(np.exp(res.x)), float(-res.fun)
@@ -185,8 +185,8 @@ def design_melbank(bins: int, fmin: float = DEFAULT_FMIN,
 
 def misfit_table(bank: Melbank) -> str:
     """Per-bin centre, fitted parameters and misfit of both kinds, as aligned text."""
-    rows = [f"{'bin':>3} {'centre Hz':>10} {'fa Hz':>10} {'delta':>7} {'alpha':>9} "
-            f"{'misfit 2-mode':>13} {'misfit 1-mode':>13}"]
+    rows = [(f"{'bin':>3} {'centre Hz':>10} {'fa Hz':>10} {'delta':>7} {'alpha':>9} "
+            f"{'misfit 2-mode':>13} {'misfit 1-mode':>13}")]
     for i, (two, one) in enumerate(zip(bank.two_mode, bank.single_mode)):
         rows.append(f"{i:3d} {two.centre:10.2f} {two.fa:10.2f} {two.delta:7.4f} "
                     f"{two.alpha:9.2f} {two.misfit:13.4f} {one.misfit:13.4f}")

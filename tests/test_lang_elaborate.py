@@ -170,6 +170,13 @@ def test_interpolation_must_give_an_integer() -> None:
     assert (err.loc.line, err.loc.col) == (2, 4)
 
 
+def test_parameters_apply_to_their_whole_scope() -> None:
+    # as in SPICE, .param lines run before the elements of their scope, in their own order
+    net = _load("K1 x k={a}\nX1 y s\n.param a=3\n.subckt s p\nM p m={2*c}\n.param c={a+1}\n"
+                ".ends\nM1 x m=1\n")
+    assert net.springs.k[0] == 3.0 and net.masses.m[0] == 8.0
+
+
 def test_param_order_redefinition_and_constants() -> None:
     net = _load(".param a=2 b={a*3}\n.param a=10\nM1 x m={a+b}\n")
     assert net.masses.m[0] == 16.0

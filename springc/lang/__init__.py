@@ -5,6 +5,9 @@ spec is silent this front end does the following (each is tested):
 - `.include` looks in the including file's folder, then `lib_dirs`, `STDLIB_DIR` and the
   SPRINGC_PATH folders; a file already included in the same scope is skipped (libraries may
   include what they use), a cycle is an error naming the chain.
+- `.param` and `.data` lines run before the other statements of their scope (top level,
+  subcircuit body, loop body), in their own order, as in SPICE: an element may use a
+  parameter defined below it.
 - Parameter keys of elements are case-insensitive (`M1 a M=1`), subcircuit parameters are not.
 - `{expr}` interpolation works in any name, not only inside `.for`; element lines may name
   nodes inside instances (`C1 X1.a b`), a port resolving to the node bound to it.

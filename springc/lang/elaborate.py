@@ -28,6 +28,7 @@ MAX_LOOP = 10_000_000  # iterations of one .for; more is surely a mistake in the
 DIRECTIVES = ("title", "param", "data", "include", "subckt", "ends", "for", "endfor", "probe",
               "tran", "ac", "options", "end")
 TOP_ONLY = ("tran", "ac", "options")
+_FIRST = ("param", "data")  # directives run before the other statements of their scope
 
 
 def elaborate(tree: ast.Netlist, lib_dirs: list[Path] | None = None) -> FlatNetlist:
@@ -126,12 +127,18 @@ class _Elaborator:
         return _Defs(table, parent, env)
 
     def _body(self, stmts, scope: _Scope) -> None:
+        # parameters and data first (in their order), as in SPICE: an element may use a
+        # parameter defined below it in the same scope
+        for stmt in stmts:
+            if isinstance(stmt, ast.Directive) and stmt.name in _FIRST:
+                self._directive(stmt, scope)
         for stmt in stmts:
             match stmt:
                 case ast.Element():
                     self._element(stmt, scope)
                 case ast.Directive():
-                    self._directive(stmt, scope)
+                    if stmt.name not in _FIRST:
+                        self._directive(stmt, scope)
                 case ast.For():
                     self._loop(stmt, scope)
                 case ast.Subckt():

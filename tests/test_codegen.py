@@ -1,0 +1,94 @@
+"""Code generation (text only) and the loader (numba compiles; on-disk cache)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from springc import codegen, loader
+from springc.codegen import KernelOptions, generate
+from springc.ir import IRBuilder, Source, Tran
+
+ROOT = str(Path(__file__).parents[1])
+
+
+def small_net(k: float = 100.0, quad: bool = False, title: str = "small"):
+    b = IRBuilder(title, "small.spr")
+    b.mass("M1", "a", 1.0, 0.5)
+    b.mass("M2", "c", 2.0)
+    b.spring("K1", "a", k)
+    b.coupling("C1", "a", "c", 10.0, a=2.0)
+    if quad:
+        b.quad("Q1", "a", "c", 3.0)
+    b.force("F1", "a", Source("in"), 1.0)
+    b.probe("x", "a")
+    b.tran = Tran(1e-3, 0.1, None)
+    return b.finish()
+
+
+def test_only_present_element_kinds_are_generated():
+    text = generate(small_net(), KernelOptions())
+    assert "c_i" in text and "k_node" in text and "fi_node" in text
+    for absent in ("q_i", "d_l", "b_i", "p_c", "fc_node"):
+        assert absent not in text
+    assert "q_g2a" in generate(small_net(quad=True), KernelOptions())
+
+
+def test_header_names_netlist_options_and_hash():
+    text = generate(small_net(), KernelOptions(method="rk38", precision="float32"))
+    head = text.splitlines()[:8]
+    assert head[1] == "# netlist: small.spr" and head[2] == "# title: small"
+    assert "'method': 'rk38'" in head[3] and "'precision': 'float32'" in head[3]
+    assert any(line.startswith("# body-hash: ") for line in head)
+    assert "FT = np.float32" in text
+
+
+def test_parameter_values_do_not_change_the_text():
+    opts = KernelOptions()
+    assert generate(small_net(k=1.0), opts) == generate(small_net(k=5e3), opts)
+    assert generate(small_net(), opts) != generate(small_net(), KernelOptions(method="rk38"))
+
+
+def test_stages_follow_the_tableau():
+    text = generate(small_net(), KernelOptions(method="ssprk3"))
+    assert "# stage 2: c = 0.5" in text and "# stage 3" not in text
+    assert "ha2_0 = FT(h * 0.25)" in text and "hb2 = FT(h * 0.6666666666666666)" in text
+
+
+def test_codegen_does_not_import_numba():
+    code = ("import sys; from springc.codegen import generate, KernelOptions; "
+            "from tests.test_codegen import small_net; generate(small_net(), KernelOptions()); "
+            "print('numba' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, cwd=ROOT)
+    assert out.stdout.strip() == "False"
+
+
+def test_loader_writes_real_file_and_numba_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("SPRINGC_CACHE", str(tmp_path))
+    from springc.simulate import simulate
+
+    net = small_net()
+    u = np.ones((1, 1, 101))
+    res = simulate(net, u)
+    text = generate(net, KernelOptions())
+    path = loader.kernel_path(text)
+    assert path.parent == tmp_path and path.read_text() == text
+    assert path.name == f"springc_kernel_{codegen.kernel_hash(text)}.py"
+    assert list((tmp_path / "__pycache__").glob(f"{path.stem}.run-*.nbi"))
+    # step response from rest (F = 1, m = 1): x(a) = t^2/2 - b t^3/6 - k t^4/24 + O(t^5), with
+    # b = 0.5 and k = 100 + 10/2 (spring and coupling)
+    t = 2e-3
+    assert abs(res.probes["x(a)"][0, 2] - (t**2 / 2 - 0.5 * t**3 / 6 - 105 * t**4 / 24)) < 2e-12
+    # a second process loads the compiled code from the cache and gets the same numbers
+    code = ("import numpy as np; from tests.test_codegen import small_net; "
+            "from springc.simulate import simulate; "
+            "r = simulate(small_net(), np.ones((1, 1, 101))); print(repr(float(r.probes['x(a)'][0, -1])))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, env={**os.environ, "SPRINGC_CACHE": str(tmp_path)},
+                         cwd=ROOT)
+    assert float(out.stdout) == res.probes["x(a)"][0, -1]

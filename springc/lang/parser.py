@@ -47,7 +47,7 @@ def parse(text: str, filename: str) -> ast.Netlist:
         message, loc, hint = min(problems, key=lambda p: (p[1].line, p[1].col))
         raise NetlistError(message, loc, hint)
     statements = sorted([*fast.values(), *slow], key=lambda s: (s.loc.line, s.loc.col))
-    return ast.Netlist(filename, _nest(statements, filename))
+    return ast.Netlist(filename, _nest(statements))
 
 
 def _fast_lines(lines: list[str], filename: str) -> tuple[dict, list]:
@@ -175,7 +175,7 @@ class _ToAst(Transformer):
 # --- blocks --------------------------------------------------------------------------------
 
 
-def _nest(statements: list, filename: str) -> tuple[ast.Statement, ...]:
+def _nest(statements: list) -> tuple[ast.Statement, ...]:
     """Group `.subckt` ... `.ends` and `.for` ... `.endfor` into `Subckt` and `For` blocks."""
     stack: list[tuple[ast.Directive, list]] = [(None, [])]
     for stmt in statements:

@@ -22,7 +22,8 @@ def score(models: list[tuple[tuple[str, ...], LinearModel]], x: np.ndarray, y: n
     confusion matrix pools every pair's decisions on the clips of its two words."""
     if task == "kws12":
         classes, model = models[0]
-        return rep.summary(y, model.predict(x), list(classes))
+        unseen = sorted(set(y.tolist()) - set(classes))  # test labels the model never saw
+        return rep.summary(y, model.predict(x), list(classes) + unseen)
     truth, guess, pairs = [], [], {}
     for classes, model in models:
         mask = np.isin(y, classes)

@@ -16,7 +16,7 @@ from sklearn.svm import LinearSVC
 
 from springc.errors import DataError
 
-SVM_GRID = (1e-3, 1e-2, 1e-1, 1.0, 10.0)  # regularisation C, chosen on the validation split
+SVM_GRID = (0.1, 1.0, 10.0, 100.0)  # regularisation C, chosen on the validation split
 LOGREG_GRID = (1e-3, 1e-2, 1e-1)
 
 

@@ -144,6 +144,8 @@ def feature_matrices(clips: list, split: str, realisation: str,
     (`load_clip(augment=True)` with a per-clip generator seeded from `seed`)."""
     if not clips:
         raise DataError(split, "the split holds no clips")
+    if jobs < 0:
+        raise UsageError(f"--jobs must be 0 (all cores) or positive (got {jobs})")
     augment = split == "train"
     fp = cache.fingerprint(clips)
     tag = seed if augment else None

@@ -7,9 +7,9 @@ import os
 from pathlib import Path
 
 import click
+from springc_cli.common import plot_option, run_user_errors
 
 from springc.kws.dataset import CLASSES, SPLITS, WORDS
-from springc_cli.common import plot_option, run_user_errors
 
 
 @click.group("data")

@@ -11,9 +11,20 @@ import pytest
 import soundfile as sf
 
 from springc.errors import DataError, UsageError
-from springc.kws.dataset import (CLASSES, CLIP_SAMPLES, COMMANDS, NOISE_REGIONS, SAMPLE_RATE,
-                                 WORDS, Clip, NoiseBank, label_of, load_clip, open_dataset,
-                                 speaker_of)
+from springc.kws.dataset import (
+    CLASSES,
+    CLIP_SAMPLES,
+    COMMANDS,
+    NOISE_REGIONS,
+    SAMPLE_RATE,
+    WORDS,
+    Clip,
+    NoiseBank,
+    label_of,
+    load_clip,
+    open_dataset,
+    speaker_of,
+)
 
 RATE = SAMPLE_RATE
 NOISE_S = 15  # s: the held-out tenths are 1.5 s, enough for a 1 s silence clip

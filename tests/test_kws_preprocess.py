@@ -6,8 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from springc.kws.preprocess import (centre_utterance, lowpass_cutoff, preprocess,
-                                    remove_background, savgol_window)
+from springc.kws.preprocess import (
+    centre_utterance,
+    lowpass_cutoff,
+    preprocess,
+    remove_background,
+    savgol_window,
+)
 
 RATE = 16000
 T = np.arange(RATE) / RATE

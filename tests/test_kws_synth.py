@@ -15,15 +15,24 @@ import soundfile as sf
 
 from springc.errors import DataError, UsageError
 from springc.kws.dataset import CLIP_SAMPLES, SAMPLE_RATE, open_dataset
-from springc.kws.synth import (PARTIAL_MARK, coloured_noise, fit_word, make_plan,
-                               room_response, speaker_hash, split_speakers, synthesise)
+from springc.kws.synth import (
+    PARTIAL_MARK,
+    coloured_noise,
+    fit_word,
+    make_plan,
+    room_response,
+    speaker_hash,
+    split_speakers,
+    synthesise,
+)
 from springc.kws.voices import Voice, installed_voices
 
 RATE = SAMPLE_RATE
 ESPEAK = [Voice(f"espeak:{a}+{v}", "espeak", f"espeak-{a}+{v}", f"{a}+{v}")
           for a in ("en-us", "en-gb-scotland") for v in ("m3", "f2")]
-RECORDED = [Voice("flite:kal16", "flite", "kal", "kal16"), Voice("flite:awb", "flite", "awb", "awb"),
-            Voice("flite:rms", "flite", "rms", "rms"), Voice("flite:slt", "flite", "slt", "slt"),
+RECORDED = [Voice("flite:kal16", "flite", "kal", "kal16"),
+            Voice("flite:awb", "flite", "awb", "awb"), Voice("flite:rms", "flite", "rms", "rms"),
+            Voice("flite:slt", "flite", "slt", "slt"),
             Voice("festival:kal_diphone", "festival", "kal", "kal_diphone"),
             Voice("festival:ked_diphone", "festival", "ked", "ked_diphone"),
             Voice("festival:cmu_us_slt_arctic_hts", "festival", "slt", "cmu_us_slt_arctic_hts")]

@@ -304,7 +304,7 @@ def open_dataset(root, *, silence_per_split: float = 0.1, seed: int = 0) -> Data
     problems: list[str] = []
     clips = word_clips(root, problems)
     lengths = noise_lengths(root, problems)
-    want = {s: int(round(silence_per_split * sum(c.split == s for c in clips))) for s in SPLITS}
+    want = {s: round(silence_per_split * sum(c.split == s for c in clips)) for s in SPLITS}
     clips += silence_clips(lengths, want, seed)
     for problem in problems:
         warn(problem)

@@ -92,7 +92,7 @@ def centre_utterance(x: np.ndarray, rate: float) -> np.ndarray:
     x = np.asarray(x, dtype=np.float64)
     if x.ndim != 1:
         raise ValueError(f"centre_utterance expects one clip of shape (samples,), got {x.shape}")
-    move = int(round((len(x) - 1) / 2.0 - energy_centroid(x, rate)))
+    move = round((len(x) - 1) / 2.0 - energy_centroid(x, rate))
     return shift(x, move)
 
 

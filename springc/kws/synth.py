@@ -29,9 +29,16 @@ from tqdm import tqdm
 
 from springc.audio import resample
 from springc.errors import DataError, UsageError
-from springc.kws.dataset import (CLIP_SAMPLES, LIST_FILES, NOISE_FOLDER, SAMPLE_RATE, SPLITS,
-                                 WORDS, warn)
-from springc.kws.voices import ENGINES, SynthesisError, Voice, Speaker, installed_voices
+from springc.kws.dataset import (
+    CLIP_SAMPLES,
+    LIST_FILES,
+    NOISE_FOLDER,
+    SAMPLE_RATE,
+    SPLITS,
+    WORDS,
+    warn,
+)
+from springc.kws.voices import ENGINES, Speaker, SynthesisError, Voice, installed_voices
 
 DEFAULT_CLIPS = 2400
 SPLIT_SHARES = {"train": 0.8, "validation": 0.1, "test": 0.1}
@@ -97,7 +104,7 @@ def split_speakers(voices: list[Voice], seed: int) -> dict[str, str]:
                 continue
             have = {e for s, sp in split_of.items() if sp == split for e in engines[s]}
             split_of[max(free, key=lambda s: len(engines[s] - have))] = split
-    held = max(int(round(SPLIT_SHARES["test"] * len(order))), 1) if len(order) >= 3 else 0
+    held = max(round(SPLIT_SHARES["test"] * len(order)), 1) if len(order) >= 3 else 0
     target = {"train": len(order) - 2 * held, "validation": held, "test": held}
     for speaker in order:
         if speaker not in split_of:
@@ -108,7 +115,7 @@ def split_speakers(voices: list[Voice], seed: int) -> dict[str, str]:
 
 def word_splits(n: int, rng: np.random.Generator) -> list[str]:
     """Splits for the `n` clips of one word: 80/10/10, at least one held out each when n >= 3."""
-    held = max(int(round(0.1 * n)), 1) if n >= 3 else 0
+    held = max(round(0.1 * n), 1) if n >= 3 else 0
     splits = ["validation"] * held + ["test"] * held + ["train"] * (n - 2 * held)
     rng.shuffle(splits)
     return splits
@@ -131,13 +138,14 @@ def draw_plan(rng: np.random.Generator) -> dict:
     """The random rendering settings of one clip."""
     noisy = rng.random() < CLIP_NOISE_PROBABILITY
     echo = rng.random() < ECHO_PROBABILITY
-    return dict(stretch=rng.uniform(0.8, 1.3), pitch=rng.uniform(0.75, 1.35),
-                speed=rng.uniform(0.92, 1.08), level_db=rng.uniform(-26.0, -2.0),
-                position=rng.uniform(0.0, 1.0), echo_rt60=rng.uniform(0.15, 0.6) if echo else 0.0,
-                echo_drr_db=rng.uniform(-2.0, 12.0),
-                noise=NOISE_KINDS[rng.integers(len(NOISE_KINDS))] if noisy else "",
-                snr_db=rng.uniform(5.0, 35.0), floor_db=rng.uniform(-75.0, -50.0),
-                seed=int(rng.integers(2**32)))
+    return {"stretch": rng.uniform(0.8, 1.3), "pitch": rng.uniform(0.75, 1.35),
+            "speed": rng.uniform(0.92, 1.08), "level_db": rng.uniform(-26.0, -2.0),
+            "position": rng.uniform(0.0, 1.0),
+            "echo_rt60": rng.uniform(0.15, 0.6) if echo else 0.0,
+            "echo_drr_db": rng.uniform(-2.0, 12.0),
+            "noise": NOISE_KINDS[rng.integers(len(NOISE_KINDS))] if noisy else "",
+            "snr_db": rng.uniform(5.0, 35.0), "floor_db": rng.uniform(-75.0, -50.0),
+            "seed": int(rng.integers(2**32))}
 
 
 def make_plan(voices: list[Voice], words: tuple[str, ...], clips: int, seed: int,

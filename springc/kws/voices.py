@@ -18,6 +18,7 @@ import tempfile
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Self
 
 import numpy as np
 import soundfile as sf
@@ -174,7 +175,7 @@ class Speaker:
         self.festival: subprocess.Popen | None = None
         self.festival_voice = ""
 
-    def __enter__(self) -> Speaker:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -200,7 +201,7 @@ class Speaker:
         raise TypeError(f"unknown engine {voice.engine!r}")
 
     def espeak(self, voice: Voice, text: str, stretch: float, pitch: float):
-        args = ["espeak-ng", "-v", voice.spec, "-s", str(int(round(175 / stretch))),
+        args = ["espeak-ng", "-v", voice.spec, "-s", str(round(175 / stretch)),
                 "-p", str(int(np.clip(round(50 * pitch), 0, 99))), "--stdout", text]
         return decode_wav(run(args), voice.id)
 

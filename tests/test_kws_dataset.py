@@ -180,8 +180,9 @@ def test_bad_files_are_named_and_skipped_or_converted(gscd, caplog):
     sf.write(empty, np.zeros(0), RATE, subtype="PCM_16")
     garbage = gscd / "zero" / "5f607182_nohash_0.wav"
     garbage.write_bytes(b"this is not a sound file\n" * 10)
-    notes = gscd / "zero" / "README.txt"
+    notes = gscd / "zero" / "notes.txt"
     notes.write_text("hello")
+    (gscd / "_background_noise_" / "README.md").write_text("as in GSCD: not a problem")
     with caplog.at_level(logging.WARNING, logger="springc.data"):
         ds = open_dataset(gscd)
     by_file = {Path(p.split(": ")[0]): p for p in ds.problems}

@@ -38,6 +38,7 @@ SPLITS: tuple[str, ...] = ("train", "validation", "test")
 SAMPLE_RATE = 16000
 CLIP_SAMPLES = 16000
 NOISE_FOLDER = "_background_noise_"
+DOCUMENTS = {"README", "LICENSE"}  # GSCD ships _background_noise_/README.md
 LIST_FILES = {"validation": "validation_list.txt", "test": "testing_list.txt"}
 # Each noise file is cut by time into a training, a validation and a test part, so that
 # held-out silence clips never overlap the noise heard in training.
@@ -232,7 +233,7 @@ def folder_audio(folder: Path, problems: list[str]) -> list[tuple[Path, str | No
     """(sound file, conversion note) in a folder; unusable files are problems and skipped."""
     found = []
     for path in sorted(folder.iterdir()):
-        if path.name.startswith("."):
+        if path.name.startswith(".") or path.stem.upper() in DOCUMENTS:
             continue
         if path.suffix.lower() not in AUDIO_SUFFIXES or not path.is_file():
             problems.append(f"{path}: not a sound file ({', '.join(AUDIO_SUFFIXES)}); ignored")

@@ -3,16 +3,18 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import click
 from springc_cli.common import run_user_errors
 
 from springc import figures
 from springc.design.emit import write_atomic
+from springc.errors import UsageError
 
 
 @click.command("figures")
-@click.argument("outdir", type=click.Path(file_okay=False))
+@click.argument("outdir", type=click.Path())
 @click.option("--only", multiple=True, type=click.Choice(figures.FIGURES),
               help="Make only these figures (repeatable); default all.")
 @run_user_errors
@@ -22,6 +24,9 @@ def figures_cmd(outdir: str, only: tuple[str, ...]) -> None:
     energetics (Fig. 5b), readout (Fig. 6b); the measured numbers go to OUTDIR/figures.json."""
     from tqdm import tqdm
 
+    if Path(outdir).exists() and not Path(outdir).is_dir():
+        raise UsageError(f"{outdir} is a file; OUTDIR must be a folder (it is created if "
+                         f"missing)")
     numbers: dict[str, dict[str, float]] = {}
     for name in tqdm(only or figures.FIGURES, unit="figure", desc="figures"):
         numbers.update(figures.write_figures(outdir, (name,)))

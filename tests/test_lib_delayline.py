@@ -4,10 +4,13 @@ Fig. 3d) with m = 1e-3, k_c = 10, k_l = 1e-5."""
 from __future__ import annotations
 
 import itertools
+import json
 import math
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
+from springc_cli.main import main
 
 from springc import figures
 from springc.lang import load_text
@@ -44,6 +47,18 @@ def test_dispersion_relation_from_the_modes():
     # long waves (above the tiny gap of k_l, q >> sqrt(kl/kc) = 1e-3): sqrt(kc/m) sites/s
     q = np.linspace(0.02, 0.3, 50)
     assert d.group_velocity(q) == pytest.approx(math.sqrt(10 / 1e-3), rel=0.02)
+
+
+def test_springc_modes_json_gives_the_dispersion_relation(tmp_path):
+    """The same through the command line: `springc modes --json` of a free 40-site line."""
+    net = tmp_path / "dl.spr"
+    net.write_text('.include "delayline.spr"\nXd a b delayline n=40 td=0.01 kc=10\n')
+    res = CliRunner().invoke(main, ["modes", str(net), "--json"])
+    assert res.exit_code == 0, res.output
+    omega = np.sort([m["omega"] for m in json.loads(res.output)["modes"]])
+    q = np.pi * np.arange(40) / 40
+    assert omega == pytest.approx(np.sqrt(1e-5 / 1e-3 + 4 * 10 / 1e-3 * np.sin(q / 2) ** 2),
+                                  rel=1e-9)
 
 
 @pytest.mark.parametrize("n", [2, 3, 4, 7])

@@ -16,11 +16,17 @@ alpha), so the fit runs over the shape (delta and r = alpha / wa) and `wa` follo
 peak of the shape.
 
 The amplitude is what is fitted: the paper disregards the phase, and so do the features.
+
+Every bin is also fitted from the previous bin's optimum shape, and the better fit is kept: with
+many bins the upper ones are so wide that the paper's alpha = 400 rad/s makes a two-mode filter
+with two separate resonance peaks, where the fit stalls (the peak jumps from one resonance to
+the other as the parameters move).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.optimize import least_squares, minimize_scalar
@@ -63,7 +69,7 @@ class MelFilter:
 
     def peak_hz(self) -> float:
         """Frequency (Hz) of the amplitude peak."""
-        return _peak(self.kind, self.fa, self.delta, self.alpha, exact=True)[0]
+        return _peak(self.kind, self.fa, self.delta, self.alpha)[0]
 
     @property
     def fb(self) -> float:
@@ -82,7 +88,12 @@ def fit_melbank(bins: int, fmin: float = DEFAULT_FMIN, fmax: float = DEFAULT_FMA
     f = fitting_grid(fmax)
     targets = mel_triangles(f, bins, fmin, fmax)
     centres = mel_edges(bins, fmin, fmax)[1:-1]
-    return [_fit_one(kind, f, t, c) for t, c in zip(targets, centres)]
+    out: list[MelFilter] = []
+    for target, centre in zip(targets, centres):
+        starts = [_initial(kind, centre)] + ([_shape(out[-1])] if out else [])
+        out.append(min((_fit_one(kind, f, target, centre, p0) for p0 in starts),
+                       key=lambda flt: flt.misfit))
+    return out
 
 
 def fitting_grid(fmax: float) -> np.ndarray:
@@ -103,27 +114,20 @@ def _raw_response(kind: str, f_hz, fa: float, delta: float, alpha: float) -> np.
     raise UsageError(f"unknown filter kind {kind!r}")
 
 
-def _peak(kind: str, fa: float, delta: float, alpha: float,
-          exact: bool = False) -> tuple[float, float]:
+def _peak(kind: str, fa: float, delta: float, alpha: float) -> tuple[float, float]:
     """(frequency, amplitude) of the amplitude peak of the unnormalised response.
 
-    Both responses are smooth with one maximum in (0, inf); a log grid brackets it. In the fit, a
-    parabola through the three best points in log-log refines it, which keeps the normalised
-    response a smooth function of the parameters (the least-squares Jacobian needs that);
-    `exact` refines it to machine precision instead, for the final gain."""
-    hi = max(fa * delta, fa) * 4.0
-    f = np.geomspace(fa * 1e-3, hi, 2001)
+    Both responses are smooth with one maximum in (0, inf): a log grid brackets it and a
+    bounded scalar search refines it to machine precision. The refinement matters for the fit
+    too: a peak read off a grid jumps as the parameters move, which ruins the least-squares
+    Jacobian of the normalised response for narrow filters."""
+    f = np.geomspace(fa * 1e-3, max(fa * delta, fa) * 4.0, 2001)
     amp = np.abs(_raw_response(kind, f, fa, delta, alpha))
     i = int(np.clip(np.argmax(amp), 1, len(f) - 2))
-    lf, la = np.log(f[i - 1:i + 2]), np.log(amp[i - 1:i + 2])
-    if exact:
-        neg = lambda u: -np.abs(_raw_response(kind, np.exp(u), fa, delta, alpha))
-        res = minimize_scalar(neg, bounds=(lf[0], lf[2]), method="bounded",
-                              options={"xatol": 1e-12})
-        return float(np.exp(res.x)), float(-res.fun)
-    c2, c1, c0 = np.polyfit(lf - lf[1], la, 2)
-    shift = -c1 / (2 * c2) if c2 < 0 else 0.0
-    return float(np.exp(lf[1] + shift)), float(np.exp(c0 + c1 * shift + c2 * shift**2))
+    neg = lambda u: -np.abs(_raw_response(kind, np.exp(u), fa, delta, alpha))
+    res = minimize_scalar(neg, bounds=(np.log(f[i - 1]), np.log(f[i + 1])), method="bounded",
+                          options={"xatol": 1e-12})
+    return float(np.exp(res.x)), float(-res.fun)
 
 
 def _unpack(kind: str, p: np.ndarray, centre: float) -> tuple[float, float, float]:
@@ -152,11 +156,18 @@ def _initial(kind: str, centre: float) -> np.ndarray:
     return np.array([np.log(r)])
 
 
-def _fit_one(kind: str, f: np.ndarray, target: np.ndarray, centre: float) -> MelFilter:
+def _shape(flt: MelFilter) -> np.ndarray:
+    """The fit parameters of a fitted filter, to start the next bin from."""
+    r = np.log(flt.alpha / (2 * np.pi * flt.fa))
+    return np.array([np.log(flt.delta - 1.0), r]) if flt.kind == "two-mode" else np.array([r])
+
+
+def _fit_one(kind: str, f: np.ndarray, target: np.ndarray, centre: float,
+             p0: np.ndarray) -> MelFilter:
     sol = least_squares(lambda p: _normalised_amplitude(kind, f, p, centre) - target,
-                        _initial(kind, centre), diff_step=1e-6, xtol=1e-12, ftol=1e-12)
+                        p0, diff_step=1e-6, xtol=1e-12, ftol=1e-12)
     fa, delta, alpha = _unpack(kind, sol.x, centre)
-    gain = 1.0 / _peak(kind, fa, delta, alpha, exact=True)[1]
+    gain = 1.0 / _peak(kind, fa, delta, alpha)[1]
     err = misfit(np.abs(_raw_response(kind, f, fa, delta, alpha)) * gain, target)
     return MelFilter(kind, fa, delta, alpha, gain, float(centre), err)
 
@@ -224,7 +235,8 @@ def melbank_text(bank: Melbank, kind: str = "two-mode", name: str = "melbank") -
     return w.text()
 
 
-def write_melbank(bank: Melbank, path, kind: str = "two-mode", name: str = "melbank"):
+def write_melbank(bank: Melbank, path: str | Path, kind: str = "two-mode",
+                  name: str = "melbank") -> Path:
     """Write `melbank_text` to `path` atomically."""
     if kind not in KINDS:
         raise UsageError(f"unknown filter kind {kind!r}; expected one of {KINDS}")

@@ -44,7 +44,7 @@ DEFAULT_CLIPS = 2400
 SPLIT_SHARES = {"train": 0.8, "validation": 0.1, "test": 0.1}
 # Share of clips per engine: espeak-ng has hundreds of synthetic speakers, flite and festival a
 # handful of recorded ones that sound the most natural; both matter.
-ENGINE_SHARES = {"espeak": 0.5, "flite": 0.25, "festival": 0.25}
+ENGINE_SHARES = {"espeak": 0.6, "flite": 0.2, "festival": 0.2}
 CLIP_NOISE_PROBABILITY = 0.6
 ECHO_PROBABILITY = 0.5
 NOISE_KINDS = ("white", "pink", "brown", "babble")
@@ -87,29 +87,38 @@ def speaker_hash(speaker: str) -> str:
 
 
 def split_speakers(voices: list[Voice], seed: int) -> dict[str, str]:
-    """{speaker: split}, about 80/10/10 of the speakers, every split given every engine where
-    the speakers allow it (validation and test are served first, train keeps one of each)."""
-    engines: dict[str, set[str]] = {}
+    """{speaker: split}: every split gets a speaker of every engine where there are enough
+    (validation and test are served first; train keeps at least one of each), then each group
+    of speakers with the same engines is held out 10 % / 10 %, the rest trains. The few
+    recorded voices thus mostly train, the hundreds of espeak-ng ones split 80/10/10."""
+    engines: dict[str, frozenset[str]] = {}
     for v in voices:
-        engines.setdefault(v.speaker, set()).add(v.engine)
+        engines[v.speaker] = engines.get(v.speaker, frozenset()) | {v.engine}
     order = sorted(engines)
     np.random.default_rng(seed).shuffle(order)
+    split_of = cover_engines(order, engines)
+    for group in sorted(set(engines.values()), key=sorted):
+        members = [s for s in order if engines[s] == group]
+        held = round(SPLIT_SHARES["test"] * len(members)) if len(members) >= 3 else 0
+        for speaker in members:
+            if speaker not in split_of:
+                count = Counter(split_of[s] for s in members if s in split_of)
+                split_of[speaker] = next((h for h in ("test", "validation") if count[h] < held),
+                                         "train")
+    return split_of
+
+
+def cover_engines(order: list[str], engines: dict[str, frozenset[str]]) -> dict[str, str]:
+    """{speaker: test or validation}: for each held-out split and engine it lacks, the free
+    speaker covering most missing engines, as long as another is left for training."""
     split_of: dict[str, str] = {}
     for split in ("test", "validation"):
         for engine in ENGINES:
-            if any(engine in engines[s] for s, sp in split_of.items() if sp == split):
-                continue
-            free = [s for s in order if s not in split_of and engine in engines[s]]
-            if len(free) < 2:  # the last one stays for training
-                continue
             have = {e for s, sp in split_of.items() if sp == split for e in engines[s]}
+            free = [s for s in order if s not in split_of and engine in engines[s]]
+            if engine in have or len(free) < 2:
+                continue
             split_of[max(free, key=lambda s: len(engines[s] - have))] = split
-    held = max(round(SPLIT_SHARES["test"] * len(order)), 1) if len(order) >= 3 else 0
-    target = {"train": len(order) - 2 * held, "validation": held, "test": held}
-    for speaker in order:
-        if speaker not in split_of:
-            count = Counter(split_of.values())
-            split_of[speaker] = max(SPLITS, key=lambda s: target[s] - count[s])
     return split_of
 
 

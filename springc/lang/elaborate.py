@@ -33,6 +33,7 @@ _FIRST = ("param", "data")  # directives run before the other statements of thei
 
 def elaborate(tree: ast.Netlist, lib_dirs: list[Path] | None = None) -> FlatNetlist:
     """Flatten a parsed netlist (with its includes and subcircuits) into a `FlatNetlist`."""
+    _check_directive_names(tree.statements)
     try:
         return _Elaborator(tree.file, lib_dirs).run(tree)
     except RecursionError:
@@ -509,6 +510,16 @@ def _option_value(spec: OptionSpec, arg: ast.Value, env: Env) -> object:
 
 def _is_value(arg) -> bool:
     return isinstance(arg, (ast.Num, ast.Word, ast.Brace))
+
+
+def _check_directive_names(statements) -> None:
+    """Reject unknown directives everywhere, also in bodies never elaborated (a loop that runs
+    zero times, a subcircuit never instantiated): a misspelt directive is always a mistake."""
+    for stmt in statements:
+        if isinstance(stmt, ast.Directive) and stmt.name not in DIRECTIVES:
+            raise _unknown_directive(stmt)
+        if isinstance(stmt, (ast.For, ast.Subckt)):
+            _check_directive_names(stmt.body)
 
 
 def _unknown_directive(stmt: ast.Directive) -> NetlistError:

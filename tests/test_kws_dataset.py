@@ -291,3 +291,11 @@ def test_clip_is_hashable_and_frozen():
     assert {clip: 1}[clip] == 1
     with pytest.raises(AttributeError):
         clip.word = "no"  # type: ignore[misc]
+
+
+def test_noise_bank_from_a_data_set_folder(gscd):
+    bank = NoiseBank.from_folder(gscd)
+    assert len(bank.noises) == 1
+    assert len(bank.noises[0]) == int(0.8 * NOISE_S * RATE)  # the training part only
+    with pytest.raises(DataError, match="no noise recording"):
+        NoiseBank.from_folder(gscd / "yes")

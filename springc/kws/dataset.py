@@ -347,7 +347,11 @@ class NoiseBank:
     @classmethod
     def from_folder(cls, root) -> NoiseBank:
         """The noise bank of a data set folder's `_background_noise_`."""
-        return cls(open_dataset(root, silence_per_split=0.0).noise_files)
+        problems: list[str] = []
+        files = list(noise_lengths(Path(root), problems))
+        for problem in problems:
+            warn(problem)
+        return cls(files)
 
     def mix(self, signal: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """With probability `probability`, `signal` plus a random window of a random noise

@@ -14,6 +14,7 @@ model folder under --models.
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -44,7 +45,8 @@ def run_group(ds, data: Path, models: Path, filterbank: str, bins: int,
     for i, s in enumerate(settings):
         x = {split: f[i] for split, f in feats.items()}
         kind = "logreg" if realisation == "baseline" else "svm"
-        fits = fit_task(x, y, "kws12", kind, LOGREG_GRID if kind == "logreg" else SVM_GRID)
+        fits = fit_task(x, y, "kws12", kind, LOGREG_GRID if kind == "logreg" else SVM_GRID,
+                        jobs or os.cpu_count() or 1)
         report = evaluate_fits(fits, x["test"], y["test"], "kws12")
         name = "baseline" if realisation == "baseline" else f"{filterbank}-n{bins}-m{s.delays}"
         opts = TrainOptions(data=data, out=models / name, settings=s, realisation=realisation)

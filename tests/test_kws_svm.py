@@ -83,7 +83,8 @@ def test_delays_tell_rising_from_falling_chirps_and_the_readout_is_physical():
     for m in (1, 3):
         s = FeatureSettings(bins=6, delays=m, td=0.064)
         phi = phi_vector(features(sig, 16000.0, s), s)
-        model, c, scores = select(phi[:80], y[:80], phi[80:100], y[80:100])
+        model, c, scores = select(phi[:80], y[:80], phi[80:100], y[80:100],
+                                  grid=(1e-3, 1e-1, 10.0))
         results[m] = (scores[1e-3], accuracy(model, phi[100:], y[100:]))
     assert results[3][1] >= 0.95 and results[3][0] >= 0.95
     assert results[1][0] <= 0.75  # strongly regularised, no delays: near chance

@@ -197,18 +197,20 @@ def split_features(ds, realisation: str, settings_list: list[FeatureSettings], *
 
 
 def fit_task(x: dict[str, np.ndarray], y: dict[str, np.ndarray], task: str, kind: str,
-             grid: tuple[float, ...]) -> list[tuple[tuple[str, ...], LinearModel, float, dict]]:
-    """[(classes, model, C, validation scores)]: one multiclass model, or one per digit pair."""
+             grid: tuple[float, ...], jobs: int = 1,
+             ) -> list[tuple[tuple[str, ...], LinearModel, float, dict]]:
+    """[(classes, model, C, validation scores)]: one multiclass model, or one per digit pair.
+    `jobs` threads fit the regularisation grid concurrently."""
     if task == "kws12":
-        return [(tuple(np.unique(y["train"])), *select(x["train"], y["train"],
-                                                       x["validation"], y["validation"],
-                                                       kind, grid))]
+        model, c, scores = select(x["train"], y["train"], x["validation"], y["validation"],
+                                  kind, grid, jobs)
+        return [(tuple(model.classes), model, c, scores)]
     fits = []
     for pair in itertools.combinations(DIGITS, 2):
         m = {s: np.isin(y[s], pair) for s in x}
         model, c, scores = select(x["train"][m["train"]], y["train"][m["train"]],
                                   x["validation"][m["validation"]], y["validation"][m["validation"]],
-                                  kind, grid)
+                                  kind, grid, jobs)
         fits.append((pair, model, c, scores))
     return fits
 
@@ -228,7 +230,7 @@ def train(opts: TrainOptions) -> dict:
     y = {s: targets(ds.split(s), opts.task) for s in x}
     kind = "logreg" if opts.realisation == "baseline" else "svm"
     grid = opts.grid or (LOGREG_GRID if kind == "logreg" else SVM_GRID)
-    fits = fit_task(x, y, opts.task, kind, grid)
+    fits = fit_task(x, y, opts.task, kind, grid, opts.jobs or os.cpu_count() or 1)
     report = evaluate_fits(fits, x["test"], y["test"], opts.task)
     settings = model_settings(opts, ds)
     write_model(opts.out, settings, fits, report)

@@ -39,3 +39,7 @@ ALL += build.COMMANDS
 from springc_cli import analyses  # noqa: E402  (springc ac, springc modes)
 
 ALL += analyses.COMMANDS
+
+from springc_cli import bench  # noqa: E402  (springc bench)
+
+ALL += [bench.bench_cmd]

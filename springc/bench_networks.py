@@ -58,7 +58,7 @@ def kws_network(bands: int = 8, lines_per_band: int = 3, block: int = 24,
         wl = 2 * np.pi * 30.0
         b.mass(f"M{lp}", lp, 1.0, 1.4 * wl)
         b.spring(f"K{lp}", lp, wl**2)
-        b.quad(f"Q{lp}", out, lp, 1e3)
+        b.quad(f"Q{lp}", out, lp, 1e5)
         for j in range(lines_per_band):
             line = k * lines_per_band + j
             sites = 20 + (line < extra_sites)
@@ -67,7 +67,7 @@ def kws_network(bands: int = 8, lines_per_band: int = 3, block: int = 24,
     b.mass("Mread", "read", 1.0, 200.0)
     b.spring("Kread", "read", (2 * np.pi * 20.0) ** 2)
     for k in range(block):
-        b.quad(f"Qread{k}", f"out{k}", "read", 10.0)
+        b.quad(f"Qread{k}", f"out{k}", "read", 1e5)
     b.probe("x", "read")
     b.probe("x", "f0a")
     b.probe("x", "lp3")
@@ -79,12 +79,12 @@ def _all_to_all_block(b: IRBuilder, ends: list[str], block: int) -> None:
     """`block` input masses (coupled to the delay-line ends) and `block` outputs, every pair
     of the 2*block masses coupled."""
     nodes = [f"in{k}" for k in range(block)] + [f"out{k}" for k in range(block)]
-    w = 2 * np.pi * 40.0
+    w = 2 * np.pi * 10.0
     for node in nodes:
         b.mass(f"M{node}", node, 1.0, 50.0)
         b.spring(f"K{node}", node, w**2)
     for k, end in enumerate(ends[:block]):
-        b.coupling(f"Cin{k}", end, f"in{k}", 1e2)
+        b.coupling(f"Cin{k}", end, f"in{k}", 1e4)
     rng = np.random.default_rng(7)
     for p in range(len(nodes)):
         for q in range(p + 1, len(nodes)):

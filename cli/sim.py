@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from springc_cli.common import plot_option, precision_option, run_user_errors
+from springc.expint import SCHEMES
 from springc.integrators import TABLEAUX
 
 REDUCE_HELP = (
@@ -28,8 +29,13 @@ REDUCE_HELP = (
 @click.option("--tstop", type=float, help="Stop time in seconds (overrides .tran).")
 @click.option("--substeps", type=int, help="Integration steps per input sample (default 1).")
 @precision_option
-@click.option("--method", type=click.Choice(list(TABLEAUX)), default=None,
-              help="Integrator (default: netlist option or rk4).")
+@click.option("--method", type=click.Choice([*TABLEAUX, *SCHEMES]), default=None,
+              help="Integrator (default: netlist option or rk4); strang-rk4 propagates the "
+                   "driven linear filter blocks exactly and the rest with RK4.")
+@click.option("--tolerance", type=float, default=None,
+              help="Pick the cheapest integrator and substeps whose estimated per-mode error "
+                   "(relative L2, modes up to the input Nyquist frequency) is at most this; "
+                   "prints the choice. Not with --method/--substeps.")
 @click.option("--outrate", type=float, help="Output sample rate in Hz (default 1/tstep).")
 @click.option("--reduce", "reduce_", multiple=True, metavar="SPEC", help=REDUCE_HELP)
 @click.option("--channel", type=int, default=None,
@@ -37,7 +43,7 @@ REDUCE_HELP = (
 @click.option("--batch", type=int, default=None, help="Runs per kernel call (default 256).")
 @run_user_errors
 def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precision, method,
-            outrate, reduce_, channel, batch):
+            outrate, reduce_, channel, batch, tolerance):
     """Simulate NETLIST for every input signal and write the probes and reductions.
 
     Runs are integrated together in lockstep by a kernel generated for the netlist; inputs
@@ -48,6 +54,8 @@ def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precisio
 
     results.check_output_path(output)
     net = load_file(netlist)
+    if tolerance is not None:
+        method, substeps = _choose(net, tolerance, method, substeps, tstep, tstop)
     res = simulate(net, list(inputs) or None, tstep=tstep, tstop=tstop, substeps=substeps,
                    method=method, precision=precision, outrate=outrate,
                    reductions=list(reduce_), batch=batch, channel=channel, progress=True)
@@ -56,3 +64,20 @@ def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precisio
         results.plot(res, plot_path)
     click.echo(f"{len(res.runs)} run(s), {len(res.t)} samples, {len(res.probes)} probe(s) "
                f"-> {output}" + (f", plot {plot_path}" if plot_path else ""))
+
+
+def _choose(net, tolerance, method, substeps, tstep, tstop) -> tuple[str, int]:
+    """(method, substeps) from `springc.accuracy.choose`, echoed for the user."""
+    from springc.accuracy import choose
+    from springc.errors import UsageError
+
+    if method or substeps:
+        raise UsageError("--tolerance chooses the method and substeps itself",
+                         hint="drop --method/--substeps, or drop --tolerance")
+    tstep = tstep or (net.tran.tstep if net.tran else None)
+    if tstep is None:
+        raise UsageError("no time step: the netlist has no .tran and no --tstep was given")
+    duration = tstop or (net.tran.tstop if net.tran else 1.0)
+    choice = choose(net, tstep, duration, tolerance)
+    click.echo(choice.describe())
+    return choice.method, choice.substeps

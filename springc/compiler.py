@@ -14,7 +14,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from springc import checks, lang
+from springc import accuracy, checks, lang
 from springc.errors import Diagnostic
 from springc.ir import FlatNetlist
 
@@ -39,6 +39,7 @@ class BuildReport:
     zero_modes: int
     modes_complete: bool
     notes: list[Diagnostic] = field(default_factory=list)
+    mode_errors: list[accuracy.ModeError] = field(default_factory=list)  # worst first
     net: FlatNetlist | None = field(default=None, repr=False)  # what was built
 
     @property
@@ -65,6 +66,7 @@ class BuildReport:
             "substeps": self.substeps,
             "zero_modes": self.zero_modes,
             "modes_complete": self.modes_complete,
+            "mode_errors": [m.to_json() for m in self.mode_errors],
             "diagnostics": [{"severity": d.severity, "message": d.message,
                              "loc": str(d.loc) if d.loc else None} for d in self.notes],
         }
@@ -82,6 +84,10 @@ class BuildReport:
                  f"  step        {_step(self)}"]
         if self.zero_modes:
             lines.append(f"  zero modes  {self.zero_modes}")
+        if self.mode_errors:
+            lines.append(f"  worst modes (error of {self.method} at the configured step over "
+                         ".tran tstop, relative L2 of the impulse response):")
+            lines += [f"    {m.describe()}" for m in self.mode_errors]
         return "\n".join(lines + [d.format() for d in self.notes])
 
 
@@ -130,8 +136,21 @@ def report_for(net: FlatNetlist, method: str | None = None) -> BuildReport:
         zero_modes=found.zero_count,
         modes_complete=found.complete,
         notes=result.notes,
+        mode_errors=_mode_errors(net, result),
         net=net,
     )
+
+
+WORST_MODES = 5  # modes listed by `springc build`
+
+
+def _mode_errors(net: FlatNetlist, result: checks.CheckResult) -> list[accuracy.ModeError]:
+    """The worst per-mode error estimates at the configured step (none without .tran)."""
+    if result.tstep is None or net.tran is None or result.modes is None:
+        return []
+    found = accuracy.mode_errors(net, result.tstep, result.method, net.tran.tstop,
+                                 result.modes)
+    return found[:WORST_MODES]
 
 
 def kernel_source(report: BuildReport) -> str:

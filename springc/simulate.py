@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from springc import codegen, loader, physics, reductions, sources
+from springc import codegen, expint, loader, physics, reductions, sources
 from springc.audio import resample
 from springc.errors import SimulationError, UsageError
 from springc.integrators import DEFAULT_METHOD, TABLEAUX, get_tableau, max_stable_step
@@ -80,8 +80,9 @@ def settings(net: FlatNetlist, tstep=None, tstop=None, substeps=None, method=Non
     outrate = float(outrate or opt.get("outrate", 1.0 / tstep))
     if substeps < 1:
         raise UsageError(f"substeps must be a positive integer, got {substeps}")
-    if method not in TABLEAUX:
-        raise UsageError(f"unknown integrator {method!r}", hint=f"known: {', '.join(TABLEAUX)}")
+    if method not in TABLEAUX and not expint.is_split(method):
+        known = ", ".join([*TABLEAUX, *expint.SCHEMES])
+        raise UsageError(f"unknown integrator {method!r}", hint=f"known: {known}")
     if precision not in LIMITS:
         raise UsageError(f"unknown precision {precision!r}", hint="float64 or float32")
     if outrate <= 0:
@@ -143,7 +144,7 @@ def simulate(net: FlatNetlist, inputs=None, input_rate: float | None = None, *,
                                  dissipation=bool(rplan.damper_rows), msq=bool(rplan.msq),
                                  gram=bool(rplan.gram))
     start = time.perf_counter()
-    kernel = loader.load(codegen.generate(net, opts))
+    kernel = loader.load(kernel_source(net, opts))
     out = _run_batches(net, kernel, st, signals, names, plist, rplan, batch, chunk, progress)
     out.info.update(wall_s=time.perf_counter() - start, kernel=str(kernel.path),
                     compile_s=kernel.compile_s, settings=st)
@@ -151,6 +152,30 @@ def simulate(net: FlatNetlist, inputs=None, input_rate: float | None = None, *,
 
 
 reductions_plan = reductions.plan
+
+
+def kernel_source(net: FlatNetlist, opts: codegen.KernelOptions) -> str:
+    """The kernel text for `opts.method`: a Runge-Kutta tableau (`springc.codegen`) or a
+    splitting scheme (`springc.expint`, generated for the Runge-Kutta part of the split)."""
+    if expint.is_split(opts.method):
+        return expint.generate(expint.split_netlist(net, expint.find_blocks(net)), opts)
+    return codegen.generate(net, opts)
+
+
+def kernel_arrays(net: FlatNetlist, st: Settings, dtype) -> dict[str, np.ndarray]:
+    """Coefficient arrays of the kernel for `st.method` (a split scheme: those of its
+    Runge-Kutta part, then its blocks' propagators for the step `st.h`)."""
+    if not expint.is_split(st.method):
+        return coefficient_arrays(net, dtype)
+    blocks = expint.find_blocks(net)
+    out = coefficient_arrays(expint.split_netlist(net, blocks), dtype)
+    out.update(expint.block_arrays(net, blocks, st.h, expint.SCHEMES[st.method], dtype))
+    return out
+
+
+def stage_tableau(method: str):
+    """The tableau whose stage times the kernel of `method` evaluates forces at."""
+    return expint.SCHEMES[method].tableau if expint.is_split(method) else get_tableau(method)
 
 
 def _gather_inputs(net, inputs, input_rate, tstep, channel):
@@ -186,8 +211,8 @@ def _run_batches(net, kernel, st: Settings, signals, names, plist, rplan, batch,
     runs = len(names)
     batch = batch or DEFAULT_BATCH
     dtype = np.dtype(st.precision)
-    tab = get_tableau(st.method)
-    coeffs = coefficient_arrays(net, dtype)
+    tab = stage_tableau(st.method)
+    coeffs = kernel_arrays(net, st, dtype)
     g = sources.common_table(net, st.nsteps, st.h, st.tstep, tab).astype(dtype)
     chunks = []
     bar = _progress(runs, progress)
@@ -308,7 +333,7 @@ def likely_cause(net: FlatNetlist, st: Settings) -> str:
               "nonlinear elements (their stiffness grows with amplitude)")
     if net.n > 3000:
         return f"a step too large for the integrator, {others}"
-    hmax, _ = max_stable_step(get_tableau(st.method), linear_eigenvalues(net))
+    hmax, _ = max_stable_step(stage_tableau(st.method), linear_eigenvalues(net))
     if st.h > hmax:
         return (f"unstable step: h = {st.h:.4g} s exceeds the largest stable step "
                 f"{hmax:.4g} s of {st.method} for the linearised network; raise --substeps "

@@ -1,0 +1,220 @@
+"""Per-mode error estimates of an integrator, and the tolerance-driven choice of step.
+
+For a mode with eigenvalue lambda and step h, one step multiplies the mode by R(z), z = h
+lambda (the tableau's stability polynomial), where the exact flow multiplies it by exp(z). Per
+step, log(R / exp(z)) = (amplitude error) + i (phase error): its real part is the numerical
+damping (or growth) per step, its imaginary part the phase lag per step.
+
+Accumulated error: the relative L2 error of the mode's impulse response over the run,
+
+    e^2 = sum_{k<N} |R^k - exp(z)^k|^2 / sum_{k<N} |exp(z)|^(2k),   N = duration / h,
+
+which is also the relative L2 error of the mode's response to a white input (Parseval). The
+physical decay weights the sum, so a mode counts over its decay time or the run, whichever is
+shorter. The sums are geometric and are evaluated in closed form (long double, so errors down
+to about 1e-9 are resolved).
+
+The splitting schemes of `springc.expint` propagate their blocks' modes exactly (error 0, up
+to the splitting error of the nonlinear coupling, which no linear estimate sees); their other
+modes have the error of the inner tableau.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from springc import expint, linear
+from springc.errors import UsageError
+from springc.integrators import TABLEAUX, get_tableau, max_stable_step, stability_polynomial
+from springc.ir import FlatNetlist
+
+SUBSTEPS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64)  # candidates of the choice
+CANDIDATES = ("rk4", "rk38", "ssprk3", "heun3", "strang-rk4")
+
+
+def log_ratio(method: str, z: np.ndarray) -> np.ndarray:
+    """log(R(z) / exp(z)) on the branch closest to 0: real part = log amplitude error per
+    step, imaginary part = phase error per step (rad). -inf real part where R(z) = 0."""
+    z = np.asarray(z, dtype=complex)
+    r = np.polynomial.polynomial.polyval(z, stability_polynomial(get_tableau(method)))
+    with np.errstate(divide="ignore"):
+        lr = np.log(r) - z
+    return lr.real + 1j * (np.angle(np.exp(1j * lr.imag)))
+
+
+def impulse_error(method: str, lam: np.ndarray, h: float, duration: float) -> np.ndarray:
+    """Relative L2 error of each mode's impulse response over `duration` (module docstring);
+    inf for a mode the step makes grow."""
+    lam = np.atleast_1d(np.asarray(lam, dtype=complex))
+    z = lam * h
+    n = max(1, int(round(duration / h)))
+    lr = log_ratio(method, z)
+    out = np.zeros(len(z))
+    for k in range(len(z)):
+        out[k] = _accumulated(complex(z[k]), complex(lr[k]), n)
+    return out
+
+
+def _accumulated(z: complex, lr: complex, n: int) -> float:
+    if z == 0 or lr == 0:
+        return 0.0
+    if not np.isfinite(lr.real):  # R = 0: the numerical mode vanishes after one step
+        return 1.0
+    ld = np.clongdouble
+    lz = ld(z)
+    lrho = ld(lr)
+    a = 2 * lz.real  # log |exp(z)|^2
+    s_exact = _geometric(ld(a), n)
+    s_num = _geometric(ld(a + 2 * lrho.real), n)
+    s_cross = _geometric(ld(a) + lrho, n)
+    num = s_num + s_exact - 2 * s_cross.real
+    if not np.isfinite(num) or not np.isfinite(s_exact):
+        return math.inf
+    return float(np.sqrt(max(num.real, 0.0) / s_exact.real))
+
+
+def _geometric(log_q, n: int):
+    """sum_{k<n} q^k for q = exp(log_q), accurate near q = 1."""
+    if log_q == 0:
+        return np.clongdouble(n)
+    with np.errstate(over="ignore", invalid="ignore"):
+        return np.expm1(n * log_q) / np.expm1(log_q)
+
+
+@dataclass
+class ModeError:
+    """One mode's error estimate at step `h` (per step and accumulated over the run)."""
+
+    freq_hz: float
+    damping_rate: float
+    q: float
+    amplitude: float  # log(|R| / |exp(z)|) per step (negative: numerical damping)
+    phase: float  # arg R - Im z per step, rad (negative: lag)
+    h: float
+    error: float  # accumulated relative L2 error (module docstring)
+    exact: bool  # integrated exactly (a block of a splitting scheme)
+    nodes: list[tuple[str, float]]
+
+    @property
+    def numerical_damping(self) -> float:
+        """Numerical damping rate in 1/s (the step's amplitude error as a decay rate)."""
+        return -self.amplitude / self.h
+
+    def to_json(self) -> dict:
+        return {"freq_hz": self.freq_hz, "damping_rate": self.damping_rate, "q": self.q,
+                "amplitude_per_step": self.amplitude, "phase_per_step": self.phase,
+                "numerical_damping": self.numerical_damping,
+                "error": self.error if math.isfinite(self.error) else None,
+                "exact": self.exact, "nodes": [n for n, _ in self.nodes]}
+
+    def describe(self) -> str:
+        what = "exact (split block)" if self.exact else (
+            f"relative error {self.error:.3g}, numerical damping {self.numerical_damping:.3g}/s "
+            f"(physical {self.damping_rate:.3g}/s), phase {self.phase:+.3g} rad/step")
+        nodes = ", ".join(n for n, _ in self.nodes)
+        return f"{self.freq_hz:9.5g} Hz (Q {self.q:.3g}) {what}; nodes {nodes}"
+
+
+def mode_errors(net: FlatNetlist, h: float, method: str, duration: float,
+                found: linear.Modes | None = None) -> list[ModeError]:
+    """Error estimates of every mode of the linearisation (see `linear.modes`) for `method` at
+    step `h` over `duration`, worst first."""
+    found = found if found is not None else linear.modes(net)
+    exact = _exact_modes(net, found, method)
+    inner = expint.SCHEMES[method].inner if expint.is_split(method) else method
+    lam = found.eigenvalues
+    err = impulse_error(inner, lam, h, duration)
+    lr = log_ratio(inner, lam * h)
+    out = []
+    for k in range(len(lam)):
+        mode = found.mode(k)
+        out.append(ModeError(mode.freq_hz, mode.damping_rate, mode.q, float(lr[k].real),
+                             float(lr[k].imag), h, 0.0 if exact[k] else float(err[k]),
+                             bool(exact[k]), mode.dominant(2)))
+    out.sort(key=lambda m: -m.error if math.isfinite(m.error) else -math.inf)
+    return out
+
+
+def _exact_modes(net: FlatNetlist, found: linear.Modes, method: str) -> np.ndarray:
+    """Which modes a splitting scheme integrates exactly: most of the shape on block nodes."""
+    out = np.zeros(len(found), bool)
+    if not expint.is_split(method):
+        return out
+    inside = np.zeros(net.n, bool)
+    inside[expint.find_blocks(net).node_set()] = True
+    for k, (nodes, amps) in enumerate(found.shapes):
+        w = np.abs(amps) ** 2
+        out[k] = w.sum() > 0 and w[inside[nodes]].sum() > 0.5 * w.sum()
+    return out
+
+
+@dataclass
+class Choice:
+    """The cheapest (method, substeps) meeting a tolerance, and why."""
+
+    method: str
+    substeps: int
+    h: float
+    error: float  # worst estimated error over the modes in the band
+    cost: float  # stage evaluations per input sample (relative work)
+    worst: ModeError | None
+    band_hz: float
+    modes_complete: bool
+
+    def describe(self) -> str:
+        worst = f"; worst mode {self.worst.describe()}" if self.worst else ""
+        return (f"chose {self.method} with {self.substeps} substep(s) (h = {self.h:.4g} s): "
+                f"estimated error {self.error:.3g} for modes up to {self.band_hz:.5g} Hz, "
+                f"cost {self.cost:.3g} stages per sample{worst}")
+
+
+def cost(net: FlatNetlist, method: str, substeps: int) -> float:
+    """Relative work per input sample: force evaluations per step times substeps, plus the
+    exact block updates of a splitting scheme (two small matrix-vector products per step,
+    weighted by the share of block dofs)."""
+    if expint.is_split(method):
+        share = len(expint.find_blocks(net).node_set()) / max(net.n, 1)
+        return substeps * (expint.SCHEMES[method].tableau.stages + 2 * share)
+    return substeps * get_tableau(method).stages
+
+
+def choose(net: FlatNetlist, tstep: float, duration: float, tol: float,
+           methods: tuple[str, ...] = CANDIDATES,
+           substeps: tuple[int, ...] = SUBSTEPS) -> Choice:
+    """The cheapest stable (method, substeps) whose estimated error is at most `tol` for every
+    mode within the input band (up to the Nyquist frequency of the input grid 1/tstep)."""
+    if not tol > 0:
+        raise UsageError(f"tolerance must be positive, got {tol}")
+    found = linear.modes(net)
+    band = 0.5 / tstep
+    best: Choice | None = None
+    for method in methods:
+        if method not in TABLEAUX and not expint.is_split(method):
+            raise UsageError(f"unknown integrator {method!r}")
+        for sub in substeps:
+            c = _candidate(net, found, method, sub, tstep, duration, band)
+            if c is not None and c.error <= tol and (best is None or c.cost < best.cost):
+                best = c
+                break  # more substeps of this method only cost more
+    if best is None:
+        raise UsageError(f"no integrator meets tolerance {tol:g} with up to {max(substeps)} "
+                         "substeps", hint="raise the tolerance or lower .tran tstep")
+    return best
+
+
+def _candidate(net, found, method, sub, tstep, duration, band) -> Choice | None:
+    """The estimate for one (method, substeps), None if the step is unstable for a mode the
+    method does not integrate exactly."""
+    h = tstep / sub
+    inner = expint.SCHEMES[method].inner if expint.is_split(method) else method
+    lam = found.eigenvalues[~_exact_modes(net, found, method)]
+    if len(lam) and max_stable_step(get_tableau(inner), lam)[0] < h * (1 - 1e-9):
+        return None
+    errs = mode_errors(net, h, method, duration, found)
+    in_band = [m for m in errs if m.freq_hz <= band * (1 + 1e-9)]
+    worst = in_band[0] if in_band else None
+    return Choice(method, sub, h, worst.error if worst else 0.0, cost(net, method, sub), worst,
+                  band, found.complete)

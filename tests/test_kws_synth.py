@@ -256,3 +256,16 @@ def test_an_interrupted_run_is_replaced(tmp_path):
     assert not leftover.exists()
     assert not (tmp_path / "z" / "yes" / "half.wav").exists()
     assert not (tmp_path / "z" / PARTIAL_MARK).exists()
+
+
+@needs_engines
+def test_festival_that_hangs_or_dies_is_a_synthesis_error(monkeypatch):
+    from springc.kws import voices
+
+    monkeypatch.setattr(voices, "FESTIVAL_TIMEOUT_S", 1.0)
+    with voices.Speaker() as speaker:
+        with pytest.raises(voices.SynthesisError, match="festival exited or hung"):
+            speaker.festival_command("(read)")  # waits for input that never comes
+        # The next word starts a fresh festival.
+        x, rate = speaker.say(RECORDED[4], "yes", 1.0, 1.0)
+        assert rate == 16000 and len(x) > 0.2 * rate

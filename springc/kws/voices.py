@@ -15,6 +15,7 @@ import re
 import shutil
 import subprocess
 import tempfile
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +34,7 @@ DEBIAN_PACKAGES = {"espeak": "espeak-ng", "flite": "flite",
 PROBE_WORD = "seven"
 FESTIVAL_VOICE_ROOT = Path("/usr/share/festival/voices")
 MARKER = "@@springc-done@@"
+FESTIVAL_TIMEOUT_S = 60.0  # one word takes well under a second
 
 
 class SynthesisError(Exception):
@@ -229,12 +231,19 @@ class Speaker:
             self.festival = None
             raise SynthesisError("festival exited") from None
         lines = []
-        for line in proc.stdout:
-            if MARKER in line:
-                return "".join(lines)
-            lines.append(line)
+        # A watchdog: festival waiting on something forever is killed, and reads EOF below.
+        watchdog = threading.Timer(FESTIVAL_TIMEOUT_S, proc.kill)
+        watchdog.start()
+        try:
+            for line in proc.stdout:
+                if MARKER in line:
+                    return "".join(lines)
+                lines.append(line)
+        finally:
+            watchdog.cancel()
         self.festival = None
-        raise SynthesisError(f"festival exited: {''.join(lines)[-200:]}")
+        self.festival_voice = ""
+        raise SynthesisError(f"festival exited or hung: {''.join(lines)[-200:]}")
 
     def say_festival(self, voice: Voice, text: str, stretch: float):
         if self.festival_voice != voice.spec:

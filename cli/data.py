@@ -24,17 +24,19 @@ def data_group() -> None:
 @click.option("--jobs", "-j", default=0, help="Worker processes (0: all cores).")
 @click.option("--words", default=None,
               help="Comma-separated subset of the 35 GSCD words (default: all).")
+@click.option("--engines", default="espeak,flite,festival", show_default=True,
+              help="Comma-separated text-to-speech engines to use.")
 @plot_option
 @run_user_errors
-def synth_cmd(out: Path, clips: int, seed: int, jobs: int, words: str | None,
+def synth_cmd(out: Path, clips: int, seed: int, jobs: int, words: str | None, engines: str,
               plot_path: str | None) -> None:
     """Write a GSCD-layout corpus into the new folder OUT from the installed text-to-speech
     engines (espeak-ng, flite, festival), with speaker-disjoint splits and background noise."""
     from springc.kws.synth import synthesise
 
-    chosen = tuple(w.strip() for w in words.split(",") if w.strip()) if words else WORDS
+    chosen = split_list(words) if words else WORDS
     report = synthesise(out, clips=clips, seed=seed, jobs=jobs or os.cpu_count() or 1,
-                        words=chosen)
+                        words=chosen, engines=split_list(engines))
     splits = ", ".join(f"{s} {report.per_split.get(s, 0)}" for s in SPLITS)
     click.echo(f"{report.clips} clips ({splits}) from {report.voices} voices of "
                f"{report.speakers} speakers; noise files: {', '.join(report.noise_files)}")
@@ -42,6 +44,11 @@ def synth_cmd(out: Path, clips: int, seed: int, jobs: int, words: str | None,
     if plot_path:
         plot_examples(report.out, Path(plot_path))
         click.echo(f"plot written to {plot_path}")
+
+
+def split_list(text: str) -> tuple[str, ...]:
+    """The items of a comma-separated option."""
+    return tuple(item.strip() for item in text.split(",") if item.strip())
 
 
 @data_group.command("info")

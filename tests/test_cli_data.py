@@ -68,6 +68,8 @@ def test_synth_refuses_bad_requests(tmp_path):
     assert result.exit_code == 1 and "not GSCD words: banana" in result.output
     result = _run("data", "synth", str(tmp_path), "--clips", "5", "--words", "yes")
     assert result.exit_code == 1 and "already exists" in result.output
+    result = _run("data", "synth", str(tmp_path / "y"), "--engines", "espeak,sam")
+    assert result.exit_code == 1 and "unknown engine(s): sam" in result.output
     assert "Traceback" not in result.output
 
 
@@ -75,7 +77,8 @@ def test_synth_refuses_bad_requests(tmp_path):
 def test_installed_springc_synthesises_and_reads_back(tmp_path):
     out = tmp_path / "corpus"
     done = subprocess.run(["springc", "data", "synth", str(out), "--clips", "12", "--seed", "2",
-                           "--words", "yes,no", "--jobs", "2", "--plot",
+                           "--words", "yes,no", "--jobs", "2", "--engines", "flite,festival",
+                           "--plot",
                            str(tmp_path / "ex.png")],
                           capture_output=True, text=True, timeout=300, check=False)
     assert done.returncode == 0, done.stderr

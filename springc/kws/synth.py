@@ -446,6 +446,9 @@ def synthesise(out, *, clips: int = DEFAULT_CLIPS, seed: int = 0, jobs: int = 0,
         raise UsageError(f"--clips {clips} is fewer than the {len(words)} words")
     if out.exists():  # before the seconds spent finding voices
         raise UsageError(f"{out} already exists; choose a new folder or remove it")
+    unknown = sorted(set(engines) - set(ENGINES))
+    if unknown:
+        raise UsageError(f"unknown engine(s): {', '.join(unknown)}; use {', '.join(ENGINES)}")
     notes: list[str] = []
     if voices is None:
         voices, notes = installed_voices(engines)

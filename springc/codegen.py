@@ -135,10 +135,21 @@ def source_hash(text: str) -> str:
     return hashlib.sha256(f"{KERNEL_VERSION}\n{text}".encode()).hexdigest()[:20]
 
 
+_PER_NETLIST = ("# netlist: ", "# title: ", "# dofs: ")
+
+
+def shared_text(source: str) -> str:
+    """The source without the header lines that name one netlist: what the cache stores, so
+    every netlist with the same element kinds and options shares one compiled kernel (and a
+    cached file is never rewritten with another header, which would invalidate numba's
+    cache)."""
+    return "".join(line for line in source.splitlines(keepends=True)
+                   if not line.startswith(_PER_NETLIST))
+
+
 def kernel_hash(source: str) -> str:
-    """The hash naming a kernel's cache file: of the whole text, header included, so a cached
-    file is never rewritten with another header (which would invalidate numba's cache)."""
-    return source_hash(source)
+    """The hash naming a kernel's cache file (of `shared_text`)."""
+    return source_hash(shared_text(source))
 
 
 class _Code:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 
-from springc.codegen import kernel_hash
+from springc.codegen import kernel_hash, shared_text
 
 _LOADED: dict[str, "Kernel"] = {}
 
@@ -62,9 +62,10 @@ def kernel_path(source: str) -> Path:
 
 
 def write_source(source: str) -> Path:
-    """Write `source` to its cache file (atomically; untouched if already there, so numba's
-    cache, keyed on the file's timestamp, stays valid)."""
+    """Write the shared part of `source` (`codegen.shared_text`) to its cache file, atomically;
+    untouched if already there, so numba's cache, keyed on the file's timestamp, stays valid."""
     path = kernel_path(source)
+    source = shared_text(source)
     if path.exists() and path.read_text() == source:
         return path
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")

@@ -77,7 +77,10 @@ def test_loader_writes_real_file_and_numba_cache(tmp_path, monkeypatch):
     res = simulate(net, u)
     text = generate(net, KernelOptions())
     path = loader.kernel_path(text)
-    assert path.parent == tmp_path and path.read_text() == text
+    assert path.parent == tmp_path and path.read_text() == codegen.shared_text(text)
+    assert "# netlist: small.spr" in text and "small.spr" not in path.read_text()
+    # another netlist with the same element kinds shares the compiled kernel
+    assert loader.kernel_path(generate(small_net(title="other"), KernelOptions())) == path
     assert path.name == f"springc_kernel_{codegen.kernel_hash(text)}.py"
     assert list((tmp_path / "__pycache__").glob(f"{path.stem}.run-*.nbi"))
     # step response from rest (F = 1, m = 1): x(a) = t^2/2 - b t^3/6 - k t^4/24 + O(t^5), with

@@ -5,6 +5,8 @@ that few kernels serve many tests (parameters are runtime arguments)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import soundfile as sf
@@ -294,3 +296,24 @@ def test_input_resampled_from_another_rate():
     for label, want in ref.probes.items():
         assert np.abs(res.probes[label][0, :900] - want[0, :900]).max() < 1e-4 * np.abs(
             want).max()
+
+
+# --- golden trajectories of the example netlists (regenerate: python tests/regen_golden.py) --
+
+GOLDEN_DIR = Path(__file__).parent / "golden"
+EXAMPLES = sorted((Path(__file__).parents[1] / "netlists" / "examples").glob("*.spr"))
+
+
+@pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.stem)
+def test_golden_trajectories(path):
+    from regen_golden import simulate_example
+
+    stored = np.load(GOLDEN_DIR / f"{path.stem}.npz")
+    res = simulate_example(path)
+    assert sorted(stored.files) == sorted(["t", *res.probes])
+    np.testing.assert_allclose(res.t, stored["t"], rtol=1e-12)
+    for label, got in res.probes.items():
+        want = stored[label]
+        assert got.shape == want.shape
+        # round-off only: other machines and numba versions may reorder a few operations
+        assert np.abs(got - want).max() <= 1e-9 * np.abs(want).max(), label

@@ -12,6 +12,9 @@ from springc.kws.train import REALISATIONS, TASKS, TrainOptions
 from springc_cli.common import run_user_errors
 
 _REALISATION = click.Choice(REALISATIONS)
+_SCHEDULER = click.option("--scheduler", default=None, metavar="ADDRESS",
+                          help="Mass-spring: Dask scheduler to send the simulations to "
+                               "(default: a local cluster on all cores).")
 
 
 @click.command("train")
@@ -34,9 +37,15 @@ _REALISATION = click.Choice(REALISATIONS)
 @click.option("--no-cache", is_flag=True, help="Recompute features, ignore the cache.")
 @click.option("-o", "--out", required=True, type=click.Path(path_type=Path),
               help="Model folder to write.")
+@click.option("--epsilon", type=float, default=None,
+              help="Mass-spring: squaring error of the classifier heads [default: 1e-5].")
+@click.option("--threshold", type=float, default=None,
+              help="Mass-spring: compression threshold A_c (m) of the feature squarers "
+                   "[default: 0.01]; smaller compresses more.")
+@_SCHEDULER
 @run_user_errors
 def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, tau, fc,
-              feature_rate, jobs, seed, no_cache, out) -> None:
+              feature_rate, jobs, seed, no_cache, out, epsilon, threshold, scheduler) -> None:
     """Train the keyword spotter and write a model folder with weights and a test report."""
     from springc.kws.train import train
 
@@ -44,7 +53,12 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
                                fc=fc, feature_rate=feature_rate)
     opts = TrainOptions(data=data, out=out, settings=settings,
                         realisation="baseline" if baseline else realisation, task=task,
-                        jobs=jobs, seed=seed, use_cache=not no_cache)
+                        jobs=jobs, seed=seed, use_cache=not no_cache, epsilon=epsilon,
+                        scheduler=scheduler)
+    if threshold is not None:
+        from springc.kws.massspring import from_features
+
+        opts.massspring = from_features(settings, threshold=threshold)
     report = train(opts)
     click.echo(_summary(report))
     click.echo(f"model written to {out}")
@@ -59,21 +73,34 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
 @click.option("--json", "as_json", is_flag=True, help="Print accuracy, n, per_class as JSON.")
 @click.option("--jobs", "-j", default=0, help="Worker processes (0: all cores).")
 @click.option("--no-cache", is_flag=True, help="Recompute features, ignore the cache.")
+@_SCHEDULER
 @run_user_errors
-def eval_cmd(model_dir, data, realisation, as_json, jobs, no_cache) -> None:
+def eval_cmd(model_dir, data, realisation, as_json, jobs, no_cache, scheduler) -> None:
     """Evaluate a trained model on the test split (testing_list.txt) of a data set."""
     from springc.kws.evaluate import evaluate
 
-    report = evaluate(model_dir, data, realisation, jobs=jobs, use_cache=not no_cache)
+    report = evaluate(model_dir, data, realisation, jobs=jobs, use_cache=not no_cache,
+                      scheduler=scheduler)
     if as_json:
         keys = ("accuracy", "n", "per_class") + (("pairs",) if "pairs" in report else ())
+        keys += tuple(k for k in _NETWORK_KEYS if k in report)
         click.echo(json.dumps({k: report[k] for k in keys}))
     else:
         click.echo(_summary(report))
 
 
+_NETWORK_KEYS = ("digital_same_model", "insertion_loss_db", "readout_error", "throughput")
+
+
 def _summary(report: dict) -> str:
     lines = [f"test accuracy {100 * report['accuracy']:.2f}% on {report['n']} clips"]
+    if "digital_same_model" in report:  # the simulated mass-spring network
+        t, il = report["throughput"], report["insertion_loss_db"]
+        lines[0] += (f" (mass-spring network); digital readout of the same model "
+                     f"{100 * report['digital_same_model']['accuracy']:.2f}%")
+        lines.append(f"  insertion loss {il['median']:.1f} dB (median), readout error "
+                     f"{100 * report['readout_error']:.2f}%, {t['clips_per_s']:.2f} clips/s "
+                     f"on {t['cores'] or 'the cluster'} cores")
     for name, r in report.get("pairs", {}).items():
         paper = f" (paper: {100 * r['paper']:.1f}%)" if r.get("paper") else ""
         lines.append(f"  {name:12s} {100 * r['accuracy']:6.2f}% of {r['n']}{paper}")

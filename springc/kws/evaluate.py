@@ -55,7 +55,7 @@ def evaluate_fits(fits: list, x: np.ndarray, y: np.ndarray, task: str) -> dict:
 
 
 def evaluate(model_dir: Path, data: Path | None = None, realisation: str | None = None,
-             jobs: int = 0, use_cache: bool = True) -> dict:
+             jobs: int = 0, use_cache: bool = True, scheduler: str | None = None) -> dict:
     """Evaluate the model in `model_dir` on the test split of `data` (default: the data set
     it was trained on). `realisation` must match the model's (or be omitted)."""
     model = load_model(model_dir)
@@ -68,6 +68,10 @@ def evaluate(model_dir: Path, data: Path | None = None, realisation: str | None 
     data = Path(data) if data else _trained_data(model)
     task = model.settings["task"]
     ds = open_task_data(data, task, int(model.settings.get("seed", 0)))
+    if realisation == "mass-spring":  # simulate the whole classifier network
+        from springc.kws.transfer import evaluate_network
+
+        return evaluate_network(model, ds, scheduler=scheduler, jobs=jobs, use_cache=use_cache)
     settings = _feature_settings(model)
     clips = ds.split("test")
     x = feature_matrices(clips, "test", realisation, [settings], noise_files=ds.noise_files,

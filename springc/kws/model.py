@@ -44,8 +44,10 @@ def _weights(settings: dict, fits: list) -> dict:
     return out
 
 
-def write_model(folder: Path, settings: dict, fits: list, report: dict) -> None:
-    """Write the model folder atomically (replacing an existing one only when complete)."""
+def write_model(folder: Path, settings: dict, fits: list, report: dict,
+                extra: dict[str, str] | None = None) -> None:
+    """Write the model folder atomically (replacing an existing one only when complete);
+    `extra` maps further file names to their text (the mass-spring classifier netlists)."""
     folder = Path(folder)
     settings = {**settings, "C": _chosen_c(fits)}
     folder.parent.mkdir(parents=True, exist_ok=True)
@@ -54,6 +56,8 @@ def write_model(folder: Path, settings: dict, fits: list, report: dict) -> None:
         (tmp / "settings.json").write_text(json.dumps(settings, indent=2) + "\n")
         np.savez(tmp / "weights.npz", **_weights(settings, fits))
         write_report(tmp, report, title=_title(settings, report))
+        for name, text in (extra or {}).items():
+            (tmp / name).write_text(text)
         if folder.exists():
             shutil.rmtree(folder)
         tmp.rename(folder)

@@ -47,15 +47,15 @@ class TrainOptions:
     seed: int = 0
     use_cache: bool = True
     grid: tuple[float, ...] | None = None
+    # mass-spring only: physical settings (default: from `settings`), the squaring error of
+    # the classifier heads, and a Dask scheduler address (default: a local cluster)
+    massspring: object = None
+    epsilon: float | None = None
+    scheduler: str | None = None
 
 
 def check_realisation(realisation: str) -> None:
     """UsageError for realisations that cannot run (yet)."""
-    if realisation == "mass-spring":
-        raise UsageError(
-            "the mass-spring realisation is not available yet: it needs the simulated "
-            "classifier of the next issue",
-            hint="use --realisation digital (the paper's architecture evaluated numerically)")
     if realisation not in REALISATIONS:
         raise UsageError(f"unknown realisation {realisation!r}; use one of {REALISATIONS}")
 
@@ -138,7 +138,8 @@ def _run(clips: list, realisation: str, settings_list: list, augment: bool, seed
 
 def feature_matrices(clips: list, split: str, realisation: str,
                      settings_list: list[FeatureSettings], *, noise_files: list, seed: int = 0,
-                     jobs: int = 0, use_cache: bool = True) -> list[np.ndarray]:
+                     jobs: int = 0, use_cache: bool = True,
+                     scheduler: str | None = None) -> list[np.ndarray]:
     """Feature matrices (clips, N) of `clips` for each settings in `settings_list` (which may
     differ only in `delays`), from the cache where present. Training clips are augmented
     (`load_clip(augment=True)` with a per-clip generator seeded from `seed`)."""
@@ -153,8 +154,15 @@ def feature_matrices(clips: list, split: str, realisation: str,
     found = [cache.load(p, len(clips)) if use_cache else None for p in paths]
     todo = [s for s, f in zip(settings_list, found) if f is None]
     if todo:
-        computed = iter(_run(clips, realisation, todo, augment, seed, noise_files, jobs,
-                             f"features {split}"))
+        if realisation == "mass-spring":  # simulated on Dask (springc.kws.distributed)
+            from springc.kws.massspring import dataset_phi
+
+            computed = iter([dataset_phi(clips, split, s, noise_files=noise_files, seed=seed,
+                                         scheduler=scheduler, workers=jobs or None)
+                             for s in todo])
+        else:
+            computed = iter(_run(clips, realisation, todo, augment, seed, noise_files, jobs,
+                                 f"features {split}"))
         found = [f if f is not None else next(computed) for f in found]
         if use_cache:
             for p, f in zip(paths, found):
@@ -188,11 +196,12 @@ def open_task_data(data: Path, task: str, seed: int = 0):
 
 
 def split_features(ds, realisation: str, settings_list: list[FeatureSettings], *, seed: int,
-                   jobs: int, use_cache: bool) -> dict[str, list[np.ndarray]]:
+                   jobs: int, use_cache: bool,
+                   scheduler: str | None = None) -> dict[str, list[np.ndarray]]:
     """{split: [matrix per settings]} for train, validation and test."""
     return {split: feature_matrices(ds.split(split), split, realisation, settings_list,
                                     noise_files=ds.noise_files, seed=seed, jobs=jobs,
-                                    use_cache=use_cache)
+                                    use_cache=use_cache, scheduler=scheduler)
             for split in ("train", "validation", "test")}
 
 
@@ -223,9 +232,14 @@ def train(opts: TrainOptions) -> dict:
     check_realisation(opts.realisation)
     if opts.realisation == "digital":
         opts.settings.validate(16000)
+    if opts.realisation == "mass-spring":
+        from springc.kws.transfer import physical_settings
+
+        opts.massspring = physical_settings(opts.settings, opts.massspring)
     ds = open_task_data(opts.data, opts.task, opts.seed)
-    feats = split_features(ds, opts.realisation, [opts.settings], seed=opts.seed,
-                           jobs=opts.jobs, use_cache=opts.use_cache)
+    feature_settings = opts.massspring if opts.realisation == "mass-spring" else opts.settings
+    feats = split_features(ds, opts.realisation, [feature_settings], seed=opts.seed,
+                           jobs=opts.jobs, use_cache=opts.use_cache, scheduler=opts.scheduler)
     x = {s: f[0] for s, f in feats.items()}
     y = {s: targets(ds.split(s), opts.task) for s in x}
     kind = "logreg" if opts.realisation == "baseline" else "svm"
@@ -233,7 +247,13 @@ def train(opts: TrainOptions) -> dict:
     fits = fit_task(x, y, opts.task, kind, grid, opts.jobs or os.cpu_count() or 1)
     report = evaluate_fits(fits, x["test"], y["test"], opts.task)
     settings = model_settings(opts, ds)
-    write_model(opts.out, settings, fits, report)
+    if opts.realisation == "mass-spring":  # the classifier netlists beside the weights
+        from springc.kws.transfer import write_classifier
+
+        write_model(opts.out, settings, fits, report,
+                    extra=write_classifier(opts, ds, fits, settings))
+    else:
+        write_model(opts.out, settings, fits, report)
     return report
 
 
@@ -243,7 +263,8 @@ def model_settings(opts: TrainOptions, ds) -> dict:
         "springc_version": __version__,
         "realisation": opts.realisation,
         "task": opts.task,
-        "features": feature_key(opts.realisation, opts.settings),
+        "features": feature_key(opts.realisation, opts.massspring
+                                if opts.realisation == "mass-spring" else opts.settings),
         "classifier": "logistic-regression" if opts.realisation == "baseline"
         else "linear-svm squared-hinge l2 primal one-vs-rest",
         "seed": opts.seed,

@@ -1,0 +1,299 @@
+"""Mass-spring feature extraction (paper Sec. III.C, Fig. 7a): the SVM features Phi of a clip
+computed by simulating the physical network, with the Gram sums taken in the kernel.
+
+The network, per Mel bin i (all from the standard library, written out by `front_end`):
+
+    in(0) -> melfilter  y{i}      fitted two-mode filter (`fit_melbank`), peak response 1
+          -> Q (squarer) lp{i}    g/(2a_i) (y^2 - a_i lp)^2: squaring, and through the cubic
+                                  stiffness 2 g/a_i y^3 on the filter, compression towards the
+                                  power 2/3 above the threshold amplitude A_c (a_i below)
+          -> lowpass lp{i}        critically damped, fc = 50 Hz, local stiffness klp
+          -> fan-out into m delay lines (coupling kc), line j of base + j L sites of delay
+             t_s = td / L each, coupled by kc to its terminal node f{i}_{j}: delays differ by
+             exactly j td at low frequency.
+The terminal node f{i}_{j} is one more line site with the matched damping sqrt(m_s kc) = t_s kc;
+in the full classifier (`springc.kws.transfer`) the same mass and damping come from the mvm
+heads instead, so the features there equal the ones computed here.
+
+Compression: the filter output feels the stiffness w_a^2 + 6 (g/a_i) y^2, so with
+a_i = 6 g A_c^2 / w_a,i^2 the cubic part equals the linear one at |y| = A_c in every bin; above
+it the output grows like the cube root of the drive and y^2 like its power 2/3, the
+digital realisation's |y|^(2/3) (paper Fig. 5). A smaller A_c compresses more.
+
+Phi: the `gram` reduction over the terminal nodes, pairs (k <= l) weighted 1 (k = l) or 2 and
+summed into the groups of `springc.kws.phi.group_index`: exactly `phi_vector` of the recorded
+terminal trajectories, without storing them.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from springc.design.emit import SprWriter, num
+from springc.design.melbank import MelFilter
+from springc.errors import UsageError
+from springc.ir import FlatNetlist
+from springc.kws.phi import group_index, n_features
+from springc.reductions import Reduction, gram_reduction
+
+INPUT_RATE = 16000.0  # Hz: the clips' rate, the `.tran` step of the networks
+SUBSTEPS = 2  # RK4 at 32 kHz: the top filter mode (~6 kHz) at w h ~ 1.2, well inside RK4's 2.8
+
+
+@dataclass(frozen=True)
+class MassSpringSettings:
+    """Everything that fixes the feature network (SI units; defaults as in the paper where it
+    gives them). `sites`: delay-line sites per td (the chain's band edge 2 sites / td rad/s
+    stays 6x above the 50 Hz cut-off, delay dispersion below 5% at 50 Hz); `base`: sites of
+    the shortest line; `threshold`: the compression amplitude A_c (m of filter output)."""
+
+    bins: int = 8
+    delays: int = 3
+    td: float = 0.032
+    tau: float = 80.0
+    fc: float = 50.0
+    sites: int = 16
+    base: int = 2
+    klp: float = 1.0
+    kc: float = 0.25
+    g: float = 1.0
+    threshold: float = 0.01
+    input_gain: float = 1.0
+    settle: float = 0.05
+    filterbank: str = "two-mode"
+    fmin: float = 20.0
+    fmax: float = 8000.0
+
+    def validate(self) -> None:
+        """UsageError for settings the network cannot realise."""
+        if self.bins < 2 or self.delays < 1:
+            raise UsageError(f"need bins >= 2 and delays >= 1, got {self.bins} x {self.delays}")
+        if self.filterbank != "two-mode":
+            raise UsageError("the mass-spring realisation uses the two-mode filterbank",
+                             hint="--filterbank two-mode")
+        if self.sites < 2 or self.base < 2:
+            raise UsageError("delay lines need at least 2 sites per td and a base of 2 sites")
+        if min(self.td, self.tau, self.fc, self.klp, self.kc, self.g, self.threshold,
+               self.input_gain) <= 0:
+            raise UsageError("td, tau, fc, klp, kc, g, threshold and input gain must be > 0")
+        if self.line_damping() * self.delays >= self.lowpass_damping():
+            raise UsageError(f"{self.delays} delay lines (impedance {self.line_damping():.3g} "
+                             f"N s/m each) overload the low-pass (damping "
+                             f"{self.lowpass_damping():.3g}); lower kc or raise klp")
+
+    def to_dict(self) -> dict:
+        """Plain dict (settings.json, cache keys)."""
+        return asdict(self)
+
+    @property
+    def site_delay(self) -> float:
+        """t_s, the delay per site (s)."""
+        return self.td / self.sites
+
+    def site_mass(self) -> float:
+        """m_s = t_s^2 kc, a delay-line site's mass (kg)."""
+        return self.site_delay**2 * self.kc
+
+    def line_damping(self) -> float:
+        """The lines' characteristic impedance t_s kc (N s/m): their matched termination."""
+        return self.site_delay * self.kc
+
+    def lowpass_damping(self) -> float:
+        """Total critical damping of the low-pass mass, 2 klp / (2 pi fc)."""
+        return 2 * self.klp / (2 * math.pi * self.fc)
+
+    def line_sites(self, j: int) -> int:
+        """Sites of delay line j (0-based): base + j * sites."""
+        return self.base + j * self.sites
+
+    def latency(self) -> float:
+        """Delay of the shortest line from the low-pass mass to its terminal (s)."""
+        return (self.base + 1) * self.site_delay
+
+
+def horizon(s: MassSpringSettings, clip_seconds: float) -> float:
+    """Simulated time for a clip: the clip, the longest line's delay, and `settle` for the
+    low-pass and (in the classifier) the readouts to catch up."""
+    return clip_seconds + s.latency() + (s.delays - 1) * s.td + s.settle
+
+
+@functools.lru_cache(maxsize=16)
+def filters(s: MassSpringSettings) -> tuple[MelFilter, ...]:
+    """The fitted two-mode Mel filters of the network (cached, shared with the digital path)."""
+    from springc.kws.digital import melbank_filters
+
+    return melbank_filters(s.bins, "two-mode", s.fmin, s.fmax)
+
+
+def leverages(s: MassSpringSettings) -> np.ndarray:
+    """a_i = 6 g A_c^2 / w_a,i^2: the squarer leverage that puts the compression threshold of
+    bin i at filter amplitude A_c."""
+    wa = np.array([2 * np.pi * f.fa for f in filters(s)])
+    return 6 * s.g * s.threshold**2 / wa**2
+
+
+def terminal(i: int, j: int) -> str:
+    """Name of the terminal node of bin i, delay j (the feature phi_(i m + j))."""
+    return f"f{i}_{j}"
+
+
+def terminals(s: MassSpringSettings) -> list[str]:
+    """Terminal nodes in Phi order, l = i m + j."""
+    return [terminal(i, j) for i in range(s.bins) for j in range(s.delays)]
+
+
+def front_end(w: SprWriter, s: MassSpringSettings) -> None:
+    """Write the feature extraction up to the last site of every delay line, and its coupling
+    to the terminal nodes f{i}_{j} (which need mass and damping from the caller)."""
+    w.include("melfilter.spr")
+    w.include("squarer.spr")
+    w.include("lowpass.spr")
+    w.include("delayline.spr")
+    w.params(ts=s.site_delay, kc=s.kc, klp=s.klp, fc=s.fc, g=s.g)
+    for i, (f, a) in enumerate(zip(filters(s), leverages(s))):
+        w.blank()
+        w.comment(f"bin {i}: Mel centre {f.centre:.0f} Hz (modes {f.fa:.0f} and {f.fb:.0f} Hz); "
+                  f"compression threshold {num(s.threshold)} m")
+        w.statement(f"Xf{i}", f"y{i}", "melfilter", f"fa={num(f.fa)}", f"delta={num(f.delta)}",
+                    f"alpha={num(f.alpha)}", "ch=0", f"gain={num(f.gain * s.input_gain)}")
+        w.statement(f"Xq{i}", f"y{i}", f"lp{i}", "squarer", "g={g}", f"a={num(a)}")
+        w.statement(f"Xlp{i}", f"lp{i}", "lowpass", "fc={fc}", "k={klp}",
+                    f"bext={{{s.delays} * ts * kc}}")
+        for j in range(s.delays):
+            w.statement(f"Cfan{i}_{j}", f"lp{i}", f"e{i}_{j}", "k={kc}")
+            w.statement(f"Xd{i}_{j}", f"e{i}_{j}", f"o{i}_{j}", "delayline",
+                        f"n={s.line_sites(j)}", "td={ts}", "kc={kc}", "term=0")
+            w.statement(f"Ct{i}_{j}", f"o{i}_{j}", terminal(i, j), "k={kc}")
+
+
+def tran(w: SprWriter, s: MassSpringSettings, seconds: float = 1.0) -> None:
+    """`.tran` on the clips' 16 kHz grid, RK4 with SUBSTEPS substeps."""
+    w.statement(".tran", f"{{1/{INPUT_RATE:g}}}", num(horizon(s, seconds)))
+    w.statement(".options", f"substeps={SUBSTEPS}")
+
+
+def feature_text(s: MassSpringSettings) -> str:
+    """The `.spr` text of the feature-extraction network with matched terminal nodes."""
+    s.validate()
+    w = SprWriter()
+    w.title(f"mass-spring feature extraction, {s.bins} bins x {s.delays} delays")
+    w.comment(__doc__.split("\n\n")[1])
+    front_end(w, s)
+    w.blank()
+    w.comment("terminal nodes: one more line site each, with the matched damping t_s kc")
+    for node in terminals(s):
+        w.statement(f"M{node}", node, "m={ts**2 * kc}", "b={ts * kc}")
+    tran(w, s)
+    return w.text()
+
+
+@functools.lru_cache(maxsize=8)
+def feature_network(s: MassSpringSettings) -> FlatNetlist:
+    """The elaborated feature network (cached per settings)."""
+    from springc.lang import load_text
+
+    return load_text(feature_text(s), "<mass-spring features>")
+
+
+def phi_reduction(net: FlatNetlist, s: MassSpringSettings, label: str = "phi") -> Reduction:
+    """The `gram` reduction whose result is Phi (runs, N): pairs k <= l of terminal nodes,
+    weight 1 on the diagonal and 2 off it, grouped by `group_index`."""
+    nodes = terminals(s)
+    gidx = group_index(s.bins, s.delays)
+    k, l = np.triu_indices(len(nodes))
+    red = gram_reduction(net, s.tau, [nodes[a] for a in k], [nodes[b] for b in l], gidx[k, l],
+                         np.where(k == l, 1.0, 2.0), label=label)
+    if red.gram.groups != n_features(s.bins, s.delays):
+        raise AssertionError("group index does not cover every feature")
+    return red
+
+
+def simulate_phi(signals: np.ndarray, s: MassSpringSettings, *, chunk: int | None = None,
+                 progress: bool = False) -> np.ndarray:
+    """Phi (clips, N) of `signals` (clips, samples) at 16 kHz, by simulating the network."""
+    from springc.simulate import simulate
+
+    net = feature_network(s)
+    signals = np.atleast_2d(np.asarray(signals, dtype=np.float64))
+    res = simulate(net, signals[:, None, :], INPUT_RATE, reductions=[phi_reduction(net, s)],
+                   tstop=horizon(s, signals.shape[1] / INPUT_RATE), probes=[], chunk=chunk,
+                   batch=len(signals), progress=progress)
+    return res.reductions["phi"]
+
+
+def simulate_traces(signals: np.ndarray, s: MassSpringSettings,
+                    rate: float = 1000.0) -> tuple[np.ndarray, np.ndarray]:
+    """(t, x) with x (clips, bins, T): the low-pass displacements lp{i} at `rate`, for plots
+    and the comparison with the digital features."""
+    from springc.simulate import simulate
+
+    net = feature_network(s)
+    signals = np.atleast_2d(np.asarray(signals, dtype=np.float64))
+    labels = [f"x(lp{i})" for i in range(s.bins)]
+    res = simulate(net, signals[:, None, :], INPUT_RATE, probes=labels, outrate=rate,
+                   tstop=horizon(s, signals.shape[1] / INPUT_RATE))
+    return res.t, np.stack([res.probes[k] for k in labels], axis=1)
+
+
+def simulate_peaks(signals: np.ndarray, s: MassSpringSettings) -> np.ndarray:
+    """Per clip, the largest |x| of any terminal node (recorded at 2 kHz)."""
+    from springc.simulate import simulate
+
+    net = feature_network(s)
+    signals = np.atleast_2d(np.asarray(signals, dtype=np.float64))
+    labels = [f"x({node})" for node in terminals(s)]
+    res = simulate(net, signals[:, None, :], INPUT_RATE, probes=labels, outrate=2000.0,
+                   tstop=horizon(s, signals.shape[1] / INPUT_RATE))
+    return np.max([np.abs(res.probes[k]).max(axis=1) for k in labels], axis=0)
+
+
+# -- data sets: batches of clips through the network on Dask --------------------------------
+
+BATCH = 16  # clips simulated in lockstep by one worker (SIMD lanes; one progress tick)
+
+
+def from_features(fs, **overrides) -> MassSpringSettings:
+    """Mass-spring settings matching digital `FeatureSettings` (bins, delays, td, tau, fc,
+    filter range), with `overrides` for the physical parameters (threshold, kc, ...)."""
+    return MassSpringSettings(bins=fs.bins, delays=fs.delays, td=fs.td, tau=fs.tau, fc=fs.fc,
+                              fmin=fs.fmin, fmax=fs.fmax, **overrides)
+
+
+def load_signals(clips: list, augment: bool, seed: int, noise_files: list) -> np.ndarray:
+    """The clips as the network hears them, (clips, samples) float32 at 16 kHz: the same
+    preprocessing and (for training) the same per-clip augmentation as the digital path."""
+    from springc.kws.dataset import NoiseBank, load_clip
+    from springc.kws.train import _clip_rng
+
+    noise = NoiseBank(noise_files) if augment and noise_files else None
+    return np.stack([load_clip(c, augment=augment, rng=_clip_rng(seed, c.key()), noise=noise)
+                     for c in clips]).astype(np.float32)
+
+
+def phi_batch(signals: np.ndarray, s: MassSpringSettings) -> np.ndarray:
+    """Phi of one batch, simulated by one core (a Dask task)."""
+    return simulate_phi(signals.astype(np.float64), s, chunk=len(signals))
+
+
+def batches(signals: np.ndarray, size: int = BATCH) -> list[np.ndarray]:
+    """Consecutive batches of at most `size` clips."""
+    return [signals[k:k + size] for k in range(0, len(signals), size)]
+
+
+def dataset_phi(clips: list, split: str, s: MassSpringSettings, *, noise_files: list,
+                seed: int = 0, scheduler: str | None = None,
+                workers: int | None = None) -> np.ndarray:
+    """Phi (clips, N) of a split's clips, simulated on Dask (`springc.kws.distributed`)."""
+    from functools import partial
+
+    from springc.kws.distributed import map_batches
+
+    signals = load_signals(clips, split == "train", seed, noise_files)
+    parts = batches(signals)
+    out = map_batches(partial(phi_batch, s=s), parts, scheduler, workers=workers,
+                      desc=f"mass-spring {split}", sizes=[len(p) for p in parts])
+    return np.concatenate(out)

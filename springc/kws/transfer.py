@@ -1,0 +1,300 @@
+"""Weight transfer: a trained SVM becomes mass-spring classifier heads (paper Sec. III.B).
+
+For each classifier row c (a class, or a digit pair) with raw coefficients coef_c on Phi:
+
+    C_c = spread(coef_c)             (each coefficient on the (k, l) pairs of its group)
+    C_c = Q Lambda Q^T               (eigen-decomposition; Q orthogonal)
+    head c: mvm encoding Q^T         (outputs y_k = Q_k . phi, `springc.design.mvm`)
+            Q couplings y_k -> r_c   gamma_k = s_c lambda_k, alpha_k = A^2 gamma_k / (eps kc)
+            readout r_c              tau = 80 s, Q_r = 0.01, stiffness all from the couplings
+
+The readout integrates sum_k gamma_k y_k^2 = s_c phi^T C_c phi with the kernel exp(-(T-t)/tau)
+(its slow pole), so at the end of the clip x_r = (s_c / D) c . Phi with
+D = sqrt(b_r^2 - 4 m_r k_r) (the readout's Green's function past its fast pole): the scale
+s_c / D is a design number, never fitted. Squaring error: the paper's eps = A^2 gamma / alpha
+with A the peak feature amplitude (terminal displacement) and stiffness in units of the delay
+line's kc (the paper's "stiffness scale of the delay line"): eps = A^2 gamma / (alpha kc).
+The zero modes that carry the features are held only by the lines' impedance (t_s kc w, about
+kc / 100 at the features' few-Hz envelopes), so the couplings' cubic stiffness and the
+readout's parametric back-action distort the features from eps ~ 1e-4 on (measured; see
+docs/results-massspring.md). s_c is the largest scale whose couplings stay within the readout's
+stiffness: sum_k gamma_k alpha_k = A^2 s_c^2 sum lambda^2 / (eps kc) = FILL m_r w_r^2.
+
+Impedance: every head's mvm inputs sit on the shared terminal nodes f{i}_{j}; with H heads each
+mvm is designed for mass m_s / H and damping t_s kc / H, so together their zero modes add
+exactly one line site with the matched damping at each terminal, the termination the features
+were computed with (`springc.kws.massspring`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from springc.design.blocks import readout_params
+from springc.design.emit import SprWriter, num
+from springc.design.mvm import design_mvm, mvm_text
+from springc.errors import UsageError
+from springc.kws import massspring as msp
+from springc.kws.phi import spread
+
+TAU_READOUT = 80.0  # s (paper)
+Q_READOUT = 0.01  # paper
+FILL = 0.99  # share of the readout stiffness from the couplings (the local spring: the rest)
+DROP = 1e-9  # eigenvalues below this fraction of the largest carry no coupling
+
+
+@dataclass(frozen=True)
+class Head:
+    """One classifier head: its row name, eigenvalues and vectors of C, the couplings' gamma and
+    alpha (for the kept components `keep`), the scale x_r -> c . Phi and the intercept."""
+
+    name: str
+    lam: np.ndarray
+    q: np.ndarray
+    keep: np.ndarray
+    gamma: np.ndarray
+    alpha: np.ndarray
+    scale: float
+    intercept: float
+
+
+def readout_scale(tau: float = TAU_READOUT, qr: float = Q_READOUT, m: float = 1.0) -> float:
+    """D = sqrt(b^2 - 4 m k) of the readout: x_r(T) = int exp(-(T-t)/tau) F dt / D."""
+    p = readout_params(tau, qr, m)
+    return math.sqrt(p.b**2 - 4 * p.m * p.k_total)
+
+
+def stiffness_scale(s: msp.MassSpringSettings) -> float:
+    """The stiffness the squaring error is measured against: the delay line's kc (N/m)."""
+    return s.kc
+
+
+def design_head(name: str, coef: np.ndarray, intercept: float, s: msp.MassSpringSettings,
+                amplitude: float, epsilon: float) -> Head:
+    """The head for one classifier row: couplings from the eigen-decomposition of C."""
+    if not (amplitude > 0 and epsilon > 0):
+        raise UsageError(f"feature amplitude and epsilon must be positive, got {amplitude}, "
+                         f"{epsilon}")
+    lam, q = np.linalg.eigh(spread(coef, s.bins, s.delays))
+    keep = np.flatnonzero(np.abs(lam) > DROP * np.abs(lam).max())
+    k_total = readout_params(TAU_READOUT, Q_READOUT).k_total
+    k_t = stiffness_scale(s)
+    scale = math.sqrt(FILL * k_total * epsilon * k_t / (amplitude**2 * np.sum(lam[keep] ** 2)))
+    gamma = scale * lam[keep]
+    alpha = amplitude**2 * gamma / (epsilon * k_t)
+    return Head(name, lam, q, keep, gamma, alpha, scale / readout_scale(), float(intercept))
+
+
+def heads_for(models, s: msp.MassSpringSettings, amplitude: float,
+              epsilon: float) -> list[Head]:
+    """One head per row of every model [(classes, LinearModel)], in order."""
+    out = []
+    for classes, model in models:
+        names = ["-".join(classes)] if len(model.coef) == 1 else list(classes)
+        for name, coef, b in zip(names, model.coef, model.intercept):
+            out.append(design_head(name, coef, b, s, amplitude, epsilon))
+    return out
+
+
+def head_text(k: int, head: Head, s: msp.MassSpringSettings, heads: int) -> str:
+    """`.subckt mvm{k}` (encoding Q^T) and `.subckt head{k} f0 .. f{N-1} r`: the mvm on the
+    terminals, the quadratic couplings and the readout."""
+    n = s.bins * s.delays
+    design = design_mvm(head.q.T, m=s.site_mass() / heads, b=s.line_damping() / heads,
+                        kc=s.kc / heads)
+    mvm = mvm_text(design, source=f"the eigenvectors of C for {head.name}")
+    mvm = mvm.replace("\n.subckt mvm ", f"\n.subckt mvm{k} ").replace(".ends mvm", f".ends mvm{k}")
+    w = SprWriter()
+    w.comment(f"head{k}: classifier row {head.name!r}; readout x_r = {head.scale:.6g} c . Phi, "
+              f"decision x_r / {head.scale:.6g} + ({head.intercept:.6g})")
+    w.comment(f"{len(head.keep)} of {n} eigen-components coupled (|lambda| > {DROP:g} max)")
+    w.subckt(f"head{k}", [f"f{l}" for l in range(n)] + ["r"])
+    w.statement("Xm", *[f"f{l}" for l in range(n)], *[f"y{l}" for l in range(n)], f"mvm{k}")
+    for e, g, a in zip(head.keep, head.gamma, head.alpha):
+        w.statement(f"Qy{e}", f"y{e}", "r", f"g={num(g)}", f"a={num(a)}")
+    kext = float(np.sum(head.gamma * head.alpha))
+    w.statement("Xr", "r", "readout", f"tau={num(TAU_READOUT)}", f"qr={num(Q_READOUT)}",
+                f"kext={num(kext)}")
+    w.ends(f"head{k}")
+    return mvm + "\n" + w.text()
+
+
+def classifier_text(heads: list[Head], s: msp.MassSpringSettings, include_heads: bool = True,
+                    epsilon: float | None = None) -> str:
+    """The whole classifier: the shared front end with every head on its terminal nodes.
+    With `include_heads`, the heads' text follows inline (one self-contained netlist);
+    otherwise `.include "head{k}.spr"` lines name the files `write_classifier` writes."""
+    s.validate()
+    w = SprWriter()
+    w.title(f"mass-spring keyword spotter, {s.bins} bins x {s.delays} delays, "
+            f"{len(heads)} heads")
+    w.comment("From sound to decision in one passive network: feature extraction "
+              "(springc.kws.massspring) feeding every classifier head (springc.kws.transfer)."
+              + (f" Squaring error eps = {epsilon:g}." if epsilon else ""))
+    w.comment("Prediction: the row decisions x(r{k}) / scale_k + intercept_k (in each head's "
+              "header), argmax over a model's classes (sign for a binary model).")
+    w.include("readout.spr")
+    if not include_heads:
+        for k in range(len(heads)):
+            w.include(f"head{k}.spr")
+    msp.front_end(w, s)
+    w.blank()
+    w.comment("heads: mvm inputs on the terminal nodes (they supply the terminals' mass and "
+              "matched damping), one readout each")
+    for k, head in enumerate(heads):
+        w.statement(f"Xh{k}", *msp.terminals(s), f"r{k}", f"head{k}")
+    msp.tran(w, s)
+    text = w.text()
+    if include_heads:
+        text += "\n" + "\n".join(head_text(k, h, s, len(heads)) for k, h in enumerate(heads))
+    return text
+
+
+def readout_reductions(heads: list[Head]) -> list[str]:
+    """final:x(r{k}) per head, the energy dissipated in every readout, and the input work."""
+    return ([f"final:x(r{k})" for k in range(len(heads))]
+            + [f"dissipated:r{k}" for k in range(len(heads))] + ["work:in"])
+
+
+def decisions(reds: dict[str, np.ndarray], heads: list[Head]) -> np.ndarray:
+    """Row decisions (clips, rows): x_r / scale + intercept, the physical c . Phi + b."""
+    return np.stack([reds[f"final:x(r{k})"] / h.scale + h.intercept
+                     for k, h in enumerate(heads)], axis=1)
+
+
+def insertion_loss_db(reds: dict[str, np.ndarray], heads: list[Head]) -> np.ndarray:
+    """Per clip: -10 log10(energy dissipated in all readouts / work done by the input)."""
+    diss = sum(reds[f"dissipated:r{k}"] for k in range(len(heads)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return -10 * np.log10(diss / reds["work:in"])
+
+
+def feature_amplitude(signals: np.ndarray, s: msp.MassSpringSettings) -> float:
+    """A: the peak displacement of the terminal nodes, median over the clips `signals`
+    (clips, samples) at 16 kHz (a sample of training clips)."""
+    peaks = msp.simulate_peaks(signals, s)
+    return float(np.median(peaks))
+
+
+# -- the model folder and the evaluation of the whole network --------------------------------
+
+DEFAULT_EPSILON = 1e-5  # squaring error: readouts within ~0.2% of c . Phi (measured)
+AMPLITUDE_CLIPS = 16  # training clips (unaugmented, first in order) that measure A
+
+
+def physical_settings(fs, given=None) -> msp.MassSpringSettings:
+    """The mass-spring settings of a training run: `given`, or the digital settings' sizes
+    with the default physical parameters; validated."""
+    s = given if given is not None else msp.from_features(fs)
+    s.validate()
+    return s
+
+
+def write_classifier(opts, ds, fits: list, settings: dict) -> dict[str, str]:
+    """Design the heads of trained `fits`, record the transfer in `settings` ("transfer") and
+    return the model folder's netlists: features.spr, head{k}.spr, classifier.spr."""
+    s = opts.massspring
+    eps = opts.epsilon or DEFAULT_EPSILON
+    sample = msp.load_signals(ds.split("train")[:AMPLITUDE_CLIPS], False, 0, [])
+    amplitude = feature_amplitude(sample, s)
+    heads = heads_for([(f[0], f[1]) for f in fits], s, amplitude, eps)
+    settings["transfer"] = {"epsilon": eps, "amplitude": amplitude,
+                            "heads": [h.name for h in heads],
+                            "scales": [h.scale for h in heads],
+                            "stiffness_scale": stiffness_scale(s)}
+    files = {"features.spr": msp.feature_text(s),
+             "classifier.spr": classifier_text(heads, s, include_heads=False, epsilon=eps)}
+    for k, h in enumerate(heads):
+        files[f"head{k}.spr"] = head_text(k, h, s, len(heads))
+    return files
+
+
+def model_heads(model) -> tuple[msp.MassSpringSettings, list[Head]]:
+    """The settings and heads of a trained mass-spring model (re-derived, deterministic)."""
+    from springc.errors import DataError
+
+    feats = {k: v for k, v in model.settings["features"].items() if k != "realisation"}
+    tr = model.settings.get("transfer")
+    try:
+        s = msp.MassSpringSettings(**feats)
+        heads = heads_for(model.models, s, float(tr["amplitude"]), float(tr["epsilon"]))
+    except (TypeError, KeyError, ValueError) as exc:
+        raise DataError(str(model.folder / "settings.json"),
+                        f"not a mass-spring model ({exc})") from None
+    return s, heads
+
+
+def classifier_batch(signals: np.ndarray, net, specs: list[str], tstop: float) -> dict:
+    """Readout reductions of one batch through the whole classifier (a Dask task)."""
+    from springc.simulate import simulate
+
+    res = simulate(net, signals.astype(np.float64)[:, None, :], msp.INPUT_RATE, probes=[],
+                   reductions=specs, tstop=tstop, chunk=len(signals), batch=len(signals))
+    return res.reductions
+
+
+def selection_models(models) -> list:
+    """Models that read their own rows of the decision matrix (clips, all rows): so the
+    physical decisions are scored exactly like the digital ones."""
+    from springc.kws.svm import LinearModel
+
+    total = sum(len(m.coef) for _, m in models)
+    out, start = [], 0
+    for classes, m in models:
+        rows = len(m.coef)
+        pick = np.zeros((rows, total))
+        pick[:, start:start + rows] = np.eye(rows)
+        out.append((classes, LinearModel(pick, np.zeros(rows), m.classes)))
+        start += rows
+    return out
+
+
+def evaluate_network(model, ds, *, scheduler: str | None = None, jobs: int = 0,
+                     use_cache: bool = True) -> dict:
+    """Simulate the model's classifier.spr (front end and every head in one network) on the
+    test split: accuracy, confusion, per-class TPR and insertion loss of the physical
+    decisions, next to the digital readout c . Phi of the same model on the same features."""
+    import time
+    from functools import partial
+
+    from springc.kws.distributed import cores, map_batches
+    from springc.kws.evaluate import score
+    from springc.kws.train import feature_matrices, targets
+    from springc.lang import load_file
+
+    s, heads = model_heads(model)
+    net = load_file(model.folder / "classifier.spr")
+    clips = ds.split("test")
+    task = model.settings["task"]
+    signals = msp.load_signals(clips, False, 0, [])
+    parts = msp.batches(signals)
+    start = time.perf_counter()
+    fn = partial(classifier_batch, net=net, specs=readout_reductions(heads),
+                 tstop=msp.horizon(s, signals.shape[1] / msp.INPUT_RATE))
+    out = map_batches(fn, parts, scheduler, workers=jobs or None, desc="mass-spring classifier",
+                      sizes=[len(p) for p in parts])
+    seconds = time.perf_counter() - start
+    reds = {k: np.concatenate([o[k] for o in out]) for k in out[0]}
+    d = decisions(reds, heads)
+    y = targets(clips, task)
+    report = score(selection_models(model.models), d, y, task)
+    phi = feature_matrices(clips, "test", "mass-spring", [s], noise_files=[], jobs=jobs,
+                           use_cache=use_cache, scheduler=scheduler)[0]
+    digital = score(model.models, phi, y, task)
+    ideal = np.concatenate([m.decision(phi) for _, m in model.models], axis=1)
+    loss = insertion_loss_db(reds, heads)
+    report.update(
+        realisation="mass-spring network",
+        digital_same_model={k: digital[k] for k in ("accuracy", "n", "per_class")
+                            if k in digital} | ({"pairs": digital["pairs"]}
+                                                if "pairs" in digital else {}),
+        readout_error=float(np.median(np.abs(d - ideal)) / np.median(np.abs(ideal))),
+        insertion_loss_db={"median": float(np.median(loss)), "mean": float(np.mean(loss))},
+        throughput={"clips": len(clips), "seconds": seconds,
+                    "clips_per_s": len(clips) / seconds,
+                    "cores": cores() if scheduler is None else None},
+        epsilon=float(model.settings["transfer"]["epsilon"]))
+    return report

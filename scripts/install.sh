@@ -3,7 +3,7 @@
 # (Debian packages, for the built-in corpus and cross-checks) and the Python package itself.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-DEBS="espeak-ng flite festival festvox-kallpc16k festvox-kdlpc16k festvox-us-slt-hts ngspice codec2 libsndfile1 sox"
+DEBS="espeak-ng flite festival festvox-kallpc16k festvox-kdlpc16k festvox-us-slt-hts ngspice codec2 codec2-examples alsa-utils libsndfile1 sox"
 missing=""
 for pkg in $DEBS; do
   dpkg -s "$pkg" >/dev/null 2>&1 || missing="$missing $pkg"

@@ -13,6 +13,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
 from scipy.optimize import minimize
 
 from springc import linear
@@ -176,26 +178,22 @@ def whole_potential(net: FlatNetlist) -> list[Diagnostic]:
             firsts.setdefault(int(labels[p.var[p.ptr[e]]]), e)
     out = []
     for comp, e in firsts.items():
-        nodes = np.nonzero(labels == comp)[0]
-        found = _component_potential(net, lin, nodes)
+        found = _component_potential(net, lin, labels, comp)
         if found:
             out.append(Diagnostic("error", f"{p.names[e]}: {found[0]}", p.locs[e], found[1]))
     return out
 
 
-def _component_potential(net, lin, nodes: np.ndarray) -> tuple[str, str] | None:
+def _component_potential(net, lin, labels: np.ndarray, comp: int) -> tuple[str, str] | None:
     """(message, hint) if the potential restricted to this component is not acceptable."""
-    hess = lin.K[nodes][:, nodes].toarray()
-    vals, vecs = np.linalg.eigh(hess)
+    nodes = np.nonzero(labels == comp)[0]
+    hess = lin.K[nodes][:, nodes]
+    vals, vecs = _lowest_stiffness(hess)
     if vals[0] < -1e-9 * max(abs(vals).max(), 1e-300):
         msg = (f"the stiffness matrix at rest is not positive semidefinite: curvature "
                f"{vals[0]:.6g} along {_direction(net, nodes, vecs[:, 0])}")
         return msg, "the rest state would be unstable; check the signs of the P coefficients"
-    poly = _Polynomial.of_component(net, nodes)
-    if poly.degree() <= 2:
-        direction = _quadratic_escape(poly, vals, vecs)
-    else:
-        direction = poly.unbounded_direction()
+    direction = _escape(net, hess, labels, comp)
     if direction is None:
         return None
     msg = (f"the potential is not bounded below: V decreases without bound along "
@@ -204,12 +202,80 @@ def _component_potential(net, lin, nodes: np.ndarray) -> tuple[str, str] | None:
                  "exponents of the P elements so that V stays bounded below")
 
 
-def _quadratic_escape(poly: _Polynomial, vals: np.ndarray, vecs: np.ndarray) -> np.ndarray | None:
+def _escape(net, hess, labels: np.ndarray, comp: int) -> np.ndarray | None:
+    """A direction of unbounded descent of V = 1/2 x.K x + R(x) (R: the terms of degree other
+    than 2), or None. The variables that occur only in quadratic terms are minimised out
+    exactly (Schur complement), so the search runs over the few variables of R alone."""
+    nodes = np.nonzero(labels == comp)[0]
+    local = np.full(net.n, -1, np.int64)
+    local[nodes] = np.arange(len(nodes))
+    rest = _Polynomial.of_terms(len(nodes), (t for t in _terms(net, labels == comp, local)
+                                             if sum(t[1].values()) != 2))
+    keep = rest.variables()
+    if len(keep) == 0:
+        return None  # a PSD quadratic form
+    schur, lift = _schur(hess, keep)
+    index = np.full(len(nodes), -1, np.int64)
+    index[keep] = np.arange(len(keep))
+    pairs = [(c, {int(index[v]): e for v, e in pw.items()}) for c, pw in rest.terms()]
+    pairs += [(schur[a, b] * (0.5 if a == b else 1.0), _mul({a: 1}, {b: 1}))
+              for a in range(len(keep)) for b in range(a, len(keep)) if schur[a, b] != 0]
+    reduced = _Polynomial.of_terms(len(keep), pairs)
+    if reduced.degree() <= 2:
+        scale = float(abs(hess).sum(axis=1).max())
+        found = _quadratic_escape(reduced, *np.linalg.eigh(schur), scale)
+    else:
+        found = reduced.unbounded_direction()
+    return None if found is None else lift @ found
+
+
+def _schur(hess, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Schur complement of the Hessian onto `keep` (dense) and the map from kept variables to
+    the minimising full vector (y = -Kyy^-1 Kys s; a tiny shift handles a singular Kyy, whose
+    null space a PSD Hessian keeps out of Kys)."""
+    n = hess.shape[0]
+    other = np.setdiff1d(np.arange(n), keep)
+    hess = hess.tocsr()
+    kss = hess[keep][:, keep].toarray()
+    lift = np.zeros((n, len(keep)))
+    lift[keep, np.arange(len(keep))] = 1.0
+    if len(other) == 0:
+        return kss, lift
+    kyy = hess[other][:, other].tocsc()
+    kys = hess[other][:, keep].toarray()
+    shift = 1e-12 * max(float(np.abs(kyy.diagonal()).max(initial=0.0)), 1e-300)
+    solved = sla.splu((kyy + shift * sp.identity(len(other))).tocsc()).solve(kys)
+    lift[other] = -solved
+    return kss - kys.T @ solved, lift
+
+
+def _lowest_stiffness(hess) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenpairs of the Hessian at rest, ascending: all of them for a small component, the
+    lowest few for a large one (shift-invert Lanczos below the Gershgorin lower bound, so the
+    nearest eigenvalues are the lowest ones), then the largest for the tolerance scale."""
+    n = hess.shape[0]
+    if n <= linear.DENSE_MAX:
+        return np.linalg.eigh(hess.toarray())
+    hess = hess.tocsc()
+    diag = hess.diagonal()
+    radius = np.asarray(abs(hess).sum(axis=1)).ravel() - np.abs(diag)
+    low, high = float((diag - radius).min()), float((diag + radius).max())
+    span = max(high - low, 1e-300)
+    vals, vecs = sla.eigsh(hess, k=min(linear.SPARSE_MODES, n - 1),
+                           sigma=min(low, 0.0) - 1e-6 * span, which="LM")
+    order = np.argsort(vals)
+    top = sla.eigsh(hess, k=1, sigma=high + 1e-6 * span, which="LM", return_eigenvectors=False)
+    # The largest eigenvalue only sets the tolerance scale; its vector is never used.
+    return np.append(vals[order], top), np.hstack([vecs[:, order], np.zeros((n, 1))])
+
+
+def _quadratic_escape(poly: _Polynomial, vals: np.ndarray, vecs: np.ndarray,
+                      scale: float) -> np.ndarray | None:
     """A PSD quadratic plus a linear term g.x is bounded below iff g has no part in the null
-    space of the Hessian; if it has, V falls linearly along minus that part."""
-    linear_part = poly.exps.sum(axis=1) == 1
-    g = poly.exps[linear_part].T @ poly.coef[linear_part]
-    null = vecs[:, vals <= 1e-9 * max(abs(vals).max(), 1e-300)]
+    space of the Hessian (eigenvalues below 1e-9 `scale`, the size of the whole component's
+    Hessian); if it has, V falls linearly along minus that part."""
+    g = poly.linear_part()
+    null = vecs[:, vals <= 1e-9 * max(scale, 1e-300)]
     escape = -(null @ (null.T @ g))
     return escape if np.linalg.norm(escape) > 1e-9 * max(np.linalg.norm(g), 1e-300) else None
 
@@ -229,45 +295,73 @@ def _direction(net: FlatNetlist, nodes: np.ndarray, vec: np.ndarray, signed: boo
 
 @dataclass
 class _Polynomial:
-    """V restricted to one component: sum_t coef[t] prod_j x_j^exps[t, j] (local indices)."""
+    """V restricted to one component: sum_t coef[t] prod_f x[var[t, f]]^exp[t, f] over `n`
+    local variables (factor slots padded with exponent 0), so that memory stays O(terms)."""
 
+    n: int
     coef: np.ndarray
-    exps: np.ndarray
+    var: np.ndarray
+    exp: np.ndarray
 
     @classmethod
-    def of_component(cls, net: FlatNetlist, nodes: np.ndarray) -> _Polynomial:
-        local = {int(g): j for j, g in enumerate(nodes)}
+    def of_terms(cls, n: int, pairs) -> _Polynomial:
+        """Collect (coefficient, {var: power}) pairs over `n` variables, merging like terms."""
         terms: dict[tuple, float] = {}
-        for coef, powers in _terms(net, local):
-            key = tuple(sorted(powers.items()))
+        for coef, powers in pairs:
+            key = tuple(sorted((v, e) for v, e in powers.items() if e))
             terms[key] = terms.get(key, 0.0) + coef
         keys = [k for k, v in terms.items() if v != 0]
-        exps = np.zeros((len(keys), len(nodes)), np.int64)
+        width = max((len(k) for k in keys), default=0)
+        var = np.zeros((len(keys), width), np.int64)
+        exp = np.zeros((len(keys), width), np.int64)
         for t, key in enumerate(keys):
-            for var, e in key:
-                exps[t, var] += e
-        return cls(np.array([terms[k] for k in keys]), exps)
+            for f, (v, e) in enumerate(key):
+                var[t, f], exp[t, f] = v, e
+        return cls(n, np.array([terms[k] for k in keys], dtype=np.float64), var, exp)
+
+    def variables(self) -> np.ndarray:
+        """The variables that occur in some term, ascending."""
+        return np.unique(self.var[self.exp > 0])
+
+    def terms(self):
+        """(coefficient, {var: power}) for every term."""
+        for t in range(len(self.coef)):
+            yield self.coef[t], {int(v): int(e) for v, e in zip(self.var[t], self.exp[t]) if e}
+
+    def _factors(self, x: np.ndarray) -> np.ndarray:
+        return x[self.var] ** self.exp
 
     def __call__(self, x: np.ndarray) -> float:
-        return float(self.coef @ np.prod(x[None, :] ** self.exps, axis=1))
+        return float(self.coef @ np.prod(self._factors(x), axis=1))
 
     def grad(self, x: np.ndarray) -> np.ndarray:
-        safe = self.exps - np.eye(len(x), dtype=np.int64)[:, None, :]  # (var, term, var)
-        mono = np.prod(np.where(safe >= 0, x[None, None, :] ** np.maximum(safe, 0), 0.0), axis=2)
-        return (mono * self.exps.T) @ self.coef
+        factors = self._factors(x)
+        out = np.zeros(self.n)
+        for f in range(self.var.shape[1]):
+            others = np.prod(np.delete(factors, f, axis=1), axis=1)
+            slope = self.exp[:, f] * x[self.var[:, f]] ** np.maximum(self.exp[:, f] - 1, 0)
+            np.add.at(out, self.var[:, f], self.coef * slope * others)
+        return out
 
     def degree(self) -> int:
-        return int(self.exps.sum(axis=1).max(initial=0))
+        return int(self.exp.sum(axis=1).max(initial=0))
+
+    def linear_part(self) -> np.ndarray:
+        """Coefficients g of the degree-1 terms: V = ... + g . x."""
+        one = self.exp.sum(axis=1) == 1
+        out = np.zeros(self.n)
+        np.add.at(out, self.var[one, np.argmax(self.exp[one], axis=1)], self.coef[one])
+        return out
 
     def magnitude(self, x: np.ndarray) -> float:
         """Sum of |term| at x: the scale against which round-off in V(x) is judged."""
-        return float(np.abs(self.coef) @ np.abs(np.prod(x[None, :] ** self.exps, axis=1)))
+        return float(np.abs(self.coef) @ np.abs(np.prod(self._factors(x), axis=1)))
 
     def top(self) -> _Polynomial:
         """The homogeneous part of the highest degree."""
-        deg = self.exps.sum(axis=1)
+        deg = self.exp.sum(axis=1)
         keep = deg == deg.max(initial=0)
-        return _Polynomial(self.coef[keep], self.exps[keep])
+        return _Polynomial(self.n, self.coef[keep], self.var[keep], self.exp[keep])
 
     def sphere_min(self, radius: float, starts: np.ndarray) -> tuple[float, np.ndarray]:
         """Smallest V on the sphere |x| = radius, by local searches from several starts."""
@@ -289,7 +383,7 @@ class _Polynomial:
         that is >= 0 but vanishes somewhere needs a search on growing spheres."""
         if len(self.coef) == 0:
             return None
-        starts = _starts(self.exps.shape[1])
+        starts = _starts(self.n)
         top = self.top()
         scale = np.abs(top.coef).max()
         low, u = top.sphere_min(1.0, starts)
@@ -319,30 +413,26 @@ def _starts(n: int, seeds: int = 8) -> np.ndarray:
     return np.vstack(out)
 
 
-def _terms(net: FlatNetlist, local: dict[int, int]):
-    """(coefficient, {local var: power}) for every potential term inside the component."""
+def _terms(net: FlatNetlist, inside: np.ndarray, local: np.ndarray):
+    """(coefficient, {local var: power}) for every potential term of the component whose
+    nodes are marked in `inside` (elements are selected with masks, not visited one by one)."""
     s, d, c, q, p = net.springs, net.duffings, net.couplings, net.quads, net.monomials
-    for e in range(len(s)):
-        if int(s.node[e]) in local:
-            yield s.k[e] / 2, {local[int(s.node[e])]: 2}
-    for e in range(len(d)):
-        if int(d.node[e]) in local:
-            yield d.l[e] / 4, {local[int(d.node[e])]: 4}
-    for e in range(len(c)):
-        if int(c.i[e]) in local:
-            i, j, k, a = local[int(c.i[e])], local[int(c.j[e])], c.k[e], c.a[e]
-            yield from [(k / (2 * a), {i: 2}), (-k, _mul({i: 1}, {j: 1})), (k * a / 2, {j: 2})]
-    for e in range(len(q)):
-        if int(q.i[e]) in local:
-            i, j, g, a = local[int(q.i[e])], local[int(q.j[e])], q.g[e], q.a[e]
-            yield from [(g / (2 * a), {i: 4}), (-g, _mul({i: 2}, {j: 1})), (g * a / 2, {j: 2})]
-    for e in range(len(p)):
-        factors = range(p.ptr[e], p.ptr[e + 1])
-        if len(factors) and int(p.var[factors[0]]) in local:
-            powers: dict[int, int] = {}
-            for k in factors:
-                powers = _mul(powers, {local[int(p.var[k])]: int(p.exp[k])})
-            yield p.c[e], powers
+    for e in np.nonzero(inside[s.node])[0]:
+        yield s.k[e] / 2, {int(local[s.node[e]]): 2}
+    for e in np.nonzero(inside[d.node])[0]:
+        yield d.l[e] / 4, {int(local[d.node[e]]): 4}
+    for e in np.nonzero(inside[c.i])[0]:
+        i, j, k, a = int(local[c.i[e]]), int(local[c.j[e]]), c.k[e], c.a[e]
+        yield from [(k / (2 * a), {i: 2}), (-k, _mul({i: 1}, {j: 1})), (k * a / 2, {j: 2})]
+    for e in np.nonzero(inside[q.i])[0]:
+        i, j, g, a = int(local[q.i[e]]), int(local[q.j[e]]), q.g[e], q.a[e]
+        yield from [(g / (2 * a), {i: 4}), (-g, _mul({i: 2}, {j: 1})), (g * a / 2, {j: 2})]
+    owner = np.repeat(np.arange(len(p)), np.diff(p.ptr))
+    for e in np.unique(owner[inside[p.var]]):
+        powers: dict[int, int] = {}
+        for k in range(p.ptr[e], p.ptr[e + 1]):
+            powers = _mul(powers, {int(local[p.var[k]]): int(p.exp[k])})
+        yield p.c[e], powers
 
 
 def _mul(a: dict[int, int], b: dict[int, int]) -> dict[int, int]:

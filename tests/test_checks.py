@@ -94,7 +94,8 @@ def _poly(terms: list[tuple[float, list[tuple[str, int]]]], build=None):
 
 def _direction(message: str) -> dict[str, float]:
     inside = message[message.rindex("(") + 1:message.rindex(")")]
-    return {k: float(v) for k, v in (part.split("=") for part in inside.split(", "))}
+    parts = [part.split("=") for part in inside.split(", ") if part != "..."]
+    return {k: float(v) for k, v in parts}
 
 
 def test_cubic_escape_direction() -> None:
@@ -289,3 +290,54 @@ def test_check_case(case: Path) -> None:
     assert header["expect"] in text
     assert info.value.loc.line == int(header["line"]), text
     assert "^" in text and "hint:" in text
+
+
+def _long_chain(extra, fixed: bool = True, n: int = 400):
+    """A chain longer than linear.DENSE_MAX, so the whole-potential check goes sparse."""
+    b = IRBuilder()
+    for i in range(n):
+        b.mass(f"M{i}", f"n{i}", 1.0)
+        if i:
+            b.coupling(f"C{i}", f"n{i - 1}", f"n{i}", 1.0)
+    if fixed:
+        b.spring("KL", "n0", 1.0)
+    extra(b)
+    return b.finish()
+
+
+def test_large_component_negative_curvature() -> None:
+    """K = chain Laplacian + grounding with K_200,200 lowered by 6: one negative eigenvalue,
+    -4.32456 (scipy's dense eigvalsh of the same matrix, to 6 digits)."""
+    net = _long_chain(lambda b: b.monomial("P1", -3.0, [("n200", 2)]))
+    msg, = _errors(net)
+    from springc.physics import stiffness_matrix
+    lowest = np.linalg.eigvalsh(stiffness_matrix(net))[0]
+    assert f"curvature {lowest:.6g} along (n200=0.974" in msg
+
+
+def test_constant_force_on_a_free_chain_is_unbounded() -> None:
+    """V = 1/2 x.L x + x_2 / 2 with L a free chain's Laplacian: V -> -inf under a rigid
+    translation to -inf (every node -1/sqrt(n)); a grounded chain is bounded."""
+    for n in (10, 400):
+        msg, = _errors(_long_chain(lambda b: b.monomial("P1", 0.5, [("n2", 1)]), False, n))
+        u = _direction(msg)
+        np.testing.assert_allclose(list(u.values()), -1 / np.sqrt(n), rtol=2e-3)  # 3 digits
+        assert _errors(_long_chain(lambda b: b.monomial("P1", 0.5, [("n2", 1)]), True, n)) == []
+
+
+def test_large_component_quartics() -> None:
+    """Only the variables of non-quadratic terms are searched. (x200^4 + x201^4)/4 - x200^2
+    x201^2 is negative along x200 = +-x201, so V falls there; with -0.1 x200^2 x201 instead
+    the quartic form is positive definite and V is bounded."""
+    def bad(b):
+        b.duffing("D1", "n200", 1.0)
+        b.duffing("D2", "n201", 1.0)
+        b.monomial("P1", -1.0, [("n200", 2), ("n201", 2)])
+    def good(b):
+        b.duffing("D1", "n200", 1.0)
+        b.duffing("D2", "n201", 1.0)
+        b.monomial("P1", -0.1, [("n200", 2), ("n201", 1)])
+    msg, = _errors(_long_chain(bad))
+    u = _direction(msg)
+    assert abs(u["n200"]) == pytest.approx(abs(u["n201"]), rel=1e-3)
+    assert _errors(_long_chain(good)) == []

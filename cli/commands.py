@@ -43,3 +43,7 @@ ALL += analyses.COMMANDS
 from springc_cli import bench  # noqa: E402  (springc bench)
 
 ALL += [bench.bench_cmd]
+
+from springc_cli import demo  # noqa: E402  (springc demo)
+
+ALL += demo.COMMANDS

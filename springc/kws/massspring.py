@@ -16,9 +16,12 @@ in the full classifier (`springc.kws.transfer`) the same mass and damping come f
 heads instead, so the features there equal the ones computed here.
 
 Compression: the filter output feels the stiffness w_a^2 + 6 (g/a_i) y^2, so with
-a_i = 6 g A_c^2 / w_a,i^2 the cubic part equals the linear one at |y| = A_c in every bin; above
-it the output grows like the cube root of the drive and y^2 like its power 2/3, the
-digital realisation's |y|^(2/3) (paper Fig. 5). A smaller A_c compresses more.
+a_i = 6 g A_i^2 / w_a,i^2 the cubic part equals the linear one at |y| = A_i; above it the
+output grows like the cube root of the drive and y^2 like its power 2/3, the digital
+realisation's |y|^(2/3) (paper Fig. 5). A smaller threshold compresses more. The stiffness
+grows with amplitude, so the integration step limits it: A_i = max(A_c, Y / r_i^3), where a
+full-scale tone (|y| <= Y = FULL_SCALE, compressed to A_i (Y/A_i)^(1/3)) keeps the bin's fastest
+mode w_b,i sqrt(1 + r_i^2) below STABLE_WH / h. Only the top bins are raised.
 
 Phi: the `gram` reduction over the terminal nodes, pairs (k <= l) weighted 1 (k = l) or 2 and
 summed into the groups of `springc.kws.phi.group_index`: exactly `phi_vector` of the recorded
@@ -42,6 +45,9 @@ from springc.reductions import Reduction, gram_reduction
 
 INPUT_RATE = 16000.0  # Hz: the clips' rate, the `.tran` step of the networks
 SUBSTEPS = 2  # RK4 at 32 kHz: the top filter mode (~6 kHz) at w h ~ 1.2, well inside RK4's 2.8
+FULL_SCALE = 1.5  # largest filter amplitude planned for: full-scale audio plus added noise
+STABLE_WH = 2.0  # w h kept below this (RK4's limit on the imaginary axis is 2.83)
+RETRY_SUBSTEPS = (4, 8)  # a batch that still diverges is simulated again with smaller steps
 
 
 @dataclass(frozen=True)
@@ -129,11 +135,19 @@ def filters(s: MassSpringSettings) -> tuple[MelFilter, ...]:
     return melbank_filters(s.bins, "two-mode", s.fmin, s.fmax)
 
 
+def thresholds(s: MassSpringSettings) -> np.ndarray:
+    """A_i = max(A_c, Y / r_i^3), the compression threshold of each bin (module docstring)."""
+    h = 1.0 / (INPUT_RATE * SUBSTEPS)
+    wb = np.array([2 * np.pi * f.fb for f in filters(s)])
+    r = np.sqrt(np.maximum((STABLE_WH / (wb * h)) ** 2 - 1.0, 1e-12))
+    return np.maximum(s.threshold, FULL_SCALE * s.input_gain / r**3)
+
+
 def leverages(s: MassSpringSettings) -> np.ndarray:
-    """a_i = 6 g A_c^2 / w_a,i^2: the squarer leverage that puts the compression threshold of
-    bin i at filter amplitude A_c."""
+    """a_i = 6 g A_i^2 / w_a,i^2: the squarer leverage that puts the compression threshold of
+    bin i at filter amplitude A_i."""
     wa = np.array([2 * np.pi * f.fa for f in filters(s)])
-    return 6 * s.g * s.threshold**2 / wa**2
+    return 6 * s.g * thresholds(s) ** 2 / wa**2
 
 
 def terminal(i: int, j: int) -> str:
@@ -154,10 +168,10 @@ def front_end(w: SprWriter, s: MassSpringSettings) -> None:
     w.include("lowpass.spr")
     w.include("delayline.spr")
     w.params(ts=s.site_delay, kc=s.kc, klp=s.klp, fc=s.fc, g=s.g)
-    for i, (f, a) in enumerate(zip(filters(s), leverages(s))):
+    for i, (f, a, t) in enumerate(zip(filters(s), leverages(s), thresholds(s))):
         w.blank()
         w.comment(f"bin {i}: Mel centre {f.centre:.0f} Hz (modes {f.fa:.0f} and {f.fb:.0f} Hz); "
-                  f"compression threshold {num(s.threshold)} m")
+                  f"compression threshold {t:.3g} m")
         w.statement(f"Xf{i}", f"y{i}", "melfilter", f"fa={num(f.fa)}", f"delta={num(f.delta)}",
                     f"alpha={num(f.alpha)}", "ch=0", f"gain={num(f.gain * s.input_gain)}")
         w.statement(f"Xq{i}", f"y{i}", f"lp{i}", "squarer", "g={g}", f"a={num(a)}")
@@ -213,7 +227,7 @@ def phi_reduction(net: FlatNetlist, s: MassSpringSettings, label: str = "phi") -
 
 
 def simulate_phi(signals: np.ndarray, s: MassSpringSettings, *, chunk: int | None = None,
-                 progress: bool = False) -> np.ndarray:
+                 progress: bool = False, substeps: int | None = None) -> np.ndarray:
     """Phi (clips, N) of `signals` (clips, samples) at 16 kHz, by simulating the network."""
     from springc.simulate import simulate
 
@@ -221,7 +235,7 @@ def simulate_phi(signals: np.ndarray, s: MassSpringSettings, *, chunk: int | Non
     signals = np.atleast_2d(np.asarray(signals, dtype=np.float64))
     res = simulate(net, signals[:, None, :], INPUT_RATE, reductions=[phi_reduction(net, s)],
                    tstop=horizon(s, signals.shape[1] / INPUT_RATE), probes=[], chunk=chunk,
-                   batch=len(signals), progress=progress)
+                   batch=len(signals), progress=progress, substeps=substeps)
     return res.reductions["phi"]
 
 
@@ -246,8 +260,9 @@ def simulate_peaks(signals: np.ndarray, s: MassSpringSettings) -> np.ndarray:
     net = feature_network(s)
     signals = np.atleast_2d(np.asarray(signals, dtype=np.float64))
     labels = [f"x({node})" for node in terminals(s)]
-    res = simulate(net, signals[:, None, :], INPUT_RATE, probes=labels, outrate=2000.0,
-                   tstop=horizon(s, signals.shape[1] / INPUT_RATE))
+    res = with_retries(lambda sub: simulate(net, signals[:, None, :], INPUT_RATE, probes=labels,
+                                            outrate=2000.0, substeps=sub,
+                                            tstop=horizon(s, signals.shape[1] / INPUT_RATE)))
     return np.max([np.abs(res.probes[k]).max(axis=1) for k in labels], axis=0)
 
 
@@ -276,7 +291,20 @@ def load_signals(clips: list, augment: bool, seed: int, noise_files: list) -> np
 
 def phi_batch(signals: np.ndarray, s: MassSpringSettings) -> np.ndarray:
     """Phi of one batch, simulated by one core (a Dask task)."""
-    return simulate_phi(signals.astype(np.float64), s, chunk=len(signals))
+    return with_retries(lambda sub: simulate_phi(signals.astype(np.float64), s,
+                                                 chunk=len(signals), substeps=sub))
+
+
+def with_retries(run):
+    """run(substeps): at SUBSTEPS, then (a clip too loud for the step) at RETRY_SUBSTEPS."""
+    from springc.errors import SimulationError
+
+    for sub in (SUBSTEPS, *RETRY_SUBSTEPS):
+        try:
+            return run(sub)
+        except SimulationError:
+            if sub == RETRY_SUBSTEPS[-1]:
+                raise
 
 
 def batches(signals: np.ndarray, size: int = BATCH) -> list[np.ndarray]:

@@ -231,9 +231,10 @@ def classifier_batch(signals: np.ndarray, net, specs: list[str], tstop: float) -
     """Readout reductions of one batch through the whole classifier (a Dask task)."""
     from springc.simulate import simulate
 
-    res = simulate(net, signals.astype(np.float64)[:, None, :], msp.INPUT_RATE, probes=[],
-                   reductions=specs, tstop=tstop, chunk=len(signals), batch=len(signals))
-    return res.reductions
+    sig = signals.astype(np.float64)[:, None, :]
+    return msp.with_retries(lambda sub: simulate(
+        net, sig, msp.INPUT_RATE, probes=[], reductions=specs, tstop=tstop, chunk=len(signals),
+        batch=len(signals), substeps=sub).reductions)
 
 
 def selection_models(models) -> list:

@@ -131,19 +131,24 @@ def test_sparse_path_agrees_with_the_dense_one(monkeypatch) -> None:
     assert sparse.mode.lam == pytest.approx(dense.mode.lam, rel=1e-9)
 
 
-def test_step_limit_equals_the_brute_force_minimum() -> None:
-    """The candidate pruning of `step_limit` must not change the answer."""
+@pytest.mark.parametrize("method", list(TABLEAUX))
+def test_step_limit_equals_the_brute_force_minimum(method: str) -> None:
+    """The candidate pruning and vectorised ray search of `step_limit` give the answer of
+    `integrators.max_stable_step` over every eigenvalue (overdamped modes to Q > 50)."""
     found = linear.modes(_mixed_damped())
-    dt, _ = max_stable_step(TABLEAUX["rk4"], found.eigenvalues)
-    assert linear.step_limit(found, "rk4").dt == pytest.approx(dt, rel=1e-12)
+    assert np.any(found.eigenvalues.imag == 0) and found.q_factors.max() > 50  # both kinds
+    dt, arg = max_stable_step(TABLEAUX[method], found.eigenvalues)
+    limit = linear.step_limit(found, method)
+    assert limit.dt == pytest.approx(dt, rel=1e-12, abs=0)
+    assert limit.mode.lam == found.eigenvalues[arg]
 
 
 def _mixed_damped():
     rng = np.random.default_rng(3)
     b = IRBuilder()
     for i in range(12):
-        b.mass(f"M{i}", f"n{i}", rng.uniform(0.5, 2), b=rng.uniform(0, 3))
-        b.spring(f"K{i}", f"n{i}", rng.uniform(1, 50))
+        b.mass(f"M{i}", f"n{i}", rng.uniform(0.5, 2), b=rng.uniform(0, 3) * 10 ** (i % 3))
+        b.spring(f"K{i}", f"n{i}", rng.uniform(1, 50) * 10 ** (i % 4))
     for i in range(11):
         b.coupling(f"C{i}", f"n{i}", f"n{i + 1}", rng.uniform(1, 20))
     return b.finish()

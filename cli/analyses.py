@@ -37,7 +37,7 @@ def ac_cmd(netlist, node, channel, fmin, fmax, points, output, plot_path) -> Non
         channel = spec.input if spec else 0
     base = ac.default_sweep(net)
     sweep = ac.Sweep(fmin or base.fmin, fmax or base.fmax, points or base.points)
-    result = ac.response(net, node, sweep.frequencies(), channel)
+    result = ac.response(net, node, sweep.frequencies(), channel, progress=True)
     ac.write_csv(result, output)
     if plot_path:
         ac.plot(result, plot_path)

@@ -119,3 +119,17 @@ def test_installed_springc_build(netlist, tmp_path) -> None:
                           timeout=300, check=False)
     assert proc.returncode == 1
     assert f"{bad}:1:1: error: M1: mass m=0 must be > 0" in proc.stderr
+
+
+def test_ac_needs_a_node(tmp_path) -> None:
+    path = tmp_path / "plain.spr"
+    path.write_text(FILTER.replace(".ac xb 200 5000 points=50\n", ""))
+    res = _run("ac", path, "-o", tmp_path / "h.csv")
+    assert res.exit_code == 1 and "no output node: give --node or an .ac directive" in res.output
+
+
+def test_modes_refuses_a_netlist_that_fails_the_checks(tmp_path) -> None:
+    path = tmp_path / "bad.spr"
+    path.write_text("M1 a m=1\nK1 a k=-1\n")
+    res = _run("modes", path)
+    assert res.exit_code == 1 and "2:1: error: K1: stiffness k=-1 must be >= 0" in res.output

@@ -71,17 +71,21 @@ def input_vector(net: FlatNetlist, channel: int) -> np.ndarray:
     return out
 
 
-def response(net: FlatNetlist, node: str, f_hz: np.ndarray, channel: int = 0) -> AcResult:
-    """H(f) = X_node / U of the linearisation at rest, at frequencies `f_hz` (Hz)."""
+def response(net: FlatNetlist, node: str, f_hz: np.ndarray, channel: int = 0,
+             progress: bool = False) -> AcResult:
+    """H(f) = X_node / U of the linearisation at rest, at frequencies `f_hz` (Hz); with
+    `progress`, large networks (one sparse factorisation per frequency) show a progress bar."""
     if node not in net.nodes:
         raise UsageError(f"unknown node '{node}'", hint=_near(net, node))
     target = net.nodes.index(node)
     force = input_vector(net, channel)
     lin = linear.linearise(net)
     w = 2 * np.pi * np.asarray(f_hz, dtype=np.float64)
-    solve = _dense if net.n <= DENSE_MAX else _sparse
-    return AcResult(node, channel, np.asarray(f_hz, dtype=np.float64),
-                    solve(lin, force, w, target))
+    if net.n <= DENSE_MAX:
+        h = _dense(lin, force, w, target)
+    else:
+        h = _sparse(lin, force, w, target, progress)
+    return AcResult(node, channel, np.asarray(f_hz, dtype=np.float64), h)
 
 
 def _near(net: FlatNetlist, node: str) -> str:
@@ -104,10 +108,14 @@ def _dense(lin: linear.Linearisation, force: np.ndarray, w: np.ndarray, target: 
     return out
 
 
-def _sparse(lin: linear.Linearisation, force: np.ndarray, w: np.ndarray, target: int):
+def _sparse(lin: linear.Linearisation, force: np.ndarray, w: np.ndarray, target: int,
+            progress: bool):
+    from tqdm import tqdm
+
     k, m, b = (x.astype(complex).tocsc() for x in (lin.K, lin.M, lin.B))
     out = np.empty(len(w), complex)
-    for idx, ww in enumerate(w):
+    bar = tqdm(w, desc="ac", unit="freq", disable=not progress, leave=False)
+    for idx, ww in enumerate(bar):
         out[idx] = sla.spsolve(sp.csc_matrix(k - ww**2 * m + 1j * ww * b), force)[target]
     return out
 

@@ -14,6 +14,7 @@ import numpy as np
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.linear_model import LogisticRegression
 from sklearn.svm import LinearSVC
+from threadpoolctl import threadpool_limits
 
 from springc.errors import DataError
 
@@ -102,7 +103,9 @@ def select(x_train: np.ndarray, y_train: np.ndarray, x_val: np.ndarray, y_val: n
     if not grid:
         raise ValueError("empty regularisation grid")
     fit = lambda c: fit_linear(x_train, y_train, c, kind)  # noqa: E731
-    with ThreadPoolExecutor(max(1, min(jobs, len(grid)))) as pool:
+    # one BLAS thread per fit: the grid is the parallelism, and BLAS threads spinning on a
+    # busy machine cost 30x the CPU time (measured: lbfgs 11 s -> 0.3 s)
+    with threadpool_limits(1), ThreadPoolExecutor(max(1, min(jobs, len(grid)))) as pool:
         models = list(pool.map(fit, grid))
     scores = {c: accuracy(m, x_val, y_val) for c, m in zip(grid, models)}
     best = max(range(len(grid)), key=lambda i: (scores[grid[i]], -grid[i]))

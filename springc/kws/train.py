@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from springc import __version__
@@ -81,6 +82,11 @@ def _init_worker(clips: list, realisation: str, settings_list: list, augment: bo
                    noise=NoiseBank(noise_files) if augment and noise_files else None)
 
 
+def _init_pool_worker(*args) -> None:
+    threadpool_limits(1)  # the processes are the parallelism; see svm.select
+    _init_worker(*args)
+
+
 def _clip_rng(seed: int, key: str) -> np.random.Generator:
     """One generator per clip, so augmentation does not depend on scheduling."""
     return np.random.default_rng([seed, zlib.crc32(key.encode())])
@@ -123,13 +129,13 @@ def _run(clips: list, realisation: str, settings_list: list, augment: bool, seed
     with bar:
         if jobs == 1 or len(spans) == 1:
             _init_worker(*init)
-            results = map(_work, spans)
-            for span, res in zip(spans, results):
-                parts.append(res)
-                bar.update(span[1] - span[0])
+            with threadpool_limits(1):
+                for span in spans:
+                    parts.append(_work(span))
+                    bar.update(span[1] - span[0])
         else:
             ctx = multiprocessing.get_context("spawn" if sys.platform == "darwin" else "fork")
-            with ctx.Pool(min(jobs, len(spans)), _init_worker, init) as pool:
+            with ctx.Pool(min(jobs, len(spans)), _init_pool_worker, init) as pool:
                 for span, res in zip(spans, pool.imap(_work, spans)):
                     parts.append(res)
                     bar.update(span[1] - span[0])

@@ -42,12 +42,16 @@ MAX_BLOCK = 4  # nodes: filter pairs are 2; larger components are chains or bloc
 
 @dataclass(frozen=True)
 class SplitScheme:
-    """A splitting scheme: the blocks' exact flow for `half` of the step before and after one
-    step of the explicit Runge-Kutta method `inner` on the rest (Strang: half = 0.5)."""
+    """A scheme treating the blocks exactly and the rest with the explicit Runge-Kutta method
+    `inner`. kind 'strang': the blocks' exact flow for `half` of the step before and after one
+    step of `inner` on the rest (block positions frozen in it). kind 'lawson': the integrating
+    factor form of `inner` (exponential Runge-Kutta of Lawson type): every stage sees the
+    blocks' exact driven flow to its stage time, plus their back-action carried by it."""
 
     name: str
     inner: str
     description: str
+    kind: str = "strang"
     half: float = 0.5
 
     @property
@@ -60,6 +64,8 @@ SCHEMES: dict[str, SplitScheme] = {
     for s in [
         SplitScheme("strang-rk4", "rk4",
                     "Strang split: driven linear blocks exact (matrix exponential), rest RK4"),
+        SplitScheme("exp-rk4", "rk4", "Lawson exponential RK4: driven linear blocks exact "
+                    "at every stage (matrix exponential), rest RK4", kind="lawson"),
     ]
 }
 
@@ -335,12 +341,13 @@ def _emit_blocks(c: _Code) -> None:
     c.dedent(2)
 
 
-def _emit_interp(c: _Code, target: str, pos: str) -> None:
-    """Linear interpolation of the input samples at input-grid position k0 + `pos`."""
+def _emit_interp(c: _Code, target: str, pos: str, channels: int | None = None) -> None:
+    """Linear interpolation of the input samples at input-grid position k0 + `pos` (into the
+    first `channels` rows of `target`; default all channels of u)."""
     c(f"pos = {pos}")
     c("kk = k0 + int(pos)")
     c("fr = FT(pos - int(pos))")
-    c("for ch in range(nch):")
+    c(f"for ch in range({'nch' if channels is None else f'min(nch, {channels})'}):")
     c("    for b in range(nb_):")
     c(f"        {target}[ch, b] = (FT(1.0) - fr) * u[lo_ + b, ch, kk] "
       "+ fr * u[lo_ + b, ch, kk + 1]")
@@ -436,3 +443,302 @@ def _emit_combine(c: _Code, tab: Tableau) -> None:
     c(f"            x[i, b] += {xterm}")
     c("    for b in range(nb_):")
     c(f"        v[i, b] += {vterm}")
+
+
+# --- Lawson (integrating factor) scheme -------------------------------------------------
+#
+# With E(t) the blocks' exact flow matrix and q(t) their exact response to the input from
+# rest over t, stage i and the step of the tableau (a, b, c) read, for the blocks' state z:
+#     z_i     = E(c_i h) z_n + q(c_i h) + h sum_j a_ij E((c_i - c_j) h) N_j
+#     z_{n+1} = E(h) z_n + q(h) + h sum_j b_j E((1 - c_j) h) N_j
+# where N_j is the rest's force on the blocks at stage j (it moves only velocities). The rest
+# takes ordinary Runge-Kutta stages. Blocks of equal size share one unrolled loop.
+
+
+def lawson_fractions(tab: Tableau) -> tuple[list[float], list[float]]:
+    """(fractions of h whose E and q the scheme needs, fractions where it reads the input)."""
+    need = set(tab.c) | {1.0}
+    for i, row in enumerate(tab.a):
+        need |= {tab.c[i] - tab.c[j] for j, a in enumerate(row) if a != 0.0}
+    need |= {1.0 - tab.c[j] for j, b in enumerate(tab.b) if b != 0.0}
+    return sorted(need - {0.0}), sorted(set(tab.c) | {0.0, 1.0})
+
+
+def lawson_arrays(net: FlatNetlist, blocks: Blocks, h: float, tab: Tableau,
+                  dtype) -> dict[str, np.ndarray]:
+    """Per block size m: node table (Q, m), E (Q, F, 2m, 2m), P0 and P1 (Q, F, 2m, channels)
+    for the fractions F of `lawson_fractions`; and the frozen-row mask `frz`."""
+    fracs, _ = lawson_fractions(tab)
+    nch = max(1, max((net.forces.source[e].channel for fs in blocks.forces for e in fs),
+                     default=0) + 1)
+    out: dict[str, np.ndarray] = {}
+    for m in block_sizes(blocks):
+        idx = [q for q, nodes in enumerate(blocks.nodes) if len(nodes) == m]
+        e = np.zeros((len(idx), len(fracs), 2 * m, 2 * m))
+        p0 = np.zeros((len(idx), len(fracs), 2 * m, nch))
+        p1 = np.zeros_like(p0)
+        for row, q in enumerate(idx):
+            chans = [net.forces.source[f].channel for f in blocks.forces[q]]
+            for k, frac in enumerate(fracs):
+                ek, a0, a1 = propagator(blocks.a[q], blocks.b[q], frac * h)
+                e[row, k] = ek
+                for col, ch in enumerate(chans):  # forces on one channel add
+                    p0[row, k, :, ch] += a0[:, col]
+                    p1[row, k, :, ch] += a1[:, col]
+        out[f"lw{m}_node"] = np.array([blocks.nodes[q] for q in idx], np.int64).reshape(-1, m)
+        out[f"lw{m}_e"], out[f"lw{m}_p0"], out[f"lw{m}_p1"] = (
+            np.ascontiguousarray(a, dtype=dtype) for a in (e, p0, p1))
+    frz = np.zeros(net.n, np.bool_)
+    frz[blocks.node_set()] = True
+    out["frz"] = frz
+    return out
+
+
+def block_sizes(blocks: Blocks) -> list[int]:
+    """The distinct block sizes (nodes), ascending."""
+    return sorted({len(n) for n in blocks.nodes})
+
+
+def lawson_args(feat: codegen.Features, opts: KernelOptions, sizes: list[int]) -> list[str]:
+    names = codegen.run_args(feat, opts)
+    at = names.index("xf")
+    extra = ["frz"] + [f"lw{m}_{k}" for m in sizes for k in ("node", "e", "p0", "p1")]
+    return names[:at] + extra + names[at:]
+
+
+def generate_lawson(rest: FlatNetlist, options: KernelOptions, sizes: list[int],
+                    nch: int) -> str:
+    """Kernel source of a 'lawson' scheme for the Runge-Kutta part `rest` and blocks of the
+    given sizes driven by `nch` input channels."""
+    scheme = SCHEMES[options.method]
+    if options.work or options.dissipation:
+        raise UsageError(f"{scheme.name} does not accumulate input work or dissipation; "
+                         "use a Runge-Kutta method for work:/dissipated:/loss: reductions")
+    feat = codegen.features(rest)
+    tab = scheme.tableau
+    fracs, ufracs = lawson_fractions(tab)
+    c = _Code()
+    c('"""Generated by springc.expint (Lawson scheme); see the header. Arrays are '
+      '(n_dof, batch)."""')
+    c("import numpy as np")
+    c("import numba as nb")
+    c("")
+    c(f"FT = np.{options.precision}")
+    c(f"ARGS = {tuple(lawson_args(feat, options, sizes))!r}")
+    c(f"STAGES = {tab.stages}")
+    c("")
+    codegen._emit_accel(c, feat)
+    c("")
+    lw = _Lawson(tab, fracs, ufracs, sizes, max(nch, 1))
+    for s in range(1, tab.stages):
+        lw.emit_function(c, s)
+        c("")
+    lw.emit_function(c, None)
+    c("")
+    _emit_lawson_run(c, feat, options, tab, lw)
+    body = c.text()
+    header = [
+        "# springc generated kernel: do not edit (regenerated from the netlist)",
+        f"# netlist: {rest.file}",
+        f"# title: {rest.title}",
+        f"# options: {options}",
+        f"# integrator: {scheme.name} ({scheme.description}; inner {tab.name})",
+        f"# blocks of sizes {sizes}; input channels {nch}",
+        f"# dofs: {rest.n}; elements of the Runge-Kutta part: {rest.element_counts()}",
+        f"# body-hash: {codegen.source_hash(body)}",
+        "",
+    ]
+    return "\n".join(header) + body
+
+
+@dataclass
+class _Lawson:
+    """Emits the unrolled block updates of a Lawson scheme."""
+
+    tab: Tableau
+    fracs: list[float]
+    ufracs: list[float]
+    sizes: list[int]
+    nch: int
+
+    def fi(self, frac: float) -> int:
+        return self.fracs.index(frac)
+
+    def name(self, stage: int | None) -> str:
+        return "lw_final" if stage is None else f"lw_stage{stage}"
+
+    def terms(self, stage: int | None) -> tuple[float, list[tuple[int, float, float]]]:
+        """(fraction of the free flow, [(j, weight, fraction of E on N_j)])."""
+        if stage is None:
+            return 1.0, [(j, b, 1.0 - self.tab.c[j]) for j, b in enumerate(self.tab.b)
+                         if b != 0.0]
+        ci = self.tab.c[stage]
+        return ci, [(j, a, ci - self.tab.c[j]) for j, a in enumerate(self.tab.a[stage])
+                    if a != 0.0]
+
+    def args(self, stage: int | None) -> list[str]:
+        frac, terms = self.terms(stage)
+        out = ["x", "v", "xo", "vo", "h"] + [f"kv{j}" for j, _, _ in terms]
+        out += [f"ut{k}" for k in range(len(self.ufracs))]
+        return out + [f"lw{m}_{k}" for m in self.sizes for k in ("node", "e", "p0", "p1")]
+
+    def emit_function(self, c: _Code, stage: int | None) -> None:
+        c('@nb.njit(cache=True, error_model="numpy", nogil=True)')
+        c(f"def {self.name(stage)}({', '.join(self.args(stage))}):")
+        c.indent()
+        c('"""Blocks\' state at this stage (or step end) into rows of xo, vo."""')
+        c("nb_ = x.shape[1]")
+        for m in self.sizes:
+            self._emit_size(c, stage, m)
+        c.dedent()
+
+    def _emit_size(self, c: _Code, stage: int | None, m: int) -> None:
+        frac, terms = self.terms(stage)
+        if frac not in self.ufracs:
+            raise ValueError(f"tableau stage time {frac} is not an input fraction")
+        f0, fu = self.fi(frac), self.ufracs.index(frac)
+        n2 = 2 * m
+        c(f"for q in range(lw{m}_node.shape[0]):")
+        c.indent()
+        for r in range(m):
+            c(f"i{r} = lw{m}_node[q, {r}]")
+            c(f"x{r}_ = x[i{r}]")
+            c(f"v{r}_ = v[i{r}]")
+            c(f"xo{r}_ = xo[i{r}]")
+            c(f"vo{r}_ = vo[i{r}]")
+            for j, _, _ in terms:
+                c(f"n{j}_{r} = kv{j}[i{r}]")
+        for r in range(n2):
+            for k in range(n2):
+                c(f"e{r}_{k} = lw{m}_e[q, {f0}, {r}, {k}]")
+            for ch in range(self.nch):
+                c(f"pa{r}_{ch} = lw{m}_p0[q, {f0}, {r}, {ch}]")
+                c(f"pb{r}_{ch} = lw{m}_p1[q, {f0}, {r}, {ch}]")
+        for j, w, fr in terms:
+            c(f"hw{j} = h * {w!r}")
+            if fr != 0.0:
+                for r in range(n2):
+                    for k in range(m):
+                        c(f"g{j}_{r}_{k} = lw{m}_e[q, {self.fi(fr)}, {r}, {m + k}]")
+        c("for b in range(nb_):")
+        c.indent()
+        for r in range(m):
+            c(f"z{r} = x{r}_[b]")
+            c(f"z{m + r} = v{r}_[b]")
+            for j, _, _ in terms:
+                c(f"s{j}_{r} = hw{j} * n{j}_{r}[b]")
+        for r in range(n2):
+            parts = [f"e{r}_{k} * z{k}" for k in range(n2)]
+            parts += [f"pa{r}_{ch} * ut0[{ch}, b] + pb{r}_{ch} * ut{fu}[{ch}, b]"
+                      for ch in range(self.nch)]
+            for j, _, fr in terms:
+                if fr != 0.0:
+                    parts += [f"g{j}_{r}_{k} * s{j}_{k}" for k in range(m)]
+                elif r >= m:
+                    parts.append(f"s{j}_{r - m}")
+            target = f"xo{r}_[b]" if r < m else f"vo{r - m}_[b]"
+            c(f"{target} = {' + '.join(parts)}")
+        c.dedent(2)
+
+
+def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab: Tableau,
+                     lw: _Lawson) -> None:
+    acc_args = ", ".join(codegen.accel_args(feat))
+    blk = ", ".join(f"lw{m}_{k}" for m in lw.sizes for k in ("node", "e", "p0", "p1"))
+    uts = ", ".join(f"ut{k}" for k in range(len(lw.ufracs)))
+    vel = lambda j: "v" if j == 0 else f"vs{j}"  # noqa: E731
+    c('@nb.njit(parallel=True, cache=True, error_model="numpy")')
+    c(f"def run({', '.join(lawson_args(feat, opts, lw.sizes))}):")
+    c.indent()
+    c('"""Integrate every run (columns of x0) for nsteps exponential RK steps of h."""')
+    c("n, runs = x0.shape")
+    c("nch = u.shape[1]")
+    c("nchunks = (runs + chunk - 1) // chunk")
+    codegen._emit_coefficients(c, tab)
+    c("hh = FT(h)")
+    c("for ci in nb.prange(nchunks):")
+    c.indent()
+    c("lo_ = ci * chunk")
+    c("nb_ = min(runs, lo_ + chunk) - lo_")
+    for name in ["x", "v", "xs", "xn", "vn"] + [f"kv{s}" for s in range(tab.stages)] + \
+            [f"vs{s}" for s in range(1, tab.stages)]:
+        c(f"{name} = np.zeros((n, nb_), FT)")
+    c(f"uc = np.zeros(({lw.nch}, nb_), FT)")
+    for k in range(len(lw.ufracs)):
+        c(f"ut{k} = np.zeros(({lw.nch}, nb_), FT)")
+    c("for i in range(n):")
+    c("    for b in range(nb_):")
+    c("        x[i, b] = x0[i, lo_ + b]")
+    c("        v[i, b] = v0[i, lo_ + b]")
+    codegen._emit_reduction_init(c, opts)
+    if opts.record:
+        c("for p in range(rec_node.shape[0]):")
+        c("    for b in range(nb_):")
+        c("        rec[p, lo_ + b, 0] = v[rec_node[p], b] if rec_isv[p] else x[rec_node[p], b]")
+    c("for step in range(nsteps):")
+    c.indent()
+    c("sub = step % substeps")
+    c("k0 = step // substeps")
+    for k, frac in enumerate(lw.ufracs):
+        _emit_interp(c, f"ut{k}", f"(sub + {frac!r}) / substeps", channels=lw.nch)
+    for s in range(tab.stages):
+        c(f"# stage {s}: c = {tab.c[s]!r}")
+        xs_name = "x" if s == 0 else "xs"
+        if s > 0:
+            row = [j for j, a in enumerate(tab.a[s]) if a != 0.0]
+            xterm = " + ".join(f"ha{s}_{j} * {vel(j)}[i, b]" for j in row) or "0.0"
+            vterm = " + ".join(f"ha{s}_{j} * kv{j}[i, b]" for j in row) or "0.0"
+            c("for i in range(n):")
+            c("    if not frz[i]:")
+            c("        for b in range(nb_):")
+            c(f"            xs[i, b] = x[i, b] + {xterm}")
+            c(f"            vs{s}[i, b] = v[i, b] + {vterm}")
+            _, terms = lw.terms(s)
+            kvs = ", ".join(f"kv{j}" for j, _, _ in terms)
+            c(f"lw_stage{s}(x, v, xs, vs{s}, hh, {kvs}, {uts}, {blk})")
+        if feat.in_forces:
+            _emit_interp(c, "uc", f"(sub + {tab.c[s]!r}) / substeps")
+        grow = f"g[step, {s}]" if feat.common_forces else "g[0, 0]"
+        c(f"accel({xs_name}, {vel(s)}, kv{s}, uc, {grow}, {acc_args})")
+    _, terms = lw.terms(None)
+    kvs = ", ".join(f"kv{j}" for j, _, _ in terms)
+    c(f"lw_final(x, v, xn, vn, hh, {kvs}, {uts}, {blk})")
+    xterm = " + ".join(f"hb{s} * {vel(s)}[i, b]" for s, b in enumerate(tab.b) if b != 0.0)
+    vterm = " + ".join(f"hb{s} * kv{s}[i, b]" for s, b in enumerate(tab.b) if b != 0.0)
+    c("for i in range(n):")
+    c("    if frz[i]:")
+    c("        for b in range(nb_):")
+    c("            x[i, b] = xn[i, b]")
+    c("            v[i, b] = vn[i, b]")
+    c("    else:")
+    c("        for b in range(nb_):")
+    c(f"            x[i, b] += {xterm}")
+    c(f"            v[i, b] += {vterm}")
+    codegen._emit_step_end(c, opts)
+    c.dedent()
+    c("for i in range(n):")
+    c("    for b in range(nb_):")
+    c("        xf[i, lo_ + b] = x[i, b]")
+    c("        vf[i, lo_ + b] = v[i, b]")
+    codegen._emit_reduction_store(c, opts)
+    c.dedent(2)
+
+
+def kernel_source(net: FlatNetlist, opts: KernelOptions) -> str:
+    """The kernel text of scheme `opts.method` for `net`."""
+    blocks = find_blocks(net)
+    rest = split_netlist(net, blocks)
+    if SCHEMES[opts.method].kind == "lawson":
+        nch = max((net.forces.source[e].channel for fs in blocks.forces for e in fs),
+                  default=0) + 1
+        return generate_lawson(rest, opts, block_sizes(blocks), nch)
+    return generate(rest, opts)
+
+
+def scheme_arrays(net: FlatNetlist, blocks: Blocks, h: float, method: str,
+                  dtype) -> dict[str, np.ndarray]:
+    """The block arguments of scheme `method`'s kernel for step `h`."""
+    scheme = SCHEMES[method]
+    if scheme.kind == "lawson":
+        return lawson_arrays(net, blocks, h, scheme.tableau, dtype)
+    return block_arrays(net, blocks, h, scheme, dtype)

@@ -158,7 +158,7 @@ def kernel_source(net: FlatNetlist, opts: codegen.KernelOptions) -> str:
     """The kernel text for `opts.method`: a Runge-Kutta tableau (`springc.codegen`) or a
     splitting scheme (`springc.expint`, generated for the Runge-Kutta part of the split)."""
     if expint.is_split(opts.method):
-        return expint.generate(expint.split_netlist(net, expint.find_blocks(net)), opts)
+        return expint.kernel_source(net, opts)
     return codegen.generate(net, opts)
 
 
@@ -169,7 +169,7 @@ def kernel_arrays(net: FlatNetlist, st: Settings, dtype) -> dict[str, np.ndarray
         return coefficient_arrays(net, dtype)
     blocks = expint.find_blocks(net)
     out = coefficient_arrays(expint.split_netlist(net, blocks), dtype)
-    out.update(expint.block_arrays(net, blocks, st.h, expint.SCHEMES[st.method], dtype))
+    out.update(expint.scheme_arrays(net, blocks, st.h, st.method, dtype))
     return out
 
 

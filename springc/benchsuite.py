@@ -1,0 +1,498 @@
+"""The issue-7 benchmark suite: speed against error, every integrator and the peers, one run.
+
+For each reference network (`CASES`: the feature extractor, the 8x3 keyword-spotting network,
+a long delay line, a stiff all-to-all block, a hard-driven Duffing resonator) `run_case`:
+1. computes a tight reference for run 0: RK4 with `REF_SUBSTEPS` substeps per input sample;
+2. times every (method, substeps, precision) of the case on a batch of runs (compilation
+   timed separately, by a first call on a few steps) and measures each probe's relative L2
+   error of run 0 against the reference;
+3. runs the peers on a shorter stretch of run 0 (scipy RK45 and DOP853 at rtol 1e-6, plain
+   numpy RK4, ngspice on the exported netlist when installed), with their errors against the
+   reference on that stretch and their wall time per simulated second;
+4. measures the machine's arithmetic ceiling (`springc.ceiling`) for the network's size and
+   batch in both precisions, so that throughput is also a fraction of it.
+`write_report` writes `bench.json`, `bench.md` and one speed-versus-error PNG per network.
+
+Throughput is run-seconds per wall-second: runs in the batch times simulated seconds, divided
+by the wall time of the kernel call.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from springc import bench_networks as bn
+from springc import ceiling, expint
+from springc.errors import SimulationError
+from springc.ir import FlatNetlist, IRBuilder, Source, Tran
+from springc.simulate import simulate
+
+REF_SUBSTEPS = 16  # reference: RK4 at 16x the input rate (error 1e-8 on the top band)
+PEER_RTOL = 1e-6
+
+
+@dataclass
+class Case:
+    """One reference network and its workload."""
+
+    name: str
+    title: str
+    net: FlatNetlist
+    inputs: np.ndarray | None  # (runs, channels, samples) at 1/tstep; None: one run, no input
+    tstep: float
+    tstop: float
+    configs: list[tuple[str, int, str]]  # (method, substeps, precision)
+    peer_tstop: float  # stretch of run 0 the peers simulate
+    peers: tuple[str, ...] = ("DOP853", "RK45", "numpy-rk4", "ngspice")
+
+
+@dataclass
+class Row:
+    """One measured configuration (a kernel or a peer)."""
+
+    name: str
+    method: str
+    substeps: int
+    precision: str
+    errors: dict[str, float]
+    wall_s: float
+    compile_s: float
+    simulated_s: float  # runs x seconds simulated in `wall_s`
+    throughput: float  # run-seconds per wall-second
+    ceiling_fraction: float | None = None
+    note: str = ""
+
+    @property
+    def max_error(self) -> float:
+        return max(self.errors.values()) if self.errors else math.nan
+
+    @property
+    def wall_per_run_second(self) -> float:
+        return self.wall_s / self.simulated_s
+
+
+@dataclass
+class CaseResult:
+    name: str
+    title: str
+    dofs: int
+    runs: int
+    tstep: float
+    tstop: float
+    rows: list[Row] = field(default_factory=list)
+    ceiling: dict[str, float] = field(default_factory=dict)  # precision -> run-s/wall-s @1/tstep
+
+
+def speech_like(seconds: float, rate: float, runs: int, seed: int = 0) -> np.ndarray:
+    """Deterministic test inputs (runs, 1, samples): a 100 Hz to 8 kHz chirp with pitch-like
+    amplitude modulation plus white noise, a different noise and sweep phase per run."""
+    t = np.arange(int(round(seconds * rate)) + 1) / rate
+    rng = np.random.default_rng(seed)
+    out = np.empty((runs, 1, len(t)))
+    for r in range(runs):
+        sweep = 2 * np.pi * (100 * t + 0.5 * 7900 / seconds * t**2) + rng.uniform(0, 2 * np.pi)
+        envelope = 0.6 + 0.4 * np.sin(2 * np.pi * 4 * t + r)
+        out[r, 0] = envelope * np.sin(sweep) + 0.3 * rng.standard_normal(len(t))
+    return out
+
+
+def feature_extractor(bands: int = 8, fmin: float = 100.0, fmax: float = 8000.0) -> FlatNetlist:
+    """The feature extractor: `bands` two-mode Mel filter pairs (mel-spaced, fmin..fmax, the
+    paper's alpha = 400 rad/s, so Q ~ 126 at 8 kHz) driven by in(0), each squared by a
+    quadratic coupling into a 30 Hz low-pass. Probes: every filter output and low-pass."""
+    from springc.design.filters import hz_to_mel, mel_to_hz
+
+    b = IRBuilder("feature extractor", "<benchsuite.feature_extractor>")
+    centres = mel_to_hz(np.linspace(hz_to_mel(fmin), hz_to_mel(fmax), bands))
+    wl = 2 * np.pi * 30.0
+    for k, fa in enumerate(centres):
+        out = bn.filter_pair(b, f"f{k}", fa)
+        b.mass(f"Mlp{k}", f"lp{k}", 1.0, 1.4 * wl)
+        b.spring(f"Klp{k}", f"lp{k}", wl**2)
+        b.quad(f"Qlp{k}", out, f"lp{k}", 1e3)
+        b.probe("x", out)
+        b.probe("x", f"lp{k}")
+    b.tran = Tran(1.0 / bn.KWS_RATE, 1.0, None)
+    return b.finish()
+
+
+def stiff_block(nodes: int = 24, k_constraint: float = 2e8) -> FlatNetlist:
+    """A stiff all-to-all block: `nodes` unit masses (40 Hz local springs, damping 50/s), every
+    pair joined by a constraint spring `k_constraint` (fastest mode sqrt(nodes k) rad/s),
+    driven at node 0 from in(0); probes at both ends."""
+    b = IRBuilder("stiff all-to-all block", "<benchsuite.stiff_block>")
+    w = 2 * np.pi * 40.0
+    for p in range(nodes):
+        b.mass(f"M{p}", f"s{p}", 1.0, 50.0)
+        b.spring(f"K{p}", f"s{p}", w**2)
+    for p in range(nodes):
+        for q in range(p + 1, nodes):
+            b.coupling(f"C{p}_{q}", f"s{p}", f"s{q}", k_constraint)
+    b.force("F0", "s0", Source("in", channel=0), 1e4)
+    b.probe("x", "s0")
+    b.probe("x", f"s{nodes - 1}")
+    b.tran = Tran(1.0 / bn.KWS_RATE, 0.25, None)
+    return b.finish()
+
+
+def _rk_configs(subs=(1, 2, 4), precisions=("float64",)) -> list[tuple[str, int, str]]:
+    return [("rk4", s, p) for p in precisions for s in subs]
+
+
+def cases(quick: bool = False) -> list[Case]:
+    """The suite; `quick` shortens every workload (for tests of the machinery)."""
+    rate = bn.KWS_RATE
+    scale = 0.05 if quick else 1.0
+    runs = 2 if quick else 16
+    fe_t, kws_t = 1.0 * scale, 0.25 * scale
+    both = ("float64", "float32")
+    split = [("strang-rk4", 1, p) for p in both] + [("strang-rk4", 2, "float64")]
+    line = bn.long_delay_line()
+    duff = bn.duffing_resonator(amp=3000.0)
+    out = [
+        Case("feature", "feature extractor (8 Mel filter pairs 0.1-8 kHz, squarers, low-pass)",
+             feature_extractor(), speech_like(fe_t, rate, runs), 1 / rate, fe_t,
+             _rk_configs((1, 2, 4, 8)) + [("rk4", 1, "float32")] + split, 0.05 * scale),
+        Case("kws", "8x3 keyword-spotting network (564 dofs)", bn.kws_network(),
+             speech_like(kws_t, rate, max(2, runs // 2), seed=1), 1 / rate, kws_t,
+             _rk_configs((1, 2, 4)) + [("rk4", 1, "float32")] + split, 0.01 * scale,
+             peers=("DOP853", "RK45", "numpy-rk4")),
+        Case("delay", "long delay line (200 sites)", line,
+             speech_like(line.tran.tstop, 1 / line.tran.tstep, runs, seed=2), line.tran.tstep,
+             line.tran.tstop * (0.25 if quick else 1.0), _rk_configs((1, 2, 4)),
+             line.tran.tstop * 0.25),
+        Case("stiff", "stiff all-to-all block (24 masses, constraint springs 2e8)",
+             stiff_block(), speech_like(0.25 * scale, rate, runs, seed=3), 1 / rate,
+             0.25 * scale, _rk_configs((1, 2, 4)), 0.02 * scale),
+        Case("duffing", "Duffing resonator driven hard (stiffness up 10x at the peak)", duff,
+             None, duff.tran.tstep, duff.tran.tstop * scale, _rk_configs((1, 2, 4)),
+             duff.tran.tstop * scale),
+    ]
+    return out
+
+
+def run_case(case: Case, progress: Callable[[str], None] = print) -> CaseResult:
+    """Measure one case (module docstring)."""
+    runs = 1 if case.inputs is None else len(case.inputs)
+    res = CaseResult(case.name, case.title, case.net.n, runs, case.tstep, case.tstop)
+    first = None if case.inputs is None else case.inputs[:1]
+    progress(f"[{case.name}] reference: rk4 x{REF_SUBSTEPS} on run 0")
+    ref = _sim(case, first, "rk4", REF_SUBSTEPS, "float64")
+    for method, sub, precision in case.configs:
+        if expint.is_split(method) and not len(expint.find_blocks(case.net)):
+            continue
+        progress(f"[{case.name}] {method} x{sub} {precision}")
+        res.rows.append(_kernel_row(case, ref, method, sub, precision, runs))
+    for peer in case.peers:
+        progress(f"[{case.name}] peer {peer}")
+        row = _peer_row(case, ref, peer)
+        if row is not None:
+            res.rows.append(row)
+    progress(f"[{case.name}] ceiling")
+    res.ceiling = _ceilings(case, runs)
+    for row in res.rows:
+        if row.precision in res.ceiling and row.name.startswith("kernel"):
+            # the ceiling scales as 1 / rate: rate it at the row's own step
+            row.ceiling_fraction = row.throughput / (res.ceiling[row.precision] / row.substeps)
+    return res
+
+
+def _sim(case: Case, inputs, method: str, substeps: int, precision: str, tstop=None,
+         runs_inputs=None):
+    return simulate(case.net, inputs, tstep=case.tstep, tstop=tstop or case.tstop,
+                    substeps=substeps, method=method, precision=precision)
+
+
+def _errors(got: dict[str, np.ndarray], t: np.ndarray, ref, upto: float) -> dict[str, float]:
+    """Relative L2 error of every probe (run 0) against the reference, on t <= upto."""
+    keep = ref.t <= upto * (1 + 1e-9)
+    out = {}
+    for label, want in ref.probes.items():
+        w = want[0][keep]
+        g = np.interp(ref.t[keep], t, got[label])
+        norm = np.linalg.norm(w)
+        out[label] = float(np.linalg.norm(g - w) / norm) if norm > 0 else float(
+            np.linalg.norm(g - w))
+    return out
+
+
+def _kernel_row(case: Case, ref, method: str, sub: int, precision: str, runs: int) -> Row:
+    warm = simulate(case.net, None if case.inputs is None else case.inputs[:, :, :4],
+                    tstep=case.tstep, tstop=2 * case.tstep, substeps=sub, method=method,
+                    precision=precision)
+    compile_s = float(warm.info["compile_s"] or 0.0)
+    try:
+        out = _sim(case, case.inputs, method, sub, precision)
+    except SimulationError as err:
+        return Row(f"kernel {method}", method, sub, precision, {}, math.nan, compile_s, 0.0,
+                   0.0, note=f"stopped by the divergence guard: {err.message}")
+    wall = float(out.info["wall_s"])
+    errors = _errors({k: v[0] for k, v in out.probes.items()}, out.t, ref, case.tstop)
+    return Row(f"kernel {method}", method, sub, precision, errors, wall, compile_s,
+               runs * case.tstop, runs * case.tstop / wall)
+
+
+def _peer_row(case: Case, ref, peer: str) -> Row | None:
+    from springc import reference
+
+    first = None if case.inputs is None else case.inputs[:1]
+    tstop = case.peer_tstop
+    start = time.perf_counter()
+    if peer in ("DOP853", "RK45"):
+        t, probes, _ = reference.solve_ivp_reference(
+            case.net, first, tstep=case.tstep, tstop=tstop, method=peer, rtol=PEER_RTOL,
+            atol=PEER_RTOL * 1e-6)
+        note = f"scipy solve_ivp rtol {PEER_RTOL:g}"
+    elif peer == "numpy-rk4":
+        t, probes, _ = reference.rk4_numpy(case.net, first, tstep=case.tstep, tstop=tstop)
+        note = "plain numpy RK4 at 1/tstep"
+    elif peer == "ngspice":
+        got = _ngspice(case, first, tstop)
+        if got is None:
+            return None
+        t, probes, note = got
+    else:
+        raise ValueError(f"unknown peer {peer!r}")
+    wall = time.perf_counter() - start
+    errors = _errors({k: np.asarray(v)[0] if np.ndim(v) == 2 else v for k, v in probes.items()},
+                     t, ref, tstop)
+    return Row(f"peer {peer}", peer, 1, "float64", errors, wall, 0.0, tstop, tstop / wall,
+               note=note)
+
+
+def _ngspice(case: Case, first, tstop):
+    """ngspice on the exported netlist of run 0 (None when ngspice is not installed)."""
+    import shutil
+
+    from springc.export_spice import SpiceOptions
+    from springc.ngspice import simulate_ngspice
+
+    if shutil.which("ngspice") is None:
+        return None
+    inputs = {} if first is None else {0: (first[0, 0], 1.0 / case.tstep)}
+    opts = SpiceOptions(tstop=tstop, tstep=case.tstep, inputs=inputs)
+    t, traces = simulate_ngspice(case.net, opts)
+    return t, traces, "ngspice trap, reltol 1e-9 (sampled input), uic"
+
+
+def _ceilings(case: Case, runs: int) -> dict[str, float]:
+    """Ceiling run-seconds per wall-second at the input rate, per precision measured."""
+    flops = ceiling.rk4_flops_per_dof_step(case.net)
+    out = {}
+    for precision in sorted({p for _, _, p in case.configs}):
+        got = ceiling.measure_ceiling(case.net.n, runs, precision, threads=_threads(),
+                                      flops_per_step=flops, rate=1.0 / case.tstep)
+        out[precision] = float(got["run_seconds_per_wall_second"])
+    return out
+
+
+def _threads() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
+# --- report -----------------------------------------------------------------------------
+
+def speedups(res: CaseResult) -> list[dict]:
+    """Per peer: the cheapest kernel row with a max error no worse than the peer's, and how
+    much less wall time per simulated run-second it needs."""
+    kernels = [r for r in res.rows if r.name.startswith("kernel") and r.errors]
+    out = []
+    for peer in (r for r in res.rows if r.name.startswith("peer")):
+        ok = [k for k in kernels if k.max_error <= peer.max_error]
+        best = min(ok, key=lambda k: k.wall_per_run_second, default=None)
+        out.append({"peer": peer.method, "peer_error": peer.max_error,
+                    "kernel": _label(best) if best else None,
+                    "kernel_error": best.max_error if best else None,
+                    "speedup": peer.wall_per_run_second / best.wall_per_run_second
+                    if best else None})
+    return out
+
+
+def claims(results: list[CaseResult]) -> dict:
+    """The issue's three must-show figures, from the measured rows."""
+    out: dict = {}
+    fe = next((r for r in results if r.name == "feature"), None)
+    if fe is not None:
+        base = _find(fe, "rk4", 1, "float64")
+        ok = [r for r in fe.rows if r.name.startswith("kernel") and r.errors
+              and r.max_error <= 1e-3]
+        best = min(ok, key=lambda r: r.wall_s, default=None)
+        out["feature_1e-3"] = {
+            "rk4_x1_error": base.max_error if base else None,
+            "cheapest": _label(best) if best else None,
+            "cheapest_error": best.max_error if best else None,
+            "wall_ratio_to_rk4_x1": best.wall_s / base.wall_s if best and base else None}
+    out["ceiling_fraction"] = {
+        r.name: {p: (_find(r, "rk4", 1, p).ceiling_fraction if _find(r, "rk4", 1, p) else None)
+                 for p in ("float64", "float32")} for r in results}
+    out["speedups"] = {r.name: speedups(r) for r in results}
+    return out
+
+
+def _find(res: CaseResult, method: str, sub: int, precision: str) -> Row | None:
+    return next((r for r in res.rows if r.name == f"kernel {method}" and r.substeps == sub
+                 and r.precision == precision and r.errors), None)
+
+
+def _label(row: Row) -> str:
+    if row.name.startswith("peer"):
+        return row.method
+    return f"{row.method} x{row.substeps} {row.precision}"
+
+
+def write_report(results: list[CaseResult], outdir: Path, machine: dict) -> dict[str, Path]:
+    """bench.json, bench.md and <case>.png in `outdir` (each written atomically)."""
+    outdir.mkdir(parents=True, exist_ok=True)
+    data = {"machine": machine, "claims": claims(results),
+            "cases": [_case_json(r) for r in results]}
+    paths = {"json": outdir / "bench.json", "md": outdir / "bench.md"}
+    _atomic(paths["json"], json.dumps(data, indent=1, default=_json_default))
+    _atomic(paths["md"], markdown(results, data["claims"], machine))
+    for r in results:
+        paths[r.name] = outdir / f"{r.name}.png"
+        plot(r, paths[r.name])
+    return paths
+
+
+def _json_default(value):
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return str(value)
+
+
+def _case_json(r: CaseResult) -> dict:
+    d = asdict(r)
+    for row, src in zip(d["rows"], r.rows):
+        row["max_error"] = src.max_error
+    return d
+
+
+def _atomic(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _fmt(v: float | None, spec: str = ".3g") -> str:
+    return "-" if v is None or not math.isfinite(v) else format(v, spec)
+
+
+def markdown(results: list[CaseResult], found: dict, machine: dict) -> str:
+    """The benchmark tables (docs/bench.md)."""
+    lines = ["# springc bench: speed against error", "",
+             "Regenerate with `make bench` (`springc bench --out bench-out`, then copy "
+             "`bench-out/bench.md` here); plots in `bench-out/<case>.png`.", "",
+             f"Machine: {machine.get('cpus')} CPU(s) available, load average "
+             f"{machine.get('load')} at the start, {machine.get('when')}.", "",
+             "Error: relative L2 error of each probe (run 0) against RK4 at "
+             f"{REF_SUBSTEPS}x the input rate; the table shows the worst probe. Throughput: "
+             "run-seconds per wall-second (batch of runs in lockstep). Ceiling: the measured "
+             "arithmetic ceiling (`springc.ceiling`) at the row's step, same precision.", ""]
+    lines += _claims_md(found)
+    for r in results:
+        lines += [f"## {r.name}: {r.title}", "",
+                  f"{r.dofs} dofs, {r.runs} run(s) of {r.tstop:g} s at tstep {r.tstep:.4g} s; "
+                  f"ceiling (RK4-rated, 1 step per sample): "
+                  + ", ".join(f"{p} {v:.3g} run-s/s" for p, v in r.ceiling.items()), "",
+                  "| integrator | worst error (probe) | wall s | compile s | wall s per "
+                  "run-s | throughput run-s/s | of ceiling | note |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for row in r.rows:
+            worst = max(row.errors, key=row.errors.get) if row.errors else ""
+            lines.append(
+                f"| {_label(row)} | {_fmt(row.max_error)} ({worst}) | {_fmt(row.wall_s)} | "
+                f"{_fmt(row.compile_s, '.2f')} | {_fmt(row.wall_per_run_second if row.simulated_s else None)} | "
+                f"{_fmt(row.throughput)} | "
+                f"{_fmt(100 * row.ceiling_fraction if row.ceiling_fraction else None, '.0f')}"
+                f"{'%' if row.ceiling_fraction else ''} | {row.note} |")
+        lines.append("")
+    return "\n".join(lines) + "\n"
+
+
+def _claims_md(found: dict) -> list[str]:
+    lines = ["## The issue's figures (measured in this run)", ""]
+    fe = found.get("feature_1e-3")
+    if fe:
+        lines.append(f"- Feature extractor: RK4 at 32 kHz has worst probe error "
+                     f"{_fmt(fe['rk4_x1_error'])}; the cheapest configuration with every probe "
+                     f"within 1e-3 is **{fe['cheapest']}** (worst {_fmt(fe['cheapest_error'])}) "
+                     f"at **{_fmt(fe['wall_ratio_to_rk4_x1'], '.2f')}x** the wall time of RK4 "
+                     "at 32 kHz (target: at most 1.5x).")
+    for name, fr in found["ceiling_fraction"].items():
+        parts = [f"{p} {_fmt(100 * v, '.0f')}%" for p, v in fr.items() if v]
+        if parts:
+            lines.append(f"- {name}: RK4 x1 throughput as a fraction of the ceiling: "
+                         + ", ".join(parts) + " (target: 70%).")
+    for name, rows in found["speedups"].items():
+        for s in rows:
+            if s["speedup"] is not None:
+                lines.append(f"- {name}: {s['kernel']} (error {_fmt(s['kernel_error'])}) is "
+                             f"**{_fmt(s['speedup'], '.0f')}x** faster per run-second than "
+                             f"{s['peer']} (error {_fmt(s['peer_error'])}).")
+            else:
+                lines.append(f"- {name}: no kernel row reaches {s['peer']}'s error "
+                             f"{_fmt(s['peer_error'])}.")
+    return lines + [""]
+
+
+def plot(r: CaseResult, path: Path) -> None:
+    """Speed against error: wall seconds per simulated run-second vs worst probe error."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 5))
+    for row in r.rows:
+        if not row.errors or not row.simulated_s:
+            continue
+        kernel = row.name.startswith("kernel")
+        marker = {"rk4": "o", "strang-rk4": "s"}.get(row.method, "^") if kernel else "x"
+        ax.loglog(row.wall_per_run_second, max(row.max_error, 1e-16), marker,
+                  color="C0" if row.precision == "float64" else "C1")
+        ax.annotate(_label(row), (row.wall_per_run_second, max(row.max_error, 1e-16)),
+                    fontsize=7, xytext=(3, 3), textcoords="offset points")
+    ax.set_xlabel("wall seconds per simulated run-second")
+    ax.set_ylabel("worst probe relative L2 error")
+    ax.set_title(f"{r.name}: {r.title}", fontsize=9)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".png")
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=110)
+        os.replace(tmp, path)
+    finally:
+        plt.close(fig)
+        Path(tmp).unlink(missing_ok=True)
+
+
+def machine_info() -> dict:
+    """CPUs, load and time of the run (the context of the timings)."""
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
+    return {"cpus": _threads(), "load": round(load, 2),
+            "when": time.strftime("%Y-%m-%d %H:%M:%S")}
+
+
+def run_suite(names: list[str] | None = None, quick: bool = False,
+              progress: Callable[[str], None] = print) -> list[CaseResult]:
+    """Run the named cases (default: all) in one process."""
+    chosen = [c for c in cases(quick) if names is None or c.name in names]
+    return [run_case(c, progress) for c in chosen]

@@ -4,7 +4,8 @@ Time grid: the integration step is `h = tstep / substeps`; input signals are res
 input grid `1/tstep` and interpolated linearly at every stage time (see `springc.sources`).
 Outputs are recorded every `round(1 / (outrate h))` steps (default: every `tstep`), starting
 with the initial state at t = 0. Runs are simulated in batches of `batch` (one progress tick
-each); inside a batch the kernel runs chunks of runs in parallel, each chunk in lockstep.
+each); inside a batch, chunks of runs go to a thread pool (the kernel releases the GIL),
+each chunk in lockstep.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 import math
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -274,12 +276,29 @@ def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rplan, chun
                 msq=np.zeros((len(wins), runs)))
     ngram = sum(r.gram.groups for r in rplan.gram)
     args.update(reductions.gram_arrays(rplan, st.h, dtype), gram=np.zeros((ngram, runs)))
-    kernel.run(**{k: args[k] for k in kernel.args})
+    _run_chunks(kernel, args, runs)
     _check_divergence(net, st, args, names)
     work = np.zeros((nf, runs))
     work[sources.input_forces(net)] = args["work_in"]
     work[sources.common_forces(net)] = args["work_c"]
     return list(args["rec"]), _finish_reductions(net, rplan, args, work, wins, st)
+
+
+def _run_chunks(kernel, args: dict, runs: int) -> None:
+    """Run the kernel's chunks on up to `_threads()` threads (the kernel releases the GIL and
+    each chunk writes only its own columns)."""
+    nchunks = -(-runs // args["chunk"])
+    workers = min(nchunks, _threads())
+    fixed = {k: args[k] for k in kernel.args if k not in ("c0", "c1")}
+
+    def call(c0: int, c1: int) -> None:
+        kernel.run(**fixed, c0=c0, c1=c1)
+
+    if workers <= 1:
+        call(0, nchunks)
+        return
+    with ThreadPoolExecutor(workers) as pool:
+        list(pool.map(lambda c: call(c, c + 1), range(nchunks)))
 
 
 def _finish_reductions(net, rplan, args, work, wins, st) -> dict[str, np.ndarray]:

@@ -183,6 +183,7 @@ def _body(feat: Features, opts: KernelOptions, tab: Tableau) -> str:
     c(f"FT = np.{opts.precision}")
     c(f"ARGS = {tuple(run_args(feat, opts))!r}")
     c(f"STAGES = {tab.stages}")
+    c("CHUNK_RANGE = True  # run(c0, c1) integrates only chunks c0..c1-1: callers use threads")
     c("")
     _emit_accel(c, feat)
     c("")

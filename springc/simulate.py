@@ -286,9 +286,10 @@ def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rplan, chun
 
 def _run_chunks(kernel, args: dict, runs: int) -> None:
     """Run the kernel's chunks on up to `_threads()` threads (the kernel releases the GIL and
-    each chunk writes only its own columns)."""
+    each chunk writes only its own columns). A kernel without CHUNK_RANGE (a numba prange
+    kernel) runs all its chunks in one call."""
     nchunks = -(-runs // args["chunk"])
-    workers = min(nchunks, _threads())
+    workers = min(nchunks, _threads()) if getattr(kernel.module, "CHUNK_RANGE", False) else 1
     fixed = {k: args[k] for k in kernel.args if k not in ("c0", "c1")}
 
     def call(c0: int, c1: int) -> None:

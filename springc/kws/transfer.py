@@ -21,9 +21,9 @@ docs/results-massspring.md). s_c is the largest scale whose couplings stay withi
 stiffness: sum_k gamma_k alpha_k = A^2 s_c^2 sum lambda^2 / (eps kc) = FILL m_r w_r^2.
 
 Impedance: every head's mvm inputs sit on the shared terminal nodes f{i}_{j}; with H heads each
-mvm is designed for mass m_s / H and damping t_s kc / H, so together their zero modes add
-exactly one line site with the matched damping at each terminal, the termination the features
-were computed with (`springc.kws.massspring`).
+mvm is designed for mass m_s / (2H) and damping t_s kc / H (its nodes get half of each), so
+together their zero modes put half a line site with the matched damping on each terminal, the
+reflection-free termination the features were computed with (`springc.kws.massspring`).
 """
 
 from __future__ import annotations
@@ -103,7 +103,7 @@ def head_text(k: int, head: Head, s: msp.MassSpringSettings, heads: int) -> str:
     """`.subckt mvm{k}` (encoding Q^T) and `.subckt head{k} f0 .. f{N-1} r`: the mvm on the
     terminals, the quadratic couplings and the readout."""
     n = s.bins * s.delays
-    design = design_mvm(head.q.T, m=s.site_mass() / heads, b=s.line_damping() / heads,
+    design = design_mvm(head.q.T, m=s.site_mass() / (2 * heads), b=s.line_damping() / heads,
                         kc=s.kc / heads)
     mvm = mvm_text(design, source=f"the eigenvectors of C for {head.name}")
     mvm = mvm.replace("\n.subckt mvm ", f"\n.subckt mvm{k} ").replace(".ends mvm", f".ends mvm{k}")

@@ -1,0 +1,95 @@
+"""Weight transfer: the head design obeys its equations, the classifier netlist passes the
+compiler's checks, and the simulated network's readouts equal c . Phi (within 2% at a small
+squaring error), scored exactly like the digital decisions."""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.signal import chirp
+
+from springc.compiler import build
+from springc.design.blocks import readout_params
+from springc.errors import UsageError
+from springc.kws import massspring as msp
+from springc.kws import transfer as tr
+from springc.kws.evaluate import score
+from springc.kws.phi import n_features, spread
+from springc.kws.svm import LinearModel
+from springc.lang import load_text
+from springc.simulate import simulate
+
+KERNELS = Path(tempfile.gettempdir()) / "springc-test-kernels"
+S = msp.MassSpringSettings(bins=2, delays=2)
+N = n_features(2, 2)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _kernel_cache():
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("SPRINGC_CACHE", str(KERNELS))
+        yield
+
+
+def words() -> np.ndarray:
+    """Three 0.4 s chirps (up, down, two-tone) at 16 kHz."""
+    t = np.arange(6400) / 16000
+    env = np.sin(np.pi * t / 0.4) ** 2
+    return np.stack([0.3 * env * chirp(t, 300, 0.4, 2500, method="logarithmic"),
+                     0.6 * env * chirp(t, 2500, 0.4, 300, method="logarithmic"),
+                     0.4 * env * (np.sin(2 * np.pi * 500 * t) + np.sin(2 * np.pi * 1800 * t))])
+
+
+def model(rows: int, seed: int = 1) -> LinearModel:
+    rng = np.random.default_rng(seed)
+    return LinearModel(rng.normal(size=(rows, N)), rng.normal(size=rows),
+                       np.array([f"c{k}" for k in range(max(rows, 2))]))
+
+
+def test_head_design_obeys_its_equations():
+    m = model(1)
+    head = tr.design_head("h", m.coef[0], 0.5, S, amplitude=2e-3, epsilon=1e-3)
+    lam = head.lam[head.keep]
+    assert np.all(np.sign(head.gamma) == np.sign(lam)) and np.all(head.alpha / head.gamma > 0)
+    np.testing.assert_allclose(2e-3**2 * head.gamma / (head.alpha * S.kc), 1e-3)  # epsilon
+    k_total = readout_params(tr.TAU_READOUT, tr.Q_READOUT).k_total
+    np.testing.assert_allclose(np.sum(head.gamma * head.alpha), tr.FILL * k_total)
+    phi = np.random.default_rng(2).normal(size=4)  # sum_k lambda_k (Q_k . phi)^2 = phi C phi
+    c = spread(m.coef[0], 2, 2)
+    np.testing.assert_allclose(np.sum(head.lam * (head.q.T @ phi) ** 2), phi @ c @ phi)
+    with pytest.raises(UsageError):
+        tr.design_head("h", m.coef[0], 0.0, S, amplitude=0.0, epsilon=1.0)
+
+
+def test_classifier_netlist_passes_the_compiler(tmp_path):
+    heads = tr.heads_for([(("c0", "c1", "c2"), model(3))], S, 1e-3, 1e-5)
+    for k, h in enumerate(heads):
+        (tmp_path / f"head{k}.spr").write_text(tr.head_text(k, h, S, len(heads)))
+    path = tmp_path / "classifier.spr"
+    path.write_text(tr.classifier_text(heads, S, include_heads=False))
+    report = build(path)
+    assert report.elements["Q"] == 2 + sum(len(h.keep) for h in heads)
+    assert report.dofs == msp.feature_network(S).n + 3 * (4 + 1)  # outputs and a readout
+
+
+def test_readouts_equal_c_phi_and_score_like_the_digital_model():
+    sig = words()
+    phi = msp.simulate_phi(sig, S)
+    amp = float(np.median(msp.simulate_peaks(sig, S)))
+    m = model(3)
+    m.coef /= phi.std(axis=0)  # comparable terms, as a trained model on standardised Phi
+    heads = tr.heads_for([(tuple(m.classes), m)], S, amp, 1e-6)
+    net = load_text(tr.classifier_text(heads, S), "<classifier>")
+    res = simulate(net, sig[:, None, :], 16000.0, reductions=tr.readout_reductions(heads),
+                   tstop=msp.horizon(S, 0.4))
+    d = tr.decisions(res.reductions, heads)
+    want = m.decision(phi)
+    assert np.abs(d - want).max() < 0.02 * np.abs(want - m.intercept).max()
+    loss = tr.insertion_loss_db(res.reductions, heads)
+    assert np.all(np.isfinite(loss)) and np.all(loss > 0)
+    y = np.array(["c0", "c1", "c2"])
+    got = score(tr.selection_models([(tuple(m.classes), m)]), d, y, "kws12")
+    assert got["accuracy"] == score([(tuple(m.classes), m)], phi, y, "kws12")["accuracy"]

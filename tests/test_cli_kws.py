@@ -52,8 +52,7 @@ def test_installed_command_runs(env):
 
 @pytest.mark.parametrize("args,message", [
     (["train", "--data", "{root}/nowhere", "-o", "{root}/m"], "no such data folder"),
-    (["train", "--data", "{data}", "--realisation", "mass-spring", "-o", "{root}/m"],
-     "mass-spring realisation is not available"),
+    (["train", "--data", "{data}", "--jobs", "-2", "-o", "{root}/m"], "--jobs must be"),
     (["train", "--data", "{data}", "--bins", "1", "-o", "{root}/m"], "--bins must be"),
     (["train", "--data", "{data}", "--td", "0.0315", "-o", "{root}/m"], "td * feature rate"),
     (["eval", "{root}/nomodel"], "no such model folder"),

@@ -189,9 +189,9 @@ def test_empty_test_split(tmp_path):
     assert not (tmp_path / "m").exists()
 
 
-def test_mass_spring_realisation_is_a_clear_error(corpus, tmp_path):
-    with pytest.raises(UsageError, match="mass-spring realisation is not available"):
-        train(_opts(corpus, tmp_path / "m", realisation="mass-spring"))
+def test_unknown_realisation_is_a_clear_error(corpus, tmp_path):
+    with pytest.raises(UsageError, match="unknown realisation 'analog'"):
+        train(_opts(corpus, tmp_path / "m", realisation="analog"))
 
 
 def test_failed_training_keeps_the_previous_model(corpus, tmp_path):

@@ -234,7 +234,7 @@ def classifier_batch(signals: np.ndarray, net, specs: list[str], tstop: float) -
     sig = signals.astype(np.float64)[:, None, :]
     return msp.with_retries(lambda sub: simulate(
         net, sig, msp.INPUT_RATE, probes=[], reductions=specs, tstop=tstop, chunk=len(signals),
-        batch=len(signals), substeps=sub).reductions)
+        batch=len(signals), substeps=sub, precision=msp.DATASET_PRECISION).reductions)
 
 
 def selection_models(models) -> list:

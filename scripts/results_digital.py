@@ -128,7 +128,7 @@ def document(rows: list[dict], pairs: dict, ds, data: Path, minutes: float) -> s
     majority = max(set(test_labels), key=test_labels.count)
     chance = test_labels.count(majority) / len(test_labels)
     train_labels = [c.label for c in ds.split("train")]
-    per_command = np.mean([train_labels.count(w) for w in COMMANDS])
+    per_command = np.mean([k for k in map(train_labels.count, COMMANDS) if k] or [0])
     return f"""# Digital realisation of the KWS architecture: test accuracy by size
 
 Test accuracy on the 12-class task (10 commands, `_unknown_`, `_silence_`) of the paper's

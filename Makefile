@@ -16,7 +16,8 @@ test: .installed
 	$(PY) -m pytest -q
 
 bench: .installed
-	$(PY) -m springc_cli.main bench
+	$(PY) -m springc_cli.main bench --out bench-out
+	mkdir -p docs && cp bench-out/bench.md docs/bench.md
 
 clean:
 	rm -rf .installed out bench-out .pytest_cache

@@ -1,27 +1,56 @@
-"""`springc bench`: the kernel's throughput and accuracy against numpy and scipy peers."""
+"""`springc bench`: speed against error on the reference networks (issue 7), or the kernel
+throughput table of issue 3 (`--issue3`)."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import click
 
 from springc_cli.common import run_user_errors
 
+CASE_NAMES = ("feature", "kws", "delay", "stiff", "duffing")
+
 
 @click.command("bench")
+@click.option("--case", "case_names", multiple=True, type=click.Choice(CASE_NAMES),
+              help="Run only this reference network (repeatable; default: all).")
+@click.option("--out", "outdir", type=click.Path(file_okay=False), default="bench-out",
+              show_default=True, help="Folder for bench.json, bench.md and <case>.png.")
+@click.option("--quick", is_flag=True, help="Short workloads (checks the machinery only).")
+@click.option("--issue3", is_flag=True,
+              help="Instead: the issue-3 kernel table on the 564-dof network (options below).")
 @click.option("--seconds", type=float, default=1.0, show_default=True,
-              help="Simulated seconds of noise input per kernel run.")
+              help="--issue3: simulated seconds of noise input per kernel run.")
 @click.option("--batch", type=int, default=64, show_default=True,
-              help="Runs simulated together in the batched measurement.")
+              help="--issue3: runs simulated together in the batched measurement.")
 @click.option("--stretch", type=float, default=0.02, show_default=True,
-              help="Simulated seconds for the slow peers (numpy, scipy); scaled per second.")
+              help="--issue3: simulated seconds for the slow peers (numpy, scipy).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False),
-              default="bench-out/bench.json", show_default=True, help="Where to write JSON.")
+              default="bench-out/bench.json", show_default=True,
+              help="--issue3: where to write JSON.")
 @run_user_errors
-def bench_cmd(seconds, batch, stretch, json_path):
-    """Benchmark the generated kernel on the 564-dof keyword-spotting-sized network: float64
-    and float32 at batch 1 and 64, compile time cold and cached, and plain numpy RK4 and scipy
-    RK45/DOP853 (rtol 1e-6), each with its error against a tight reference. Prints a Markdown
-    table."""
+def bench_cmd(case_names, outdir, quick, issue3, seconds, batch, stretch, json_path):
+    """Speed against error: on each reference network (feature extractor, 8x3 keyword
+    spotter, long delay line, stiff all-to-all block, hard-driven Duffing resonator) every
+    integrator at several steps and float64/float32, and the peers (scipy RK45/DOP853 at rtol
+    1e-6, numpy RK4, ngspice when installed), with per-probe errors against a tight reference,
+    wall, compile time, throughput and its fraction of the measured arithmetic ceiling.
+    Writes OUT/bench.json, OUT/bench.md and OUT/<case>.png; prints the Markdown."""
+    if issue3:
+        _issue3(seconds, batch, stretch, json_path)
+        return
+    from springc import benchsuite
+
+    say = lambda m: click.echo(m, err=True)  # noqa: E731
+    machine = benchsuite.machine_info()
+    results = benchsuite.run_suite(list(case_names) or None, quick=quick, progress=say)
+    paths = benchsuite.write_report(results, Path(outdir), machine)
+    click.echo(paths["md"].read_text())
+    click.echo(f"(written: {', '.join(str(p) for p in paths.values())})")
+
+
+def _issue3(seconds, batch, stretch, json_path) -> None:
     from springc.bench import markdown, run_bench, write_json
 
     result = run_bench(seconds, batch, stretch, progress=lambda m: click.echo(m, err=True))

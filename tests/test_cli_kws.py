@@ -17,13 +17,18 @@ from test_kws_train import make_corpus
 @pytest.fixture(scope="module")
 def env(tmp_path_factory):
     root = tmp_path_factory.mktemp("cli")
+    old = os.environ.get("SPRINGC_CACHE")
     os.environ["SPRINGC_CACHE"] = str(root / "cache")
     data = make_corpus(root / "data")
     model = root / "model"
     result = CliRunner().invoke(main, ["train", "--data", str(data), "--bins", "4",
                                        "--delays", "2", "-j", "1", "-o", str(model)])
     assert result.exit_code == 0, result.output
-    return data, model, result.output
+    yield data, model, result.output
+    if old is None:
+        os.environ.pop("SPRINGC_CACHE")
+    else:
+        os.environ["SPRINGC_CACHE"] = old
 
 
 def test_train_prints_accuracy_and_writes_the_folder(env):

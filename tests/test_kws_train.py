@@ -60,9 +60,18 @@ def make_corpus(root: Path, words: tuple[str, ...] = ("yes", "no", "cat"), per_s
     return root
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("SPRINGC_CACHE", str(tmp_path / "cache"))
+@pytest.fixture(autouse=True, scope="module")
+def _cache(tmp_path_factory):
+    """One feature cache for the module: tests reuse each other's features."""
+    import os
+
+    old = os.environ.get("SPRINGC_CACHE")
+    os.environ["SPRINGC_CACHE"] = str(tmp_path_factory.mktemp("cache"))
+    yield
+    if old is None:
+        os.environ.pop("SPRINGC_CACHE")
+    else:
+        os.environ["SPRINGC_CACHE"] = old
 
 
 @pytest.fixture(scope="module")
@@ -120,10 +129,11 @@ def test_physical_readout_of_stored_weights_reproduces_the_decision(corpus, tmp_
     assert evaluate(tmp_path / "m", jobs=1)["accuracy"] == report["accuracy"]
 
 
-def test_parallel_and_cached_features_equal_serial_ones(corpus, tmp_path):
+def test_parallel_and_cached_features_equal_serial_ones(corpus, tmp_path, monkeypatch):
     from springc.kws import cache
     from springc.kws.train import feature_matrices, open_task_data
 
+    monkeypatch.setenv("SPRINGC_CACHE", str(tmp_path / "own-cache"))
     ds = open_task_data(corpus, "kws12")
     clips = ds.split("train")
     s = [FeatureSettings(bins=4, delays=2)]

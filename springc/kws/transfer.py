@@ -253,24 +253,16 @@ def selection_models(models) -> list:
     return out
 
 
-def evaluate_network(model, ds, *, scheduler: str | None = None, jobs: int = 0,
-                     use_cache: bool = True) -> dict:
-    """Simulate the model's classifier.spr (front end and every head in one network) on the
-    test split: accuracy, confusion, per-class TPR and insertion loss of the physical
-    decisions, next to the digital readout c . Phi of the same model on the same features."""
+def simulate_network(net, heads: list[Head], s: msp.MassSpringSettings,
+                     signals: np.ndarray, *, scheduler: str | None = None,
+                     jobs: int = 0) -> tuple[np.ndarray, np.ndarray, float]:
+    """Run clips (clips, samples) through a classifier network on Dask: (row decisions,
+    insertion loss in dB per clip, wall seconds)."""
     import time
     from functools import partial
 
-    from springc.kws.distributed import cores, map_batches
-    from springc.kws.evaluate import score
-    from springc.kws.train import feature_matrices, targets
-    from springc.lang import load_file
+    from springc.kws.distributed import map_batches
 
-    s, heads = model_heads(model)
-    net = load_file(model.folder / "classifier.spr")
-    clips = ds.split("test")
-    task = model.settings["task"]
-    signals = msp.load_signals(clips, False, 0, [])
     parts = msp.batches(signals)
     start = time.perf_counter()
     fn = partial(classifier_batch, net=net, specs=readout_reductions(heads),
@@ -279,19 +271,38 @@ def evaluate_network(model, ds, *, scheduler: str | None = None, jobs: int = 0,
                       sizes=[len(p) for p in parts])
     seconds = time.perf_counter() - start
     reds = {k: np.concatenate([o[k] for o in out]) for k in out[0]}
-    d = decisions(reds, heads)
+    return decisions(reds, heads), insertion_loss_db(reds, heads), seconds
+
+
+def evaluate_network(model, ds, *, scheduler: str | None = None, jobs: int = 0,
+                     use_cache: bool = True, heads: list[Head] | None = None,
+                     net=None) -> dict:
+    """Simulate the model's classifier.spr (front end and every head in one network) on the
+    test split: accuracy, confusion, per-class TPR and insertion loss of the physical
+    decisions, next to the digital readout c . Phi of the same model on the same features.
+    `heads` and `net` replace the model folder's (the epsilon study)."""
+    from springc.kws.distributed import cores
+    from springc.kws.evaluate import score
+    from springc.kws.train import feature_matrices, targets
+    from springc.lang import load_file
+
+    s, model_heads_ = model_heads(model)
+    heads = heads or model_heads_
+    net = net or load_file(model.folder / "classifier.spr")
+    clips = ds.split("test")
+    task = model.settings["task"]
+    signals = msp.load_signals(clips, False, 0, [])
+    d, loss, seconds = simulate_network(net, heads, s, signals, scheduler=scheduler, jobs=jobs)
     y = targets(clips, task)
     report = score(selection_models(model.models), d, y, task)
     phi = feature_matrices(clips, "test", "mass-spring", [s], noise_files=[], jobs=jobs,
                            use_cache=use_cache, scheduler=scheduler)[0]
     digital = score(model.models, phi, y, task)
     ideal = np.concatenate([m.decision(phi) for _, m in model.models], axis=1)
-    loss = insertion_loss_db(reds, heads)
     report.update(
         realisation="mass-spring network",
-        digital_same_model={k: digital[k] for k in ("accuracy", "n", "per_class")
-                            if k in digital} | ({"pairs": digital["pairs"]}
-                                                if "pairs" in digital else {}),
+        digital_same_model={k: digital[k] for k in ("accuracy", "n", "per_class", "pairs")
+                            if k in digital},
         readout_error=float(np.median(np.abs(d - ideal)) / np.median(np.abs(ideal))),
         insertion_loss_db={"median": float(np.median(loss)), "mean": float(np.mean(loss))},
         throughput={"clips": len(clips), "seconds": seconds,

@@ -87,8 +87,9 @@ def _corpus(st: Stages, folder: Path, opts: DemoOptions) -> Path:
 
 def accuracy_rows(reports: dict, network: dict) -> list[tuple[str, float]]:
     """(realisation, test accuracy) for the table and the bar chart."""
+    ideal = network["digital_same_model"]["accuracy"]
     return [("digital (paper's architecture, numerical)", reports["digital"]["accuracy"]),
-            ("mass-spring features, ideal readout c.Phi", network["digital_same_model"]["accuracy"]),
+            ("mass-spring features, ideal readout c.Phi", ideal),
             ("mass-spring network (simulated end to end)", network["accuracy"])]
 
 

@@ -65,9 +65,9 @@ def phi_of_recorded(x: np.ndarray, h: float, tau: float, n: int, m: int) -> np.n
 def test_gram_reduction_equals_phi_on_recorded_trajectories():
     net = chain4()
     nodes = list("abcd")
-    k, l = np.triu_indices(4)
-    red = gram_reduction(net, 0.3, [nodes[i] for i in k], [nodes[j] for j in l],
-                         group_index(2, 2)[k, l], np.where(k == l, 1.0, 2.0), label="phi")
+    k, kk = np.triu_indices(4)
+    red = gram_reduction(net, 0.3, [nodes[i] for i in k], [nodes[j] for j in kk],
+                         group_index(2, 2)[k, kk], np.where(k == kk, 1.0, 2.0), label="phi")
     u = np.random.default_rng(3).normal(size=(3, 1, 600))
     res = simulate(net, u, substeps=2, outrate=2000.0, reductions=[red, "gram:0.3:a,c"],
                    probes=[f"x({n})" for n in nodes])

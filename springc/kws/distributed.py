@@ -58,7 +58,7 @@ def _client(scheduler: str | None, workers: int):
     if scheduler is not None:
         try:
             return Client(scheduler, timeout="20s")
-        except (OSError, TimeoutError) as exc:
+        except (OSError, TimeoutError, ValueError) as exc:
             raise UsageError(f"cannot reach the Dask scheduler at {scheduler!r} ({exc})",
                              hint="start one with `dask scheduler` and workers with "
                                   "`dask worker ADDRESS`, or leave out --scheduler") from None

@@ -227,9 +227,9 @@ def phi_reduction(net: FlatNetlist, s: MassSpringSettings, label: str = "phi") -
     weight 1 on the diagonal and 2 off it, grouped by `group_index`."""
     nodes = terminals(s)
     gidx = group_index(s.bins, s.delays)
-    k, l = np.triu_indices(len(nodes))
-    red = gram_reduction(net, s.tau, [nodes[a] for a in k], [nodes[b] for b in l], gidx[k, l],
-                         np.where(k == l, 1.0, 2.0), label=label)
+    k, kk = np.triu_indices(len(nodes))
+    red = gram_reduction(net, s.tau, [nodes[a] for a in k], [nodes[b] for b in kk], gidx[k, kk],
+                         np.where(k == kk, 1.0, 2.0), label=label)
     if red.gram.groups != n_features(s.bins, s.delays):
         raise AssertionError("group index does not cover every feature")
     return red

@@ -111,8 +111,8 @@ def head_text(k: int, head: Head, s: msp.MassSpringSettings, heads: int) -> str:
     w.comment(f"head{k}: classifier row {head.name!r}; readout x_r = {head.scale:.6g} c . Phi, "
               f"decision x_r / {head.scale:.6g} + ({head.intercept:.6g})")
     w.comment(f"{len(head.keep)} of {n} eigen-components coupled (|lambda| > {DROP:g} max)")
-    w.subckt(f"head{k}", [f"f{l}" for l in range(n)] + ["r"])
-    w.statement("Xm", *[f"f{l}" for l in range(n)], *[f"y{l}" for l in range(n)], f"mvm{k}")
+    w.subckt(f"head{k}", [f"f{p}" for p in range(n)] + ["r"])
+    w.statement("Xm", *[f"f{p}" for p in range(n)], *[f"y{p}" for p in range(n)], f"mvm{k}")
     for e, g, a in zip(head.keep, head.gamma, head.alpha):
         w.statement(f"Qy{e}", f"y{e}", "r", f"g={num(g)}", f"a={num(a)}")
     kext = float(np.sum(head.gamma * head.alpha))

@@ -1,49 +1,49 @@
-"""The list of subcommands; each module defines one or more click commands."""
+"""Where each subcommand lives, so `springc` imports only the one it runs.
+
+Importing every command module up front costs seconds (numba, scikit-learn, matplotlib); the
+table below names each command's module and object and carries its one-line help for
+`springc --help`. A test checks that every entry loads a command of its name.
+"""
 
 from __future__ import annotations
 
-ALL: list = []
+import importlib
 
-from springc_cli import design  # noqa: E402  (springc design ...)
+import click
 
-ALL += design.COMMANDS
+# name -> (module in springc_cli, attribute, short help)
+TABLE: dict[str, tuple[str, str, str]] = {
+    "build": ("build", "build_cmd", "Parse, elaborate and check a netlist; print its summary."),
+    "sim": ("sim", "sim_cmd", "Simulate a netlist for every input signal; write the probes."),
+    "ac": ("analyses", "ac_cmd", "Frequency response of the linearisation at rest."),
+    "modes": ("analyses", "modes_cmd", "Eigenfrequencies, damping, Q and mode shapes."),
+    "design": ("design", "design", "Design building blocks (Mel filterbank, MVM, ...)."),
+    "figures": ("figures", "figures_cmd", "Building-block experiments as PNG figures."),
+    "export": ("export", "export_cmd", "Export a netlist to ngspice (force-current analogy)."),
+    "data": ("data", "data_group", "Speech data: synthesise the built-in corpus, inspect one."),
+    "train": ("kws", "train_cmd", "Train a keyword spotter; write a model folder."),
+    "eval": ("kws", "eval_cmd", "Evaluate a model on the test split."),
+    "demo": ("demo", "demo_cmd", "The main job end to end on the built-in corpus."),
+    "bench": ("bench", "bench_cmd", "Speed against error: integrators and peers side by side."),
+}
 
-from springc_cli import figures  # noqa: E402  (springc figures OUTDIR)
 
-ALL += figures.COMMANDS
+def load(name: str) -> click.Command:
+    """Import and return the command called `name`."""
+    module, attr, _ = TABLE[name]
+    return getattr(importlib.import_module(f"springc_cli.{module}"), attr)
 
-from springc_cli import kws  # noqa: E402  (springc train, springc eval)
 
-ALL += [kws.train_cmd, kws.eval_cmd]
+class LazyGroup(click.Group):
+    """A click group whose subcommands are imported on first use."""
 
-from springc_cli import export  # noqa: E402  (springc export --spice)
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(TABLE)
 
-ALL += [export.export_cmd]
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        return load(cmd_name) if cmd_name in TABLE else None
 
-from springc_cli import sim  # noqa: E402  (springc sim)
-
-ALL += [sim.sim_cmd]
-
-from springc_cli import export  # noqa: E402  (springc export --spice)
-
-ALL += [export.export_cmd]
-
-from springc_cli import data  # noqa: E402  (springc data synth, springc data info)
-
-ALL += data.COMMANDS
-
-from springc_cli import build  # noqa: E402  (springc build)
-
-ALL += build.COMMANDS
-
-from springc_cli import analyses  # noqa: E402  (springc ac, springc modes)
-
-ALL += analyses.COMMANDS
-
-from springc_cli import bench  # noqa: E402  (springc bench)
-
-ALL += [bench.bench_cmd]
-
-from springc_cli import demo  # noqa: E402  (springc demo)
-
-ALL += demo.COMMANDS
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        rows = [(name, TABLE[name][2]) for name in self.list_commands(ctx)]
+        with formatter.section("Commands"):
+            formatter.write_dl(rows)

@@ -1,28 +1,21 @@
-"""Entry point: the `springc` command group. Each subcommand lives in its own module and calls
-one library function."""
+"""Entry point: the `springc` command group. Each subcommand lives in its own module (see
+`commands.TABLE`), is imported only when run, and calls one library function."""
 
 from __future__ import annotations
 
 import click
 
 from springc import __version__
+from springc_cli.commands import LazyGroup
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="springc")
 def main() -> None:
-    """springc: compile, check and simulate springtronic mass-spring netlists (.spr)."""
+    """springc: compile, check and simulate springtronic mass-spring netlists (.spr), and
+    train and run mass-spring keyword spotters.
 
-
-def _register() -> None:
-    """Attach the subcommands (imported here so `springc --help` lists them all)."""
-    from springc_cli import commands
-
-    for command in commands.ALL:
-        main.add_command(command)
-
-
-_register()
+    The main job end to end: `springc demo`. Help on one command: `springc COMMAND --help`."""
 
 
 if __name__ == "__main__":

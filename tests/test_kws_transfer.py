@@ -20,7 +20,6 @@ from springc.kws.evaluate import score
 from springc.kws.phi import n_features, spread
 from springc.kws.svm import LinearModel
 from springc.lang import load_text
-from springc.simulate import simulate
 
 KERNELS = Path(tempfile.gettempdir()) / "springc-test-kernels"
 S = msp.MassSpringSettings(bins=2, delays=2)
@@ -77,18 +76,17 @@ def test_classifier_netlist_passes_the_compiler(tmp_path):
 
 def test_readouts_equal_c_phi_and_score_like_the_digital_model():
     sig = words()
-    phi = msp.simulate_phi(sig, S)
+    phi = msp.phi_batch(sig, S)  # the data-set path (single precision), as evaluation runs it
     amp = float(np.median(msp.simulate_peaks(sig, S)))
     m = model(3)
     m.coef /= phi.std(axis=0)  # comparable terms, as a trained model on standardised Phi
     heads = tr.heads_for([(tuple(m.classes), m)], S, amp, 1e-6)
     net = load_text(tr.classifier_text(heads, S), "<classifier>")
-    res = simulate(net, sig[:, None, :], 16000.0, reductions=tr.readout_reductions(heads),
-                   tstop=msp.horizon(S, 0.4))
-    d = tr.decisions(res.reductions, heads)
+    reds = tr.classifier_batch(sig, net, tr.readout_reductions(heads), msp.horizon(S, 0.4))
+    d = tr.decisions(reds, heads)
     want = m.decision(phi)
     assert np.abs(d - want).max() < 0.02 * np.abs(want - m.intercept).max()
-    loss = tr.insertion_loss_db(res.reductions, heads)
+    loss = tr.insertion_loss_db(reds, heads)
     assert np.all(np.isfinite(loss)) and np.all(loss > 0)
     y = np.array(["c0", "c1", "c2"])
     got = score(tr.selection_models([(tuple(m.classes), m)]), d, y, "kws12")

@@ -337,3 +337,17 @@ def dataset_phi(clips: list, split: str, s: MassSpringSettings, *, noise_files: 
     out = map_batches(partial(phi_batch, s=s), parts, scheduler, workers=workers,
                       desc=f"mass-spring {split}", sizes=[len(p) for p in parts])
     return np.concatenate(out)
+
+
+def feature_correlation(signals: np.ndarray, s: MassSpringSettings) -> np.ndarray:
+    """Per clip and bin, the correlation of the low-pass displacement x_i(t) with the digital
+    feature of the same bin (`springc.kws.digital`), both at 1 kHz: (clips, bins)."""
+    from springc.kws.digital import FeatureSettings, features
+
+    _, x = simulate_traces(signals, s)
+    d = features(np.asarray(signals, dtype=np.float64), INPUT_RATE,
+                 FeatureSettings(bins=s.bins, delays=s.delays, fmin=s.fmin, fmax=s.fmax))
+    k = min(x.shape[-1], d.shape[-1])
+    a = x[..., :k] - x[..., :k].mean(-1, keepdims=True)
+    b = d[..., :k] - d[..., :k].mean(-1, keepdims=True)
+    return (a * b).sum(-1) / np.sqrt((a * a).sum(-1) * (b * b).sum(-1))

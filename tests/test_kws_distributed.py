@@ -52,3 +52,22 @@ def test_two_worker_cluster_equals_a_single_process_run():
 def test_worker_errors_reach_the_caller():
     with pytest.raises(SimulationError, match="diverged"):
         map_batches(_fail, [1, 2, 3], workers=2)
+
+
+def test_an_existing_scheduler_by_address_gives_the_same_results():
+    from dask.distributed import LocalCluster
+
+    parts = msp.batches(clips(4), 2)
+    fn = partial(msp.phi_batch, s=S)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                      dashboard_address=None, env={"SPRINGC_CACHE": str(KERNELS)}) as cluster:
+        remote = map_batches(fn, parts, scheduler=cluster.scheduler_address)
+    for a, b in zip(map_batches(fn, parts, workers=1), remote):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_an_unreachable_scheduler_is_a_user_error():
+    from springc.errors import UsageError
+
+    with pytest.raises(UsageError, match="cannot reach the Dask scheduler"):
+        map_batches(_fail, [1, 2], scheduler="not-an-address::")

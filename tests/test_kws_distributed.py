@@ -60,7 +60,7 @@ def test_an_existing_scheduler_by_address_gives_the_same_results():
     parts = msp.batches(clips(4), 2)
     fn = partial(msp.phi_batch, s=S)
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
-                      dashboard_address=None, env={"SPRINGC_CACHE": str(KERNELS)}) as cluster:
+                      dashboard_address=":0", env={"SPRINGC_CACHE": str(KERNELS)}) as cluster:
         remote = map_batches(fn, parts, scheduler=cluster.scheduler_address)
     for a, b in zip(map_batches(fn, parts, workers=1), remote):
         np.testing.assert_array_equal(a, b)

@@ -105,7 +105,11 @@ def select(x_train: np.ndarray, y_train: np.ndarray, x_val: np.ndarray, y_val: n
     fit = lambda c: fit_linear(x_train, y_train, c, kind)  # noqa: E731
     # one BLAS thread per fit: the grid is the parallelism, and BLAS threads spinning on a
     # busy machine cost 30x the CPU time (measured: lbfgs 11 s -> 0.3 s)
-    with threadpool_limits(1), ThreadPoolExecutor(max(1, min(jobs, len(grid)))) as pool:
+    # warning filters are process-wide: set here too, as fit_linear's own catch_warnings
+    # is not thread-safe
+    with warnings.catch_warnings(), threadpool_limits(1), \
+            ThreadPoolExecutor(max(1, min(jobs, len(grid)))) as pool:
+        warnings.simplefilter("ignore", ConvergenceWarning)
         models = list(pool.map(fit, grid))
     scores = {c: accuracy(m, x_val, y_val) for c, m in zip(grid, models)}
     best = max(range(len(grid)), key=lambda i: (scores[grid[i]], -grid[i]))

@@ -53,7 +53,7 @@ def impulse_error(method: str, lam: np.ndarray, h: float, duration: float) -> np
     inf for a mode the step makes grow."""
     lam = np.atleast_1d(np.asarray(lam, dtype=complex))
     z = lam * h
-    n = max(1, int(round(duration / h)))
+    n = max(1, round(duration / h))
     lr = log_ratio(method, z)
     out = np.zeros(len(z))
     for k in range(len(z)):

@@ -225,8 +225,8 @@ def block_arrays(net: FlatNetlist, blocks: Blocks, h: float, scheme: SplitScheme
     """The kernel's block arguments for step `h`: flattened per-block propagators E, P0, P1 of
     the partial step `scheme.half * h`, node lists and input channels, and the frozen-position
     mask `frz` of the RK part."""
-    f = lambda a: np.ascontiguousarray(np.concatenate(a) if a else np.zeros(0), dtype=dtype)  # noqa
-    i = lambda a: np.ascontiguousarray(a, dtype=np.int64)  # noqa: E731
+    f = lambda a: np.ascontiguousarray(np.concatenate(a) if a else np.zeros(0), dtype=dtype)
+    i = lambda a: np.ascontiguousarray(a, dtype=np.int64)
     es, p0s, p1s, eoff, poff = [], [], [], [0], [0]
     for a, b in zip(blocks.a, blocks.b):
         e, p0, p1 = propagator(a, b, scheme.half * h)
@@ -411,7 +411,7 @@ def _emit_stage(c: _Code, feat: codegen.Features, tab: Tableau, s: int, acc_args
     """One Runge-Kutta stage of the rest; block positions stay frozen (their flow is exact)."""
     c(f"# stage {s}: c = {tab.c[s]!r}")
     row = [j for j, a in enumerate(tab.a[s]) if a != 0.0]
-    vel = lambda j: "v" if j == 0 else f"vs{j}"  # noqa: E731
+    vel = lambda j: "v" if j == 0 else f"vs{j}"
     if s == 0:
         xs_name = "x"
     else:
@@ -434,7 +434,7 @@ def _emit_stage(c: _Code, feat: codegen.Features, tab: Tableau, s: int, acc_args
 
 
 def _emit_combine(c: _Code, tab: Tableau) -> None:
-    vel = lambda j: "v" if j == 0 else f"vs{j}"  # noqa: E731
+    vel = lambda j: "v" if j == 0 else f"vs{j}"
     xterm = " + ".join(f"hb{s} * {vel(s)}[i, b]" for s, b in enumerate(tab.b) if b != 0.0)
     vterm = " + ".join(f"hb{s} * kv{s}[i, b]" for s, b in enumerate(tab.b) if b != 0.0)
     c("for i in range(n):")
@@ -577,7 +577,7 @@ class _Lawson:
                     if a != 0.0]
 
     def args(self, stage: int | None) -> list[str]:
-        frac, terms = self.terms(stage)
+        _, terms = self.terms(stage)
         out = ["x", "v", "xo", "vo", "h"] + [f"kv{j}" for j, _, _ in terms]
         out += [f"ut{k}" for k in range(len(self.ufracs))]
         return out + [f"lw{m}_{k}" for m in self.sizes for k in ("node", "e", "p0", "p1")]
@@ -646,7 +646,7 @@ def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab:
     acc_args = ", ".join(codegen.accel_args(feat))
     blk = ", ".join(f"lw{m}_{k}" for m in lw.sizes for k in ("node", "e", "p0", "p1"))
     uts = ", ".join(f"ut{k}" for k in range(len(lw.ufracs)))
-    vel = lambda j: "v" if j == 0 else f"vs{j}"  # noqa: E731
+    vel = lambda j: "v" if j == 0 else f"vs{j}"
     c('@nb.njit(parallel=True, cache=True, error_model="numpy")')
     c(f"def run({', '.join(lawson_args(feat, opts, lw.sizes))}):")
     c.indent()

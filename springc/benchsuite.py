@@ -39,6 +39,8 @@ from springc.simulate import simulate
 REF_SUBSTEPS = 32  # reference: RK4 at 32x the input rate (error ~1e-9 on the 8 kHz band)
 DUFFING_HARD = 1.2e5  # sine amplitude driving the Duffing case to ~0.55: stiffness up 10x
 PEER_RTOL = 1e-6
+REPEATS = 3  # kernel timings: the least of up to 3 runs (the machine is shared)
+REPEAT_BUDGET = 4.0  # seconds: no further repeats once the runs of a row took this long
 
 
 @dataclass
@@ -163,16 +165,16 @@ def cases(quick: bool = False) -> list[Case]:
         Case("feature", "feature extractor (8 Mel filter pairs 0.1-8 kHz, squarers, low-pass)",
              feature_extractor(), speech_like(fe_t, rate, 2 * runs), 1 / rate, fe_t,
              _rk_configs((1, 2, 4, 8)) + [("rk4", 1, "float32")] + exp
-             + [("strang-rk4", 1, "float64")], 0.005 * scale),
+             + [("exp-rk4", 4, "float64"), ("strang-rk4", 1, "float64")], 0.005 * scale),
         Case("kws", "8x3 keyword-spotting network (564 dofs)", bn.kws_network(),
-             speech_like(kws_t, rate, runs, seed=1), 1 / rate, kws_t,
+             speech_like(kws_t, rate, 2 * runs, seed=1), 1 / rate, kws_t,
              _rk_configs((1, 2, 4)) + [("rk4", 1, "float32"), ("exp-rk4", 1, "float64"),
-                                       ("exp-rk4", 2, "float64")], 0.01 * scale,
+                                       ("exp-rk4", 2, "float64")], 0.03 * scale,
              peers=("DOP853", "RK45", "numpy-rk4")),
         Case("delay", "long delay line (200 sites)", line,
              speech_like(line.tran.tstop, 1 / line.tran.tstep, runs, seed=2), line.tran.tstep,
              line.tran.tstop * (0.25 if quick else 1.0), _rk_configs((1, 2, 4)),
-             line.tran.tstop * 0.25),
+             line.tran.tstop * (0.25 if quick else 0.75)),
         Case("stiff", "stiff all-to-all block (24 masses, constraint springs 2e8)",
              stiff_block(), speech_like(0.25 * scale, rate, runs, seed=3), 1 / rate,
              0.25 * scale, _rk_configs((1, 2, 4)), 0.02 * scale),
@@ -234,14 +236,26 @@ def _kernel_row(case: Case, ref, method: str, sub: int, precision: str, runs: in
                     precision=precision)
     compile_s = float(warm.info["compile_s"] or 0.0)
     try:
-        out = _sim(case, case.inputs, method, sub, precision)
+        out, wall = _timed(lambda: _sim(case, case.inputs, method, sub, precision))
     except SimulationError as err:
         return Row(f"kernel {method}", method, sub, precision, {}, math.nan, compile_s, 0.0,
                    0.0, note=f"stopped by the divergence guard: {err.message}")
-    wall = float(out.info["wall_s"])
     errors = _errors({k: v[0] for k, v in out.probes.items()}, out.t, ref, case.tstop)
     return Row(f"kernel {method}", method, sub, precision, errors, wall, compile_s,
                runs * case.tstop, runs * case.tstop / wall)
+
+
+def _timed(call: Callable[[], object]) -> tuple[object, float]:
+    """The result and the least wall time of up to `REPEATS` calls (while the calls so far
+    took under `REPEAT_BUDGET` seconds): the machine is shared, the minimum is the kernel's."""
+    best, spent, out = math.inf, 0.0, None
+    for _ in range(REPEATS):
+        out = call()
+        wall = float(out.info["wall_s"])
+        best, spent = min(best, wall), spent + wall
+        if spent > REPEAT_BUDGET:
+            break
+    return out, best
 
 
 def _peer_row(case: Case, ref, peer: str) -> Row | None:
@@ -332,15 +346,17 @@ def claims(results: list[CaseResult]) -> dict:
     out: dict = {}
     fe = next((r for r in results if r.name == "feature"), None)
     if fe is not None:
-        base = _find(fe, "rk4", 1, "float64")
         ok = [r for r in fe.rows if r.name.startswith("kernel") and r.errors
               and r.max_error <= 1e-3]
-        best = min(ok, key=lambda r: r.wall_s, default=None)
-        out["feature_1e-3"] = {
-            "rk4_x1_error": base.max_error if base else None,
-            "cheapest": _label(best) if best else None,
-            "cheapest_error": best.max_error if best else None,
-            "wall_ratio_to_rk4_x1": best.wall_s / base.wall_s if best and base else None}
+        for precision in ("float64", "float32"):
+            base = _find(fe, "rk4", 1, precision)
+            mine = [r for r in ok if r.precision == precision]
+            best = min(mine, key=lambda r: r.wall_s, default=None)
+            out[f"feature_1e-3_{precision}"] = {
+                "rk4_x1_error": base.max_error if base else None,
+                "cheapest": _label(best) if best else None,
+                "cheapest_error": best.max_error if best else None,
+                "wall_ratio_to_rk4_x1": best.wall_s / base.wall_s if best and base else None}
     out["ceiling_fraction"] = {
         r.name: {p: (_find(r, "rk4", 1, p).ceiling_fraction if _find(r, "rk4", 1, p) else None)
                  for p in ("float64", "float32")} for r in results}
@@ -409,9 +425,14 @@ def markdown(results: list[CaseResult], found: dict, machine: dict) -> str:
              (f"Machine: {machine.get('cpus')} CPU(s) available, load average "
               f"{machine.get('load')} at the start, {machine.get('when')}."), "",
              ("Error: relative L2 error of each probe (run 0) against RK4 at "
-              f"{REF_SUBSTEPS}x the input rate; the table shows the worst probe. Throughput: "
-              "run-seconds per wall-second (batch of runs in lockstep). Ceiling: the measured "
-              "arithmetic ceiling (`springc.ceiling`) at the row's step, same precision."), ""]
+              f"{REF_SUBSTEPS}x the input rate, over the whole run for the kernels and over "
+              "the peers' shorter stretch for the peers; the table shows the worst probe "
+              "(all probes in bench.json). Wall: the least of up to 3 runs. Compile: the "
+              "first call's time (a load from numba's cache when the kernel was built "
+              "before). Throughput: run-seconds per wall-second (the batch of runs in "
+              "lockstep). Ceiling: the measured arithmetic ceiling (`springc.ceiling`) for "
+              "the network's size and batch at the row's step, same precision, rated with "
+              "the RK4 flop count."), ""]
     lines += _claims_md(found)
     for r in results:
         lines += [f"## {r.name}: {r.title}", "",
@@ -436,13 +457,15 @@ def markdown(results: list[CaseResult], found: dict, machine: dict) -> str:
 
 def _claims_md(found: dict) -> list[str]:
     lines = ["## The issue's figures (measured in this run)", ""]
-    fe = found.get("feature_1e-3")
-    if fe:
-        lines.append(f"- Feature extractor: RK4 at 32 kHz has worst probe error "
-                     f"{_fmt(fe['rk4_x1_error'])}; the cheapest configuration with every probe "
-                     f"within 1e-3 is **{fe['cheapest']}** (worst {_fmt(fe['cheapest_error'])}) "
-                     f"at **{_fmt(fe['wall_ratio_to_rk4_x1'], '.2f')}x** the wall time of RK4 "
-                     "at 32 kHz (target: at most 1.5x).")
+    for precision in ("float64", "float32"):
+        fe = found.get(f"feature_1e-3_{precision}")
+        if fe:
+            lines.append(
+                f"- Feature extractor, {precision}: RK4 at 32 kHz has worst probe error "
+                f"{_fmt(fe['rk4_x1_error'])}; the cheapest configuration with every probe "
+                f"within 1e-3 is **{fe['cheapest']}** (worst {_fmt(fe['cheapest_error'])}) at "
+                f"**{_fmt(fe['wall_ratio_to_rk4_x1'], '.2f')}x** the wall time of RK4 at "
+                "32 kHz in the same precision (target: at most 1.5x).")
     for name, fr in found["ceiling_fraction"].items():
         parts = [f"{p} {_fmt(100 * v, '.0f')}%" for p, v in fr.items() if v]
         if parts:

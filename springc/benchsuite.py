@@ -41,7 +41,9 @@ REF_SUBSTEPS = 64  # reference: RK4 at 64x and 32x the input rate, Richardson-ex
 DUFFING_HARD = 1.2e5  # sine amplitude driving the Duffing case to ~0.55: stiffness up 10x
 PEER_RTOL = 1e-6
 REPEATS = 3  # kernel timings: the least of up to 3 runs (the machine is shared)
-REPEAT_BUDGET = 4.0  # seconds: no further repeats once the runs of a row took this long
+REPEAT_BUDGET = 8.0  # seconds: no further repeats once the runs of a row took this long
+PAIRED_ROUNDS = 5  # rounds of alternating re-timing of a case's `paired` rows
+CEILING_TRIES = 3  # the ceiling is a best case: the most of 3 measurements
 
 
 @dataclass
@@ -57,6 +59,7 @@ class Case:
     configs: list[tuple[str, int, str]]  # (method, substeps, precision)
     peer_tstop: float  # stretch of run 0 the peers simulate
     peers: tuple[str, ...] = ("DOP853", "RK45", "numpy-rk4", "ngspice")
+    paired: tuple[tuple[str, int, str], ...] = ()  # rows re-timed in alternation (fair ratios)
 
 
 @dataclass
@@ -164,10 +167,13 @@ def cases(quick: bool = False) -> list[Case]:
     duff = bn.duffing_resonator(amp=DUFFING_HARD)
     out = [
         Case("feature", "feature extractor (8 Mel filter pairs 0.1-8 kHz, squarers, low-pass)",
-             feature_extractor(), speech_like(fe_t, rate, 2 * runs), 1 / rate, fe_t,
+             # 64 runs: two chunks of 32 lanes (simulate's DEFAULT_CHUNK), as in production
+             feature_extractor(), speech_like(fe_t, rate, 4 * runs), 1 / rate, fe_t,
              _rk_configs((1, 2, 4, 8)) + [("rk4", 1, "float32")] + exp
              + [("exp-rk4", 4, "float64"), ("exp-rk4", 8, "float64"),
-                ("strang-rk4", 1, "float64")], 0.005 * scale),
+                ("strang-rk4", 1, "float64")], 0.005 * scale,
+             paired=(("rk4", 1, "float64"), ("exp-rk4", 1, "float64"), ("exp-rk4", 2, "float64"),
+                     ("rk4", 1, "float32"), ("exp-rk4", 1, "float32"))),
         Case("kws", "8x3 keyword-spotting network (564 dofs)", bn.kws_network(),
              speech_like(kws_t, rate, 2 * runs, seed=1), 1 / rate, kws_t,
              _rk_configs((1, 2, 4)) + [("rk4", 1, "float32"), ("exp-rk4", 1, "float64"),
@@ -199,6 +205,9 @@ def run_case(case: Case, progress: Callable[[str], None] = print) -> CaseResult:
             continue
         progress(f"[{case.name}] {method} x{sub} {precision}")
         res.rows.append(_kernel_row(case, ref, method, sub, precision, runs))
+    if case.paired:
+        progress(f"[{case.name}] re-timing {len(case.paired)} rows in alternation")
+        _retime_paired(case, res.rows, runs)
     for peer in case.peers:
         progress(f"[{case.name}] peer {peer}")
         row = _peer_row(case, ref, peer)
@@ -256,6 +265,19 @@ def _kernel_row(case: Case, ref, method: str, sub: int, precision: str, runs: in
     errors = _errors({k: v[0] for k, v in out.probes.items()}, out.t, ref, case.tstop)
     return Row(f"kernel {method}", method, sub, precision, errors, wall, compile_s,
                runs * case.tstop, runs * case.tstop / wall)
+
+
+def _retime_paired(case: Case, rows: list[Row], runs: int) -> None:
+    """Time the `paired` rows in turn, `PAIRED_ROUNDS` times, keeping each row's least wall
+    time: on a shared machine a load burst then hits every row alike, not just one."""
+    chosen = [r for r in rows for m, s, p in case.paired
+              if r.name == f"kernel {m}" and (r.substeps, r.precision) == (s, p) and r.errors]
+    for _ in range(PAIRED_ROUNDS):
+        for row in chosen:
+            out = _sim(case, case.inputs, row.method, row.substeps, row.precision)
+            row.wall_s = min(row.wall_s, float(out.info["wall_s"]))
+            row.throughput = runs * case.tstop / row.wall_s
+            row.note = f"least of {PAIRED_ROUNDS} alternating re-timings"
 
 
 def _timed(call: Callable[[], object]) -> tuple[object, float]:
@@ -323,9 +345,10 @@ def _ceilings(case: Case, runs: int) -> dict[str, float]:
     flops = ceiling.rk4_flops_per_dof_step(case.net)
     out = {}
     for precision in sorted({p for _, _, p in case.configs}):
-        got = ceiling.measure_ceiling(case.net.n, runs, precision, threads=_threads(),
-                                      flops_per_step=flops, rate=1.0 / case.tstep)
-        out[precision] = float(got["run_seconds_per_wall_second"])
+        out[precision] = max(
+            float(ceiling.measure_ceiling(case.net.n, runs, precision, threads=_threads(),
+                                          flops_per_step=flops, rate=1.0 / case.tstep)
+                  ["run_seconds_per_wall_second"]) for _ in range(CEILING_TRIES))
     return out
 
 

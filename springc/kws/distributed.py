@@ -67,7 +67,7 @@ def _client(scheduler: str | None, workers: int):
     if cache:
         env["SPRINGC_CACHE"] = cache
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                           dashboard_address=":0", silence_logs=40, env=env)
+                           dashboard_address=":0", silence_logs=50, env=env)
     return _OwnedClient(Client(cluster), cluster)
 
 

@@ -3,7 +3,8 @@
     python scripts/bench_frontend.py [--elements 10000] [--repeat 3]
 
 The netlist is a long chain (mass, spring and coupling per site, values as expressions) plus
-a dense all-to-all block of couplings; parse and elaborate are timed separately (best of
+a dense all-to-all block of couplings; parse, elaborate and check (the physics checks of
+`springc build`: signs, massless nodes, whole potential, time step) are timed separately (best of
 `--repeat` runs) and printed with the element count: wall-clock time and the process's CPU
 time (the machine is shared, so CPU time is the steadier figure when others are busy).
 """
@@ -14,6 +15,7 @@ import argparse
 import math
 import time
 
+from springc.checks import check
 from springc.lang import elaborate, parse
 
 
@@ -39,18 +41,20 @@ def generate(elements: int) -> str:
 
 
 def main() -> None:
-    """Generate, then time parse and elaborate."""
+    """Generate, then time parse, elaborate and check."""
     cli = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     cli.add_argument("--elements", type=int, default=10_000)
     cli.add_argument("--repeat", type=int, default=3)
     args = cli.parse_args()
     text = generate(args.elements)
-    best = {"parse": [math.inf, math.inf], "elaborate": [math.inf, math.inf]}
+    best = {stage: [math.inf, math.inf] for stage in ("parse", "elaborate", "check")}
     for _ in range(args.repeat):
         tree, wall, cpu = _timed(parse, text, "<bench>")
         best["parse"] = [min(best["parse"][0], wall), min(best["parse"][1], cpu)]
         net, wall, cpu = _timed(elaborate, tree)
         best["elaborate"] = [min(best["elaborate"][0], wall), min(best["elaborate"][1], cpu)]
+        _, wall, cpu = _timed(check, net)
+        best["check"] = [min(best["check"][0], wall), min(best["check"][1], cpu)]
     count = sum(net.element_counts().values())
     print(f"elements {count}, nodes {net.n}, lines {text.count(chr(10))}, bytes {len(text)}")
     print(f"{'':10s} {'wall ms':>9s} {'cpu ms':>9s}   (best of {args.repeat})")

@@ -29,6 +29,10 @@ from springc.ir import GROUND, FlatNetlist
 DENSE_MAX = 300  # largest component solved with dense eigensolvers
 ZERO_TOL = 1e-6  # |lambda| below this fraction of a component's largest counts as zero
 SPARSE_MODES = 6  # fastest modes computed per large component
+# ARPACK's convergence tolerance for those: machine precision (its default) costs twice the
+# iterations on the clustered top of a long chain's spectrum for no change in the step limit
+# (1e-10 and 0 agree to 1e-16 on the 10,000-element benchmark)
+ARPACK_TOL = 1e-10
 
 
 @dataclass
@@ -355,7 +359,7 @@ def _top_eigs(mat: sp.csc_matrix) -> tuple[np.ndarray, np.ndarray]:
     if bound == 0.0:
         return np.zeros(0), np.zeros((n, 0))
     k = min(SPARSE_MODES, n - 1)
-    return sla.eigsh(mat, k=k, sigma=bound * (1 + 1e-6), which="LM")
+    return sla.eigsh(mat, k=k, sigma=bound * (1 + 1e-6), which="LM", tol=ARPACK_TOL)
 
 
 def _top_damping_vectors(bt: sp.csc_matrix) -> np.ndarray:
@@ -382,7 +386,7 @@ def _sparse_zero_modes(net, kt, nodes, m, kvals, raw: _Raw) -> tuple[np.ndarray,
         raw.zero.append(ZeroModes(n, names))
         return np.zeros(0), np.zeros((n, 0))
     k = min(SPARSE_MODES, n - 1)
-    low, vecs = sla.eigsh(kt, k=k, sigma=-ZERO_TOL * scale, which="LM")
+    low, vecs = sla.eigsh(kt, k=k, sigma=-ZERO_TOL * scale, which="LM", tol=ARPACK_TOL)
     zero = np.abs(low) <= ZERO_TOL**2 * scale
     _record_zero(net, nodes, np.where(zero, 0.0, scale), vecs / np.sqrt(m)[:, None], raw,
                  at_least=bool(zero.all()))

@@ -41,7 +41,7 @@ _SCHEDULER = click.option("--scheduler", default=None, metavar="ADDRESS",
               help="Mass-spring: squaring error of the classifier heads [default: 1e-5].")
 @click.option("--threshold", type=float, default=None,
               help="Mass-spring: compression threshold A_c (m) of the feature squarers "
-                   "[default: 0.01]; smaller compresses more.")
+                   "[default: 0.001]; smaller compresses more.")
 @_SCHEDULER
 @run_user_errors
 def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, tau, fc,

@@ -115,12 +115,13 @@ def test_simulated_phi_and_features_match_recorded_and_digital():
     net = msp.feature_network(s)
     sig = np.stack([word(), word(f0=2500.0, f1=300.0, amp=0.6)])
     probes = [f"x({t})" for t in msp.terminals(s)] + [f"x(lp{i})" for i in range(s.bins)]
+    rate = msp.INPUT_RATE * msp.SUBSTEPS  # record every integration step
     res = simulate(net, sig[:, None, :], 16000.0, reductions=[msp.phi_reduction(net, s)],
-                   probes=probes, outrate=32000.0, tstop=msp.horizon(s, 0.4))
+                   probes=probes, outrate=rate, tstop=msp.horizon(s, 0.4))
     x = np.stack([res.probes[p] for p in probes[:4]], axis=1)
-    want = phi_of_recorded(x, 1 / 32000, s.tau, s.bins, s.delays)
+    want = phi_of_recorded(x, 1 / rate, s.tau, s.bins, s.delays)
     np.testing.assert_allclose(res.reductions["phi"], want, rtol=1e-10)
-    lp = np.stack([res.probes[p][:, ::32] for p in probes[4:]], axis=1)  # 1 kHz
+    lp = np.stack([res.probes[p][:, :: int(rate / 1000)] for p in probes[4:]], axis=1)  # 1 kHz
     d = features(sig, 16000, FeatureSettings(bins=2, delays=2))
     k = min(lp.shape[-1], d.shape[-1])
     for c in range(2):

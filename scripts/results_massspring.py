@@ -147,7 +147,8 @@ def page(data: Path, sizes: list[dict], pairs: dict, eps: list[dict], comp: list
         "feature extraction (two-mode Mel filters, quadratic couplings into critically damped "
         "50 Hz low-pass masses, delay lines with reflection-free terminals) feeding every "
         "class head (mvm encoding Q, quadratic couplings carrying lambda, readout tau = 80 s) "
-        "in one netlist (`classifier.spr` in each model folder), RK4 at 32 kHz. Decisions: "
+        "in one netlist (`classifier.spr` in each model folder), RK4 at "
+        f"{msp.INPUT_RATE * msp.SUBSTEPS / 1000:g} kHz. Decisions: "
         "readout / design scale + intercept; no parameter is fitted on test data.",
         "",
         "Columns: *digital* is the paper's architecture evaluated numerically "
@@ -200,7 +201,8 @@ def page(data: Path, sizes: list[dict], pairs: dict, eps: list[dict], comp: list
         f"The {sizes[-1]['bins']} x {sizes[-1]['delays']} classifier network "
         f"({sizes[-1]['network']['n']} test clips): "
         f"{net8['clips_per_s']:.2f} clips/s on {net8['cores']} cores (Dask local cluster, "
-        f"float32 RK4, 32 kHz, including the numba compile). Whole script: {seconds / 60:.1f} "
+        f"float32 RK4 at {msp.INPUT_RATE * msp.SUBSTEPS / 1000:g} kHz, including the numba "
+        f"compile). Whole script: {seconds / 60:.1f} "
         "min.",
         "",
         "## Network parameters (defaults)",

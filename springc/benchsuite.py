@@ -42,7 +42,7 @@ DUFFING_HARD = 1.2e5  # sine amplitude driving the Duffing case to ~0.55: stiffn
 PEER_RTOL = 1e-6
 REPEATS = 3  # kernel timings: the least of up to 3 runs (the machine is shared)
 REPEAT_BUDGET = 8.0  # seconds: no further repeats once the runs of a row took this long
-PAIRED_ROUNDS = 5  # rounds of alternating re-timing of a case's `paired` rows
+PAIRED_ROUNDS = 15  # rounds of alternating re-timing of a case's `paired` rows (load bursts)
 CEILING_TRIES = 3  # the ceiling is a best case: the most of 3 measurements
 
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-
 from springc_cli.common import run_user_errors
 
 CASE_NAMES = ("feature", "kws", "delay", "stiff", "duffing")
@@ -42,7 +41,7 @@ def bench_cmd(case_names, outdir, quick, issue3, seconds, batch, stretch, json_p
         return
     from springc import benchsuite
 
-    say = lambda m: click.echo(m, err=True)  # noqa: E731
+    say = lambda m: click.echo(m, err=True)
     machine = benchsuite.machine_info()
     results = benchsuite.run_suite(list(case_names) or None, quick=quick, progress=say)
     paths = benchsuite.write_report(results, Path(outdir), machine)

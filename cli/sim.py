@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import click
-
 from springc_cli.common import plot_option, precision_option, run_user_errors
+
 from springc.expint import SCHEMES
 from springc.integrators import TABLEAUX
 

@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from springc_cli.main import main as cli
 
 from springc import accuracy, benchsuite
 from springc.errors import UsageError
 from springc.ir import IRBuilder, Tran
 from springc.simulate import simulate
-from springc_cli.main import main as cli
 
 TWOMODE = "netlists/examples/twomode_filter.spr"
 

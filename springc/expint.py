@@ -27,6 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
+import scipy.linalg
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
@@ -192,6 +193,10 @@ def expm_small(m: np.ndarray) -> np.ndarray:
     (after scaling the 1-norm is at most 1/2, where the series' truncation is below 1e-25).
     Used instead of scipy's Pade code, whose LAPACK calls cost ~10 ms each on a busy
     machine for these 6x6 to 12x12 matrices."""
+    # balance first (diagonal similarity): the filters' omega^2 against 1 in [x; v] would
+    # otherwise cost ~16 squarings and 1e-12 per step; balanced, omega h needs one or two
+    _, (scale, _) = scipy.linalg.matrix_balance(m, permute=False, separate=True)
+    m = m / scale[:, None] * scale[None, :]
     norm = float(np.abs(m).sum(axis=0).max())
     squarings = max(0, int(np.ceil(np.log2(norm))) + 1) if norm > 0 else 0
     x = m / 2.0**squarings
@@ -202,7 +207,7 @@ def expm_small(m: np.ndarray) -> np.ndarray:
         out = out + term
     for _ in range(squarings):
         out = out @ out
-    return out
+    return out * scale[:, None] / scale[None, :]
 
 
 def split_netlist(net: FlatNetlist, blocks: Blocks) -> FlatNetlist:

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import click
 from springc_cli.common import run_user_errors
+
+from springc.design.emit import write_atomic
 
 
 @click.command("build")
@@ -25,20 +25,8 @@ def build_cmd(netlist: str, as_json: bool, emit_kernel: str | None, method: str 
 
     report = compiler.build(netlist, method=method)
     if emit_kernel:
-        _write(Path(emit_kernel), compiler.kernel_source(report))
+        write_atomic(Path(emit_kernel), compiler.kernel_source(report))
     click.echo(json.dumps(report.to_json()) if as_json else report.summary())
-
-
-def _write(path: Path, text: str) -> None:
-    """Atomically: a temp file beside `path`, then rename."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 COMMANDS = [build_cmd]

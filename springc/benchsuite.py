@@ -33,6 +33,7 @@ import numpy as np
 
 from springc import bench_networks as bn
 from springc import ceiling, expint
+from springc.design.emit import write_atomic
 from springc.errors import SimulationError
 from springc.ir import FlatNetlist, IRBuilder, Source, Tran
 from springc.simulate import simulate
@@ -417,8 +418,8 @@ def write_report(results: list[CaseResult], outdir: Path, machine: dict) -> dict
     data = {"machine": machine, "claims": claims(results),
             "cases": [_case_json(r) for r in results]}
     paths = {"json": outdir / "bench.json", "md": outdir / "bench.md"}
-    _atomic(paths["json"], json.dumps(data, indent=1, default=_json_default))
-    _atomic(paths["md"], markdown(results, data["claims"], machine))
+    write_atomic(paths["json"], json.dumps(data, indent=1, default=_json_default))
+    write_atomic(paths["md"], markdown(results, data["claims"], machine))
     for r in results:
         paths[r.name] = outdir / f"{r.name}.png"
         plot(r, paths[r.name])
@@ -436,17 +437,6 @@ def _case_json(r: CaseResult) -> dict:
     for row, src in zip(d["rows"], r.rows):
         row["max_error"] = src.max_error
     return d
-
-
-def _atomic(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _fmt(v: float | None, spec: str = ".3g") -> str:

@@ -9,6 +9,7 @@ import click
 from springc_cli.common import run_user_errors
 
 from springc.design.emit import write_atomic
+from springc.lang.options import known_methods
 
 
 @click.command("build")
@@ -17,7 +18,10 @@ from springc.design.emit import write_atomic
 @click.option("--emit-kernel", type=click.Path(dir_okay=False), default=None,
               help="Also write the generated kernel source to this file.")
 @click.option("--method", default=None,
-              help="Integrator (overrides .options method=): rk4, rk38, ssprk3, heun3, midpoint.")
+              help="Integrator (overrides .options method=): "
+                   f"{', '.join(known_methods())}. The split schemes (strang-rk4, exp-rk4) "
+                   "integrate the driven linear filter blocks exactly: only the rest limits "
+                   "the step.")
 @run_user_errors
 def build_cmd(netlist: str, as_json: bool, emit_kernel: str | None, method: str | None) -> None:
     """Parse, elaborate and check NETLIST; print dofs, elements, fastest mode and dt_max."""

@@ -2,7 +2,8 @@
 
 Passes, in order: element signs, nodes without mass, the whole potential (only components
 with `P` elements can violate it: every other element is non-negative on its own), and the
-time step of the configured integrator against the linearisation at rest. Each finding is a
+time step of the configured integrator against the linearisation at rest (for a splitting
+scheme of `springc.expint`: of what its Runge-Kutta part integrates). Each finding is a
 `Diagnostic` at the element's source location with a hint; later passes run only when the
 earlier ones found no error (they need positive masses and a sound potential).
 """
@@ -10,17 +11,18 @@ earlier ones found no error (they need positive masses and a sound potential).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 from scipy.optimize import minimize
 
-from springc import linear
+from springc import expint, linear
 from springc.errors import CheckError, Diagnostic, SourceLoc
-from springc.integrators import DEFAULT_METHOD, TABLEAUX
+from springc.integrators import DEFAULT_METHOD
 from springc.ir import FlatNetlist
+from springc.lang.options import OptionValueError, known_methods, method_name
 
 
 @dataclass
@@ -32,6 +34,7 @@ class CheckResult:
     step: linear.StepLimit | None = None
     method: str = DEFAULT_METHOD
     tstep: float | None = None  # effective step: .tran tstep / substeps
+    blocks: expint.Blocks | None = None  # what a splitting scheme integrates exactly
 
     @property
     def errors(self) -> list[Diagnostic]:
@@ -445,12 +448,14 @@ def _mul(a: dict[int, int], b: dict[int, int]) -> dict[int, int]:
 # --- time step -------------------------------------------------------------------------
 
 def _method(net: FlatNetlist, method: str | None) -> tuple[str, list[Diagnostic]]:
-    name = str(method or net.options.get("method", DEFAULT_METHOD)).lower()
-    if name in TABLEAUX:
-        return name, []
-    loc = None if method else net.option_locs.get("method")
-    msg = f"unknown integrator '{name}'"
-    return DEFAULT_METHOD, [Diagnostic("error", msg, loc, f"known: {', '.join(TABLEAUX)}")]
+    raw = method or net.options.get("method", DEFAULT_METHOD)
+    try:
+        return method_name(raw), []
+    except OptionValueError:
+        loc = None if method else net.option_locs.get("method")
+        msg = f"unknown integrator '{str(raw).lower()}'"
+        return DEFAULT_METHOD, [Diagnostic("error", msg, loc,
+                                           f"known: {', '.join(known_methods())}")]
 
 
 def _substeps(net: FlatNetlist) -> tuple[int, list[Diagnostic]]:
@@ -473,12 +478,36 @@ def time_step(net: FlatNetlist, method: str | None = None) -> CheckResult:
     substeps, more = _substeps(net)
     diags += more
     found = linear.modes(net)
-    step = linear.step_limit(found, name)
+    blocks = expint.find_blocks(net) if expint.is_split(name) else None
+    step = step_limit(net, name, found, blocks)
     diags += [_zero_info(net, z) for z in found.zero_modes]
     h = net.tran.tstep / substeps if net.tran else None
     if h is not None and not h <= step.dt * (1 + 1e-9):
         diags.append(_unstable(net, name, h, substeps, step))
-    return CheckResult(diags, found, step, name, h)
+    return CheckResult(diags, found, step, name, h, blocks)
+
+
+def step_limit(net: FlatNetlist, method: str, found: linear.Modes | None = None,
+               blocks: expint.Blocks | None = None) -> linear.StepLimit:
+    """Largest stable step of `method` and the mode that sets it. A Runge-Kutta tableau: over
+    every mode of the linearisation (`found`, computed if not given). A splitting scheme
+    (`expint`): its blocks (`expint.find_blocks`, found if not given) are integrated exactly
+    and impose no limit; the limit is the inner tableau's over the modes of the rest, the
+    linearised `expint.split_netlist`."""
+    if not expint.is_split(method):
+        return linear.step_limit(found if found is not None else linear.modes(net), method)
+    # The split netlist, not the full linearisation with the block modes removed: that is the
+    # operator the Runge-Kutta part integrates. A block meets the rest only through Q elements
+    # (a coupling or dashpot would have made the rest part of it). At rest a Q whose j node
+    # lies in a block puts a stiffness g a on it that the Runge-Kutta part integrates, which
+    # the full linearisation would fold into a block mode and call exact; and a Q joins a
+    # block and the rest into one component whose modes mix, so removing "block modes" would
+    # need a guess from the mode shapes. On the split netlist the block nodes keep their mass
+    # and only what the Runge-Kutta part applies to them (free masses limit nothing); Strang
+    # freezes their positions in that part, so for it such a g a mode is an estimate.
+    scheme = expint.SCHEMES[method]
+    rest = expint.split_netlist(net, blocks if blocks is not None else expint.find_blocks(net))
+    return replace(linear.step_limit(linear.modes(rest), scheme.inner), method=method)
 
 
 def _zero_info(net: FlatNetlist, zero: linear.ZeroModes) -> Diagnostic:

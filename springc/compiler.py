@@ -39,6 +39,8 @@ class BuildReport:
     zero_modes: int
     modes_complete: bool
     notes: list[Diagnostic] = field(default_factory=list)
+    exact_blocks: list[list[str]] = field(default_factory=list)  # nodes of each block a split
+    # scheme integrates exactly (matrix exponential); they impose no step limit
     mode_errors: list[accuracy.ModeError] = field(default_factory=list)  # worst first
     net: FlatNetlist | None = field(default=None, repr=False)  # what was built
 
@@ -66,6 +68,7 @@ class BuildReport:
             "substeps": self.substeps,
             "zero_modes": self.zero_modes,
             "modes_complete": self.modes_complete,
+            "exact_blocks": [list(b) for b in self.exact_blocks],
             "mode_errors": [m.to_json() for m in self.mode_errors],
             "diagnostics": [{"severity": d.severity, "message": d.message,
                              "loc": str(d.loc) if d.loc else None} for d in self.notes],
@@ -79,9 +82,12 @@ class BuildReport:
                  f"  elements    {counts}",
                  f"  instances   {self.instances}" + _by_subckt(self.instances_by_subckt),
                  f"  omega_max   {self.omega_max:.6g} rad/s ({self.f_max_hz:.6g} Hz)",
-                 f"  fastest     {self.fastest_mode or '-'}",
+                 f"  {self._limiting_label()} {self.fastest_mode or '-'}",
                  f"  dt_max      {_seconds(self.dt_max)} ({self.method})",
                  f"  step        {_step(self)}"]
+        if self.exact_blocks:
+            lines.append(f"  exact       {len(self.exact_blocks)} block(s) by matrix "
+                         f"exponential: {_blocks(self.exact_blocks)}")
         if self.zero_modes:
             lines.append(f"  zero modes  {self.zero_modes}")
         if self.mode_errors:
@@ -89,6 +95,17 @@ class BuildReport:
                          ".tran tstop, relative L2 of the impulse response):")
             lines += [f"    {m.describe()}" for m in self.mode_errors]
         return "\n".join(lines + [d.format() for d in self.notes])
+
+
+    def _limiting_label(self) -> str:
+        # a split scheme's step is set by the fastest mode it does not integrate exactly
+        return "limiting   " if self.exact_blocks else "fastest    "
+
+
+def _blocks(blocks: list[list[str]], count: int = 4) -> str:
+    """'(xa, xb), (xc, xd), ... 12 more' for people."""
+    shown = ", ".join("(" + ", ".join(b) + ")" for b in blocks[:count])
+    return shown + (f", ... {len(blocks) - count} more" if len(blocks) > count else "")
 
 
 def _by_subckt(counts: dict[str, int]) -> str:
@@ -137,6 +154,8 @@ def report_for(net: FlatNetlist, method: str | None = None) -> BuildReport:
         modes_complete=found.complete,
         notes=result.notes,
         mode_errors=_mode_errors(net, result),
+        exact_blocks=[[net.nodes[i] for i in nodes] for nodes in result.blocks.nodes]
+        if result.blocks is not None else [],
         net=net,
     )
 
@@ -156,7 +175,11 @@ def _mode_errors(net: FlatNetlist, result: checks.CheckResult) -> list[accuracy.
 def kernel_source(report: BuildReport) -> str:
     """The generated simulation kernel of a built netlist, for its configured method and
     precision (`springc build --emit-kernel`)."""
-    from springc.codegen import KernelOptions, generate  # code generation only when asked
+    from springc import expint  # code generation only when asked
+    from springc.codegen import KernelOptions, generate
 
     precision = str(report.net.options.get("precision", "float64"))
-    return generate(report.net, KernelOptions(method=report.method, precision=precision))
+    opts = KernelOptions(method=report.method, precision=precision)
+    if expint.is_split(report.method):
+        return expint.kernel_source(report.net, opts)
+    return generate(report.net, opts)

@@ -27,11 +27,27 @@ class OptionSpec:
     convert: Callable[[object], object]
 
 
-def _method(raw: object) -> str:
+def known_methods() -> list[str]:
+    """Every integrator name: the Runge-Kutta tableaux, then the splitting schemes."""
+    # imported here: expint pulls in scipy.linalg, which parsing a netlist does not need
+    from springc.expint import SCHEMES
+
+    return [*TABLEAUX, *SCHEMES]
+
+
+def method_name(raw: object) -> str:
+    """The canonical name of an integrator (`exp_rk4`, `EXP-RK4` -> `exp-rk4`), or
+    `OptionValueError` listing every known one. The split schemes are spelt with '-' on the
+    command line, but a bare word in a netlist is a name (spec: `[A-Za-z_][A-Za-z0-9_]*`), so
+    `.options` takes `method=exp_rk4` or the quoted `method="exp-rk4"`."""
     name = str(raw).lower()
-    if name not in TABLEAUX:
-        raise OptionValueError(f"unknown integration method '{raw}'; known: "
-                               f"{', '.join(TABLEAUX)}")
+    known = known_methods()
+    if name not in known and name.replace("_", "-") in known:
+        name = name.replace("_", "-")
+    if name not in known:
+        spelt = ", ".join(m.replace("-", "_") for m in known if "-" in m)
+        raise OptionValueError(f"unknown integration method '{raw}'; known: {', '.join(known)} "
+                               f"(write {spelt} or quote the name in .options)")
     return name
 
 
@@ -59,8 +75,9 @@ def _outrate(raw: object) -> float:
 KNOWN_OPTIONS: dict[str, OptionSpec] = {
     spec.name: spec
     for spec in (
-        OptionSpec("method", True, "integrator, a name in integrators.TABLEAUX (default rk4)",
-                   _method),
+        OptionSpec("method", True, "integrator (default rk4): a tableau of integrators.TABLEAUX "
+                   "or a split scheme of expint.SCHEMES, written exp_rk4 or \"exp-rk4\"",
+                   method_name),
         OptionSpec("substeps", False, "integration steps per .tran step (integer >= 1)",
                    _substeps),
         OptionSpec("precision", True, "float32 or float64", _precision),

@@ -1,5 +1,6 @@
 """Linear SVM training: raw-space weights reproduce the decision; C chosen on validation;
-the delays of the architecture carry temporal order (chirp direction)."""
+balanced class weights undo a 90/10 imbalance (and are sklearn's sample weights); the delays
+of the architecture carry temporal order (chirp direction)."""
 
 from __future__ import annotations
 
@@ -100,3 +101,58 @@ def test_delays_tell_rising_from_falling_chirps_and_the_readout_is_physical():
 def test_linear_model_predicts_by_argmax():
     m = LinearModel(np.eye(3), np.zeros(3), np.array(["a", "b", "c"]))
     assert list(m.predict(np.array([[0, 2, 1], [5, 0, 0]]))) == ["b", "a"]
+
+
+def _imbalanced(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """90/10: 900 'major' at N(0, I), 100 'minor' at N((2, 0), I) in the plane."""
+    rng = np.random.default_rng(seed)
+    x = np.concatenate([rng.normal(size=(900, 2)), rng.normal(size=(100, 2)) + [2.0, 0.0]])
+    return x, np.array(["major"] * 900 + ["minor"] * 100)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_balanced_class_weights_stop_the_majority_from_winning(seed):
+    """Unweighted, the squared hinge puts the boundary past the minority's own centre (2, 0),
+    which it then calls 'major'; weighted by n / (2 n_class), the boundary moves to about
+    the midpoint (x = 1) and the centre is 'minor'."""
+    x, y = _imbalanced(seed)
+    centre = np.array([[2.0, 0.0]])
+    plain = fit_linear(x, y, 1.0)
+    weighted = fit_linear(x, y, 1.0, class_weight="balanced")
+    assert plain.predict(centre)[0] == "major"
+    assert weighted.predict(centre)[0] == "minor"
+    recall = [np.mean(m.predict(x[900:]) == "minor") for m in (plain, weighted)]
+    assert recall[0] < 0.5 and recall[1] > 0.75
+    boundary = -weighted.intercept[0] / weighted.coef[0, 0]  # where the decision crosses y = 0
+    assert 0.7 < boundary < 1.3
+
+
+@pytest.mark.parametrize("kind", ["svm", "logreg"])
+def test_balanced_class_weights_equal_per_sample_weights_in_sklearn(kind):
+    """class_weight="balanced" is sklearn's sample weighting by n / (classes * n_class)."""
+    from sklearn.linear_model import LogisticRegression
+    from sklearn.svm import LinearSVC
+
+    x, y = _imbalanced(2)
+    model = fit_linear(x, y, 0.5, kind, class_weight="balanced")
+    std = Standardiser.fit(x)
+    weights = np.where(y == "major", 1000 / (2 * 900), 1000 / (2 * 100))
+    est = (LinearSVC(C=0.5, loss="squared_hinge", penalty="l2", dual=False, max_iter=5000)
+           if kind == "svm" else LogisticRegression(C=0.5, max_iter=500))
+    est.fit(std(x), y, sample_weight=weights)
+    assert np.allclose(model.decision(x)[:, 0], est.decision_function(std(x)), atol=1e-6)
+
+
+def test_select_fits_with_the_class_weights():
+    x, y = _imbalanced(3)
+    idx = np.random.default_rng(3).permutation(len(y))
+    tr, va = idx[:800], idx[800:]
+    model, c, _ = select(x[tr], y[tr], x[va], y[va], grid=(0.1, 1.0), class_weight="balanced")
+    again = fit_linear(x[tr], y[tr], c, class_weight="balanced")
+    assert np.allclose(model.coef, again.coef) and np.allclose(model.intercept, again.intercept)
+    assert not np.allclose(model.coef, fit_linear(x[tr], y[tr], c).coef, rtol=1e-2)
+
+
+def test_unknown_class_weights_are_refused():
+    with pytest.raises(ValueError, match="unknown class weights"):
+        fit_linear(*_imbalanced(0), 1.0, class_weight="even")

@@ -1,6 +1,8 @@
 """Linear classifiers on fixed feature vectors: the paper's SVM (squared hinge, l2, primal,
 one-versus-rest; scikit-learn's LinearSVC / liblinear) and, for the baseline, logistic
-regression. Features are standardised for the optimiser; the stored model is mapped back to
+regression. With class_weight="balanced" each class's errors are weighted by
+n_samples / (n_classes * n_class), so a frequent class (GSCD's `_unknown_`) cannot win by
+being frequent. Features are standardised for the optimiser; the stored model is mapped back to
 raw feature space so that the physical readout c . Phi + b gives exactly the same decision.
 """
 
@@ -64,24 +66,32 @@ class Standardiser:
         return raw, intercept - raw @ self.mean
 
 
-def _estimator(kind: str, c: float, binary: bool):
+CLASS_WEIGHTS = (None, "balanced")
+
+
+def _estimator(kind: str, c: float, class_weight: str | None = None):
+    if class_weight not in CLASS_WEIGHTS:
+        raise ValueError(f"unknown class weights {class_weight!r}")
     if kind == "svm":
         # max_iter: liblinear's trust-region Newton needs thousands of iterations at large C
         # on these correlated features; 1000 (sklearn's default) stops early there, which
         # the validation score then judges like any other regularisation
-        return LinearSVC(C=c, loss="squared_hinge", penalty="l2", dual=False, max_iter=1000)
+        return LinearSVC(C=c, loss="squared_hinge", penalty="l2", dual=False, max_iter=1000,
+                         class_weight=class_weight)
     if kind == "logreg":
-        return LogisticRegression(C=c, max_iter=500)
+        return LogisticRegression(C=c, max_iter=500, class_weight=class_weight)
     raise ValueError(f"unknown classifier kind {kind!r}")
 
 
-def fit_linear(x: np.ndarray, y: np.ndarray, c: float, kind: str = "svm") -> LinearModel:
-    """Fit one classifier with regularisation `c` on features x (samples, N), labels y."""
+def fit_linear(x: np.ndarray, y: np.ndarray, c: float, kind: str = "svm",
+               class_weight: str | None = None) -> LinearModel:
+    """Fit one classifier with regularisation `c` on features x (samples, N), labels y;
+    `class_weight` None (every sample counts the same) or "balanced" (every class does)."""
     classes = np.unique(y)
     if len(classes) < 2:
         raise DataError("training split", f"needs at least two classes, found {list(classes)}")
     std = Standardiser.fit(x)
-    est = _estimator(kind, c, len(classes) == 2)
+    est = _estimator(kind, c, class_weight)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)  # the validation score judges it
         est.fit(std(x), y)
@@ -96,13 +106,14 @@ def accuracy(model: LinearModel, x: np.ndarray, y: np.ndarray) -> float:
 
 def select(x_train: np.ndarray, y_train: np.ndarray, x_val: np.ndarray, y_val: np.ndarray,
            kind: str = "svm", grid: tuple[float, ...] = SVM_GRID, jobs: int = 1,
-           ) -> tuple[LinearModel, float, dict[float, float]]:
+           class_weight: str | None = None) -> tuple[LinearModel, float, dict[float, float]]:
     """Fit one model per C in `grid` (in `jobs` threads: liblinear and lbfgs release the
     GIL), keep the best on the validation split (ties: smaller C, the stronger
-    regularisation). Returns (model, C, {C: validation accuracy})."""
+    regularisation). `class_weight` as in `fit_linear`. Returns (model, C,
+    {C: validation accuracy})."""
     if not grid:
         raise ValueError("empty regularisation grid")
-    fit = lambda c: fit_linear(x_train, y_train, c, kind)  # noqa: E731
+    fit = lambda c: fit_linear(x_train, y_train, c, kind, class_weight)  # noqa: E731
     # one BLAS thread per fit: the grid is the parallelism, and BLAS threads spinning on a
     # busy machine cost 30x the CPU time (measured: lbfgs 11 s -> 0.3 s)
     # warning filters are process-wide: set here too, as fit_linear's own catch_warnings

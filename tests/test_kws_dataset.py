@@ -1,9 +1,11 @@
 """The GSCD-layout reader on hand-made folders: splits, the 12-class mapping, silence clips,
-augmentation, and every bad-input path (each reported by file name)."""
+the balanced held-out protocol, augmentation, and every bad-input path (each reported by file
+name)."""
 
 from __future__ import annotations
 
 import logging
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -15,15 +17,21 @@ from springc.kws.dataset import (
     CLASSES,
     CLIP_SAMPLES,
     COMMANDS,
+    HELD_OUT,
     NOISE_REGIONS,
+    PROTOCOLS,
     SAMPLE_RATE,
+    SPLITS,
     WORDS,
     Clip,
     NoiseBank,
+    balanced,
     label_of,
     load_clip,
     open_dataset,
     speaker_of,
+    spread_sample,
+    with_protocol,
 )
 
 RATE = SAMPLE_RATE
@@ -299,3 +307,129 @@ def test_noise_bank_from_a_data_set_folder(gscd):
     assert len(bank.noises[0]) == int(0.8 * NOISE_S * RATE)  # the training part only
     with pytest.raises(DataError, match="no noise recording"):
         NoiseBank.from_folder(gscd / "yes")
+
+
+# -- the balanced held-out protocol --------------------------------------------------------------
+
+MIXED_COMMANDS = ("yes", "no", "up", "down")
+MIXED_UNKNOWN = ("cat", "dog", "bird", "zero", "one")  # 5 unknown words
+
+
+def make_mixed(root: Path, held_speakers: int = 3, per_speaker: int = 2) -> Path:
+    """A GSCD tree with GSCD's imbalance: 4 commands and 5 unknown words, 4 training speakers
+    and `held_speakers` per held-out split; clips are 0.1 s (the reader only reads headers)."""
+    names = {"train": [f"a{i:07x}" for i in range(4)],
+             "validation": [f"b{i:07x}" for i in range(held_speakers)],
+             "test": [f"c{i:07x}" for i in range(held_speakers)]}
+    lists: dict[str, list[str]] = {"validation": [], "test": []}
+    for w, word in enumerate(MIXED_COMMANDS + MIXED_UNKNOWN):
+        (root / word).mkdir(parents=True)
+        for split, speakers in names.items():
+            for spk in speakers:
+                for k in range(per_speaker):
+                    name = f"{word}/{spk}_nohash_{k}.wav"
+                    sf.write(root / name, _tone(300 + 50 * w, 0.1), RATE, subtype="PCM_16")
+                    lists.get(split, []).append(name)
+    (root / "validation_list.txt").write_text("\n".join(lists["validation"]) + "\n")
+    (root / "testing_list.txt").write_text("\n".join(lists["test"]) + "\n")
+    (root / "_background_noise_").mkdir()
+    noise = 0.1 * np.random.default_rng(0).standard_normal(NOISE_S * RATE)
+    sf.write(root / "_background_noise_" / "white_noise.wav", noise, RATE, subtype="PCM_16")
+    return root
+
+
+@pytest.fixture
+def mixed(tmp_path) -> Path:
+    return make_mixed(tmp_path / "mixed")
+
+
+def test_balanced_held_out_splits_hold_equal_counts_per_class(mixed):
+    raw = open_dataset(mixed, seed=1)
+    assert raw.counts()["test"]["_unknown_"] == 5 * 3 * 2  # 5 words x 3 speakers x 2 clips
+    ds = balanced(raw, seed=1)
+    for split in HELD_OUT:
+        counts = ds.counts()[split]
+        present = {k: v for k, v in counts.items() if v}
+        assert present == dict.fromkeys(MIXED_COMMANDS + ("_unknown_", "_silence_"), 6)
+    assert ds.split("train") == raw.split("train")  # training keeps every clip, silence too
+    for split in HELD_OUT:  # every command clip kept, only subsampling otherwise
+        commands = [c for c in raw.split(split) if c.label in COMMANDS]
+        assert [c for c in ds.split(split) if c.label in COMMANDS] == commands
+        words = {c for c in ds.split(split) if c.label != "_silence_"}
+        assert words <= set(raw.split(split))
+
+
+def test_balancing_rounds_to_the_mean_command_count(mixed):
+    for path in sorted((mixed / "yes").glob("b*_nohash_*.wav"))[:3]:
+        path.unlink()  # yes: 3 validation clips left, the others 6: mean 5.25
+    entries = [e for e in (mixed / "validation_list.txt").read_text().split()
+               if (mixed / e).exists()]
+    (mixed / "validation_list.txt").write_text("\n".join(entries) + "\n")
+    counts = balanced(open_dataset(mixed)).counts()["validation"]
+    assert counts["yes"] == 3 and counts["no"] == 6
+    assert counts["_unknown_"] == counts["_silence_"] == 5
+
+
+def test_balancing_is_deterministic_for_a_seed(mixed):
+    raw = open_dataset(mixed, seed=2)
+    first, again = balanced(raw, seed=2), balanced(open_dataset(mixed, seed=2), seed=2)
+    assert first.clips == again.clips
+    other = balanced(open_dataset(mixed, seed=3), seed=3)
+    assert _held_out_unknown(other) != _held_out_unknown(first)
+
+
+def _held_out_unknown(ds) -> set:
+    return {c for c in ds.clips if c.label == "_unknown_" and c.split != "train"}
+
+
+def test_balancing_keeps_the_splits_speaker_disjoint(mixed):
+    ds = balanced(open_dataset(mixed), seed=0)
+    speakers = {s: {c.speaker for c in ds.split(s) if c.label != "_silence_"} for s in SPLITS}
+    assert not speakers["train"] & speakers["validation"]
+    assert not speakers["train"] & speakers["test"]
+    assert not speakers["validation"] & speakers["test"]
+    n = NOISE_S * RATE
+    for clip in ds.clips:  # held-out silence from the split's own part of the noise
+        if clip.label == "_silence_":
+            lo, hi = NOISE_REGIONS[clip.split]
+            assert lo * n <= clip.offset and clip.offset + CLIP_SAMPLES <= hi * n
+
+
+def test_unknown_subsample_spreads_over_words_and_speakers(mixed):
+    for seed in range(5):
+        ds = balanced(open_dataset(mixed, seed=seed), seed=seed)
+        for split in HELD_OUT:
+            unknown = [c for c in ds.split(split) if c.label == "_unknown_"]
+            per_word = Counter(c.word for c in unknown)  # 6 clips over 5 words
+            assert set(per_word) == set(MIXED_UNKNOWN) and max(per_word.values()) == 2
+            for word, n in per_word.items():  # a word's picks come from distinct speakers
+                assert len({c.speaker for c in unknown if c.word == word}) == n
+
+
+def test_spread_sample_on_many_words_and_speakers():
+    clips = [Clip(Path(f"w{w}/s{s}_nohash_{k}.wav"), f"w{w}", "_unknown_", "test", f"s{s}")
+             for w in range(25) for s in range(8) for k in range(3)]
+    picked = spread_sample(clips, 60, np.random.default_rng(0))
+    assert len(set(picked)) == 60
+    per_word = Counter(c.word for c in picked)
+    assert len(per_word) == 25 and set(per_word.values()) == {2, 3}
+    for word in per_word:
+        assert len({c.speaker for c in picked if c.word == word}) == per_word[word]
+    few = spread_sample(clips[:5], 60, np.random.default_rng(0))
+    assert sorted(few, key=Clip.key) == sorted(clips[:5], key=Clip.key)  # fewer: all of them
+
+
+def test_balancing_needs_command_clips_in_each_held_out_split(gscd):
+    ds = open_dataset(gscd).subset(words=("cat", "zero"))
+    with pytest.raises(DataError, match="validation split holds no command clip") as err:
+        balanced(ds)
+    assert "--protocol lists" in err.value.format()
+
+
+def test_protocols_by_name(gscd):
+    ds = open_dataset(gscd)
+    assert with_protocol(ds, "lists") is ds
+    assert with_protocol(ds, "balanced", 4).clips == balanced(ds, 4).clips
+    assert PROTOCOLS == ("lists", "balanced")
+    with pytest.raises(UsageError, match="unknown protocol 'even'"):
+        with_protocol(ds, "even")

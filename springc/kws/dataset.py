@@ -6,6 +6,12 @@ One folder per word holding `<speaker>_nohash_<k>.wav`, `validation_list.txt` an
 same layout. The 12-class task maps the 10 commands to themselves, the other 25 words to
 `_unknown_`, and adds `_silence_` clips cut from the noise files.
 
+Two protocols for the held-out splits of the 12-class task: "lists" keeps the split lists as
+they are (GSCD's word mix: `_unknown_` is about two thirds of every split), "balanced" (the
+paper's Sec. 4, TensorFlow's speech_commands recipe) holds the same number of clips per class
+in validation and test: every command clip, `_unknown_` subsampled to the mean command count,
+as many `_silence_` clips. Training keeps every clip in both.
+
 Bad files are never dropped silently: unreadable or empty ones are skipped, resampled or
 multi-channel ones converted, and each is named in `Dataset.problems` and logged as a warning.
 """
@@ -45,6 +51,8 @@ LIST_FILES = {"validation": "validation_list.txt", "test": "testing_list.txt"}
 NOISE_REGIONS = {"train": (0.0, 0.8), "validation": (0.8, 0.9), "test": (0.9, 1.0)}
 NOISE_PROBABILITY = 0.8  # the paper: noise is added to training clips with probability 0.8
 NOISE_MAX_GAIN = 0.1  # uniform gain in [0, 0.1], as in TensorFlow's speech_commands recipe
+PROTOCOLS: tuple[str, ...] = ("lists", "balanced")
+HELD_OUT: tuple[str, ...] = ("validation", "test")
 
 log = logging.getLogger("springc.data")
 
@@ -270,11 +278,13 @@ def noise_lengths(root: Path, problems: list[str]) -> dict[Path, int]:
         problems.append(f"{folder}: no background-noise folder; no {SILENCE} clips and no "
                         "noise augmentation")
         return {}
-    lengths = {}
-    for path, _ in folder_audio(folder, problems):
-        info = sf.info(str(path))
-        lengths[path] = int(info.frames * SAMPLE_RATE // info.samplerate)
-    return lengths
+    return {path: noise_length(path) for path, _ in folder_audio(folder, problems)}
+
+
+def noise_length(path: Path) -> int:
+    """The length of a noise file in samples at SAMPLE_RATE, from its header."""
+    info = sf.info(str(path))
+    return int(info.frames * SAMPLE_RATE // info.samplerate)
 
 
 def silence_clips(lengths: dict[Path, int], per_split: dict[str, int], seed: int) -> list[Clip]:
@@ -310,6 +320,74 @@ def open_dataset(root, *, silence_per_split: float = 0.1, seed: int = 0) -> Data
     for problem in problems:
         warn(problem)
     return Dataset(root, clips, list(lengths), problems)
+
+
+# -- the balanced held-out protocol ------------------------------------------------------------
+
+
+def balanced(ds: Dataset, seed: int = 0) -> Dataset:
+    """The paper's held-out protocol for the 12-class task: in validation and test every
+    command clip is kept, `_unknown_` is subsampled to the mean command count of the split
+    (spread over its words and speakers, drawn from `seed`) and `_silence_` is cut in the same
+    number from the split's part of the noise files. Training is unchanged.
+
+    Raises DataError when a held-out split holds no command clip (nothing to balance to)."""
+    keep = [c for c in ds.clips if c.split == "train"]
+    want: dict[str, int] = {}
+    for index, split in enumerate(HELD_OUT, 1):
+        clips = [c for c in ds.clips if c.split == split]
+        want[split] = command_mean(clips, ds.root, split)
+        unknown = [c for c in clips if c.label == UNKNOWN]
+        chosen = set(spread_sample(unknown, want[split], np.random.default_rng([seed, index])))
+        keep += [c for c in clips if c.label in COMMANDS or c in chosen]
+    lengths = {path: noise_length(path) for path in ds.noise_files}
+    keep += [c for c in silence_clips(lengths, want, seed) if c.split in HELD_OUT]
+    return Dataset(ds.root, keep, ds.noise_files, list(ds.problems))
+
+
+def command_mean(clips: list[Clip], root: Path, split: str) -> int:
+    """The mean number of clips per command among the commands present in `clips`, rounded."""
+    counts = [sum(c.label == w for c in clips) for w in COMMANDS]
+    present = [n for n in counts if n]
+    if not present:
+        raise DataError(str(root), f"the {split} split holds no command clip, so it cannot "
+                        "be balanced", hint="use the split lists as they are: --protocol lists")
+    return round(sum(present) / len(present))
+
+
+def spread_sample(clips: list[Clip], k: int, rng: np.random.Generator) -> list[Clip]:
+    """`k` of `clips` (all if there are fewer), spread evenly over their words and, within a
+    word, over its speakers: words are visited in turn (in a random order), and each word
+    gives its speakers' clips in turn (speakers and their clips in a random order)."""
+    by_word: dict[str, list[Clip]] = {}
+    for clip in clips:
+        by_word.setdefault(clip.word, []).append(clip)
+    queues = [speaker_order(by_word[w], rng) for w in sorted(by_word)]
+    queues = [queues[i] for i in rng.permutation(len(queues))]
+    picked: list[Clip] = []
+    for rank in range(max(map(len, queues), default=0)):
+        picked += [q[rank] for q in queues if rank < len(q)]
+    return picked[:k]
+
+
+def speaker_order(clips: list[Clip], rng: np.random.Generator) -> list[Clip]:
+    """`clips` in rounds: one clip of each speaker per round, in a random order."""
+    by_speaker: dict[str, list[Clip]] = {}
+    for clip in clips:
+        by_speaker.setdefault(clip.speaker, []).append(clip)
+    lists = [by_speaker[s] for s in sorted(by_speaker)]
+    lists = [[c[i] for i in rng.permutation(len(c))] for c in lists]
+    lists = [lists[i] for i in rng.permutation(len(lists))]
+    return [c[r] for r in range(max(map(len, lists))) for c in lists if r < len(c)]
+
+
+def with_protocol(ds: Dataset, protocol: str, seed: int = 0) -> Dataset:
+    """`ds` under a held-out protocol: "lists" (as read) or "balanced" (see `balanced`)."""
+    if protocol == "lists":
+        return ds
+    if protocol == "balanced":
+        return balanced(ds, seed)
+    raise UsageError(f"unknown protocol {protocol!r}; use one of {', '.join(PROTOCOLS)}")
 
 
 # -- loading one clip --------------------------------------------------------------------------

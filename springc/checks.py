@@ -14,6 +14,7 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
+import scipy.linalg
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 from scipy.optimize import minimize
@@ -491,23 +492,155 @@ def step_limit(net: FlatNetlist, method: str, found: linear.Modes | None = None,
                blocks: expint.Blocks | None = None) -> linear.StepLimit:
     """Largest stable step of `method` and the mode that sets it. A Runge-Kutta tableau: over
     every mode of the linearisation (`found`, computed if not given). A splitting scheme
-    (`expint`): its blocks (`expint.find_blocks`, found if not given) are integrated exactly
-    and impose no limit; the limit is the inner tableau's over the modes of the rest, the
-    linearised `expint.split_netlist`."""
+    (`expint`, blocks from `expint.find_blocks` if not given): see `split_step_limit`."""
+    found = found if found is not None else linear.modes(net)
     if not expint.is_split(method):
-        return linear.step_limit(found if found is not None else linear.modes(net), method)
-    # The split netlist, not the full linearisation with the block modes removed: that is the
-    # operator the Runge-Kutta part integrates. A block meets the rest only through Q elements
-    # (a coupling or dashpot would have made the rest part of it). At rest a Q whose j node
-    # lies in a block puts a stiffness g a on it that the Runge-Kutta part integrates, which
-    # the full linearisation would fold into a block mode and call exact; and a Q joins a
-    # block and the rest into one component whose modes mix, so removing "block modes" would
-    # need a guess from the mode shapes. On the split netlist the block nodes keep their mass
-    # and only what the Runge-Kutta part applies to them (free masses limit nothing); Strang
-    # freezes their positions in that part, so for it such a g a mode is an estimate.
+        return linear.step_limit(found, method)
+    return split_step_limit(net, method, found, blocks)
+
+
+# --- time step of a splitting scheme ---------------------------------------------------
+#
+# The scheme integrates what the linearised `expint.split_netlist` holds with its inner
+# Runge-Kutta method and the blocks exactly. That split, and not the full linearisation with
+# the block modes removed, is the operator to judge: at rest a block meets the rest only
+# through Q elements (a coupling or dashpot would have made the rest part of it), whose only
+# linear term is a stiffness g a on their j node. On a rest node it is an ordinary rest mode.
+# On a block node the Runge-Kutta part applies it to the block (a "kick"), which the full
+# linearisation folds into a block mode and calls exact; and a Q joins a block and the rest
+# into one component whose modes mix, so "the block modes" would need a guess from mode
+# shapes. Without kicks the blocks impose no limit and the limit is the inner tableau's on the
+# rest. A kicked block is judged by the scheme's own linear step map on it (Lawson: the kick
+# at every stage through the exact flow; Strang: a velocity kick between two half flows, as
+# block positions stay frozen in its Runge-Kutta step; below the inner tableau's limit on the
+# kick alone: 0.7x for a 6 kHz kick on a 2 kHz filter). The map can be unstable in islands:
+# a 3 kHz kick on a 7 kHz filter under exp-rk4 grows from h = 6.05e-5 s (16 kHz input: 6.25e-5)
+# and is stable again at 1e-4 s, where the inner tableau on the kick alone allows 1.5e-4 s.
+# The limit is the first step at which the map grows, as for the tableaux' own rays.
+
+MAP_GRID = 2000  # steps tried per kicked block before bisection: narrower islands are missed
+
+
+def split_step_limit(net: FlatNetlist, method: str, found: linear.Modes,
+                     blocks: expint.Blocks | None = None) -> linear.StepLimit:
+    """Largest stable step of the splitting scheme `method`: the inner tableau's limit over
+    the rest's modes (block nodes left out), and for every block on whose nodes the rest puts
+    a stiffness, the first step at which the scheme's linear step map on it grows."""
     scheme = expint.SCHEMES[method]
-    rest = expint.split_netlist(net, blocks if blocks is not None else expint.find_blocks(net))
-    return replace(linear.step_limit(linear.modes(rest), scheme.inner), method=method)
+    blocks = blocks if blocks is not None else expint.find_blocks(net)
+    rest = expint.split_netlist(net, blocks)
+    lin = linear.linearise(rest)
+    inside = np.zeros(net.n, bool)
+    inside[blocks.node_set()] = True
+    keep = sp.diags((~inside).astype(float))
+    # block rows and columns out: the rest's own modes (block nodes become free masses)
+    outer = linear.Linearisation(lin.M, (keep @ lin.B @ keep).tocsr(),
+                                 (keep @ lin.K @ keep).tocsr())
+    limit = replace(linear.step_limit(linear.modes(rest, outer), scheme.inner), method=method)
+    minv = 1.0 / net.mass()
+    for k, nodes in enumerate(blocks.nodes):
+        kick = minv[nodes][:, None] * lin.K[nodes][:, nodes].toarray()
+        if not kick.any():
+            continue
+        h = _kicked_block_limit(scheme, blocks.a[k], kick, limit.dt)
+        if h < limit.dt:
+            limit = linear.StepLimit(method, h, _block_mode(found, nodes))
+    return limit
+
+
+def _kicked_block_limit(scheme: expint.SplitScheme, a: np.ndarray, kick: np.ndarray,
+                        below: float) -> float:
+    """First step h < `below` at which the spectral radius of the scheme's linear step map on
+    one block (first-order matrix `a`, rest stiffness per mass `kick`) exceeds 1; `below` if
+    none. An infinite `below` is capped at 8 / omega of the kick, past the stability
+    boundary of any of our tableaux applied to the kick alone."""
+    omega = math.sqrt(float(np.abs(np.linalg.eigvals(kick)).max()))
+    if omega == 0.0:
+        return below
+    m = len(kick)
+    # [x; v] -> [w x; v]: the same eigenvalues, and no w^2 against 1 in the exponent
+    scale = math.sqrt(max(float(np.abs(a[m:, :m]).max()), omega**2))
+    sim = np.concatenate([np.full(m, scale), np.ones(m)])
+    a = a * sim[:, None] / sim[None, :]
+    n = np.zeros_like(a)
+    n[m:, :m] = -kick / scale
+    top = min(below, 8.0 / omega)
+    grid = top * np.arange(1, MAP_GRID + 1) / MAP_GRID
+    grows = _map_radius(scheme, a, n, grid) > 1 + 1e-9
+    if not grows.any():
+        return below if top == below else top
+    first = int(np.argmax(grows))
+    low, high = (grid[first - 1] if first else 0.0), grid[first]
+    for _ in range(50):
+        mid = 0.5 * (low + high)
+        low, high = (low, mid) if _map_radius(scheme, a, n, np.array([mid]))[0] > 1 + 1e-9 \
+            else (mid, high)
+    return low
+
+
+def _map_radius(scheme: expint.SplitScheme, a: np.ndarray, n: np.ndarray,
+                h: np.ndarray) -> np.ndarray:
+    """Spectral radius of the scheme's one-step map of z' = (a + n) z (a exact, n the kick)
+    for every step in `h`."""
+    hh = h[:, None, None]
+    flow = _flow(a, hh)
+    if scheme.kind == "strang":
+        half = flow(scheme.half)
+        step = half @ (np.eye(len(a)) + hh * n) @ half
+    else:
+        step = _lawson_map(scheme.tableau, flow, n, hh)
+    return np.abs(np.linalg.eigvals(step)).max(axis=1)
+
+
+def _flow(a: np.ndarray, hh: np.ndarray):
+    """frac -> exp(a frac h) for every h of `hh` (shape (H, 1, 1)), cached per fraction: from
+    the eigenvectors of `a` when they are well conditioned (thousands of steps at once),
+    else scipy's expm one step at a time."""
+    lam, vec = np.linalg.eig(a)
+    diagonal = np.linalg.cond(vec) < 1e6
+    inv = np.linalg.inv(vec) if diagonal else None
+    cache: dict[float, np.ndarray] = {}
+
+    def flow(frac: float) -> np.ndarray:
+        if frac not in cache:
+            if diagonal:
+                grow = np.exp(lam[None, None, :] * (frac * hh))
+                cache[frac] = ((vec[None] * grow) @ inv).real
+            else:
+                cache[frac] = scipy.linalg.expm(a[None] * (frac * hh))
+        return cache[frac]
+
+    return flow
+
+
+def _lawson_map(tab, flow, n: np.ndarray, hh: np.ndarray) -> np.ndarray:
+    """One Lawson step as a matrix: stage maps S_i = E(c_i h) + h sum_j a_ij E((c_i - c_j) h)
+    n S_j, step E(h) + h sum_j b_j E((1 - c_j) h) n S_j (`expint`'s Lawson comment)."""
+    stages = []
+    for i, row in enumerate(tab.a):
+        s_i = flow(tab.c[i])
+        for j, aij in enumerate(row):
+            if aij != 0.0:
+                s_i = s_i + hh * aij * flow(tab.c[i] - tab.c[j]) @ n @ stages[j]
+        stages.append(s_i)
+    out = flow(1.0)
+    for j, bj in enumerate(tab.b):
+        if bj != 0.0:
+            out = out + hh * bj * flow(1.0 - tab.c[j]) @ n @ stages[j]
+    return out
+
+
+def _block_mode(found: linear.Modes, nodes: np.ndarray) -> linear.Mode | None:
+    """The fastest mode of the full linearisation that lies mostly on `nodes` (a block with
+    the rest's stiffness on it), to name in messages."""
+    best = None
+    for k, (where, amps) in enumerate(found.shapes):
+        w = np.abs(amps) ** 2
+        on = np.isin(where, nodes)
+        if w.sum() > 0 and w[on].sum() > 0.5 * w.sum() and (
+                best is None or abs(found.eigenvalues[k]) > abs(found.eigenvalues[best])):
+            best = k
+    return found.mode(best) if best is not None else None
 
 
 def _zero_info(net: FlatNetlist, zero: linear.ZeroModes) -> Diagnostic:

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 from springc_cli.common import plot_option, run_user_errors
 
-from springc.kws.dataset import CLASSES, SPLITS, WORDS
+from springc.kws.dataset import CLASSES, PROTOCOLS, SPLITS, WORDS
 
 
 @click.group("data")
@@ -54,14 +54,26 @@ def split_list(text: str) -> tuple[str, ...]:
 @data_group.command("info")
 @click.argument("folder", type=click.Path(path_type=Path))
 @click.option("--silence", default=0.1, show_default=True,
-              help="Silence clips per split, as a fraction of its word clips.")
+              help="Silence clips per split, as a fraction of its word clips (training, and "
+                   "validation and test under --protocol lists).")
+@click.option("--protocol", type=click.Choice(PROTOCOLS), default="balanced",
+              show_default=True,
+              help="Held-out splits of the 12-class task: the split lists as they are, or "
+                   "the paper's equal number of clips per class (as `springc train`).")
+@click.option("--seed", default=0, show_default=True,
+              help="Seed of the silence windows and the unknown-word subsample.")
 @plot_option
 @run_user_errors
-def info_cmd(folder: Path, silence: float, plot_path: str | None) -> None:
-    """Count the clips of a GSCD-layout data set per split and label; list bad files."""
-    from springc.kws.dataset import open_dataset
+def info_cmd(folder: Path, silence: float, protocol: str, seed: int,
+             plot_path: str | None) -> None:
+    """Count the clips of a GSCD-layout data set per split and label (12-class task); list
+    bad files."""
+    from springc.kws.dataset import open_dataset, with_protocol
+    from springc.kws.report import counts_table
 
-    ds = open_dataset(folder, silence_per_split=silence)
+    ds = with_protocol(open_dataset(folder, silence_per_split=silence, seed=seed), protocol,
+                       seed)
+    click.echo(f"protocol: {protocol}")
     click.echo(counts_table(ds.counts()))
     speakers = {s: len({c.speaker for c in ds.split(s) if c.label != "_silence_"})
                 for s in SPLITS}
@@ -70,16 +82,6 @@ def info_cmd(folder: Path, silence: float, plot_path: str | None) -> None:
     if plot_path:
         plot_counts(ds.counts(), Path(plot_path))
         click.echo(f"plot written to {plot_path}")
-
-
-def counts_table(counts: dict[str, dict[str, int]]) -> str:
-    """A text table: one row per label, one column per split, totals last."""
-    width = max(map(len, CLASSES + ("total",)))
-    lines = [f"{'label':<{width}}" + "".join(f"{s:>12}" for s in SPLITS)]
-    for label in CLASSES:
-        lines.append(f"{label:<{width}}" + "".join(f"{counts[s][label]:>12}" for s in SPLITS))
-    lines.append(f"{'total':<{width}}" + "".join(f"{sum(counts[s].values()):>12}" for s in SPLITS))
-    return "\n".join(lines)
 
 
 def plot_counts(counts: dict[str, dict[str, int]], path: Path) -> None:

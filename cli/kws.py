@@ -6,10 +6,12 @@ import json
 from pathlib import Path
 
 import click
-
-from springc.kws.digital import FILTERBANKS, FeatureSettings
-from springc.kws.train import REALISATIONS, TASKS, TrainOptions
 from springc_cli.common import run_user_errors
+
+from springc.kws.dataset import PROTOCOLS
+from springc.kws.digital import FILTERBANKS, FeatureSettings
+from springc.kws.report import counts_table, majority_rate
+from springc.kws.train import REALISATIONS, TASKS, TrainOptions
 
 _REALISATION = click.Choice(REALISATIONS)
 _SCHEDULER = click.option("--scheduler", default=None, metavar="ADDRESS",
@@ -32,8 +34,15 @@ _SCHEDULER = click.option("--scheduler", default=None, metavar="ADDRESS",
 @click.option("--tau", default=80.0, show_default=True, help="Readout time constant (s).")
 @click.option("--fc", default=50.0, show_default=True, help="Low-pass cut-off (Hz).")
 @click.option("--feature-rate", default=1000.0, show_default=True, help="Rate of x_i(t) (Hz).")
+@click.option("--protocol", type=click.Choice(PROTOCOLS), default=None,
+              help="Held-out splits: the split lists as they are, or (kws12) the paper's equal "
+                   "number of clips per class.  [default: balanced for kws12, else lists]")
+@click.option("--class-weights", type=click.Choice(("balanced", "none")), default=None,
+              help="SVM class weights: inversely proportional to the training counts, or "
+                   "equal.  [default: balanced for kws12, else none]")
 @click.option("--jobs", "-j", default=0, help="Worker processes (0: all cores).")
-@click.option("--seed", default=0, show_default=True, help="Augmentation seed.")
+@click.option("--seed", default=0, show_default=True,
+              help="Seed of augmentation, silence windows and the unknown-word subsample.")
 @click.option("--no-cache", is_flag=True, help="Recompute features, ignore the cache.")
 @click.option("-o", "--out", required=True, type=click.Path(path_type=Path),
               help="Model folder to write.")
@@ -45,7 +54,8 @@ _SCHEDULER = click.option("--scheduler", default=None, metavar="ADDRESS",
 @_SCHEDULER
 @run_user_errors
 def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, tau, fc,
-              feature_rate, jobs, seed, no_cache, out, epsilon, threshold, scheduler) -> None:
+              feature_rate, protocol, class_weights, jobs, seed, no_cache, out, epsilon,
+              threshold, scheduler) -> None:
     """Train the keyword spotter and write a model folder with weights and a test report."""
     from springc.kws.train import train
 
@@ -54,7 +64,9 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
     opts = TrainOptions(data=data, out=out, settings=settings,
                         realisation="baseline" if baseline else realisation, task=task,
                         jobs=jobs, seed=seed, use_cache=not no_cache, epsilon=epsilon,
-                        scheduler=scheduler)
+                        scheduler=scheduler, protocol=protocol,
+                        balance_weights=None if class_weights is None
+                        else class_weights == "balanced")
     if threshold is not None:
         from springc.kws.massspring import from_features
 
@@ -82,7 +94,7 @@ def eval_cmd(model_dir, data, realisation, as_json, jobs, no_cache, scheduler) -
     report = evaluate(model_dir, data, realisation, jobs=jobs, use_cache=not no_cache,
                       scheduler=scheduler)
     if as_json:
-        keys = ("accuracy", "n", "per_class") + (("pairs",) if "pairs" in report else ())
+        keys = ("accuracy", "majority_rate", "n", "per_class") + (("pairs",) if "pairs" in report else ())
         keys += tuple(k for k in _NETWORK_KEYS if k in report)
         click.echo(json.dumps({k: report[k] for k in keys}))
     else:
@@ -93,7 +105,13 @@ _NETWORK_KEYS = ("digital_same_model", "insertion_loss_db", "readout_error", "th
 
 
 def _summary(report: dict) -> str:
-    lines = [f"test accuracy {100 * report['accuracy']:.2f}% on {report['n']} clips"]
+    lines = []
+    if "counts" in report:  # a fresh training: the data it saw
+        weights = report["class_weight"] or "equal"
+        lines.append(f"protocol {report['protocol']}, class weights {weights}; clips:")
+        lines += ["  " + row for row in counts_table(report["counts"]).splitlines()]
+    lines.append(f"test accuracy {100 * report['accuracy']:.2f}% on {report['n']} clips "
+                 f"(majority class {100 * _majority(report):.2f}%)")
     if "digital_same_model" in report:  # the simulated mass-spring network
         t, il = report["throughput"], report["insertion_loss_db"]
         lines[0] += (f" (mass-spring network); digital readout of the same model "
@@ -107,3 +125,10 @@ def _summary(report: dict) -> str:
     for cls, tpr in report["per_class"].items():
         lines.append(f"  {cls:12s} TPR {'n/a' if tpr is None else f'{100 * tpr:6.2f}%'}")
     return "\n".join(lines)
+
+
+def _majority(report: dict) -> float:
+    """The majority-class rate: from the report, or its confusion matrix (older reports)."""
+    if "majority_rate" in report:
+        return report["majority_rate"]
+    return majority_rate(report["confusion"])

@@ -26,16 +26,33 @@ def _run(*args: str):
 
 def test_info_counts_per_split_and_label(tmp_path):
     root = make_gscd(tmp_path / "d")
-    result = _run("data", "info", str(root), "--plot", str(tmp_path / "counts.png"))
+    result = _run("data", "info", str(root), "--protocol", "lists",
+                  "--plot", str(tmp_path / "counts.png"))
     assert result.exit_code == 0, result.output
     rows = {line.split()[0]: line.split()[1:] for line in result.output.splitlines() if line}
+    assert rows["protocol:"] == ["lists"]
     assert rows["label"] == ["train", "validation", "test"]
     assert rows["yes"] == ["6", "2", "2"]
     assert rows["_unknown_"] == ["12", "4", "4"]
     assert rows["_silence_"] == ["2", "1", "1"]  # 10 % of 24, 8 and 8 word clips
     assert rows["total"] == ["26", "9", "9"]
+    assert rows["majority"] == ["46.2%", "44.4%", "44.4%"]  # _unknown_: 12/26, 4/9
     assert "speakers: train 3, validation 1, test 1" in result.output
     assert (tmp_path / "counts.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_info_shows_the_balanced_held_out_splits_by_default(tmp_path):
+    """yes and no have 2 clips per held-out split: _unknown_ (4 clips of cat and zero) is
+    cut to 2 and 2 silence clips are cut; training is unchanged."""
+    root = make_gscd(tmp_path / "d")
+    result = _run("data", "info", str(root))
+    assert result.exit_code == 0, result.output
+    rows = {line.split()[0]: line.split()[1:] for line in result.output.splitlines() if line}
+    assert rows["protocol:"] == ["balanced"]
+    for label in ("yes", "no", "_unknown_", "_silence_"):
+        assert rows[label][1:] == ["2", "2"], label
+    assert rows["_unknown_"][0] == "12" and rows["_silence_"][0] == "2"
+    assert rows["majority"][1:] == ["25.0%", "25.0%"]
 
 
 def test_info_names_bad_files_and_continues(tmp_path):

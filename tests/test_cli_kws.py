@@ -37,14 +37,42 @@ def test_train_prints_accuracy_and_writes_the_folder(env):
     assert (model / "confusion.png").stat().st_size > 1000
 
 
+def test_train_prints_the_balanced_counts_and_the_majority_rate(env):
+    """kws12 defaults: the balanced protocol (3 test clips of each of yes, no, _unknown_ and
+    _silence_: majority 25 %) and balanced class weights, both in settings.json."""
+    _, model, output = env
+    assert "protocol balanced, class weights balanced" in output
+    table = output.split("test accuracy")[0]  # the counts table, before the TPR lines
+    rows = {line.split()[0]: line.split()[1:] for line in table.splitlines() if line.strip()}
+    assert rows["yes"] == ["18", "3", "3"] and rows["_unknown_"] == ["18", "3", "3"]
+    assert rows["_silence_"][1:] == ["3", "3"] and rows["majority"][1:] == ["25.0%", "25.0%"]
+    assert "(majority class 25.00%)" in output
+    settings = json.loads((model / "settings.json").read_text())
+    assert settings["protocol"] == "balanced" and settings["class_weight"] == "balanced"
+
+
+def test_train_with_the_raw_lists_and_equal_weights(env, tmp_path):
+    data, _, _ = env
+    result = CliRunner().invoke(main, ["train", "--data", str(data), "-n", "4", "-m", "2",
+                                       "-j", "1", "--protocol", "lists", "--class-weights",
+                                       "none", "-o", str(tmp_path / "m")])
+    assert result.exit_code == 0, result.output
+    assert "protocol lists, class weights equal" in result.output
+    settings = json.loads((tmp_path / "m" / "settings.json").read_text())
+    assert settings["protocol"] == "lists" and settings["class_weight"] is None
+    report = json.loads((tmp_path / "m" / "report.json").read_text())
+    assert report["counts"]["test"]["_silence_"] == 1  # 10 % of the 9 word clips
+
+
 def test_eval_json(env):
     data, model, _ = env
     result = CliRunner().invoke(main, ["eval", str(model), "--data", str(data), "--json"])
     assert result.exit_code == 0, result.output
     report = json.loads(result.output)
-    assert set(report) == {"accuracy", "n", "per_class"}
+    assert set(report) == {"accuracy", "majority_rate", "n", "per_class"}
     saved = json.loads((model / "report.json").read_text())
     assert report["accuracy"] == saved["accuracy"] and report["n"] == saved["n"]
+    assert report["majority_rate"] == saved["majority_rate"] == 0.25
 
 
 def test_installed_command_runs(env):
@@ -60,6 +88,8 @@ def test_installed_command_runs(env):
     (["train", "--data", "{data}", "--jobs", "-2", "-o", "{root}/m"], "--jobs must be"),
     (["train", "--data", "{data}", "--bins", "1", "-o", "{root}/m"], "--bins must be"),
     (["train", "--data", "{data}", "--td", "0.0315", "-o", "{root}/m"], "td * feature rate"),
+    (["train", "--data", "{data}", "--task", "digits-pairs", "--protocol", "balanced", "-o",
+      "{root}/m"], "the balanced protocol is for the kws12 task"),
     (["eval", "{root}/nomodel"], "no such model folder"),
     (["eval", "{model}", "--realisation", "baseline"], "trained with the digital"),
     (["eval", "{model}", "--data", "{root}/nowhere"], "no such data folder"),

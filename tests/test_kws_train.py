@@ -107,6 +107,44 @@ def _silence(report: dict) -> int:
         if "_silence_" in classes else 0
 
 
+def test_kws12_defaults_to_balanced_splits_and_class_weights(corpus, tmp_path):
+    """The test split holds 3 clips of each class (yes, no, _unknown_, _silence_); the
+    training split keeps all of its clips; settings.json and the report say so."""
+    report = train(_opts(corpus, tmp_path / "model"))
+    settings = json.loads((tmp_path / "model" / "settings.json").read_text())
+    assert settings["protocol"] == "balanced" and settings["class_weight"] == "balanced"
+    assert report["protocol"] == "balanced" and report["class_weight"] == "balanced"
+    for split in ("validation", "test"):
+        present = {k: v for k, v in report["counts"][split].items() if v}
+        assert present == {"yes": 3, "no": 3, "_unknown_": 3, "_silence_": 3}
+    assert report["counts"]["train"]["yes"] == 6 * 3
+    assert report["majority_rate"] == 0.25 and report["n"] == 12
+
+
+def test_protocol_defaults_per_task(corpus, tmp_path):
+    from springc.kws.dataset import balanced, open_dataset
+    from springc.kws.train import open_task_data, task_protocol, task_weights
+
+    assert open_task_data(corpus, "kws12", 3).clips == balanced(open_dataset(corpus, seed=3),
+                                                                3).clips
+    assert open_task_data(corpus, "kws12", 3, "lists").clips == open_dataset(corpus,
+                                                                             seed=3).clips
+    assert task_protocol("digits-pairs") == "lists" and task_weights("digits-pairs") is None
+    assert task_weights("kws12") == "balanced" and task_weights("kws12", False) is None
+    with pytest.raises(UsageError, match="balanced protocol is for the kws12 task"):
+        open_task_data(corpus, "digits-pairs", 0, "balanced")
+    with pytest.raises(UsageError, match="unknown protocol"):
+        open_task_data(corpus, "kws12", 0, "even")
+
+
+def test_raw_lists_and_equal_weights_are_recorded(corpus, tmp_path):
+    report = train(_opts(corpus, tmp_path / "m", protocol="lists", balance_weights=False))
+    settings = json.loads((tmp_path / "m" / "settings.json").read_text())
+    assert settings["protocol"] == "lists" and settings["class_weight"] is None
+    assert report["counts"]["test"]["_silence_"] == 1  # 10 % of the 9 word clips
+    assert report["n"] == 10 and report["majority_rate"] == 0.3
+
+
 def test_physical_readout_of_stored_weights_reproduces_the_decision(corpus, tmp_path):
     """c . Phi + b with the raw coefficients from weights.npz gives the stored model's
     decisions on freshly computed test features."""
@@ -175,6 +213,8 @@ def test_digit_pairs_task_reports_each_pair(tmp_path):
     assert np.mean([p["accuracy"] for p in report["pairs"].values()]) >= 0.9
     settings = json.loads((tmp_path / "pairs" / "settings.json").read_text())
     assert set(settings["C"]) == set(report["pairs"])
+    assert settings["protocol"] == "lists" and settings["class_weight"] is None
+    assert report["counts"]["test"] == {"one": 2, "two": 2, "three": 2, "four": 2}
 
 
 def test_baseline_trains_on_the_same_splits(corpus, tmp_path):

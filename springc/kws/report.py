@@ -1,5 +1,5 @@
-"""Classification reports: accuracy, confusion matrix (CSV and PNG), true-positive rate per
-class (the paper's Fig. 8c-d)."""
+"""Classification reports: accuracy beside the majority-class rate, confusion matrix (CSV and
+PNG), true-positive rate per class (the paper's Fig. 8c-d), clips per class and split."""
 
 from __future__ import annotations
 
@@ -24,17 +24,43 @@ def true_positive_rates(conf: np.ndarray) -> np.ndarray:
         return np.where(totals > 0, np.diag(conf) / totals, np.nan)
 
 
+def majority_rate(conf: np.ndarray) -> float:
+    """The accuracy of always answering the most frequent true class: what a classifier
+    that learnt nothing scores (1 / classes on balanced splits)."""
+    totals = np.asarray(conf).sum(axis=1)
+    return float(totals.max() / max(totals.sum(), 1)) if totals.size else 0.0
+
+
 def summary(y_true: np.ndarray, y_pred: np.ndarray, classes: list[str]) -> dict:
-    """{"accuracy", "n", "per_class": {class: TPR or None}, "confusion": [[...]], "classes"}."""
+    """{"accuracy", "majority_rate", "n", "per_class": {class: TPR or None},
+    "confusion": [[...]], "classes"}."""
     conf = confusion(y_true, y_pred, classes)
     tpr = true_positive_rates(conf)
     return {
         "accuracy": float(np.trace(conf) / max(conf.sum(), 1)),
+        "majority_rate": majority_rate(conf),
         "n": int(conf.sum()),
         "per_class": {c: (None if np.isnan(r) else float(r)) for c, r in zip(classes, tpr)},
         "classes": list(classes),
         "confusion": conf.tolist(),
     }
+
+
+def counts_table(counts: dict[str, dict[str, int]]) -> str:
+    """Clips per class and split as text: one row per class, one column per split, then the
+    totals and the majority-class rate (`counts` as from `Dataset.counts()`)."""
+    splits = list(counts)
+    labels = list(next(iter(counts.values()), {}))
+    width = max(map(len, labels + ["label", "total"]))
+    lines = [f"{'label':<{width}}" + "".join(f"{s:>12}" for s in splits)]
+    for label in labels:
+        lines.append(f"{label:<{width}}" + "".join(f"{counts[s][label]:>12}" for s in splits))
+    lines.append(f"{'total':<{width}}" + "".join(f"{sum(counts[s].values()):>12}"
+                                                 for s in splits))
+    rates = [max(counts[s].values(), default=0) / max(sum(counts[s].values()), 1)
+             for s in splits]
+    lines.append(f"{'majority':<{width}}" + "".join(f"{100 * r:>11.1f}%" for r in rates))
+    return "\n".join(lines)
 
 
 def write_confusion_csv(path: Path, conf: np.ndarray, classes: list[str]) -> None:

@@ -415,6 +415,8 @@ def test_spread_sample_on_many_words_and_speakers():
     assert len(per_word) == 25 and set(per_word.values()) == {2, 3}
     for word in per_word:
         assert len({c.speaker for c in picked if c.word == word}) == per_word[word]
+    per_speaker = Counter(c.speaker for c in picked)  # 60 clips over 8 speakers: 7 or 8
+    assert len(per_speaker) == 8 and max(per_speaker.values()) - min(per_speaker.values()) <= 1
     few = spread_sample(clips[:5], 60, np.random.default_rng(0))
     assert sorted(few, key=Clip.key) == sorted(clips[:5], key=Clip.key)  # fewer: all of them
 

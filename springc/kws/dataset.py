@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 import sys
 import zlib
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -356,29 +357,31 @@ def command_mean(clips: list[Clip], root: Path, split: str) -> int:
 
 
 def spread_sample(clips: list[Clip], k: int, rng: np.random.Generator) -> list[Clip]:
-    """`k` of `clips` (all if there are fewer), spread evenly over their words and, within a
-    word, over its speakers: words are visited in turn (in a random order), and each word
-    gives its speakers' clips in turn (speakers and their clips in a random order)."""
+    """`k` of `clips` (all if there are fewer), spread evenly over their words and speakers:
+    the words take turns (in a random order) and each gives, of its clips not yet taken (in a
+    random order), one by the speaker it has given least so far, among those by the speaker
+    taken least overall."""
     by_word: dict[str, list[Clip]] = {}
     for clip in clips:
         by_word.setdefault(clip.word, []).append(clip)
-    queues = [speaker_order(by_word[w], rng) for w in sorted(by_word)]
-    queues = [queues[i] for i in rng.permutation(len(queues))]
+    words = sorted(by_word)
+    pools = {w: [by_word[w][i] for i in rng.permutation(len(by_word[w]))] for w in words}
+    order = [words[i] for i in rng.permutation(len(words))]
+    overall: Counter[str] = Counter()
+    given = {w: Counter() for w in words}
     picked: list[Clip] = []
-    for rank in range(max(map(len, queues), default=0)):
-        picked += [q[rank] for q in queues if rank < len(q)]
-    return picked[:k]
-
-
-def speaker_order(clips: list[Clip], rng: np.random.Generator) -> list[Clip]:
-    """`clips` in rounds: one clip of each speaker per round, in a random order."""
-    by_speaker: dict[str, list[Clip]] = {}
-    for clip in clips:
-        by_speaker.setdefault(clip.speaker, []).append(clip)
-    lists = [by_speaker[s] for s in sorted(by_speaker)]
-    lists = [[c[i] for i in rng.permutation(len(c))] for c in lists]
-    lists = [lists[i] for i in rng.permutation(len(lists))]
-    return [c[r] for r in range(max(map(len, lists))) for c in lists if r < len(c)]
+    while len(picked) < min(k, len(clips)):
+        for word in order:
+            pool = pools[word]
+            if not pool or len(picked) == k:
+                continue
+            best = min(range(len(pool)), key=lambda i: (given[word][pool[i].speaker],
+                                                        overall[pool[i].speaker]))
+            clip = pool.pop(best)
+            given[word][clip.speaker] += 1
+            overall[clip.speaker] += 1
+            picked.append(clip)
+    return picked
 
 
 def with_protocol(ds: Dataset, protocol: str, seed: int = 0) -> Dataset:

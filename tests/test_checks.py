@@ -12,11 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from springc import checks
-from springc.errors import CheckError, SourceLoc
-from springc.integrators import get_tableau, stability_polynomial
-from springc.ir import IRBuilder, Tran
+from springc import checks, physics
+from springc.errors import CheckError, SimulationError, SourceLoc
+from springc.integrators import get_tableau, max_stable_step, stability_polynomial
+from springc.ir import IRBuilder, Source, Tran
 from springc.lang import load_file
+from springc.simulate import simulate
 
 CASES = sorted((Path(__file__).resolve().parent / "cases" / "check").glob("*.spr"))
 _HEADER = re.compile(r"^\* (expect|line): (.*)$")
@@ -341,3 +342,162 @@ def test_large_component_quartics() -> None:
     u = _direction(msg)
     assert abs(u["n200"]) == pytest.approx(abs(u["n201"]), rel=1e-3)
     assert _errors(_long_chain(good)) == []
+
+
+# --- split schemes (springc.expint): blocks exact, the inner RK4 on the rest --------------
+
+H16 = 1 / 16000  # a 16 kHz input grid: the top Mel bands sit just below its Nyquist frequency
+WS = 2 * np.pi * 50  # the slow part
+G_SQUARE = 1e3  # squarers from the filters into the slow part
+
+
+def _pair(b: IRBuilder, first: str, second: str, w: float, line: int) -> None:
+    """A driven two-mode filter pair (paper Eq. filter-response: delta 1.1, alpha 400)."""
+    delta, alpha = 1.1, 400.0
+    for node, sign in ((first, 1.0), (second, -1.0)):
+        b.mass(f"M{node}", node, 1.0, alpha, loc=_loc(line))
+        b.spring(f"K{node}", node, w**2, loc=_loc(line + 1))
+        b.force(f"F{node}", node, Source("in"), alpha * (1 + sign * delta**2) * w**2,
+                loc=_loc(line + 2))
+    b.coupling(f"C{first}", first, second, (delta**2 - 1) * w**2 / 2, loc=_loc(line + 3))
+
+
+def _fast_pairs(stiff: float | None = None):
+    """Filter pairs at 7 and 8 kHz (omega h = 3.0 and 3.5 at 16 kHz, past RK4's 2.83)
+    squared into a slow coupled pair r, s; `stiff`: a node t with that omega, coupled to s."""
+    b = IRBuilder(file="net.spr")
+    _pair(b, "xa", "xb", 2 * np.pi * 7000, 1)
+    _pair(b, "xc", "xd", 2 * np.pi * 8000, 5)
+    for node in ("r", "s"):
+        b.mass(f"M{node}", node, 1.0, 20.0, loc=_loc(10))
+        b.spring(f"K{node}", node, WS**2, loc=_loc(11))
+    b.coupling("Crs", "r", "s", WS**2 / 4, loc=_loc(12))
+    b.quad("Qbr", "xb", "r", G_SQUARE, loc=_loc(13))
+    b.quad("Qds", "xd", "s", G_SQUARE, loc=_loc(14))
+    if stiff:
+        b.mass("Mt", "t", 1.0, loc=_loc(15))
+        b.spring("Kt", "t", stiff**2, loc=_loc(16))
+        b.coupling("Cst", "s", "t", 1e3, loc=_loc(17))
+    b.tran = Tran(H16, 0.05, _loc(20))
+    return b.finish()
+
+
+def _eigenvalues(stiffness: np.ndarray, damping: np.ndarray) -> np.ndarray:
+    """First-order eigenvalues of x'' + B x' + K x = 0 (unit masses)."""
+    n = len(stiffness)
+    a = np.block([[np.zeros((n, n)), np.eye(n)], [-stiffness, -damping]])
+    return np.linalg.eigvals(a)
+
+
+def _rest_limit(stiff: float | None = None) -> float:
+    """RK4's largest stable step on the slow part alone (plus t): r, s with their springs, the
+    coupling and the squarers' stiffness g a at rest (on r and s, their j nodes)."""
+    k = WS**2 * np.array([[1.25, -0.25], [-0.25, 1.25]]) + G_SQUARE * np.eye(2)
+    damp = np.diag([20.0, 20.0])
+    if stiff:
+        k = np.pad(k, (0, 1))
+        k[1, 1] += 1e3
+        k[2, 2] = stiff**2 + 1e3
+        k[1, 2] = k[2, 1] = -1e3
+        damp = np.pad(damp, (0, 1))
+    return max_stable_step(get_tableau("rk4"), _eigenvalues(k, damp))[0]
+
+
+def test_rk4_rejects_fast_filter_pairs_with_the_step_they_need() -> None:
+    net = _fast_pairs()
+    need = max_stable_step(get_tableau("rk4"), _eigenvalues(
+        physics.stiffness_matrix(net), physics.damping_matrix(net)))[0]
+    # about 2 sqrt 2 / omega of the 8.8 kHz mode (its damping, 200/s, moves it by 0.3%)
+    assert 2 * np.sqrt(2) / (1.1 * 2 * np.pi * 8000) == pytest.approx(need, rel=5e-3)
+    with pytest.raises(CheckError) as info:
+        checks.check(net)
+    diag, = info.value.diagnostics
+    assert diag.loc.line == 20
+    assert diag.message.startswith("time step 6.25e-05 s is unstable for rk4: the oscillating "
+                                   "mode at 8800 Hz (55292 rad/s), damping rate 200 1/s")
+    assert "dominant nodes xc (1.00), xd (1.00)" in diag.message
+    assert diag.message.endswith(f"needs a step <= {need:.6g} s (largest stable step)")
+    assert diag.hint.endswith(".options substeps=2")
+
+
+@pytest.mark.parametrize("method", ["exp-rk4", "strang-rk4"])
+def test_split_scheme_takes_the_step_the_rest_allows(method: str) -> None:
+    """The filter pairs are integrated exactly: only the slow part limits the step."""
+    result = checks.check(_fast_pairs(), method=method)
+    assert result.errors == [] and result.method == method
+    assert result.step.dt == pytest.approx(_rest_limit(), rel=1e-6)
+    assert result.step.dt > 100 * H16
+    assert {n for n, _ in result.step.mode.dominant(2)} == {"r", "s"}
+    assert [list(nodes) for nodes in result.blocks.nodes] == [[0, 1], [2, 3]]
+
+
+def test_split_scheme_rejects_a_stiff_rest_naming_its_mode() -> None:
+    """A 9 kHz node outside the blocks (omega h = 3.5) is integrated by RK4: rejected."""
+    w = 2 * np.pi * 9000
+    need = _rest_limit(stiff=w)
+    assert need == pytest.approx(2 * np.sqrt(2) / w, rel=1e-3)
+    with pytest.raises(CheckError) as info:
+        checks.check(_fast_pairs(stiff=w), method="exp-rk4")
+    diag, = info.value.diagnostics
+    assert diag.loc.line == 20
+    assert diag.message.startswith("time step 6.25e-05 s is unstable for exp-rk4: the "
+                                   "oscillating mode at 9000")
+    assert "dominant nodes t (1.00)" in diag.message
+    assert diag.message.endswith(f"needs a step <= {need:.6g} s (largest stable step)")
+
+
+def test_split_scheme_without_blocks_has_the_limit_of_rk4() -> None:
+    net = _oscillator(2 * np.pi * 1000)  # no input force: nothing to integrate exactly
+    rk4 = checks.check(net).step.dt
+    assert checks.check(net, method="exp-rk4").step.dt == pytest.approx(rk4, rel=1e-12)
+    assert checks.check(net, method="strang-rk4").step.dt == pytest.approx(rk4, rel=1e-12)
+
+
+def test_unknown_method_lists_every_integrator() -> None:
+    net = _oscillator(10.0)
+    diag, = checks.diagnose(net, "rk5").errors
+    assert diag.message == "unknown integrator 'rk5'"
+    assert diag.hint == "known: rk4, rk38, ssprk3, heun3, midpoint, strang-rk4, exp-rk4"
+    net.options["method"] = "exp_rk4"  # the spelling .options takes
+    assert checks.check(net).method == "exp-rk4"
+
+
+def _kicked_pair(kick_hz: float, tstep: float, method: str, tstop: float = 0.05):
+    """A 7 kHz filter pair with a 50 Hz node r squared onto its node xb (Q r xb): at rest the
+    Q puts a stiffness g a on xb that the Runge-Kutta part of a split integrates."""
+    b = IRBuilder(file="net.spr")
+    _pair(b, "xa", "xb", 2 * np.pi * 7000, 1)
+    b.mass("Mr", "r", 1.0, 20.0, loc=_loc(5))
+    b.spring("Kr", "r", WS**2, loc=_loc(6))
+    b.quad("Qrb", "r", "xb", (2 * np.pi * kick_hz) ** 2, loc=_loc(7))
+    b.probe("x", "xb")
+    b.tran = Tran(tstep, tstop, _loc(8))
+    b.options["method"] = method
+    return b.finish()
+
+
+def _growth(net) -> float:
+    """Largest |x(xb)| over the last quarter of a noise-driven run over that of the first
+    quarter (inf if the divergence guard stops it)."""
+    rng = np.random.default_rng(0)
+    u = 1e-3 * rng.normal(size=(1, 1, int(net.tran.tstop / net.tran.tstep) + 2))
+    try:
+        x = simulate(net, u).probes["x(xb)"][0]
+    except SimulationError:
+        return np.inf
+    quarter = len(x) // 4
+    return float(np.abs(x[-quarter:]).max() / np.abs(x[:quarter]).max())
+
+
+@pytest.mark.parametrize(("method", "limit"), [("exp-rk4", 6.0475e-5), ("strang-rk4", 5.7907e-5)])
+def test_kicked_block_limit_is_where_the_scheme_starts_to_grow(method: str, limit: float) -> None:
+    """A 3 kHz kick on a 7 kHz block: RK4 on the kick alone would allow 2.83 / omega = 1.5e-4
+    s, yet the scheme's step map grows from ~6e-5 s, below the 16 kHz step (an island: 1e-4 s
+    is stable again). The check finds the limit; simulation confirms it on both sides."""
+    result = checks.diagnose(_kicked_pair(3000.0, H16, method))
+    assert result.step.dt == pytest.approx(limit, rel=1e-4)
+    assert 2 * np.sqrt(2) / (2 * np.pi * 3000) > 2 * H16
+    assert "dominant nodes xb (1.00)" in result.errors[0].message
+    h = result.step.dt
+    assert _growth(_kicked_pair(3000.0, 0.98 * h, method, tstop=0.2)) < 2
+    assert _growth(_kicked_pair(3000.0, 1.02 * h, method, tstop=0.2)) > 1e3

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import pytest
 
+from springc.errors import NetlistError
+from springc.expint import SCHEMES
 from springc.integrators import TABLEAUX
-from springc.lang.options import KNOWN_OPTIONS, OptionValueError
+from springc.lang import load_text
+from springc.lang.options import KNOWN_OPTIONS, OptionValueError, known_methods
 
 
 def test_known_keys() -> None:
@@ -42,3 +45,47 @@ def test_bad_values(key: str, raw, message: str) -> None:
     with pytest.raises(OptionValueError) as info:
         KNOWN_OPTIONS[key].convert(raw)
     assert str(info.value).startswith(message)
+
+
+def test_known_methods_are_the_tableaux_then_the_split_schemes() -> None:
+    assert known_methods() == [*TABLEAUX, *SCHEMES]
+    assert {"exp-rk4", "strang-rk4"} <= set(known_methods())
+
+
+@pytest.mark.parametrize("name", sorted(SCHEMES))
+def test_split_schemes_are_methods_in_both_spellings(name: str) -> None:
+    """Names have no '-' (spec: [A-Za-z_][A-Za-z0-9_]*): a netlist writes exp_rk4."""
+    convert = KNOWN_OPTIONS["method"].convert
+    assert convert(name) == convert(name.upper()) == convert(name.replace("-", "_")) == name
+
+
+def test_unknown_method_lists_every_method() -> None:
+    with pytest.raises(OptionValueError) as info:
+        KNOWN_OPTIONS["method"].convert("exp_rk5")
+    assert str(info.value) == (
+        "unknown integration method 'exp_rk5'; known: rk4, rk38, ssprk3, heun3, midpoint, "
+        "strang-rk4, exp-rk4 (write strang_rk4, exp_rk4 or quote the name in .options)")
+
+
+SPLIT = "M1 a m=1\nK1 a k=1\nF1 a in(0)\n.options method={}\n.tran 1m 1\n"
+
+
+@pytest.mark.parametrize(("written", "method"), [("exp_rk4", "exp-rk4"),
+                                                 ('"strang-rk4"', "strang-rk4"),
+                                                 ("'EXP-RK4'", "exp-rk4"), ("Rk38", "rk38")])
+def test_options_method_in_a_netlist(written: str, method: str) -> None:
+    assert load_text(SPLIT.format(written), "net.spr").options["method"] == method
+
+
+def test_options_unknown_method_is_an_error_at_its_value() -> None:
+    with pytest.raises(NetlistError) as info:
+        load_text(SPLIT.format("exp_rk5"), "net.spr")
+    assert (info.value.loc.line, info.value.loc.col) == (4, 17)
+    assert "known: rk4, rk38, ssprk3, heun3, midpoint, strang-rk4, exp-rk4" in str(info.value)
+
+
+def test_bare_hyphenated_method_is_not_a_name() -> None:
+    """`method=exp-rk4` is outside the spec's grammar: a syntax error at the '-'."""
+    with pytest.raises(NetlistError) as info:
+        load_text(SPLIT.format("exp-rk4"), "net.spr")
+    assert (info.value.loc.line, info.value.loc.col) == (4, 20)

@@ -3,6 +3,7 @@ throughput table of issue 3 (`--issue3`)."""
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import click
@@ -43,7 +44,9 @@ def bench_cmd(case_names, outdir, quick, issue3, seconds, batch, stretch, json_p
 
     say = lambda m: click.echo(m, err=True)
     machine = benchsuite.machine_info()
+    start = time.perf_counter()
     results = benchsuite.run_suite(list(case_names) or None, quick=quick, progress=say)
+    machine["suite_wall_s"] = time.perf_counter() - start
     paths = benchsuite.write_report(results, Path(outdir), machine)
     click.echo(paths["md"].read_text())
     click.echo(f"(written: {', '.join(str(p) for p in paths.values())})")

@@ -1,0 +1,187 @@
+"""springc.benchsuite: the tight reference against an analytic solution, the ladder of finer
+rows, the equal-error speed-ups and the must-show verdicts. No timing is asserted (the machine
+is shared): the speed-up logic is checked on rows with given wall times."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+
+import numpy as np
+import pytest
+
+from springc import benchsuite as bs
+from springc.ir import IRBuilder, Source, Tran
+
+K, C, F, FREQ = (2 * np.pi * 300.0) ** 2, 60.0, 1e5, 280.0  # driven near resonance, Q ~ 31
+TSTEP, TSTOP, STRETCH = 1e-4, 0.02, 0.01
+
+
+def _oscillator():
+    b = IRBuilder("driven oscillator", "<test_benchsuite>")
+    b.mass("M1", "a", 1.0, C)
+    b.spring("K1", "a", K)
+    b.force("F1", "a", Source("sin", (F, FREQ)))
+    b.probe("x", "a")
+    b.tran = Tran(TSTEP, TSTOP, None)
+    return b.finish()
+
+
+def _analytic(t: np.ndarray) -> np.ndarray:
+    """x'' + C x' + K x = F sin(W t) from rest: the particular solution plus the damped free
+    oscillation that cancels its initial position and velocity."""
+    w = 2 * np.pi * FREQ
+    a, b = np.linalg.solve([[K - w**2, -C * w], [C * w, K - w**2]], [F, 0.0])
+    sigma = C / 2
+    wd = math.sqrt(K - sigma**2)
+    c1 = -b
+    c2 = (sigma * c1 - a * w) / wd
+    free = np.exp(-sigma * t) * (c1 * np.cos(wd * t) + c2 * np.sin(wd * t))
+    return a * np.sin(w * t) + b * np.cos(w * t) + free
+
+
+def _case(**kw) -> bs.Case:
+    args = {"configs": [("rk4", 1, "float64"), ("rk4", 2, "float64")],
+            "peer_tstop": STRETCH, "peers": ("DOP853", "numpy-rk4"),
+            "ladder": tuple(("rk4", s, "float64") for s in (4, 8, 16, 32, 64)),
+            "ref_substeps": 256}
+    args.update(kw)
+    return bs.Case("osc", "driven oscillator", _oscillator(), None, TSTEP, TSTOP, **args)
+
+
+@pytest.fixture(scope="module")
+def ref():
+    return bs.reference(_case(), None)
+
+
+def test_reference_matches_the_analytic_solution_well_below_1e9(ref):
+    want = _analytic(ref.t)
+    err = np.linalg.norm(ref.probes["x(a)"] - want) / np.linalg.norm(want)
+    assert err < 1e-11
+    # the estimate is the fine run's own error: an upper bound of the extrapolated one
+    assert err <= max(ref.estimate["x(a)"], 1e-13)
+    assert 1e-15 < ref.estimate["x(a)"] < 1e-10
+    assert ref.stretch_estimate["x(a)"] <= ref.estimate["x(a)"] * 1.5
+    # the independent check: DOP853 at rtol 1e-12 agrees to well below 1e-9
+    assert ref.check["x(a)"] < 1e-10
+    assert ref.floor == max(ref.stretch_estimate["x(a)"], ref.check["x(a)"])
+
+
+def _peer(error: float, wall_per_run_s: float = 100.0, method: str = "DOP853") -> bs.Row:
+    return bs.Row(f"peer {method}", method, 1, "float64", {"x": error}, wall_per_run_s * 0.01,
+                  0.0, 0.01, 1 / wall_per_run_s, stretch_errors={"x": error})
+
+
+def test_ladder_stops_at_the_first_rung_as_accurate_as_the_best_peer(ref):
+    case = _case()
+    rows = [bs._kernel_row(case, ref, m, s, p, 1) for m, s, p in case.configs]
+    target = 1e-9
+    note = bs._climb_ladder(case, ref, rows, [_peer(target), _peer(1e-3, method="ngspice")],
+                            1, lambda m: None)
+    ladder = [r for r in rows if "ladder" in r.note]
+    assert ladder, note
+    assert ladder[-1].max_stretch_error <= target < ladder[-2].max_stretch_error
+    assert note.startswith("ladder stopped at rk4 x")
+    # fourth order: each halving of the step divides the error by about 16
+    ratios = [a.max_stretch_error / b.max_stretch_error for a, b in itertools.pairwise(rows)]
+    assert all(10 < q < 22 for q in ratios), ratios
+
+
+def test_ladder_reports_round_off_when_the_peer_is_out_of_reach(ref):
+    case = _case(ladder=tuple(("rk4", s, "float64") for s in (4, 16, 64, 256, 512)))
+    rows = [bs._kernel_row(case, ref, "rk4", 1, "float64", 1)]
+    peer = _peer(1e-30)
+    note = bs._climb_ladder(case, ref, rows, [peer], 1, lambda m: None)
+    # the floor (about 1e-14 here) is the target when the peer is below it; a row at the floor
+    # meets it, else round-off stops the climb: either way the note says which
+    assert ("<=" in note and "ladder stopped" in note) or "no gain" in note, note
+    assert rows[-1].max_stretch_error < 1e-11
+
+
+def _kernel(method: str, sub: int, err: float, wall_per_run_s: float, whole: float | None = None,
+            precision: str = "float64") -> bs.Row:
+    return bs.Row(f"kernel {method}", method, sub, precision, {"x": whole or err},
+                  wall_per_run_s, 0.0, 1.0, 1 / wall_per_run_s, stretch_errors={"x": err})
+
+
+def _result(rows, floor=1e-14) -> bs.CaseResult:
+    res = bs.CaseResult("net", "a network", 1, 1, TSTEP, TSTOP, rows=rows, peer_tstop=STRETCH)
+    res.reference = {"floor": floor}
+    return res
+
+
+def test_speedup_is_the_cheapest_row_at_equal_or_better_stretch_error():
+    rows = [_kernel("rk4", 1, 1e-4, 0.01), _kernel("rk4", 4, 1e-8, 0.04, whole=1e-6),
+            _kernel("rk4", 8, 5e-10, 0.08), _peer(2e-9, wall_per_run_s=100.0),
+            _peer(1e-3, wall_per_run_s=50.0, method="ngspice")]
+    out = {s["peer"]: s for s in bs.speedups(_result(rows))}
+    assert out["DOP853"]["kernel"] == "rk4 x8 float64"
+    assert out["DOP853"]["speedup"] == pytest.approx(100.0 / 0.08)
+    assert out["ngspice"]["kernel"] == "rk4 x1 float64"  # 1e-4 <= 1e-3, the cheapest
+    assert out["ngspice"]["speedup"] == pytest.approx(5000.0)
+    assert not out["DOP853"]["floor_limited"]
+
+
+def test_speedup_counts_a_peer_below_the_floor_at_the_floor_and_reports_the_closest_row():
+    rows = [_kernel("rk4", 8, 5e-10, 0.08), _kernel("rk4", 16, 3e-12, 0.16),
+            _peer(1e-13, wall_per_run_s=100.0)]
+    s = bs.speedups(_result(rows, floor=4e-12))[0]
+    assert s["floor_limited"] and s["kernel"] == "rk4 x16 float64"
+    s = bs.speedups(_result(rows, floor=1e-14))[0]
+    assert s["kernel"] is None and s["speedup"] is None
+    assert s["closest"] == "rk4 x16 float64"
+    assert s["closest_speedup"] == pytest.approx(100.0 / 0.16)
+
+
+def test_verdicts_say_met_missed_and_partly_met_with_the_numbers():
+    fe_rows = [_kernel("rk4", 1, 0.5, 0.004, whole=0.8), _kernel("exp-rk4", 1, 1e-4, 0.005,
+                                                                 whole=3e-4),
+               _kernel("exp-rk4", 16, 1e-12, 0.08), _peer(2e-11, wall_per_run_s=500.0),
+               _peer(1e-4, wall_per_run_s=8000.0, method="ngspice")]
+    for r in fe_rows[:3]:
+        r.ceiling_fraction = 0.3
+    fe = _result(fe_rows)
+    fe.name = "feature"
+    other = _result([_kernel("rk4", 1, 1e-6, 0.01), _peer(1e-13, wall_per_run_s=500.0)])
+    other.rows[0].ceiling_fraction = 0.8
+    found = bs.claims([fe, other])
+    by = {(v["claim"], v["scope"]): v for v in found["verdicts"]}
+    assert by[("feature_1e-3", "float64")]["met"]  # 0.005 / 0.004 = 1.25x
+    assert by[("feature_1e-3", "float64")]["value"] == pytest.approx(1.25)
+    assert by[("speedup_DOP853", "feature")]["met"]  # 500 / 0.08 = 6250x
+    assert by[("speedup_DOP853", "net")]["met"] is False  # no row reaches 1e-13
+    assert by[("speedup_ngspice", "net")]["met"] is None  # ngspice did not run there
+    assert by[("ceiling_70", "net float64")]["met"]
+    assert not by[("ceiling_70", "feature float64")]["met"]
+    md = "\n".join(bs._verdicts_md(found["verdicts"]))
+    assert "**MET**: Feature extractor" in md
+    assert "**PARTLY MET (1 of 2)**: At least 300x faster than scipy DOP853" in md
+    assert "**PARTLY MET (1 of 2)**: Throughput" in md
+    assert "feature 6250x (met; exp-rk4 x16 float64 1e-12 vs 2e-11)" in md
+    assert "net missed: no kernel row reaches its error 1e-13" in md
+    assert "**MET**: At least 50x faster than ngspice" in md  # feature only; net: not run
+    assert "feature 1600000x (met; exp-rk4 x1 float64 0.0001 vs 0.0001)" in md
+    assert "net: not measured (peer not run)" in md
+
+
+def test_run_case_writes_the_report_with_reference_and_ladder(tmp_path):
+    case = _case(peers=("DOP853", "RK45", "numpy-rk4"))
+    res = bs.run_case(case, progress=lambda m: None)
+    assert res.reference["floor"] < 1e-11
+    peers = {r.method: r for r in res.rows if r.name.startswith("peer")}
+    assert set(peers) == {"DOP853", "RK45", "numpy-rk4"}
+    # numpy RK4 at 1/tstep is the kernel's rk4 x1 on the same equations
+    x1 = bs._find(res, "rk4", 1, "float64")
+    assert peers["numpy-rk4"].max_stretch_error == pytest.approx(x1.max_stretch_error, rel=1e-6)
+    kernels = [r for r in res.rows if r.name.startswith("kernel")]
+    assert all(r.stretch_errors and r.errors for r in kernels)
+    assert "ladder" in res.ladder_note
+    paths = bs.write_report([res], tmp_path, bs.machine_info() | {"suite_wall_s": 60.0})
+    data = json.loads(paths["json"].read_text())
+    assert data["cases"][0]["reference"]["substeps"] == 256
+    md = paths["md"].read_text()
+    assert "## Issue 7's must-show figures: met or missed (this run)" in md
+    assert "Reference: rk4 x256 and x128, Richardson-extrapolated" in md
+    assert "the whole suite took 1.0 min" in md
+    assert paths["osc"].stat().st_size > 1000

@@ -67,7 +67,8 @@ def evaluate(model_dir: Path, data: Path | None = None, realisation: str | None 
                          f"it cannot be evaluated with --realisation {realisation}")
     data = Path(data) if data else _trained_data(model)
     task = model.settings["task"]
-    ds = open_task_data(data, task, int(model.settings.get("seed", 0)))
+    ds = open_task_data(data, task, int(model.settings.get("seed", 0)),
+                        model.settings.get("protocol"))
     if realisation == "mass-spring":  # simulate the whole classifier network
         from springc.kws.transfer import evaluate_network
 

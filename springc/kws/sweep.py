@@ -29,7 +29,8 @@ def epsilon_sweep(model_dir: Path, data: Path, epsilons, *, scheduler: str | Non
     from springc.lang import load_text
 
     model = load_model(model_dir)
-    ds = open_task_data(data, model.settings["task"], int(model.settings.get("seed", 0)))
+    ds = open_task_data(data, model.settings["task"], int(model.settings.get("seed", 0)),
+                        model.settings.get("protocol"))
     s, _ = tr.model_heads(model)
     amp = float(model.settings["transfer"]["amplitude"])
     rows = []

@@ -463,12 +463,15 @@ def test_unknown_method_lists_every_integrator() -> None:
 
 
 def _kicked_pair(kick_hz: float, tstep: float, method: str, tstop: float = 0.05):
-    """A 7 kHz filter pair with a 50 Hz node r squared onto its node xb (Q r xb): at rest the
-    Q puts a stiffness g a on xb that the Runge-Kutta part of a split integrates."""
+    """A 7 kHz filter pair with a slow node r squared onto its node xb (Q r xb): at rest the
+    Q puts a stiffness g a on xb that the Runge-Kutta part of a split integrates. (r, s as in
+    `_fast_pairs`, whose kernel this one shares.)"""
     b = IRBuilder(file="net.spr")
     _pair(b, "xa", "xb", 2 * np.pi * 7000, 1)
-    b.mass("Mr", "r", 1.0, 20.0, loc=_loc(5))
-    b.spring("Kr", "r", WS**2, loc=_loc(6))
+    for node in ("r", "s"):
+        b.mass(f"M{node}", node, 1.0, 20.0, loc=_loc(5))
+        b.spring(f"K{node}", node, WS**2, loc=_loc(6))
+    b.coupling("Crs", "r", "s", WS**2 / 4, loc=_loc(7))
     b.quad("Qrb", "r", "xb", (2 * np.pi * kick_hz) ** 2, loc=_loc(7))
     b.probe("x", "xb")
     b.tran = Tran(tstep, tstop, _loc(8))

@@ -135,15 +135,13 @@ def test_build_unknown_method_lists_all(tmp_path) -> None:
 
 
 def test_sim_follows_options_method(tmp_path) -> None:
-    """`.options method=exp_rk4` gives the trajectory of `--method exp-rk4` (to 1e-12); RK4
-    at 2 substeps, stable but far off for the 8 kHz band, differs: the option was used."""
+    """`.options method=exp_rk4` gives the trajectory of `--method exp-rk4` (to 1e-12). Not a
+    coincidence of defaults: RK4, the default, is unstable at this step (the divergence guard
+    would stop the run)."""
     rng = np.random.default_rng(3)
     sf.write(tmp_path / "noise.wav", 1e-3 * rng.normal(size=800), 16000, subtype="DOUBLE")
-    runs = {
-        "option": (_write(tmp_path, "opt.spr", ".options method=exp_rk4"), []),
-        "flag": (_write(tmp_path, "plain.spr"), ["--method", "exp-rk4"]),
-        "rk4": (_write(tmp_path, "plain.spr"), ["--method", "rk4", "--substeps", "2"]),
-    }
+    runs = {"option": (_write(tmp_path, "opt.spr", ".options method=exp_rk4"), []),
+            "flag": (_write(tmp_path, "plain.spr"), ["--method", "exp-rk4"])}
     out = {}
     for name, (path, extra) in runs.items():
         res = _run("sim", path, "-i", tmp_path / "noise.wav", "-o", tmp_path / f"{name}.npz",
@@ -152,7 +150,5 @@ def test_sim_follows_options_method(tmp_path) -> None:
         out[name] = np.load(tmp_path / f"{name}.npz")
     for probe in ("x(xa)", "x(xd)", "x(r)", "x(s)"):
         scale = np.abs(out["flag"][probe]).max()
-        assert scale > 0
+        assert scale > 0 and np.isfinite(scale)
         assert np.abs(out["option"][probe] - out["flag"][probe]).max() <= 1e-12 * scale
-    diff = np.abs(out["rk4"]["x(xd)"] - out["flag"]["x(xd)"]).max()
-    assert diff > 0.1 * np.abs(out["flag"]["x(xd)"]).max()

@@ -4,7 +4,8 @@
 
 The report is what `springc build` prints (text or one JSON object, spec "Machine-readable
 outputs"): degrees of freedom, element counts, instances, the fastest mode of the
-linearisation and the largest stable step of the configured integrator.
+linearisation and the largest stable step of the configured integrator (for a splitting
+scheme, the blocks it integrates exactly and the mode of the rest that limits its step).
 """
 
 from __future__ import annotations
@@ -39,8 +40,8 @@ class BuildReport:
     zero_modes: int
     modes_complete: bool
     notes: list[Diagnostic] = field(default_factory=list)
-    exact_blocks: list[list[str]] = field(default_factory=list)  # nodes of each block a split
-    # scheme integrates exactly (matrix exponential); they impose no step limit
+    # nodes of each block a split scheme integrates exactly (no step limit from them)
+    exact_blocks: list[list[str]] = field(default_factory=list)
     mode_errors: list[accuracy.ModeError] = field(default_factory=list)  # worst first
     net: FlatNetlist | None = field(default=None, repr=False)  # what was built
 
@@ -77,12 +78,14 @@ class BuildReport:
     def summary(self) -> str:
         """Human-readable text."""
         counts = ", ".join(f"{k}={v}" for k, v in self.elements.items()) or "none"
+        # a split scheme's step is set by the fastest mode it does not integrate exactly
+        limiting = "limiting   " if self.exact_blocks else "fastest    "
         lines = [f"{self.file}: {self.title or '(untitled)'}",
                  f"  dofs        {self.dofs}",
                  f"  elements    {counts}",
                  f"  instances   {self.instances}" + _by_subckt(self.instances_by_subckt),
                  f"  omega_max   {self.omega_max:.6g} rad/s ({self.f_max_hz:.6g} Hz)",
-                 f"  {self._limiting_label()} {self.fastest_mode or '-'}",
+                 f"  {limiting} {self.fastest_mode or '-'}",
                  f"  dt_max      {_seconds(self.dt_max)} ({self.method})",
                  f"  step        {_step(self)}"]
         if self.exact_blocks:
@@ -95,11 +98,6 @@ class BuildReport:
                          ".tran tstop, relative L2 of the impulse response):")
             lines += [f"    {m.describe()}" for m in self.mode_errors]
         return "\n".join(lines + [d.format() for d in self.notes])
-
-
-    def _limiting_label(self) -> str:
-        # a split scheme's step is set by the fastest mode it does not integrate exactly
-        return "limiting   " if self.exact_blocks else "fastest    "
 
 
 def _blocks(blocks: list[list[str]], count: int = 4) -> str:

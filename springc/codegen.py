@@ -3,9 +3,23 @@
 The kernel is specialised to the element kinds the netlist uses (a netlist without `Q` gets no
 `Q` loop), to the integrator (stages unrolled from the Butcher tableau), the precision and the
 recorded quantities. Node indices and coefficients are *runtime arguments*, so changing a
-parameter value reuses the compiled kernel. The state is laid out `(n_dof, batch)` with the
-batch as the innermost, SIMD-friendly loop; `run` integrates a range of chunks of runs and
-releases the GIL, so the runtime runs chunks on several threads.
+parameter value reuses the compiled kernel. The state is laid out `(n_dof, lanes)` per chunk
+of `lanes` runs (a compile-time constant: the last chunk is padded), the lanes innermost;
+`run` integrates a range of chunks of runs and releases the GIL, so the runtime runs chunks on
+several threads.
+
+Why the kernel looks the way it does (each measured against `springc.ceiling`, issue 7):
+- per element, the lane arithmetic is written out as straight-line code (all loads, then the
+  arithmetic, then the stores), so LLVM's SLP vectoriser turns it into a few vector
+  instructions; a runtime-length lane loop cost more in alias checks and loop control than
+  the arithmetic of a short lane row;
+- the inverse mass is folded into the element coefficients (`simulate.coefficient_arrays`)
+  and springs into a per-node diagonal, so no extra pass scales the force rows;
+- FMA contraction (fastmath "contract" only: no reassociation, results within round-off);
+- the input samples are staged every `STAGE_BLOCK` steps into a (time, channel, lane) buffer,
+  so interpolation reads contiguous lanes instead of one cache line per lane; probes are
+  recorded time-major, (probe, record, run), one contiguous store per probe and step
+  (`springc.simulate` hands out each probe as a (run, record) view of it).
 
 This module never imports numba: `springc.loader` compiles the text.
 """
@@ -19,7 +33,10 @@ from dataclasses import asdict, dataclass
 from springc.integrators import Tableau, get_tableau
 from springc.ir import FlatNetlist
 
-KERNEL_VERSION = 1  # bump when the generated text or its calling convention changes
+KERNEL_VERSION = 2  # bump when the generated text or its calling convention changes
+LANE_CHOICES = (16, 4, 1)  # compile-time lane widths a kernel is generated for
+STAGE_BLOCK = 32  # steps of input samples staged at a time
+FASTMATH = '{"contract"}'  # FMA contraction only
 
 
 @dataclass(frozen=True)
@@ -28,10 +45,12 @@ class KernelOptions:
 
     `record`: store probe trajectories; `work`: accumulate input work per force element;
     `dissipation`: accumulate energy dissipated in dampers; `msq`: windowed mean squares;
-    `gram`: leaky Gram sums of node-pair products (springc.reductions `gram`)."""
+    `gram`: leaky Gram sums of node-pair products (springc.reductions `gram`); `lanes`: runs
+    per chunk, a compile-time constant (`choose_lanes`)."""
 
     method: str = "rk4"
     precision: str = "float64"
+    lanes: int = 16
     record: bool = True
     work: bool = False
     dissipation: bool = False
@@ -58,9 +77,10 @@ def features(net: FlatNetlist) -> Features:
     """The element kinds present in `net` (the part of the netlist that shapes the kernel)."""
     kinds = [s.kind for s in net.forces.source]
     return Features(
-        # always on: one multiply per node, and damped/undamped variants share one kernel
+        # always on: per-node diagonal terms (local damping, springs), so damped/undamped and
+        # sprung/free variants share one kernel
         local_damping=True,
-        springs=len(net.springs) > 0,
+        springs=True,
         duffings=len(net.duffings) > 0,
         couplings=len(net.couplings) > 0,
         quads=len(net.quads) > 0,
@@ -71,18 +91,25 @@ def features(net: FlatNetlist) -> Features:
     )
 
 
-# Runtime arguments of `accel`, per feature (coefficients prepared by springc.simulate).
+# Runtime arguments of `accel`, per feature (coefficients prepared by springc.simulate, the
+# inverse mass folded in: `bm` = b/m, `km` = springs/m per node, element coefficients per end).
 _ACCEL_ARGS = {
-    "local_damping": ("bloc",),
-    "springs": ("k_node", "k_k"),
-    "duffings": ("d_node", "d_l"),
-    "couplings": ("c_i", "c_j", "c_k", "c_ka"),
-    "quads": ("q_i", "q_j", "q_g", "q_a", "q_g2a"),
-    "dashpots": ("b_i", "b_j", "b_b"),
+    "local_damping": ("bm",),
+    "springs": ("km",),
+    "duffings": ("d_node", "d_lm"),
+    "couplings": ("c_i", "c_j", "c_a", "c_ki", "c_kj"),
+    "quads": ("q_i", "q_j", "q_a", "q_gi", "q_gj"),
+    "dashpots": ("b_i", "b_j", "b_bi", "b_bj"),
     "monomials": ("p_c", "p_ptr", "p_var", "p_exp"),
-    "in_forces": ("fi_node", "fi_gain", "fi_chan"),
-    "common_forces": ("fc_node", "fc_gain"),
+    "in_forces": ("fi_node", "fi_gm", "fi_chan"),
+    "common_forces": ("fc_node", "fc_gm"),
 }
+
+
+def choose_lanes(runs_per_task: int) -> int:
+    """The widest lane count of `LANE_CHOICES` that a task of this many runs fills (padding a
+    single run to many lanes would multiply its work)."""
+    return next((w for w in LANE_CHOICES if runs_per_task >= w), 1)
 
 
 def accel_args(feat: Features) -> list[str]:
@@ -174,115 +201,167 @@ class _Code:
         return "\n".join(self.lines) + "\n"
 
 
-def _body(feat: Features, opts: KernelOptions, tab: Tableau) -> str:
-    c = _Code()
-    c('"""Generated by springc.codegen; see the header. Arrays are (n_dof, batch)."""')
+def decorator(parallel: bool = False) -> str:
+    """The njit decorator of every generated function."""
+    if parallel:
+        return f'@nb.njit(parallel=True, cache=True, error_model="numpy", fastmath={FASTMATH})'
+    return f'@nb.njit(cache=True, error_model="numpy", nogil=True, fastmath={FASTMATH})'
+
+
+def preamble(c: _Code, opts: KernelOptions, args: list[str], stages: int) -> None:
+    """Imports and module constants of a generated kernel."""
     c("import numpy as np")
     c("import numba as nb")
     c("")
     c(f"FT = np.{opts.precision}")
-    c(f"ARGS = {tuple(run_args(feat, opts))!r}")
-    c(f"STAGES = {tab.stages}")
+    c(f"ARGS = {tuple(args)!r}")
+    c(f"STAGES = {stages}")
+    c(f"LANES = {opts.lanes}  # runs per chunk (compile-time: the lane code is unrolled)")
+    c(f"STAGE_BLOCK = {STAGE_BLOCK}")
     c("CHUNK_RANGE = True  # run(c0, c1) integrates only chunks c0..c1-1: callers use threads")
+
+
+def _body(feat: Features, opts: KernelOptions, tab: Tableau) -> str:
+    c = _Code()
+    c('"""Generated by springc.codegen; see the header. Arrays are (n_dof, lanes)."""')
+    preamble(c, opts, run_args(feat, opts), tab.stages)
     c("")
-    _emit_accel(c, feat)
+    _emit_accel(c, feat, lane_layout(opts))
     c("")
     _emit_run(c, feat, opts, tab)
     return c.text()
 
 
-def _loop_b(c: _Code, stmt: list[str]) -> None:
-    c("for b in range(nb_):")
-    c.indent()
-    for s in stmt:
-        c(s)
-    c.dedent()
+@dataclass(frozen=True)
+class LaneLayout:
+    """Lanes per chunk (`width`) and lanes written out per statement (`group`: one 256-bit
+    vector, 4 float64 or 8 float32; wider chunks loop over groups, which keeps the text, and
+    numba's compile time, small)."""
+
+    width: int
+    group: int
 
 
-def _emit_accel(c: _Code, feat: Features) -> None:
+def lane_layout(opts: KernelOptions) -> LaneLayout:
+    """The lane layout of a kernel with these options."""
+    per_vector = 32 // (8 if opts.precision == "float64" else 4)
+    return LaneLayout(opts.lanes, min(opts.lanes, per_vector))
+
+
+def lanes(c: _Code, ln: LaneLayout, loads: list[str], arith: list[str],
+          stores: list[str]) -> None:
+    """Straight-line code for the lanes: the loads, then the arithmetic, then the stores, each
+    statement for every lane of a group in turn (`{b}` in a statement is the lane). Loads
+    before stores lets LLVM's SLP vectoriser merge a group's lanes into vector loads, FMAs
+    and stores without alias checks; the generator guarantees that no store of an element
+    overlaps a load of the same element (distinct nodes)."""
+    if ln.group < ln.width:
+        c(f"for g_ in range(0, {ln.width}, {ln.group}):")
+        c.indent()
+    for part in (loads, arith, stores):
+        # one statement's lanes together: stores to one row must not be interleaved with
+        # stores to another, which the vectoriser cannot reorder (the rows might overlap)
+        for stmt in part:
+            for b in range(ln.group):
+                lane = str(b) if ln.group == ln.width else (f"g_ + {b}" if b else "g_")
+                c(_lane_stmt(stmt, b, lane))
+    if ln.group < ln.width:
+        c.dedent()
+
+
+def _lane_stmt(stmt: str, b: int, lane: str) -> str:
+    """One lane of a statement: temporaries (`X{b}`) get the lane's number, indices its
+    position (`x[i, {b}]`)."""
+    return re.sub(r"\[([^\[\]]*)\{b\}\]", lambda m: f"[{m.group(1)}{lane}]",
+                  stmt).replace("{b}", str(b))
+
+
+def _emit_accel(c: _Code, feat: Features, width: LaneLayout) -> None:
     args = ["x", "v", "out", "uc", "grow"] + accel_args(feat)
-    c('@nb.njit(cache=True, error_model="numpy", nogil=True)')
+    c(decorator())
     c(f"def accel({', '.join(args)}):")
     c.indent()
-    c('"""out = M^-1 (F_internal + F_damping + F_external) for one stage, all runs in x."""')
-    c("n, nb_ = x.shape")
+    c('"""out = M^-1 (F_internal + F_damping + F_external) for one stage, all lanes of x."""')
+    c("n = x.shape[0]")
     c("for i in range(n):")
     c.indent()
-    if feat.local_damping:
-        c("bi = bloc[i]")
-        _loop_b(c, ["out[i, b] = -bi * v[i, b]"])
-    else:
-        _loop_b(c, ["out[i, b] = 0.0"])
+    c("bi = bm[i]")
+    c("ki = km[i]")
+    lanes(c, width, ["V{b} = v[i, {b}]", "X{b} = x[i, {b}]"], [],
+          ["out[i, {b}] = -(bi * V{b} + ki * X{b})"])
     c.dedent()
-    if feat.springs:
-        _element_loop(c, "k_node", ["i = k_node[e]", "k = k_k[e]"], ["out[i, b] -= k * x[i, b]"])
     if feat.duffings:
-        _element_loop(c, "d_node", ["i = d_node[e]", "l = d_l[e]"],
-                      ["xi = x[i, b]", "out[i, b] -= l * xi * xi * xi"])
+        _element_loop(c, width, "d_node", ["i = d_node[e]", "lm = d_lm[e]"],
+                      ["X{b} = x[i, {b}]", "O{b} = out[i, {b}]"], [],
+                      ["out[i, {b}] = O{b} - lm * (X{b} * X{b} * X{b})"])
     if feat.couplings:
-        _element_loop(c, "c_i", ["i = c_i[e]", "j = c_j[e]", "k = c_k[e]", "ka = c_ka[e]",
-                                 "a = k / ka"],
-                      ["s = x[i, b] - a * x[j, b]", "out[i, b] -= ka * s", "out[j, b] += k * s"])
+        # potential k/(2a) (x_i - a x_j)^2: force -(k/a) s on i, +k s on j (each over its mass)
+        _element_loop(c, width, "c_i", ["i = c_i[e]", "j = c_j[e]", "a = c_a[e]", "ki = c_ki[e]",
+                                        "kj = c_kj[e]"],
+                      ["XI{b} = x[i, {b}]", "XJ{b} = x[j, {b}]", "OI{b} = out[i, {b}]",
+                       "OJ{b} = out[j, {b}]"],
+                      ["S{b} = XI{b} - a * XJ{b}"],
+                      ["out[i, {b}] = OI{b} - ki * S{b}", "out[j, {b}] = OJ{b} + kj * S{b}"])
     if feat.quads:
-        _element_loop(c, "q_i", ["i = q_i[e]", "j = q_j[e]", "g = q_g[e]", "a = q_a[e]",
-                                 "g2a = q_g2a[e]"],
-                      ["xi = x[i, b]", "s = xi * xi - a * x[j, b]",
-                       "out[i, b] -= g2a * xi * s", "out[j, b] += g * s"])
+        _element_loop(c, width, "q_i", ["i = q_i[e]", "j = q_j[e]", "a = q_a[e]", "gi = q_gi[e]",
+                                        "gj = q_gj[e]"],
+                      ["XI{b} = x[i, {b}]", "XJ{b} = x[j, {b}]", "OI{b} = out[i, {b}]",
+                       "OJ{b} = out[j, {b}]"],
+                      ["S{b} = XI{b} * XI{b} - a * XJ{b}"],
+                      ["out[i, {b}] = OI{b} - gi * XI{b} * S{b}",
+                       "out[j, {b}] = OJ{b} + gj * S{b}"])
     if feat.dashpots:
-        _emit_dashpots(c)
+        _emit_dashpots(c, width)
     if feat.monomials:
-        _emit_monomials(c)
+        _emit_monomials(c, width)
     if feat.in_forces:
-        _element_loop(c, "fi_node", ["i = fi_node[e]", "gn = fi_gain[e]", "ch = fi_chan[e]"],
-                      ["out[i, b] += gn * uc[ch, b]"])
+        _element_loop(c, width, "fi_node", ["i = fi_node[e]", "gm = fi_gm[e]",
+                                            "ch = fi_chan[e]"],
+                      ["U{b} = uc[ch, {b}]", "O{b} = out[i, {b}]"], [],
+                      ["out[i, {b}] = O{b} + gm * U{b}"])
     if feat.common_forces:
-        _element_loop(c, "fc_node", ["i = fc_node[e]", "fv = fc_gain[e] * grow[e]"],
-                      ["out[i, b] += fv"])
-    c("for i in range(n):")
-    c.indent()
-    c("mi = minv[i]")
-    _loop_b(c, ["out[i, b] *= mi"])
-    c.dedent()
+        _element_loop(c, width, "fc_node", ["i = fc_node[e]", "fv = fc_gm[e] * grow[e]"],
+                      ["O{b} = out[i, {b}]"], [], ["out[i, {b}] = O{b} + fv"])
     c.dedent()
 
 
-_ROW = re.compile(r"\b(x|v|out)\[(i|j), b\]")
-
-
-def _element_loop(c: _Code, index: str, head: list[str], inner: list[str]) -> None:
-    """Loop over elements; rows of the state are taken as views first (measured faster: the
-    inner batch loop then indexes a 1-D row, which LLVM vectorises more readily)."""
+def _element_loop(c: _Code, width: LaneLayout, index: str, head: list[str], loads: list[str],
+                  arith: list[str], stores: list[str]) -> None:
+    """Loop over elements: scalars of the element, then the lanes as straight-line code (rows
+    indexed in place: a row view would cost a reference-count update per element)."""
     c(f"for e in range({index}.shape[0]):")
     c.indent()
     for s in head:
         c(s)
-    rows = sorted({m.group(0) for s in inner for m in _ROW.finditer(s)})
-    for r in rows:
-        m = _ROW.match(r)
-        c(f"{m.group(1)}_{m.group(2)} = {m.group(1)}[{m.group(2)}]")
-    _loop_b(c, [_ROW.sub(lambda m: f"{m.group(1)}_{m.group(2)}[b]", s) for s in inner])
+    lanes(c, width, loads, arith, stores)
     c.dedent()
 
 
-def _emit_dashpots(c: _Code) -> None:
+def _emit_dashpots(c: _Code, width: LaneLayout) -> None:
     c("for e in range(b_i.shape[0]):")
     c.indent()
     c("i = b_i[e]")
     c("j = b_j[e]")
-    c("bb = b_b[e]")
+    c("bi = b_bi[e]")
     c("if j < 0:  # to ground")
     c.indent()
-    _loop_b(c, ["out[i, b] -= bb * v[i, b]"])
+    lanes(c, width, ["VI{b} = v[i, {b}]", "OI{b} = out[i, {b}]"], [],
+          ["out[i, {b}] = OI{b} - bi * VI{b}"])
     c.dedent()
     c("else:")
     c.indent()
-    _loop_b(c, ["r = bb * (v[i, b] - v[j, b])", "out[i, b] -= r", "out[j, b] += r"])
+    c("bj = b_bj[e]")
+    lanes(c, width, ["VI{b} = v[i, {b}]", "VJ{b} = v[j, {b}]", "OI{b} = out[i, {b}]",
+                     "OJ{b} = out[j, {b}]"],
+          ["R{b} = VI{b} - VJ{b}"],
+          ["out[i, {b}] = OI{b} - bi * R{b}", "out[j, {b}] = OJ{b} + bj * R{b}"])
     c.dedent(2)
 
 
-def _emit_monomials(c: _Code) -> None:
+def _emit_monomials(c: _Code, width: LaneLayout) -> None:
     # Each factor position contributes its partial derivative; summing them over positions is
-    # the product rule, so repeated variables need no special case.
+    # the product rule, so repeated variables need no special case. Rare and irregular: a
+    # plain lane loop.
     c("for e in range(p_c.shape[0]):")
     c.indent()
     c("lo = p_ptr[e]")
@@ -291,9 +370,10 @@ def _emit_monomials(c: _Code) -> None:
     c.indent()
     c("i = p_var[kf]")
     c("ex = p_exp[kf]")
-    c("for b in range(nb_):")
+    c("cm = p_c[e] * ex * minv[i]")
+    c(f"for b in range({width.width}):")
     c.indent()
-    c("term = p_c[e] * ex * x[i, b] ** (ex - 1)")
+    c("term = cm * x[i, b] ** (ex - 1)")
     c("for ko in range(lo, hi):")
     c.indent()
     c("if ko != kf:")
@@ -304,53 +384,93 @@ def _emit_monomials(c: _Code) -> None:
 
 
 def _emit_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> None:
-    s_count = tab.stages
     acc_args = ", ".join(accel_args(feat))
     # Serial and nogil: the runtime runs chunks on threads. numba's parallel=True (prange)
     # measured as fast but compiled 3-4x slower (22 s against 6 s of CPU for one oscillator).
-    c("@nb.njit(cache=True, error_model=\"numpy\", nogil=True)")
+    c(decorator())
     c(f"def run({', '.join(run_args(feat, opts))}):")
     c.indent()
-    c('"""Integrate chunks c0..c1-1 of `chunk` runs (columns of x0) for nsteps steps of h."""')
-    c("n, runs = x0.shape")
-    c("nch = u.shape[1]")
+    c('"""Integrate chunks c0..c1-1 of LANES runs (columns of x0) for nsteps steps of h."""')
     _emit_coefficients(c, tab)
     c("for ci in range(c0, c1):")
     c.indent()
-    c("lo_ = ci * chunk")
-    c("nb_ = min(runs, lo_ + chunk) - lo_")
-    c("x = np.empty((n, nb_), FT)")
-    c("v = np.empty((n, nb_), FT)")
-    c("xs = np.empty((n, nb_), FT)")
-    for s in range(s_count):
-        c(f"kv{s} = np.empty((n, nb_), FT)")
-        if s > 0:
-            c(f"vs{s} = np.empty((n, nb_), FT)")
-    c("uc = np.zeros((max(nch, 1), nb_), FT)")
-    c("for i in range(n):")
-    c("    for b in range(nb_):")
-    c("        x[i, b] = x0[i, lo_ + b]")
-    c("        v[i, b] = v0[i, lo_ + b]")
-    _emit_reduction_init(c, opts)
-    if opts.record:
-        c("for p in range(rec_node.shape[0]):")
-        c("    for b in range(nb_):")
-        c("        rec[p, lo_ + b, 0] = v[rec_node[p], b] if rec_isv[p] else x[rec_node[p], b]")
+    emit_chunk_start(c, opts, ["xs"] + [f"kv{s}" for s in range(tab.stages)]
+                     + [f"vs{s}" for s in range(1, tab.stages)])
     c("for step in range(nsteps):")
     c.indent()
+    emit_step_start(c, feat.in_forces)
+    for s in range(tab.stages):
+        _emit_stage(c, feat, opts, tab, s, acc_args)
+    _emit_combine(c, tab, lane_layout(opts))
+    _emit_step_end(c, opts, lane_layout(opts))
+    c.dedent()
+    emit_chunk_end(c, opts)
+    c.dedent(2)
+
+
+def emit_chunk_start(c: _Code, opts: KernelOptions, scratch: list[str]) -> None:
+    """Chunk setup inside `for ci in ...`: valid lanes `nv_`, state x, v and `scratch` rows,
+    input staging buffer, reductions, the initial record. Padding lanes (beyond the runs) start
+    from the chunk's first run with zero input and are never stored."""
+    c("n, runs = x0.shape")
+    c("nch = u.shape[1]")
+    c("lo_ = ci * LANES")
+    c("nv_ = min(runs, lo_ + LANES) - lo_")
+    c("nb_ = LANES")
+    for name in ["x", "v"] + scratch:
+        c(f"{name} = np.zeros((n, LANES), FT)")
+    c("uc = np.zeros((max(nch, 1), LANES), FT)")
+    c("ustg = np.zeros((STAGE_BLOCK + 2, max(nch, 1), LANES), FT)")
+    c("ubase = -2 * STAGE_BLOCK")
+    c("for i in range(n):")
+    c("    for b in range(LANES):")
+    c("        x[i, b] = x0[i, lo_ + min(b, nv_ - 1)]")
+    c("        v[i, b] = v0[i, lo_ + min(b, nv_ - 1)]")
+    _emit_reduction_init(c, opts)
+    if opts.record:
+        emit_record(c, "0", lane_layout(opts))
+
+
+def emit_step_start(c: _Code, inputs: bool) -> None:
+    """Step counters; with `inputs`, restage the input samples when the step leaves the
+    staged block."""
     c("sub = step % substeps")
     c("k0 = step // substeps")
-    for s in range(s_count):
-        _emit_stage(c, feat, opts, tab, s, acc_args)
-    _emit_combine(c, tab)
-    _emit_step_end(c, opts)
+    if not inputs:
+        return
+    c("if k0 >= ubase + STAGE_BLOCK:")
+    c.indent()
+    c("ubase = k0")
+    c("top = min(STAGE_BLOCK + 2, u.shape[2] - ubase)")
+    c("for b in range(nv_):")
+    c("    for ch in range(nch):")
+    c("        u_r = u[lo_ + b, ch]")
+    c("        for t in range(top):")
+    c("            ustg[t, ch, b] = u_r[ubase + t]")
     c.dedent()
+
+
+def emit_interp(c: _Code, target: str, pos: str, width: LaneLayout, channels: str = "nch") -> None:
+    """Linear interpolation of the staged input at input-grid position k0 + `pos` into the
+    first `channels` rows of `target`."""
+    c(f"pos = {pos}")
+    c("kk = k0 + int(pos) - ubase")
+    c("fr = FT(pos - int(pos))")
+    c("gr = FT(1.0) - fr")
+    c(f"for ch in range({channels}):")
+    c.indent()
+    lanes(c, width, ["A{b} = ustg[kk, ch, {b}]", "B{b} = ustg[kk + 1, ch, {b}]"], [],
+          [f"{target}[ch, {{b}}] = gr * A{{b}} + fr * B{{b}}"])
+    c.dedent()
+
+
+def emit_chunk_end(c: _Code, opts: KernelOptions) -> None:
+    """Store the final state and the reductions of the valid lanes."""
     c("for i in range(n):")
-    c("    for b in range(nb_):")
+    c("    for b in range(nv_):")
     c("        xf[i, lo_ + b] = x[i, b]")
     c("        vf[i, lo_ + b] = v[i, b]")
     _emit_reduction_store(c, opts)
-    c.dedent(2)
 
 
 def _emit_coefficients(c: _Code, tab: Tableau) -> None:
@@ -369,28 +489,44 @@ def _stage_velocity(s: int) -> str:
     return "v" if s == 0 else f"vs{s}"
 
 
+def stage_state(c: _Code, tab: Tableau, s: int, width: LaneLayout,
+                frozen: str | None = None) -> None:
+    """xs, vs{s} = x + h sum_j a_sj (v_j, kv_j), row by row in straight-line lanes. Rows
+    flagged in `frz` (the exactly propagated blocks of `springc.expint`) keep xs = x with
+    `frozen` 'hold', and are left to the block code with 'skip'."""
+    row = [j for j, a in enumerate(tab.a[s]) if a != 0.0]
+    vel = [_stage_velocity(j) for j in row]
+    c("for i in range(n):")
+    c.indent()
+    xterm = " + ".join(f"ha{s}_{j} * P{j}_{{b}}" for j in row) or "FT(0.0)"
+    vterm = " + ".join(f"ha{s}_{j} * K{j}_{{b}}" for j in row) or "FT(0.0)"
+    loads = ["X{b} = x[i, {b}]", "V{b} = v[i, {b}]"]
+    loads += [f"P{j}_{{b}} = {name}[i, {{b}}]" for j, name in zip(row, vel)]
+    loads += [f"K{j}_{{b}} = kv{j}[i, {{b}}]" for j in row]
+    if frozen == "skip":
+        c("if frz[i]:")
+        c("    continue")
+    elif frozen == "hold":
+        c("if frz[i]:")
+        c.indent()
+        lanes(c, width, loads, [], [f"vs{s}[i, {{b}}] = V{{b}} + {vterm}", "xs[i, {b}] = X{b}"])
+        c("continue")
+        c.dedent()
+    lanes(c, width, loads, [], [f"xs[i, {{b}}] = X{{b}} + {xterm}",
+                                f"vs{s}[i, {{b}}] = V{{b}} + {vterm}"])
+    c.dedent()
+
+
 def _emit_stage(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau, s: int,
                 acc_args: str) -> None:
     c(f"# stage {s}: c = {tab.c[s]!r}")
-    row = [(j, a) for j, a in enumerate(tab.a[s]) if a != 0.0]
-    if s == 0:
-        xs_name = "x"
-    else:
-        xs_name = "xs"
-        xterm = " + ".join(f"ha{s}_{j} * {_stage_velocity(j)}[i, b]" for j, _ in row) or "0.0"
-        vterm = " + ".join(f"ha{s}_{j} * kv{j}[i, b]" for j, _ in row) or "0.0"
-        c("for i in range(n):")
-        c("    for b in range(nb_):")
-        c(f"        xs[i, b] = x[i, b] + {xterm}")
-        c(f"        vs{s}[i, b] = v[i, b] + {vterm}")
-    if feat.in_forces:
-        # Linear interpolation of the input samples (grid step h * substeps) at the stage time.
-        c(f"pos = (sub + {tab.c[s]!r}) / substeps")
-        c("kk = k0 + int(pos)")
-        c("fr = FT(pos - int(pos))")
-        c("for ch in range(nch):")
-        c("    for b in range(nb_):")
-        c("        uc[ch, b] = (FT(1.0) - fr) * u[lo_ + b, ch, kk] + fr * u[lo_ + b, ch, kk + 1]")
+    xs_name = "x" if s == 0 else "xs"
+    if s > 0:
+        stage_state(c, tab, s, lane_layout(opts))
+    if feat.in_forces and (s == 0 or tab.c[s] != tab.c[s - 1]):
+        # Linear interpolation of the input samples (grid step h * substeps) at the stage
+        # time; a stage at the same time as the previous one reuses it.
+        emit_interp(c, "uc", f"(sub + {tab.c[s]!r}) / substeps", lane_layout(opts))
     grow = f"g[step, {s}]" if feat.common_forces else "g[0, 0]"
     c(f"accel({xs_name}, {_stage_velocity(s)}, kv{s}, uc, {grow}, {acc_args})")
     if tab.b[s] != 0.0:
@@ -398,15 +534,17 @@ def _emit_stage(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau, s: 
 
 
 def _emit_stage_reductions(c: _Code, feat: Features, opts: KernelOptions, s: int) -> None:
-    """Quadrature of power over the step with the tableau weights (consistent with RK)."""
+    """Quadrature of power over the step with the tableau weights (consistent with RK). The
+    force on a node is its acceleration times its mass: `fi_gm` holds gain / mass."""
     vs = _stage_velocity(s)
     if opts.work and feat.in_forces:
         c("for e in range(fi_node.shape[0]):")
+        c("    fw = hbd" + str(s) + " * fi_gm[e] / minv[fi_node[e]]")
         c("    for b in range(nb_):")
-        c(f"        w_in[e, b] += hbd{s} * fi_gain[e] * uc[fi_chan[e], b] * {vs}[fi_node[e], b]")
+        c(f"        w_in[e, b] += fw * uc[fi_chan[e], b] * {vs}[fi_node[e], b]")
     if opts.work and feat.common_forces:
         c("for e in range(fc_node.shape[0]):")
-        c(f"    fv = fc_gain[e] * g[step, {s}, e]")
+        c(f"    fv = fc_gm[e] / minv[fc_node[e]] * g[step, {s}, e]")
         c("    for b in range(nb_):")
         c(f"        w_c[e, b] += hbd{s} * fv * {vs}[fc_node[e], b]")
     if opts.dissipation:
@@ -418,17 +556,57 @@ def _emit_stage_reductions(c: _Code, feat: Features, opts: KernelOptions, s: int
         c(f"        dsacc[d, b] += hbd{s} * ds_b[d] * dv * dv")
 
 
-def _emit_combine(c: _Code, tab: Tableau) -> None:
-    xterm = " + ".join(f"hb{s} * {_stage_velocity(s)}[i, b]"
-                       for s, b in enumerate(tab.b) if b != 0.0)
-    vterm = " + ".join(f"hb{s} * kv{s}[i, b]" for s, b in enumerate(tab.b) if b != 0.0)
+def combine(c: _Code, tab: Tableau, width: LaneLayout, frozen: str | None = None) -> None:
+    """x += h sum_s b_s v_s; v += h sum_s b_s kv_s (rows flagged in `frozen`, when given,
+    take xn, vn instead: their exact flow)."""
+    used = [s for s, b in enumerate(tab.b) if b != 0.0]
     c("for i in range(n):")
-    c("    for b in range(nb_):")
-    c(f"        x[i, b] += {xterm}")
-    c(f"        v[i, b] += {vterm}")
+    c.indent()
+    if frozen:
+        c(f"if {frozen}[i]:")
+        c.indent()
+        lanes(c, width, ["A{b} = xn[i, {b}]", "B{b} = vn[i, {b}]"], [],
+              ["x[i, {b}] = A{b}", "v[i, {b}] = B{b}"])
+        c("continue")
+        c.dedent()
+    loads = ["X{b} = x[i, {b}]", "V{b} = v[i, {b}]"]
+    loads += [f"P{s}_{{b}} = {_stage_velocity(s)}[i, {{b}}]" for s in used]
+    loads += [f"K{s}_{{b}} = kv{s}[i, {{b}}]" for s in used]
+    xterm = " + ".join(f"hb{s} * P{s}_{{b}}" for s in used)
+    vterm = " + ".join(f"hb{s} * K{s}_{{b}}" for s in used)
+    lanes(c, width, loads, [], [f"x[i, {{b}}] = X{{b}} + ({xterm})",
+                                f"v[i, {{b}}] = V{{b}} + ({vterm})"])
+    c.dedent()
 
 
-def _emit_step_end(c: _Code, opts: KernelOptions) -> None:
+def _emit_combine(c: _Code, tab: Tableau, width: LaneLayout) -> None:
+    combine(c, tab, width)
+
+
+def emit_record(c: _Code, r: str, width: LaneLayout) -> None:
+    """Probes into record `r`: rec is (probe, record, run), so the chunk's lanes are one
+    contiguous vector store per probe (written out straight for a full chunk)."""
+    c(f"r_ = {r}")
+    c("for p in range(rec_node.shape[0]):")
+    c.indent()
+    c("q = rec_node[p]")
+    c("if nv_ == LANES:")
+    c.indent()
+    c("if rec_isv[p]:")
+    c.indent()
+    lanes(c, width, ["A{b} = v[q, {b}]"], [], ["rec[p, r_, lo_ + {b}] = A{b}"])
+    c.dedent()
+    c("else:")
+    c.indent()
+    lanes(c, width, ["A{b} = x[q, {b}]"], [], ["rec[p, r_, lo_ + {b}] = A{b}"])
+    c.dedent(2)
+    c("else:")
+    c("    for b in range(nv_):")
+    c("        rec[p, r_, lo_ + b] = v[q, b] if rec_isv[p] else x[q, b]")
+    c.dedent()
+
+
+def _emit_step_end(c: _Code, opts: KernelOptions, width: LaneLayout) -> None:
     c("k1 = step + 1")
     if opts.msq:
         c("for m in range(ms_node.shape[0]):")
@@ -440,15 +618,14 @@ def _emit_step_end(c: _Code, opts: KernelOptions) -> None:
         _emit_gram_step(c)
     if opts.record:
         c("if k1 % rec_every == 0:")
-        c("    r = k1 // rec_every")
-        c("    for p in range(rec_node.shape[0]):")
-        c("        for b in range(nb_):")
-        c("            rec[p, lo_ + b, r] = v[rec_node[p], b] if rec_isv[p] else x[rec_node[p], b]")
+        c.indent()
+        emit_record(c, "k1 // rec_every", width)
+        c.dedent()
     # Divergence guard: NaN/Inf or a state beyond `limit` stops the chunk; the caller raises.
     c("if k1 % check_every == 0 or k1 == nsteps:")
     c.indent()
     c("bad = False")
-    c("for b in range(nb_):")
+    c("for b in range(nv_):")
     c.indent()
     c("worst = 0.0")
     c("wi = -1")
@@ -512,5 +689,5 @@ def _emit_reduction_store(c: _Code, opts: KernelOptions) -> None:
         pairs.append(("gracc", "gram"))
     for local, out in pairs:
         c(f"for r in range({local}.shape[0]):")
-        c("    for b in range(nb_):")
+        c("    for b in range(nv_):")
         c(f"        {out}[r, lo_ + b] = {local}[r, b]")

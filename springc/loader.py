@@ -4,15 +4,24 @@ The source from `springc.codegen` is written to `<cache>/springc_kernel_<hash>.p
 file, so that numba's `cache=True` can store the compiled machine code beside it and a second
 process reuses it) and imported by path. The cache folder is `$SPRINGC_CACHE` or
 `~/.cache/springc/kernels`.
+
+Kernels are compiled with LLVM's SLP (straight-line) vectoriser on: the generated lane code
+is written for it (see `springc.codegen`), and without it every lane stays scalar (measured
+2x slower). numba leaves it off by default and reads the setting whenever it optimises a
+function, so it is switched on only while a kernel's own call (which compiles it) runs;
+other numba code in the process is compiled as before.
 """
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import os
 import sys
 import tempfile
+import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
@@ -20,6 +29,28 @@ from types import ModuleType
 from springc.codegen import kernel_hash, shared_text
 
 _LOADED: dict[str, "Kernel"] = {}
+_SLP_LOCK = threading.Lock()
+_SLP_USERS = [0, 0]  # kernel calls under way, numba's setting before the first of them
+
+
+@contextlib.contextmanager
+def slp_vectorize() -> Iterator[None]:
+    """numba's SLP vectoriser on while any kernel call (and so its compilation) is under way
+    in any thread, then back to numba's own setting."""
+    from numba.core import config
+
+    with _SLP_LOCK:
+        if _SLP_USERS[0] == 0:
+            _SLP_USERS[1] = config.SLP_VECTORIZE
+            config.SLP_VECTORIZE = 1
+        _SLP_USERS[0] += 1
+    try:
+        yield
+    finally:
+        with _SLP_LOCK:
+            _SLP_USERS[0] -= 1
+            if _SLP_USERS[0] == 0:
+                config.SLP_VECTORIZE = _SLP_USERS[1]
 
 
 def cache_dir() -> Path:
@@ -51,7 +82,8 @@ class Kernel:
         if missing or extra:
             raise TypeError(f"kernel arguments: missing {sorted(missing)}, extra {sorted(extra)}")
         start = time.perf_counter()
-        self.module.run(*(arrays[name] for name in self.args))
+        with slp_vectorize():
+            self.module.run(*(arrays[name] for name in self.args))
         if self.compile_s is None:
             self.compile_s = time.perf_counter() - start
 

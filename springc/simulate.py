@@ -25,7 +25,6 @@ from springc.errors import SimulationError, UsageError
 from springc.integrators import DEFAULT_METHOD, TABLEAUX, get_tableau, max_stable_step
 from springc.ir import FlatNetlist, Probe
 
-DEFAULT_CHUNK = 32  # runs per parallel task: enough for the SIMD batch loop, few enough per core
 DEFAULT_BATCH = 256  # runs per kernel call (one progress-bar tick)
 CHECK_EVERY = 256  # steps between divergence checks
 LIMITS = {"float64": 1e30, "float32": 1e15}  # |x| or |v| beyond this counts as divergence
@@ -93,7 +92,9 @@ def settings(net: FlatNetlist, tstep=None, tstop=None, substeps=None, method=Non
 
 
 def coefficient_arrays(net: FlatNetlist, dtype) -> dict[str, np.ndarray]:
-    """The kernel's coefficient and index arrays (names as in `codegen.accel_args`)."""
+    """The kernel's coefficient and index arrays (names as in `codegen.accel_args`), with the
+    inverse mass folded into every force coefficient (each end of an element over its own
+    node's mass) and the springs summed into a per-node diagonal."""
     f = lambda a: np.ascontiguousarray(a, dtype=dtype)  # noqa: E731
     i = lambda a: np.ascontiguousarray(a, dtype=np.int64)  # noqa: E731
     s, d, c, q, b, p = (net.springs, net.duffings, net.couplings, net.quads, net.dashpots,
@@ -101,15 +102,23 @@ def coefficient_arrays(net: FlatNetlist, dtype) -> dict[str, np.ndarray]:
     fi, fc = sources.input_forces(net), sources.common_forces(net)
     force = net.forces
     chans = [force.source[e].channel for e in fi]
+    minv = 1.0 / net.mass()
+    kdiag = np.zeros(net.n)
+    np.add.at(kdiag, s.node, s.k)
+    ground = b.j < 0
+    bj = np.where(ground, 0.0, b.b * minv[np.where(ground, 0, b.j)])
     return {
-        "minv": f(1.0 / net.mass()), "bloc": f(net.local_damping()),
-        "k_node": i(s.node), "k_k": f(s.k), "d_node": i(d.node), "d_l": f(d.l),
-        "c_i": i(c.i), "c_j": i(c.j), "c_k": f(c.k), "c_ka": f(c.k / c.a),
-        "q_i": i(q.i), "q_j": i(q.j), "q_g": f(q.g), "q_a": f(q.a), "q_g2a": f(2 * q.g / q.a),
-        "b_i": i(b.i), "b_j": i(b.j), "b_b": f(b.b),
+        "minv": f(minv), "bm": f(net.local_damping() * minv), "km": f(kdiag * minv),
+        "d_node": i(d.node), "d_lm": f(d.l * minv[d.node]),
+        "c_i": i(c.i), "c_j": i(c.j), "c_a": f(c.a), "c_ki": f(c.k / c.a * minv[c.i]),
+        "c_kj": f(c.k * minv[c.j]),
+        "q_i": i(q.i), "q_j": i(q.j), "q_a": f(q.a), "q_gi": f(2 * q.g / q.a * minv[q.i]),
+        "q_gj": f(q.g * minv[q.j]),
+        "b_i": i(b.i), "b_j": i(b.j), "b_bi": f(b.b * minv[b.i]), "b_bj": f(bj),
         "p_c": f(p.c), "p_ptr": i(p.ptr), "p_var": i(p.var), "p_exp": i(p.exp),
-        "fi_node": i(force.node[fi]), "fi_gain": f(force.gain[fi]), "fi_chan": i(chans),
-        "fc_node": i(force.node[fc]), "fc_gain": f(force.gain[fc]),
+        "fi_node": i(force.node[fi]), "fi_gm": f(force.gain[fi] * minv[force.node[fi]]),
+        "fi_chan": i(chans),
+        "fc_node": i(force.node[fc]), "fc_gm": f(force.gain[fc] * minv[force.node[fc]]),
     }
 
 
@@ -142,18 +151,28 @@ def simulate(net: FlatNetlist, inputs=None, input_rate: float | None = None, *,
     st = settings(net, tstep, tstop, substeps, method, precision, outrate, seconds)
     plist = resolve_probes(net, probes)
     rplan = reductions_plan(list(reductions), net)
-    opts = codegen.KernelOptions(st.method, st.precision, record=bool(plist), work=rplan.work,
+    task = task_runs(len(names), batch, chunk)
+    opts = codegen.KernelOptions(st.method, st.precision, codegen.choose_lanes(task),
+                                 record=bool(plist), work=rplan.work,
                                  dissipation=bool(rplan.damper_rows), msq=bool(rplan.msq),
                                  gram=bool(rplan.gram))
     start = time.perf_counter()
     kernel = loader.load(kernel_source(net, opts))
-    out = _run_batches(net, kernel, st, signals, names, plist, rplan, batch, chunk, progress)
+    out = _run_batches(net, kernel, st, signals, names, plist, rplan, batch, task, progress)
     out.info.update(wall_s=time.perf_counter() - start, kernel=str(kernel.path),
                     compile_s=kernel.compile_s, settings=st)
     return out
 
 
 reductions_plan = reductions.plan
+
+
+def task_runs(runs: int, batch: int | None, chunk: int | None) -> int:
+    """Runs per parallel task: `chunk` when given (a caller running one task per core passes
+    its whole batch), else a kernel call's runs spread over the threads."""
+    if chunk:
+        return int(chunk)
+    return max(1, -(-min(runs, batch or DEFAULT_BATCH) // _threads()))
 
 
 def kernel_source(net: FlatNetlist, opts: codegen.KernelOptions) -> str:
@@ -208,7 +227,7 @@ def _threads() -> int:
         return os.cpu_count() or 1
 
 
-def _run_batches(net, kernel, st: Settings, signals, names, plist, rplan, batch, chunk,
+def _run_batches(net, kernel, st: Settings, signals, names, plist, rplan, batch, task,
                  progress) -> SimResult:
     runs = len(names)
     batch = batch or DEFAULT_BATCH
@@ -222,14 +241,17 @@ def _run_batches(net, kernel, st: Settings, signals, names, plist, rplan, batch,
         hi = min(runs, lo + batch)
         part = None if signals is None else signals[lo:hi]
         chunks.append(_run_one_batch(net, kernel, st, part, hi - lo, coeffs, g, plist, rplan,
-                                     chunk, names[lo:hi]))
+                                     task, names[lo:hi]))
         if bar is not None:
             bar.update(hi - lo)
     if bar is not None:
         bar.close()
     t = np.arange(st.nsteps // st.rec_every + 1) * st.rec_every * st.h
-    probes = {p.label: np.concatenate([c[0][k] for c in chunks]) for k, p in enumerate(plist)}
-    reds = {k: np.concatenate([c[1][k] for c in chunks]) for k in chunks[0][1]}
+    # one batch (the usual case): its arrays as they are; copying the recorded trajectories
+    # cost as much as a third of the kernel's time
+    join = (lambda parts: parts[0]) if len(chunks) == 1 else np.concatenate
+    probes = {p.label: join([c[0][k] for c in chunks]) for k, p in enumerate(plist)}
+    reds = {k: join([c[1][k] for c in chunks]) for k in chunks[0][1]}
     return SimResult(t, probes, reds, list(names))
 
 
@@ -241,7 +263,7 @@ def _progress(runs: int, enabled: bool):
     return tqdm(total=runs, unit="run", desc="simulating")
 
 
-def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rplan, chunk, names):
+def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rplan, task, names):
     dtype = np.dtype(st.precision)
     x0, v0 = net.initial_state()
     nch = sources.channels_used(net)
@@ -252,15 +274,17 @@ def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rplan, chun
         v0=np.repeat(v0[:, None], runs, 1).astype(dtype),
         u=sources.kernel_inputs(signals, runs, nch, nsamples, dtype), g=g,
         nsteps=st.nsteps, substeps=st.substeps, h=st.h,
-        chunk=chunk or min(DEFAULT_CHUNK, max(1, -(-runs // _threads()))),
+        chunk=kernel.module.LANES,
         check_every=CHECK_EVERY, limit=LIMITS[st.precision],
         xf=np.zeros((net.n, runs), dtype), vf=np.zeros((net.n, runs), dtype),
         status=np.zeros(runs, np.int64), bad_node=np.zeros(runs, np.int64),
     )
     T = st.nsteps // st.rec_every + 1
+    # time-major (probe, record, run): the kernel stores a chunk's lanes contiguously; each
+    # probe is handed out as its (run, record) transposed view
     args.update(rec_every=st.rec_every, rec_node=np.array([p.node for p in plist], np.int64),
                 rec_isv=np.array([p.quantity == "v" for p in plist], np.bool_),
-                rec=np.zeros((len(plist), runs, T), dtype))
+                rec=np.zeros((len(plist), T, runs), dtype))
     nf = len(net.forces)
     args.update(work_in=np.zeros((len(sources.input_forces(net)), runs)),
                 work_c=np.zeros((len(sources.common_forces(net)), runs)))
@@ -276,30 +300,36 @@ def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rplan, chun
                 msq=np.zeros((len(wins), runs)))
     ngram = sum(r.gram.groups for r in rplan.gram)
     args.update(reductions.gram_arrays(rplan, st.h, dtype), gram=np.zeros((ngram, runs)))
-    _run_chunks(kernel, args, runs)
+    _run_chunks(kernel, args, runs, task)
     _check_divergence(net, st, args, names)
     work = np.zeros((nf, runs))
     work[sources.input_forces(net)] = args["work_in"]
     work[sources.common_forces(net)] = args["work_c"]
-    return list(args["rec"]), _finish_reductions(net, rplan, args, work, wins, st)
+    return [r.T for r in args["rec"]], _finish_reductions(net, rplan, args, work, wins, st)
 
 
-def _run_chunks(kernel, args: dict, runs: int) -> None:
-    """Run the kernel's chunks on up to `_threads()` threads (the kernel releases the GIL and
+def _run_chunks(kernel, args: dict, runs: int, task: int) -> None:
+    """Run the kernel's chunks (of `LANES` runs) as tasks of about `task` runs, each a
+    contiguous range of chunks, on up to `_threads()` threads (the kernel releases the GIL and
     each chunk writes only its own columns). A kernel without CHUNK_RANGE (a numba prange
     kernel) runs all its chunks in one call."""
-    nchunks = -(-runs // args["chunk"])
-    workers = min(nchunks, _threads()) if getattr(kernel.module, "CHUNK_RANGE", False) else 1
+    nchunks = -(-runs // kernel.module.LANES)
+    ntasks = min(nchunks, -(-runs // max(task, 1)))
+    if not getattr(kernel.module, "CHUNK_RANGE", False):
+        ntasks = 1
     fixed = {k: args[k] for k in kernel.args if k not in ("c0", "c1")}
+    bounds = [nchunks * t // ntasks for t in range(ntasks + 1)]
 
-    def call(c0: int, c1: int) -> None:
-        kernel.run(**fixed, c0=c0, c1=c1)
+    def call(t: int) -> None:
+        kernel.run(**fixed, c0=bounds[t], c1=bounds[t + 1])
 
+    workers = min(ntasks, _threads())
     if workers <= 1:
-        call(0, nchunks)
+        for t in range(ntasks):
+            call(t)
         return
     with ThreadPoolExecutor(workers) as pool:
-        list(pool.map(lambda c: call(c, c + 1), range(nchunks)))
+        list(pool.map(call, range(ntasks)))
 
 
 def _finish_reductions(net, rplan, args, work, wins, st) -> dict[str, np.ndarray]:

@@ -32,10 +32,10 @@ def small_net(k: float = 100.0, quad: bool = False, title: str = "small"):
 
 def test_only_present_element_kinds_are_generated():
     text = generate(small_net(), KernelOptions())
-    assert "c_i" in text and "k_node" in text and "fi_node" in text
-    for absent in ("q_i", "d_l", "b_i", "p_c", "fc_node"):
+    assert "c_i" in text and "km" in text and "fi_node" in text
+    for absent in ("q_i", "d_lm", "b_i", "p_c", "fc_node"):
         assert absent not in text
-    assert "q_g2a" in generate(small_net(quad=True), KernelOptions())
+    assert "q_gi" in generate(small_net(quad=True), KernelOptions())
 
 
 def test_header_names_netlist_options_and_hash():
@@ -75,12 +75,13 @@ def test_loader_writes_real_file_and_numba_cache(tmp_path, monkeypatch):
     net = small_net()
     u = np.ones((1, 1, 101))
     res = simulate(net, u)
-    text = generate(net, KernelOptions())
+    one_run = KernelOptions(lanes=codegen.choose_lanes(1))  # what simulate picks for 1 run
+    text = generate(net, one_run)
     path = loader.kernel_path(text)
     assert path.parent == tmp_path and path.read_text() == codegen.shared_text(text)
     assert "# netlist: small.spr" in text and "small.spr" not in path.read_text()
     # another netlist with the same element kinds shares the compiled kernel
-    assert loader.kernel_path(generate(small_net(title="other"), KernelOptions())) == path
+    assert loader.kernel_path(generate(small_net(title="other"), one_run)) == path
     assert path.name == f"springc_kernel_{codegen.kernel_hash(text)}.py"
     assert list((tmp_path / "__pycache__").glob(f"{path.stem}.run-*.nbi"))
     # step response from rest (F = 1, m = 1): x(a) = t^2/2 - b t^3/6 - k t^4/24 + O(t^5), with

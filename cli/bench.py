@@ -42,9 +42,12 @@ def bench_cmd(case_names, outdir, quick, issue3, seconds, batch, stretch, json_p
         return
     from springc import benchsuite
 
-    say = lambda m: click.echo(m, err=True)
     machine = benchsuite.machine_info()
     start = time.perf_counter()
+
+    def say(message: str) -> None:  # elapsed time first: the suite runs for minutes
+        click.echo(f"[{time.perf_counter() - start:6.0f} s] {message}", err=True)
+
     results = benchsuite.run_suite(list(case_names) or None, quick=quick, progress=say)
     machine["suite_wall_s"] = time.perf_counter() - start
     paths = benchsuite.write_report(results, Path(outdir), machine)

@@ -82,21 +82,31 @@ def test_ladder_stops_at_the_first_rung_as_accurate_as_the_best_peer(ref):
     ladder = [r for r in rows if "ladder" in r.note]
     assert ladder, note
     assert ladder[-1].max_stretch_error <= target < ladder[-2].max_stretch_error
-    assert note.startswith("ladder stopped at rk4 x")
+    assert note == "every peer's error reached (reached: DOP853, ngspice)"
     # fourth order: each halving of the step divides the error by about 16
     ratios = [a.max_stretch_error / b.max_stretch_error for a, b in itertools.pairwise(rows)]
     assert all(10 < q < 22 for q in ratios), ratios
 
 
-def test_ladder_reports_round_off_when_the_peer_is_out_of_reach(ref):
+def test_ladder_ends_at_the_floor_or_on_round_off_when_the_peer_is_below_it(ref):
     case = _case(ladder=tuple(("rk4", s, "float64") for s in (4, 16, 64, 256, 512)))
     rows = [bs._kernel_row(case, ref, "rk4", 1, "float64", 1)]
-    peer = _peer(1e-30)
-    note = bs._climb_ladder(case, ref, rows, [peer], 1, lambda m: None)
-    # the floor (about 1e-14 here) is the target when the peer is below it; a row at the floor
-    # meets it, else round-off stops the climb: either way the note says which
-    assert ("<=" in note and "ladder stopped" in note) or "no gain" in note, note
+    note = bs._climb_ladder(case, ref, rows, [_peer(1e-30)], 1, lambda m: None)
+    # the target is the floor (about 1e-14 here): a rung at the floor reaches it, or round-off
+    # stops the climb first; either way the note says which
+    assert note.startswith(("every peer's error reached", "stopped at rk4 x")), note
     assert rows[-1].max_stretch_error < 1e-11
+
+
+def test_ladder_skips_rungs_that_cannot_reach_the_peer_and_says_what_it_would_need(ref):
+    case = _case(ladder=(("rk4", 2, "float64"), ("rk4", 4, "float64")))
+    rows = [bs._kernel_row(case, ref, "rk4", 1, "float64", 1)]
+    e1 = rows[0].max_stretch_error
+    note = bs._climb_ladder(case, ref, rows, [_peer(1e-12)], 1, lambda m: None)
+    assert len(rows) == 1  # x4 would give about e1 / 256: nowhere near 1e-12, nothing run
+    need = 2 ** math.ceil(math.log2((e1 / 1e-12) ** 0.25))
+    assert f"DOP853's 1e-12 needs about rk4 x{need} by fourth-order convergence" in note
+    assert note.startswith("out of reach of the affordable ladder (up to x4)")
 
 
 def _kernel(method: str, sub: int, err: float, wall_per_run_s: float, whole: float | None = None,
@@ -166,17 +176,19 @@ def test_verdicts_say_met_missed_and_partly_met_with_the_numbers():
 
 
 def test_run_case_writes_the_report_with_reference_and_ladder(tmp_path):
-    case = _case(peers=("DOP853", "RK45", "numpy-rk4"))
+    case = _case(peers=("DOP853", "DOP853 tstep/8", "numpy-rk4"))
     res = bs.run_case(case, progress=lambda m: None)
     assert res.reference["floor"] < 1e-11
     peers = {r.method: r for r in res.rows if r.name.startswith("peer")}
-    assert set(peers) == {"DOP853", "RK45", "numpy-rk4"}
+    assert set(peers) == {"DOP853", "DOP853 tstep/8", "numpy-rk4"}
+    # both DOP853s are far more accurate than rtol 1e-6 on this smooth problem
+    assert peers["DOP853 tstep/8"].max_stretch_error < 1e-9
     # numpy RK4 at 1/tstep is the kernel's rk4 x1 on the same equations
     x1 = bs._find(res, "rk4", 1, "float64")
     assert peers["numpy-rk4"].max_stretch_error == pytest.approx(x1.max_stretch_error, rel=1e-6)
     kernels = [r for r in res.rows if r.name.startswith("kernel")]
     assert all(r.stretch_errors and r.errors for r in kernels)
-    assert "ladder" in res.ladder_note
+    assert "reached" in res.ladder_note
     paths = bs.write_report([res], tmp_path, bs.machine_info() | {"suite_wall_s": 60.0})
     data = json.loads(paths["json"].read_text())
     assert data["cases"][0]["reference"]["substeps"] == 256

@@ -85,12 +85,23 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
 @click.option("--json", "as_json", is_flag=True, help="Print accuracy, n, per_class as JSON.")
 @click.option("--jobs", "-j", default=0, help="Worker processes (0: all cores).")
 @click.option("--no-cache", is_flag=True, help="Recompute features, ignore the cache.")
+@click.option("--budget", type=click.IntRange(min=1), default=None, metavar="N",
+              help="Mass-spring models: instead, print where the input work goes (energy "
+                   "dissipated per stage) over the first N test clips.")
 @_SCHEDULER
 @run_user_errors
-def eval_cmd(model_dir, data, realisation, as_json, jobs, no_cache, scheduler) -> None:
+def eval_cmd(model_dir, data, realisation, as_json, jobs, no_cache, scheduler, budget) -> None:
     """Evaluate a trained model on the test split (testing_list.txt) of a data set."""
     from springc.kws.evaluate import evaluate
 
+    if budget:
+        from springc.kws import energy
+
+        parts = energy.test_split_budget(model_dir, data, budget)
+        click.echo(f"energy budget of the whole classifier, {len(parts['work in'])} test "
+                   f"clips (balance error {energy.check_balance(parts).max():.1e}):")
+        click.echo("\n".join(energy.budget_table(parts)))
+        return
     report = evaluate(model_dir, data, realisation, jobs=jobs, use_cache=not no_cache,
                       scheduler=scheduler)
     if as_json:

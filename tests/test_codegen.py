@@ -55,7 +55,7 @@ def test_parameter_values_do_not_change_the_text():
 
 def test_stages_follow_the_tableau():
     text = generate(small_net(), KernelOptions(method="ssprk3"))
-    assert "# stage 2: c = 0.5" in text and "# stage 3" not in text
+    assert "elif s_ == 2:  # c = 0.5" in text and "s_ == 3" not in text
     assert "ha2_0 = FT(h * 0.25)" in text and "hb2 = FT(h * 0.6666666666666666)" in text
 
 

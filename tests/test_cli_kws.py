@@ -113,3 +113,11 @@ def test_eval_of_a_model_missing_weights(env, tmp_path):
     result = CliRunner().invoke(main, ["eval", str(tmp_path / "m2")])
     assert result.exit_code == 1
     assert "weights.npz: missing from the model folder" in result.output
+
+
+def test_energy_budget_of_a_digital_model_is_a_user_error(env):
+    data, model, _ = env
+    result = CliRunner().invoke(main, ["eval", str(model), "--data", str(data), "--budget", "2"])
+    assert result.exit_code == 1
+    assert "the energy budget needs a mass-spring model" in result.output
+    assert "Traceback" not in result.output

@@ -142,6 +142,9 @@ def test_speedup_counts_a_peer_below_the_floor_at_the_floor_and_reports_the_clos
     assert s["kernel"] is None and s["speedup"] is None
     assert s["closest"] == "rk4 x16 float64"
     assert s["closest_speedup"] == pytest.approx(100.0 / 0.16)
+    # 3e-12 -> 1e-13 takes 30^(1/4) = 2.3 times the substeps: x64, the next power of two
+    assert s["needed"] == "rk4 x64 float64"
+    assert s["predicted_speedup"] == pytest.approx(100.0 / (0.16 * 4))
 
 
 def test_verdicts_say_met_missed_and_partly_met_with_the_numbers():
@@ -169,7 +172,9 @@ def test_verdicts_say_met_missed_and_partly_met_with_the_numbers():
     assert "**PARTLY MET (1 of 2)**: At least 300x faster than scipy DOP853" in md
     assert "**PARTLY MET (1 of 2)**: Throughput" in md
     assert "feature 6250x (met; exp-rk4 x16 float64 1e-12 vs 2e-11)" in md
-    assert "net missed: no kernel row reaches its error 1e-13" in md
+    assert ("net missed: no measured kernel row reaches its error 1e-13 (most accurate: "
+            "rk4 x1 float64 1e-06, 50000x faster; predicted, not measured: rk4 x64 float64 "
+            "would reach it, 781x faster at linear cost)") in md
     assert "**MET**: At least 50x faster than ngspice" in md  # feature only; net: not run
     assert "feature 1600000x (met; exp-rk4 x1 float64 0.0001 vs 0.0001)" in md
     assert "net: not measured (peer not run)" in md

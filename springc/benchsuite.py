@@ -357,6 +357,8 @@ def _out_of_reach(pending: dict[str, float], rows: list[Row], method: str, top: 
                   targets: dict[str, float]) -> str:
     mine = [r for r in rows if r.method == method and r.precision == "float64"
             and r.stretch_errors]
+    if not mine:
+        return f"no {method} row to climb from; " + _reached(targets, rows)
     base = min(mine, key=lambda r: r.max_stretch_error)
     parts = []
     for peer, t in pending.items():

@@ -259,7 +259,7 @@ def cases(quick: bool = False) -> list[Case]:
         Case("stiff", "stiff all-to-all block (24 masses, constraint springs 2e8)",
              stiff_block(), speech_like(0.25 * scale, rate, runs, seed=3), 1 / rate,
              0.25 * scale, _rk_configs((1, 2, 4, 8, 16, 32)), 0.02 * scale,
-             ladder=tuple(_rk_configs((64, 128, 256))), ref_substeps=512),
+             ladder=tuple(_rk_configs((64, 128, 256))), ref_substeps=1024),
         Case("duffing", "Duffing resonator driven hard (stiffness up 10x at the peak)", duff,
              None, duff.tran.tstep, duff.tran.tstop * scale, _rk_configs((1, 2, 4)),
              0.05 * scale, ladder=tuple(_rk_configs((8, 16, 32, 64, 128, 256))),

@@ -35,7 +35,8 @@ from springc.integrators import Tableau, get_tableau
 from springc.ir import FlatNetlist
 
 KERNEL_VERSION = 2  # bump when the generated text or its calling convention changes
-LANE_CHOICES = (16, 4, 1)  # compile-time lane widths a kernel is generated for
+LANE_CHOICES = (32, 16, 4, 1)  # compile-time lane widths a kernel is generated for (32: the
+# per-element index and loop work spread over more lanes, measured 24% faster in float32)
 STAGE_BLOCK = 32  # steps of input samples staged at a time
 FASTMATH = '{"contract"}'  # FMA contraction only
 

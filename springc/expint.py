@@ -503,11 +503,6 @@ def generate_lawson(rest: FlatNetlist, options: KernelOptions, sizes: list[int],
     codegen.preamble(c, options, lawson_args(feat, options, sizes), tab.stages)
     c("")
     lw = _Lawson(tab, fracs, ufracs, sizes, max(nch, 1), ln)
-    for s in range(1, tab.stages):
-        lw.emit_function(c, s)
-        c("")
-    lw.emit_function(c, None)
-    c("")
     _emit_lawson_run(c, feat, options, tab, lw)
     return _header(rest, options, scheme, tab, c.text(),
                    [f"# blocks of sizes {sizes}; input channels {nch}"])
@@ -527,9 +522,6 @@ class _Lawson:
     def fi(self, frac: float) -> int:
         return self.fracs.index(frac)
 
-    def name(self, stage: int | None) -> str:
-        return "lw_final" if stage is None else f"lw_stage{stage}"
-
     def terms(self, stage: int | None) -> tuple[float, list[tuple[int, float, float]]]:
         """(fraction of the free flow, [(j, weight, fraction of E on N_j)])."""
         if stage is None:
@@ -539,22 +531,13 @@ class _Lawson:
         return ci, [(j, a, ci - self.tab.c[j]) for j, a in enumerate(self.tab.a[stage])
                     if a != 0.0]
 
-    def args(self, stage: int | None) -> list[str]:
-        _, terms = self.terms(stage)
-        out = ["x", "v", "xo", "vo", "h"] + [f"kv{j}" for j, _, _ in terms]
-        out += [f"ut{k}" for k in range(len(self.ufracs))]
-        return out + [f"lw{m}_{k}" for m in self.sizes for k in ("node", "e", "p0", "p1")]
-
-    def emit_function(self, c: _Code, stage: int | None) -> None:
-        c(codegen.decorator())
-        c(f"def {self.name(stage)}({', '.join(self.args(stage))}):")
-        c.indent()
-        c('"""Blocks\' state at this stage (or step end) into rows of xo, vo."""')
+    def emit_inline(self, c: _Code, stage: int | None, xo: str, vo: str) -> None:
+        """The blocks' state at this stage (or step end) into their rows of `xo`, `vo`,
+        written in place in the step (a call would pass a dozen arrays per stage)."""
+        c(f"xo = {xo}")
+        c(f"vo = {vo}")
         for m in self.sizes:
             self._emit_size(c, stage, m)
-        if not self.sizes:
-            c("return")
-        c.dedent()
 
     def _emit_size(self, c: _Code, stage: int | None, m: int) -> None:
         frac, terms = self.terms(stage)
@@ -573,7 +556,7 @@ class _Lawson:
                 c(f"pa{r}_{ch} = lw{m}_p0[q, {f0}, {r}, {ch}]")
                 c(f"pb{r}_{ch} = lw{m}_p1[q, {f0}, {r}, {ch}]")
         for j, w, fr in terms:
-            c(f"hw{j} = FT(h * {w!r})")  # FT: a float64 here would promote the lanes
+            c(f"hw{j} = FT(hh * {w!r})")  # FT: a float64 here would promote the lanes
             if fr != 0.0:
                 for r in range(n2):
                     for k in range(m):
@@ -604,8 +587,6 @@ class _Lawson:
 
 def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab: Tableau,
                      lw: _Lawson) -> None:
-    blk = ", ".join(f"lw{m}_{k}" for m in lw.sizes for k in ("node", "e", "p0", "p1"))
-    uts = ", ".join(f"ut{k}" for k in range(len(lw.ufracs)))
     c(codegen.decorator())
     c(f"def run({', '.join(lawson_args(feat, opts, lw.sizes))}):")
     c.indent()
@@ -627,17 +608,13 @@ def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab:
     def prelude(s: int) -> None:
         if s > 0:
             codegen.stage_state(c, tab, s, lw.ln, frozen="skip")
-            _, terms = lw.terms(s)
-            kvs = ", ".join(f"kv{j}" for j, _, _ in terms)
-            c(f"lw_stage{s}(x, v, xs, vs{s}, hh, {kvs}, {uts}, {blk})")
+            lw.emit_inline(c, s, "xs", f"vs{s}")
         if feat.in_forces:
             # the input at the stage time: one of the interpolated ut rows
             c(f"uc = ut{lw.ufracs.index(tab.c[s])}")
 
     codegen.emit_stage_loop(c, feat, tab, lw.ln, prelude)
-    _, terms = lw.terms(None)
-    kvs = ", ".join(f"kv{j}" for j, _, _ in terms)
-    c(f"lw_final(x, v, xn, vn, hh, {kvs}, {uts}, {blk})")
+    lw.emit_inline(c, None, "xn", "vn")
     codegen.combine(c, tab, lw.ln, frozen="frz")
     codegen._emit_step_end(c, opts, lw.ln)
     c.dedent()

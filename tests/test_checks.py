@@ -403,6 +403,17 @@ def _rest_limit(stiff: float | None = None) -> float:
     return max_stable_step(get_tableau("rk4"), _eigenvalues(k, damp))[0]
 
 
+def _unstable_step(error: CheckError, method_and_mode: str, dominant: str, need: float):
+    """The one diagnostic of an unstable 16 kHz step on line 20 of `_fast_pairs`: method and
+    mode, dominant nodes and the largest stable step `need`."""
+    diag, = error.diagnostics
+    assert diag.loc.line == 20
+    assert diag.message.startswith(f"time step 6.25e-05 s is unstable for {method_and_mode}")
+    assert f"dominant nodes {dominant}" in diag.message
+    assert diag.message.endswith(f"needs a step <= {need:.6g} s (largest stable step)")
+    return diag
+
+
 def test_rk4_rejects_fast_filter_pairs_with_the_step_they_need() -> None:
     net = _fast_pairs()
     need = max_stable_step(get_tableau("rk4"), _eigenvalues(
@@ -411,12 +422,8 @@ def test_rk4_rejects_fast_filter_pairs_with_the_step_they_need() -> None:
     assert 2 * np.sqrt(2) / (1.1 * 2 * np.pi * 8000) == pytest.approx(need, rel=5e-3)
     with pytest.raises(CheckError) as info:
         checks.check(net)
-    diag, = info.value.diagnostics
-    assert diag.loc.line == 20
-    assert diag.message.startswith("time step 6.25e-05 s is unstable for rk4: the oscillating "
-                                   "mode at 8800 Hz (55292 rad/s), damping rate 200 1/s")
-    assert "dominant nodes xc (1.00), xd (1.00)" in diag.message
-    assert diag.message.endswith(f"needs a step <= {need:.6g} s (largest stable step)")
+    diag = _unstable_step(info.value, "rk4: the oscillating mode at 8800 Hz (55292 rad/s), "
+                          "damping rate 200 1/s", "xc (1.00), xd (1.00)", need)
     assert diag.hint.endswith(".options substeps=2")
 
 
@@ -438,12 +445,7 @@ def test_split_scheme_rejects_a_stiff_rest_naming_its_mode() -> None:
     assert need == pytest.approx(2 * np.sqrt(2) / w, rel=1e-3)
     with pytest.raises(CheckError) as info:
         checks.check(_fast_pairs(stiff=w), method="exp-rk4")
-    diag, = info.value.diagnostics
-    assert diag.loc.line == 20
-    assert diag.message.startswith("time step 6.25e-05 s is unstable for exp-rk4: the "
-                                   "oscillating mode at 9000")
-    assert "dominant nodes t (1.00)" in diag.message
-    assert diag.message.endswith(f"needs a step <= {need:.6g} s (largest stable step)")
+    _unstable_step(info.value, "exp-rk4: the oscillating mode at 9000", "t (1.00)", need)
 
 
 def test_split_scheme_without_blocks_has_the_limit_of_rk4() -> None:

@@ -54,6 +54,11 @@ def make_gscd(root: Path, words=("yes", "no", "cat", "zero"), per_speaker: int =
                 name = f"{word}/{spk}_nohash_{k}.wav"
                 sf.write(root / name, _tone(300 + 100 * w + 10 * s), RATE, subtype="PCM_16")
                 (val if s == 3 else test if s == 4 else []).append(name)
+    return finish_tree(root, val, test)
+
+
+def finish_tree(root: Path, val: list[str], test: list[str]) -> Path:
+    """The split lists and a white-noise `_background_noise_` of a fake GSCD tree."""
     (root / "validation_list.txt").write_text("\n".join(val) + "\n")
     (root / "testing_list.txt").write_text("\n".join(test) + "\n")
     (root / "_background_noise_").mkdir()
@@ -330,12 +335,7 @@ def make_mixed(root: Path, held_speakers: int = 3, per_speaker: int = 2) -> Path
                     name = f"{word}/{spk}_nohash_{k}.wav"
                     sf.write(root / name, _tone(300 + 50 * w, 0.1), RATE, subtype="PCM_16")
                     lists.get(split, []).append(name)
-    (root / "validation_list.txt").write_text("\n".join(lists["validation"]) + "\n")
-    (root / "testing_list.txt").write_text("\n".join(lists["test"]) + "\n")
-    (root / "_background_noise_").mkdir()
-    noise = 0.1 * np.random.default_rng(0).standard_normal(NOISE_S * RATE)
-    sf.write(root / "_background_noise_" / "white_noise.wav", noise, RATE, subtype="PCM_16")
-    return root
+    return finish_tree(root, lists["validation"], lists["test"])
 
 
 @pytest.fixture

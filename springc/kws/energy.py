@@ -110,6 +110,7 @@ def test_split_budget(model_dir, data=None, clips: int = 8) -> dict[str, np.ndar
 
     from springc.errors import UsageError
     from springc.kws import massspring as msp
+    from springc.kws.evaluate import trained_data
     from springc.kws.model import load_model
     from springc.kws.train import open_task_data
 
@@ -117,7 +118,7 @@ def test_split_budget(model_dir, data=None, clips: int = 8) -> dict[str, np.ndar
     if model.settings.get("realisation") != "mass-spring":
         raise UsageError("the energy budget needs a mass-spring model",
                          hint="train one with --realisation mass-spring")
-    data = Path(data or model.settings["dataset"]["path"])
+    data = Path(data) if data else trained_data(model)
     ds = open_task_data(data, model.settings["task"], int(model.settings.get("seed", 0)),
                         model.settings.get("protocol"))
     signals = msp.load_signals(ds.split("test")[:clips], False, 0, [])

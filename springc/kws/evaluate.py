@@ -65,7 +65,7 @@ def evaluate(model_dir: Path, data: Path | None = None, realisation: str | None 
     if realisation != trained_with:
         raise UsageError(f"{model_dir} was trained with the {trained_with} realisation; "
                          f"it cannot be evaluated with --realisation {realisation}")
-    data = Path(data) if data else _trained_data(model)
+    data = Path(data) if data else trained_data(model)
     task = model.settings["task"]
     ds = open_task_data(data, task, int(model.settings.get("seed", 0)),
                         model.settings.get("protocol"))
@@ -80,7 +80,8 @@ def evaluate(model_dir: Path, data: Path | None = None, realisation: str | None 
     return score(model.models, x, targets(clips, task), task)
 
 
-def _trained_data(model) -> Path:
+def trained_data(model) -> Path:
+    """The data folder a model was trained on (settings.json); DataError if it names none."""
     path = model.settings.get("dataset", {}).get("path")
     if not path:
         raise DataError(str(model.folder / "settings.json"), "names no data set",

@@ -143,3 +143,44 @@ def _majority(report: dict) -> float:
     if "majority_rate" in report:
         return report["majority_rate"]
     return majority_rate(report["confusion"])
+
+
+@click.command("cv")
+@click.option("--data", "data", required=True, type=click.Path(path_type=Path),
+              help="Data set folder in the GSCD layout (e.g. from `springc data synth`).")
+@click.option("--bins", "-n", default=8, show_default=True, help="Mel filter bins n.")
+@click.option("--delays", "-m", default=3, show_default=True, help="Delays per bin m.")
+@click.option("--realisation", "realisations", type=click.Choice(("digital", "mass-spring")),
+              multiple=True, help="Realisations to compare, the first as the reference "
+                                  "(repeat the option).  [default: digital, mass-spring]")
+@click.option("--folds", "-k", default=5, show_default=True,
+              help="Speaker-disjoint folds (each tests its clips once).")
+@click.option("--threshold", type=float, default=None,
+              help="Mass-spring: compression threshold A_c (m) [default: 0.001].")
+@click.option("--jobs", "-j", default=0, help="Worker processes (0: all cores).")
+@click.option("--seed", default=0, show_default=True,
+              help="Seed of the silence windows and of the bootstrap.")
+@click.option("--no-cache", is_flag=True, help="Recompute features, ignore the cache.")
+@click.option("-o", "--out", required=True, type=click.Path(path_type=Path),
+              help="Folder for cv.json and cv.png.")
+@_SCHEDULER
+@run_user_errors
+def cv_cmd(data, bins, delays, realisations, folds, threshold, jobs, seed, no_cache, out,
+           scheduler) -> None:
+    """Speaker-grouped cross-validation (12 classes) on every clip of a data set: the
+    class-balanced accuracy of each realisation and their paired difference, with bootstrap
+    standard errors over speakers."""
+    from springc.kws import crossval
+
+    settings = FeatureSettings(bins=bins, delays=delays)
+    opts = crossval.CVOptions(data=data, settings=settings,
+                              realisations=realisations or crossval.REALISATIONS, folds=folds,
+                              seed=seed, jobs=jobs, use_cache=not no_cache, scheduler=scheduler)
+    if threshold is not None:
+        from springc.kws.massspring import from_features
+
+        opts.massspring = from_features(settings, threshold=threshold)
+    report = crossval.cross_validate(opts, progress=lambda s: click.echo(s, err=True))
+    click.echo("\n".join(crossval.summary_lines(report)))
+    paths = crossval.write(report, out)
+    click.echo(f"wrote {paths[0]} and {paths[1]}")

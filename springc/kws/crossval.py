@@ -19,10 +19,15 @@ built-in corpus, each tested once, bring it to about 1.5."""
 from __future__ import annotations
 
 import json
+import os
+import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from sklearn.exceptions import ConvergenceWarning
+from threadpoolctl import threadpool_limits
 
 from springc.errors import UsageError
 from springc.kws.dataset import SILENCE
@@ -103,23 +108,29 @@ def speaker_bootstrap(y: np.ndarray, correct: dict[str, np.ndarray], groups: np.
 
 
 def fold_predictions(x: np.ndarray, y: np.ndarray, fold: np.ndarray,
-                     grid: tuple[float, ...], class_weight: str | None) -> tuple[np.ndarray, list]:
+                     grid: tuple[float, ...], class_weight: str | None,
+                     jobs: int = 1) -> tuple[np.ndarray, list]:
     """Prediction per clip from the model of its fold, and the C chosen per fold (on fold
-    k+1, by balanced accuracy; ties: the smaller C)."""
+    k+1, by balanced accuracy; ties: the smaller C). `jobs` threads fit the grid."""
     k_folds = int(fold.max()) + 1
     pred = np.empty(len(y), dtype=object)
     chosen = []
-    for k in range(k_folds):
-        val = (k + 1) % k_folds
-        inner = (fold != k) & (fold != val)
-        scores = [balanced_accuracy(y[fold == val],
-                                    fit_linear(x[inner], y[inner], c, "svm", class_weight)
-                                    .predict(x[fold == val]) == y[fold == val])
-                  for c in grid]
-        c = grid[int(np.argmax(scores))]  # argmax takes the first, the smaller C, on ties
-        chosen.append(c)
-        model = fit_linear(x[fold != k], y[fold != k], c, "svm", class_weight)
-        pred[fold == k] = model.predict(x[fold == k])
+    # threads, one BLAS thread each: liblinear releases the GIL; the warning filter is set
+    # here as fit_linear's own is not thread-safe (as in `svm.select`)
+    with warnings.catch_warnings(), threadpool_limits(1), \
+            ThreadPoolExecutor(max(1, jobs)) as pool:
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        for k in range(k_folds):
+            val = (k + 1) % k_folds
+            inner, v = (fold != k) & (fold != val), fold == val
+            xi, yi = x[inner], y[inner]
+            models = pool.map(lambda c, xi=xi, yi=yi: fit_linear(xi, yi, c, "svm", class_weight),
+                              grid)
+            scores = [balanced_accuracy(y[v], m.predict(x[v]) == y[v]) for m in models]
+            c = grid[int(np.argmax(scores))]  # argmax takes the first, the smaller C, on ties
+            chosen.append(c)
+            model = fit_linear(x[fold != k], y[fold != k], c, "svm", class_weight)
+            pred[fold == k] = model.predict(x[fold == k])
     return pred.astype(str), chosen
 
 
@@ -158,7 +169,8 @@ def cross_validate(opts: CVOptions, progress=None) -> dict:
         x = realisation_features(clips, r, opts)
         if progress:
             progress(f"{r}: {opts.folds} folds x {len(opts.grid)} C")
-        pred, chosen[r] = fold_predictions(x, y, fold, opts.grid, task_weights("kws12"))
+        pred, chosen[r] = fold_predictions(x, y, fold, opts.grid, task_weights("kws12"),
+                                           opts.jobs or os.cpu_count() or 1)
         correct[r] = pred == y
     return cv_report(y, groups, fold, correct, chosen, opts)
 

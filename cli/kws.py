@@ -49,8 +49,8 @@ _SCHEDULER = click.option("--scheduler", default=None, metavar="ADDRESS",
 @click.option("--epsilon", type=float, default=None,
               help="Mass-spring: squaring error of the classifier heads [default: 1e-5].")
 @click.option("--threshold", type=float, default=None,
-              help="Mass-spring: compression threshold A_c (m) of the feature squarers "
-                   "[default: 0.001]; smaller compresses more.")
+              help="Mass-spring: compression threshold A_c (m of filter output) of the feature "
+                   "compressors [default: 0.001]; smaller compresses more.")
 @_SCHEDULER
 @run_user_errors
 def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, tau, fc,

@@ -87,8 +87,9 @@ def test_bad_gram_specs_are_user_errors(spec):
 
 
 def test_delay_lines_delay_by_multiples_of_td():
-    """Linearised at rest, the terminal of line j lags the low-pass mass by latency + j td
-    at low frequencies (phase slope), with unit gain (matched terminations, no reflection)."""
+    """Linearised at rest, the terminal of line j lags the compressor node that drives the
+    lines by latency + j td at low frequencies (phase slope), with unit gain (matched
+    terminations, no reflection)."""
     s = msp.MassSpringSettings(bins=2, delays=3)
     net = msp.feature_network(s)
     k, b, m = physics.stiffness_matrix(net), physics.damping_matrix(net), np.diag(net.mass())
@@ -99,7 +100,7 @@ def test_delay_lines_delay_by_multiples_of_td():
         w = 2 * np.pi * hz
         x = np.linalg.solve(k - w * w * m + 1j * w * b, force)
         return np.array([x[net.node_index(msp.terminal(0, j))] for j in range(3)]) / \
-            x[net.node_index("lp0")]
+            x[net.node_index("c0")]
 
     lo, hi = response(4.0), response(6.0)
     delay = -(np.unwrap(np.angle(hi)) - np.unwrap(np.angle(lo))) / (2 * np.pi * 2.0)
@@ -110,38 +111,54 @@ def test_delay_lines_delay_by_multiples_of_td():
 
 def test_simulated_phi_and_features_match_recorded_and_digital():
     """One simulation: Phi in the kernel equals phi of the recorded terminals to round-off, and
-    the low-pass displacements follow the digital features (correlation, measured ~0.98)."""
+    the compressed features c_i follow the digital features (correlation, measured ~0.99)."""
     s = SMALL
     net = msp.feature_network(s)
     sig = np.stack([word(), word(f0=2500.0, f1=300.0, amp=0.6)])
-    probes = [f"x({t})" for t in msp.terminals(s)] + [f"x(lp{i})" for i in range(s.bins)]
+    probes = [f"x({t})" for t in msp.terminals(s)] + [f"x(c{i})" for i in range(s.bins)]
     rate = msp.INPUT_RATE * msp.SUBSTEPS  # record every integration step
     res = simulate(net, sig[:, None, :], 16000.0, reductions=[msp.phi_reduction(net, s)],
                    probes=probes, outrate=rate, tstop=msp.horizon(s, 0.4))
     x = np.stack([res.probes[p] for p in probes[:4]], axis=1)
     want = phi_of_recorded(x, 1 / rate, s.tau, s.bins, s.delays)
     np.testing.assert_allclose(res.reductions["phi"], want, rtol=1e-10)
-    lp = np.stack([res.probes[p][:, :: int(rate / 1000)] for p in probes[4:]], axis=1)  # 1 kHz
+    cf = np.stack([res.probes[p][:, :: int(rate / 1000)] for p in probes[4:]], axis=1)  # 1 kHz
     d = features(sig, 16000, FeatureSettings(bins=2, delays=2))
-    k = min(lp.shape[-1], d.shape[-1])
+    k = min(cf.shape[-1], d.shape[-1])
     for c in range(2):
         for i in range(2):
             if d[c, i, :k].max() > 0.05 * d[:, i].max():  # bins the chirp actually drives
-                assert np.corrcoef(lp[c, i, :k], d[c, i, :k])[0, 1] > 0.9
+                assert np.corrcoef(cf[c, i, :k], d[c, i, :k])[0, 1] > 0.95
 
 
-def test_thresholds_raise_only_where_the_step_demands():
+def test_the_filters_stay_linear_and_the_compressor_within_the_step():
+    """The squarer's cubic stiffness on a filter at full scale is under 0.5% of the filter's
+    own (no detuning); the compressor's fastest mode at full scale stays within STABLE_WH /
+    h, at 5x the low-pass cut-off or more at rest (quasi-static)."""
     s = msp.MassSpringSettings(bins=8, delays=3)
-    a = msp.thresholds(s)
-    assert a[0] == s.threshold and np.all(np.diff(a) >= 0)
-    wb = 2 * np.pi * np.array([f.fb for f in msp.filters(s)])
+    wa = 2 * np.pi * np.array([f.fa for f in msp.filters(s)])
+    cubic = 6 * s.g / msp.leverages(s) * msp.FULL_SCALE**2
+    assert np.all(cubic / wa**2 < 0.005)
+    duffing, mass = msp.compressor_duffing(s), msp.compressor_mass(s)
+    c = msp.compressed(2 * msp.envelope(s, msp.FULL_SCALE), s.kq, duffing)
     h = 1 / (msp.INPUT_RATE * msp.SUBSTEPS)
-    r = (msp.FULL_SCALE / a) ** (1 / 3)  # full scale compressed: |y| / A_i
-    assert np.all(wb * h * np.sqrt(1 + r**2) <= msp.STABLE_WH * (1 + 1e-9))
+    assert np.all(np.sqrt((s.kq + 3 * duffing * c**2) / mass) * h <= msp.STABLE_WH * (1 + 1e-9))
+    assert np.all(np.sqrt(s.kq / mass) >= 2 * np.pi * 4.5 * s.fc)
+
+
+def test_the_compressor_threshold_is_the_envelope_of_a_threshold_tone():
+    """At the envelope of a tone of amplitude A_c the compressor gives 0.68 of its input
+    (kq c + l c^3 = kq e with l = kq / e^2: c = 0.682 e); 1000x above, the cube root."""
+    s = msp.MassSpringSettings(bins=4, delays=2)
+    duffing = msp.compressor_duffing(s)
+    e = msp.envelope(s, s.threshold)
+    np.testing.assert_allclose(msp.compressed(e, s.kq, duffing) / e, 0.6823278, rtol=1e-6)
+    big = msp.compressed(1e3 * e, s.kq, duffing)
+    np.testing.assert_allclose(big, np.cbrt(1e3) * e * (1 - 0.0033), rtol=2e-3)
 
 
 def test_settings_that_overload_the_lowpass_are_rejected():
     with pytest.raises(UsageError, match="overload the low-pass"):
-        msp.MassSpringSettings(bins=2, delays=3, kc=50.0).validate()
+        msp.MassSpringSettings(bins=2, delays=3, kc=200.0).validate()
     with pytest.raises(UsageError, match="two-mode"):
         msp.MassSpringSettings(filterbank="triangular").validate()

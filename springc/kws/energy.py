@@ -20,6 +20,7 @@ from springc.ir import FlatNetlist
 STAGES: tuple[tuple[str, str], ...] = (
     ("Mel filters", r"^Xf\d+\."),
     ("low-pass masses", r"^Xlp\d+\."),
+    ("compressors", r"^Xc\d+\."),
     ("delay lines", r"^Xd\d+_\d+\."),
     ("terminals", r"^Mf\d+_\d+$"),
     ("mvm heads", r"^Xh\d+\.Xm\."),

@@ -46,7 +46,7 @@ def epsilon_sweep(model_dir: Path, data: Path, epsilons, *, scheduler: str | Non
 def compression_sweep(data: Path, thresholds, out: Path, *, bins: int = 4, delays: int = 2,
                       task: str = "kws12", scheduler: str | None = None,
                       jobs: int = 0) -> list[dict]:
-    """[{threshold, leverage range, accuracy, ...}]: a mass-spring model trained and simulated
+    """[{threshold, compressor Duffing range, accuracy, ...}]: a mass-spring model trained and simulated
     for every compression threshold A_c (models in `out/threshold-<A_c>`)."""
     from springc.kws.digital import FeatureSettings
     from springc.kws.evaluate import evaluate
@@ -60,9 +60,9 @@ def compression_sweep(data: Path, thresholds, out: Path, *, bins: int = 4, delay
         train(TrainOptions(data=data, out=folder, settings=fs, realisation="mass-spring",
                            task=task, jobs=jobs, massspring=s, scheduler=scheduler))
         rep = evaluate(folder, jobs=jobs, scheduler=scheduler)
-        lev = msp.leverages(s)
-        rows.append(_row(rep, threshold=float(a_c), alpha_min=float(lev.min()),
-                         alpha_max=float(lev.max())))
+        duffing = msp.compressor_duffing(s)
+        rows.append(_row(rep, threshold=float(a_c), duffing_min=float(duffing.min()),
+                         duffing_max=float(duffing.max())))
     return rows
 
 
@@ -109,7 +109,9 @@ def plot_sweeps(path: Path, eps_rows: list[dict], comp_rows: list[dict], title: 
 def settings_table(s: msp.MassSpringSettings) -> list[tuple[str, str]]:
     """The physical parameters of the feature network, for the results page."""
     return [(f.name, f"{getattr(s, f.name)!r}") for f in dataclasses.fields(s)] + [
-        ("compression thresholds A_i (m)", np.array2string(msp.thresholds(s), precision=3,
-                                                          max_line_width=1000)),
         ("squarer leverages a_i", np.array2string(msp.leverages(s), precision=3,
-                                                 max_line_width=1000))]
+                                                 max_line_width=1000)),
+        ("compressor Duffing coefficients l_i (N/m^3)", np.array2string(
+            msp.compressor_duffing(s), precision=3, max_line_width=1000)),
+        ("compressor masses (kg)", np.array2string(msp.compressor_mass(s), precision=3,
+                                                   max_line_width=1000))]

@@ -146,7 +146,7 @@ def _plots(out: Path, reports: dict, network: dict, data: Path, opts: DemoOption
 
 
 def _feature_plot(path: Path, data: Path, opts: DemoOptions) -> None:
-    """One test clip: the mass-spring low-pass displacements beside the digital features."""
+    """One test clip: the mass-spring features (compressor outputs) beside the digital ones."""
     import matplotlib.pyplot as plt
 
     from springc.kws import massspring as msp

@@ -16,7 +16,10 @@ to about 1e-9 are resolved).
 
 The splitting schemes of `springc.expint` propagate their blocks' modes exactly (error 0, up
 to the splitting error of the nonlinear coupling, which no linear estimate sees); their other
-modes have the error of the inner tableau.
+modes have the error of the inner tableau. A "kicked" block, on whose nodes the rest puts a
+stiffness at rest (a Q element's g a), is not integrated exactly: its modes are given the
+inner tableau's error (an over-estimate), and its step limit is the scheme's own
+(`checks.split_step_limit`).
 """
 
 from __future__ import annotations
@@ -149,16 +152,27 @@ def _mode_error(found: linear.Modes, k: int, inner: str, h: float, error: float,
 
 
 def _exact_modes(net: FlatNetlist, found: linear.Modes, method: str) -> np.ndarray:
-    """Which modes a splitting scheme integrates exactly: most of the shape on block nodes."""
+    """Which modes a splitting scheme integrates exactly: most of the shape on the nodes of
+    blocks that are not kicked (see the module docstring)."""
     out = np.zeros(len(found), bool)
     if not expint.is_split(method):
         return out
+    blocks = expint.find_blocks(net)
     inside = np.zeros(net.n, bool)
-    inside[expint.find_blocks(net).node_set()] = True
+    for nodes, kicked in zip(blocks.nodes, _kicked(net, blocks)):
+        inside[nodes] = not kicked
     for k, (nodes, amps) in enumerate(found.shapes):
         w = np.abs(amps) ** 2
         out[k] = w.sum() > 0 and w[inside[nodes]].sum() > 0.5 * w.sum()
     return out
+
+
+def _kicked(net: FlatNetlist, blocks: expint.Blocks) -> list[bool]:
+    """Per block, whether the rest of the split puts a stiffness on its nodes at rest."""
+    if not len(blocks):
+        return []
+    k = linear.linearise(expint.split_netlist(net, blocks)).K.tocsr()
+    return [k[nodes][:, nodes].count_nonzero() > 0 for nodes in blocks.nodes]
 
 
 @dataclass
@@ -225,6 +239,10 @@ def _cheapest_substeps(net, found, method, tstep, duration, band, tol,
     inner = _inner(method)
     lam = found.eigenvalues
     hmax = _stable_step(inner, lam[~exact])
+    if expint.is_split(method):  # kicked blocks have a limit of their own
+        from springc.checks import split_step_limit
+
+        hmax = min(hmax, split_step_limit(net, method, found).dt)
     chosen = np.flatnonzero((found.freqs_hz <= band * (1 + 1e-9)) & ~exact)
     for sub in substeps:
         h = tstep / sub

@@ -383,7 +383,12 @@ def likely_cause(net: FlatNetlist, st: Settings) -> str:
               "nonlinear elements (their stiffness grows with amplitude)")
     if net.n > 3000:
         return f"a step too large for the integrator, {others}"
-    hmax, _ = max_stable_step(stage_tableau(st.method), linear_eigenvalues(net))
+    if expint.is_split(st.method):  # the blocks are exact: the split's own limit
+        from springc.checks import step_limit
+
+        hmax = step_limit(net, st.method).dt
+    else:
+        hmax, _ = max_stable_step(stage_tableau(st.method), linear_eigenvalues(net))
     if st.h > hmax:
         return (f"unstable step: h = {st.h:.4g} s exceeds the largest stable step "
                 f"{hmax:.4g} s of {st.method} for the linearised network; raise --substeps "

@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from springc_cli.main import main as cli
+from test_checks import H16, _kicked_pair
 
 from springc import accuracy, benchsuite
 from springc.errors import UsageError
 from springc.ir import IRBuilder, Tran
-from springc.simulate import simulate
+from springc.simulate import likely_cause, settings, simulate
 
 TWOMODE = "netlists/examples/twomode_filter.spr"
 
@@ -102,3 +103,28 @@ def test_build_reports_the_worst_modes():
         accuracy.impulse_error("rk4", [lam], 1 / 64000, 1.0)[0], rel=1e-6)
     text = CliRunner().invoke(cli, ["build", TWOMODE]).output
     assert "worst modes" in text and "1100 Hz" in text
+
+
+KICK_LIMIT = 6.048e-5  # exp-rk4 on test_checks' kicked pair (a test there measures it)
+
+
+def test_a_kicked_block_is_neither_exact_nor_free_of_a_step_limit():
+    """The 7 kHz filter pair with a 3 kHz kick of test_checks: exp-rk4's step map on it grows
+    from 6.05e-5 s, below the 16 kHz input step, so the choice takes at least 2 substeps, and
+    the pair's modes carry the inner tableau's error instead of counting as exact."""
+    net = _kicked_pair(3000.0, H16, "exp-rk4")
+    got = accuracy.choose(net, H16, 0.05, 1e-2, methods=("exp-rk4",))
+    assert got.substeps >= 2 and got.h <= KICK_LIMIT
+    errs = accuracy.mode_errors(net, H16 / 2, "exp-rk4", 0.05)
+    assert not any(m.exact for m in errs) and max(m.error for m in errs) > 0
+
+
+def test_divergence_hint_under_a_split_scheme_names_the_schemes_own_limit():
+    """What a diverged run is told: at 1.05x the kicked block's limit, exp-rk4's limit for
+    the split network, not RK4's over every mode with the exact blocks included (which
+    would call the step stable); below the limit, that the step is linearly stable."""
+    net = _kicked_pair(3000.0, H16, "exp-rk4")
+    hint = likely_cause(net, settings(net, tstep=1.05 * KICK_LIMIT))
+    assert f"exceeds the largest stable step {KICK_LIMIT:.4g} s of exp-rk4" in hint
+    hint = likely_cause(net, settings(net, tstep=0.95 * KICK_LIMIT))
+    assert f"is linearly stable (limit {KICK_LIMIT:.4g} s)" in hint

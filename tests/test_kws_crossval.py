@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +15,9 @@ from test_kws_train import make_corpus
 
 from springc.errors import UsageError
 from springc.kws import crossval
+from springc.kws.digital import FeatureSettings
+
+KERNELS = Path(tempfile.gettempdir()) / "springc-test-kernels"  # shared compiled kernels
 
 
 def test_folds_keep_each_speaker_in_one_fold_and_are_nearly_equal():
@@ -121,3 +126,20 @@ def test_cli_cv_rejects_two_folds(tmp_path):
     assert result.exit_code == 1
     assert "--folds must be at least 3" in result.output and "Traceback" not in result.output
     assert not (tmp_path / "cv").exists()
+
+
+def test_mass_spring_features_cross_validated_beside_digital(tmp_path, monkeypatch):
+    """Both realisations on the same folds: the simulated network's features separate the
+    words of the small corpus (4 classes, chance 25%) and the reported gap is the paired
+    difference of the two balanced accuracies, with a bootstrap interval around it."""
+    monkeypatch.setenv("SPRINGC_CACHE", str(KERNELS))  # shared compiled kernels
+    data = make_corpus(tmp_path / "data", per_speaker=2)
+    opts = crossval.CVOptions(data=data, settings=FeatureSettings(bins=2, delays=2), folds=4,
+                              jobs=1)
+    report = crossval.cross_validate(opts)
+    d, m = report["realisations"]["digital"], report["realisations"]["mass-spring"]
+    assert m["balanced_accuracy"] > 0.6 and d["balanced_accuracy"] > 0.6
+    gap = m["gap"]
+    assert gap["points"] == pytest.approx(100 * (d["balanced_accuracy"] - m["balanced_accuracy"]))
+    assert gap["ci95"][0] <= gap["points"] + 1e-9 and gap["points"] - 1e-9 <= gap["ci95"][1]
+    assert len(m["c_per_fold"]) == 4 and "gap" not in d

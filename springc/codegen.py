@@ -26,6 +26,7 @@ This module never imports numba: `springc.loader` compiles the text.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import re
 from collections.abc import Callable
@@ -144,10 +145,8 @@ def run_args(feat: Features, opts: KernelOptions) -> list[str]:
 
 def generate(net: FlatNetlist, options: KernelOptions) -> str:
     """Python source of the kernel for `net` under `options`, with a descriptive header."""
-    feat = features(net)
     tab = get_tableau(options.method)
-    body = _body(feat, options, tab)
-    digest = source_hash(body)
+    body, digest = hashed_body(features(net), options)
     header = [
         "# springc generated kernel: do not edit (regenerated from the netlist)",
         f"# netlist: {net.file}",
@@ -159,6 +158,15 @@ def generate(net: FlatNetlist, options: KernelOptions) -> str:
         "",
     ]
     return "\n".join(header) + body
+
+
+@functools.lru_cache(maxsize=64)
+def hashed_body(feat: Features, options: KernelOptions) -> tuple[str, str]:
+    """The kernel body and its hash: text that depends on the element kinds and the options
+    only, so it is kept per process (writing it out took 0.7 ms of a 2.5 ms simulation of a
+    one-mass network)."""
+    body = _body(feat, options, get_tableau(options.method))
+    return body, source_hash(body)
 
 
 def source_hash(text: str) -> str:

@@ -53,6 +53,19 @@ def test_parameter_values_do_not_change_the_text():
     assert generate(small_net(), opts) != generate(small_net(), KernelOptions(method="rk38"))
 
 
+def test_body_is_kept_per_kinds_and_options_and_named_per_netlist():
+    """A second netlist with the same element kinds reuses the body written for the first
+    (a cache hit) and gets the same text as a fresh generation, under its own header."""
+    opts = KernelOptions(lanes=4)
+    codegen.hashed_body.cache_clear()
+    first = generate(small_net(title="one"), opts)
+    second = generate(small_net(k=7.0, title="two"), opts)
+    assert codegen.hashed_body.cache_info().hits == 1
+    codegen.hashed_body.cache_clear()
+    assert generate(small_net(k=7.0, title="two"), opts) == second
+    assert first.replace("# title: one", "# title: two") == second
+
+
 def test_stages_follow_the_tableau():
     text = generate(small_net(), KernelOptions(method="ssprk3"))
     assert "elif s_ == 2:  # c = 0.5" in text and "s_ == 3" not in text

@@ -20,19 +20,15 @@ from __future__ import annotations
 
 import json
 import os
-import warnings
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from sklearn.exceptions import ConvergenceWarning
-from threadpoolctl import threadpool_limits
 
 from springc.errors import UsageError
 from springc.kws.dataset import SILENCE
 from springc.kws.digital import FeatureSettings
-from springc.kws.svm import SVM_GRID, fit_linear
+from springc.kws.svm import SVM_GRID, fit_linear, select
 from springc.kws.train import feature_matrices, open_task_data, task_weights
 from springc.results import atomic_path
 
@@ -107,30 +103,27 @@ def speaker_bootstrap(y: np.ndarray, correct: dict[str, np.ndarray], groups: np.
     return out
 
 
+def balanced_score(model, x: np.ndarray, y: np.ndarray) -> float:
+    """`balanced_accuracy` of a model on (x, y): the score C is chosen by."""
+    return balanced_accuracy(y, model.predict(x) == y)
+
+
 def fold_predictions(x: np.ndarray, y: np.ndarray, fold: np.ndarray,
                      grid: tuple[float, ...], class_weight: str | None,
                      jobs: int = 1) -> tuple[np.ndarray, list]:
     """Prediction per clip from the model of its fold, and the C chosen per fold (on fold
-    k+1, by balanced accuracy; ties: the smaller C). `jobs` threads fit the grid."""
+    k+1, by balanced accuracy, with `svm.select`; ties: the smaller C). `jobs` threads fit
+    the grid."""
     k_folds = int(fold.max()) + 1
     pred = np.empty(len(y), dtype=object)
     chosen = []
-    # threads, one BLAS thread each: liblinear releases the GIL; the warning filter is set
-    # here as fit_linear's own is not thread-safe (as in `svm.select`)
-    with warnings.catch_warnings(), threadpool_limits(1), \
-            ThreadPoolExecutor(max(1, jobs)) as pool:
-        warnings.simplefilter("ignore", ConvergenceWarning)
-        for k in range(k_folds):
-            val = (k + 1) % k_folds
-            inner, v = (fold != k) & (fold != val), fold == val
-            xi, yi = x[inner], y[inner]
-            models = pool.map(lambda c, xi=xi, yi=yi: fit_linear(xi, yi, c, "svm", class_weight),
-                              grid)
-            scores = [balanced_accuracy(y[v], m.predict(x[v]) == y[v]) for m in models]
-            c = grid[int(np.argmax(scores))]  # argmax takes the first, the smaller C, on ties
-            chosen.append(c)
-            model = fit_linear(x[fold != k], y[fold != k], c, "svm", class_weight)
-            pred[fold == k] = model.predict(x[fold == k])
+    for k in range(k_folds):
+        inner, val = (fold != k) & (fold != (k + 1) % k_folds), fold == (k + 1) % k_folds
+        _, c, _ = select(x[inner], y[inner], x[val], y[val], "svm", grid, jobs, class_weight,
+                         score=balanced_score)
+        chosen.append(c)
+        model = fit_linear(x[fold != k], y[fold != k], c, "svm", class_weight)
+        pred[fold == k] = model.predict(x[fold == k])
     return pred.astype(str), chosen
 
 

@@ -9,6 +9,7 @@ raw feature space so that the physical readout c . Phi + b gives exactly the sam
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -109,11 +110,12 @@ def accuracy(model: LinearModel, x: np.ndarray, y: np.ndarray) -> float:
 
 def select(x_train: np.ndarray, y_train: np.ndarray, x_val: np.ndarray, y_val: np.ndarray,
            kind: str = "svm", grid: tuple[float, ...] = SVM_GRID, jobs: int = 1,
-           class_weight: str | None = None) -> tuple[LinearModel, float, dict[float, float]]:
+           class_weight: str | None = None, score: Callable = accuracy,
+           ) -> tuple[LinearModel, float, dict[float, float]]:
     """Fit one model per C in `grid` (in `jobs` threads: liblinear and lbfgs release the
-    GIL), keep the best on the validation split (ties: smaller C, the stronger
-    regularisation). `class_weight` as in `fit_linear`. Returns (model, C,
-    {C: validation accuracy})."""
+    GIL), keep the best on the validation split by `score(model, x, y)` (default: accuracy;
+    ties: smaller C, the stronger regularisation). `class_weight` as in `fit_linear`.
+    Returns (model, C, {C: validation score})."""
     if not grid:
         raise ValueError("empty regularisation grid")
     fit = lambda c: fit_linear(x_train, y_train, c, kind, class_weight)  # noqa: E731
@@ -125,6 +127,6 @@ def select(x_train: np.ndarray, y_train: np.ndarray, x_val: np.ndarray, y_val: n
             ThreadPoolExecutor(max(1, min(jobs, len(grid)))) as pool:
         warnings.simplefilter("ignore", ConvergenceWarning)
         models = list(pool.map(fit, grid))
-    scores = {c: accuracy(m, x_val, y_val) for c, m in zip(grid, models)}
+    scores = {c: score(m, x_val, y_val) for c, m in zip(grid, models)}
     best = max(range(len(grid)), key=lambda i: (scores[grid[i]], -grid[i]))
     return models[best], grid[best], scores

@@ -17,13 +17,32 @@ _REALISATION = click.Choice(REALISATIONS)
 _SCHEDULER = click.option("--scheduler", default=None, metavar="ADDRESS",
                           help="Mass-spring: Dask scheduler to send the simulations to "
                                "(default: a local cluster on all cores).")
+_DATA = click.option("--data", "data", required=True, type=click.Path(path_type=Path),
+                     help="Data set folder in the GSCD layout (e.g. from `springc data synth`).")
+_BINS = click.option("--bins", "-n", default=8, show_default=True, help="Mel filter bins n.")
+_DELAYS = click.option("--delays", "-m", default=3, show_default=True, help="Delays per bin m.")
+_JOBS = click.option("--jobs", "-j", default=0, help="Worker processes (0: all cores).")
+_NO_CACHE = click.option("--no-cache", is_flag=True,
+                         help="Recompute features, ignore the cache.")
+_THRESHOLD = click.option("--threshold", type=float, default=None,
+                          help="Mass-spring: compression threshold A_c (m of filter output) "
+                               "of the feature compressors [default: 0.001]; smaller "
+                               "compresses more.")
+
+
+def _massspring(settings: FeatureSettings, threshold: float | None):
+    """Mass-spring settings for `--threshold`, or None (the defaults) without it."""
+    if threshold is None:
+        return None
+    from springc.kws.massspring import from_features
+
+    return from_features(settings, threshold=threshold)
 
 
 @click.command("train")
-@click.option("--data", "data", required=True, type=click.Path(path_type=Path),
-              help="Data set folder in the GSCD layout (e.g. from `springc data synth`).")
-@click.option("--bins", "-n", default=8, show_default=True, help="Mel filter bins n.")
-@click.option("--delays", "-m", default=3, show_default=True, help="Delays per bin m.")
+@_DATA
+@_BINS
+@_DELAYS
 @click.option("--realisation", type=_REALISATION, default="digital", show_default=True)
 @click.option("--baseline", is_flag=True, help="Same as --realisation baseline.")
 @click.option("--filterbank", type=click.Choice(FILTERBANKS), default="two-mode",
@@ -40,17 +59,15 @@ _SCHEDULER = click.option("--scheduler", default=None, metavar="ADDRESS",
 @click.option("--class-weights", type=click.Choice(("balanced", "none")), default=None,
               help="SVM class weights: inversely proportional to the training counts, or "
                    "equal.  [default: balanced for kws12, else none]")
-@click.option("--jobs", "-j", default=0, help="Worker processes (0: all cores).")
+@_JOBS
 @click.option("--seed", default=0, show_default=True,
               help="Seed of augmentation, silence windows and the unknown-word subsample.")
-@click.option("--no-cache", is_flag=True, help="Recompute features, ignore the cache.")
+@_NO_CACHE
 @click.option("-o", "--out", required=True, type=click.Path(path_type=Path),
               help="Model folder to write.")
 @click.option("--epsilon", type=float, default=None,
               help="Mass-spring: squaring error of the classifier heads [default: 1e-5].")
-@click.option("--threshold", type=float, default=None,
-              help="Mass-spring: compression threshold A_c (m of filter output) of the feature "
-                   "compressors [default: 0.001]; smaller compresses more.")
+@_THRESHOLD
 @_SCHEDULER
 @run_user_errors
 def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, tau, fc,
@@ -66,11 +83,8 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
                         jobs=jobs, seed=seed, use_cache=not no_cache, epsilon=epsilon,
                         scheduler=scheduler, protocol=protocol,
                         balance_weights=None if class_weights is None
-                        else class_weights == "balanced")
-    if threshold is not None:
-        from springc.kws.massspring import from_features
-
-        opts.massspring = from_features(settings, threshold=threshold)
+                        else class_weights == "balanced",
+                        massspring=_massspring(settings, threshold))
     report = train(opts)
     click.echo(_summary(report))
     click.echo(f"model written to {out}")
@@ -83,8 +97,8 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
 @click.option("--realisation", type=_REALISATION, default=None,
               help="Must match the model's (default: the model's).")
 @click.option("--json", "as_json", is_flag=True, help="Print accuracy, n, per_class as JSON.")
-@click.option("--jobs", "-j", default=0, help="Worker processes (0: all cores).")
-@click.option("--no-cache", is_flag=True, help="Recompute features, ignore the cache.")
+@_JOBS
+@_NO_CACHE
 @click.option("--budget", type=click.IntRange(min=1), default=None, metavar="N",
               help="Mass-spring models: instead, print where the input work goes (energy "
                    "dissipated per stage) over the first N test clips.")
@@ -146,21 +160,19 @@ def _majority(report: dict) -> float:
 
 
 @click.command("cv")
-@click.option("--data", "data", required=True, type=click.Path(path_type=Path),
-              help="Data set folder in the GSCD layout (e.g. from `springc data synth`).")
-@click.option("--bins", "-n", default=8, show_default=True, help="Mel filter bins n.")
-@click.option("--delays", "-m", default=3, show_default=True, help="Delays per bin m.")
+@_DATA
+@_BINS
+@_DELAYS
 @click.option("--realisation", "realisations", type=click.Choice(("digital", "mass-spring")),
               multiple=True, help="Realisations to compare, the first as the reference "
                                   "(repeat the option).  [default: digital, mass-spring]")
 @click.option("--folds", "-k", default=5, show_default=True,
               help="Speaker-disjoint folds (each tests its clips once).")
-@click.option("--threshold", type=float, default=None,
-              help="Mass-spring: compression threshold A_c (m) [default: 0.001].")
-@click.option("--jobs", "-j", default=0, help="Worker processes (0: all cores).")
+@_THRESHOLD
+@_JOBS
 @click.option("--seed", default=0, show_default=True,
               help="Seed of the silence windows and of the bootstrap.")
-@click.option("--no-cache", is_flag=True, help="Recompute features, ignore the cache.")
+@_NO_CACHE
 @click.option("-o", "--out", required=True, type=click.Path(path_type=Path),
               help="Folder for cv.json and cv.png.")
 @_SCHEDULER
@@ -175,11 +187,8 @@ def cv_cmd(data, bins, delays, realisations, folds, threshold, jobs, seed, no_ca
     settings = FeatureSettings(bins=bins, delays=delays)
     opts = crossval.CVOptions(data=data, settings=settings,
                               realisations=realisations or crossval.REALISATIONS, folds=folds,
-                              seed=seed, jobs=jobs, use_cache=not no_cache, scheduler=scheduler)
-    if threshold is not None:
-        from springc.kws.massspring import from_features
-
-        opts.massspring = from_features(settings, threshold=threshold)
+                              seed=seed, jobs=jobs, use_cache=not no_cache, scheduler=scheduler,
+                              massspring=_massspring(settings, threshold))
     report = crossval.cross_validate(opts, progress=lambda s: click.echo(s, err=True))
     click.echo("\n".join(crossval.summary_lines(report)))
     paths = crossval.write(report, out)

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from springc import expint, linear
+from springc.checks import block_kicks, split_step_limit
 from springc.errors import UsageError
 from springc.integrators import TABLEAUX, get_tableau, max_stable_step, stability_polynomial
 from springc.ir import FlatNetlist
@@ -159,20 +160,12 @@ def _exact_modes(net: FlatNetlist, found: linear.Modes, method: str) -> np.ndarr
         return out
     blocks = expint.find_blocks(net)
     inside = np.zeros(net.n, bool)
-    for nodes, kicked in zip(blocks.nodes, _kicked(net, blocks)):
-        inside[nodes] = not kicked
+    for nodes, kick in zip(blocks.nodes, block_kicks(net, blocks)):
+        inside[nodes] = kick is None
     for k, (nodes, amps) in enumerate(found.shapes):
         w = np.abs(amps) ** 2
         out[k] = w.sum() > 0 and w[inside[nodes]].sum() > 0.5 * w.sum()
     return out
-
-
-def _kicked(net: FlatNetlist, blocks: expint.Blocks) -> list[bool]:
-    """Per block, whether the rest of the split puts a stiffness on its nodes at rest."""
-    if not len(blocks):
-        return []
-    k = linear.linearise(expint.split_netlist(net, blocks)).K.tocsr()
-    return [k[nodes][:, nodes].count_nonzero() > 0 for nodes in blocks.nodes]
 
 
 @dataclass
@@ -240,8 +233,6 @@ def _cheapest_substeps(net, found, method, tstep, duration, band, tol,
     lam = found.eigenvalues
     hmax = _stable_step(inner, lam[~exact])
     if expint.is_split(method):  # kicked blocks have a limit of their own
-        from springc.checks import split_step_limit
-
         hmax = min(hmax, split_step_limit(net, method, found).dt)
     chosen = np.flatnonzero((found.freqs_hz <= band * (1 + 1e-9)) & ~exact)
     for sub in substeps:

@@ -537,15 +537,25 @@ def split_step_limit(net: FlatNetlist, method: str, found: linear.Modes,
     outer = linear.Linearisation(lin.M, (keep @ lin.B @ keep).tocsr(),
                                  (keep @ lin.K @ keep).tocsr())
     limit = replace(linear.step_limit(linear.modes(rest, outer), scheme.inner), method=method)
-    minv = 1.0 / net.mass()
-    for k, nodes in enumerate(blocks.nodes):
-        kick = minv[nodes][:, None] * lin.K[nodes][:, nodes].toarray()
-        if not kick.any():
+    for k, kick in enumerate(block_kicks(net, blocks, lin)):
+        if kick is None:
             continue
         h = _kicked_block_limit(scheme, blocks.a[k], kick, limit.dt)
         if h < limit.dt:
-            limit = linear.StepLimit(method, h, _block_mode(found, nodes))
+            limit = linear.StepLimit(method, h, _block_mode(found, blocks.nodes[k]))
     return limit
+
+
+def block_kicks(net: FlatNetlist, blocks: expint.Blocks,
+                lin: linear.Linearisation | None = None) -> list[np.ndarray | None]:
+    """Per block, the stiffness per mass that the split's rest puts on its nodes at rest (the
+    "kick", see below), or None where there is none. `lin`: the linearised
+    `expint.split_netlist(net, blocks)`, computed if not given."""
+    if lin is None:
+        lin = linear.linearise(expint.split_netlist(net, blocks))
+    minv = 1.0 / net.mass()
+    kicks = [minv[nodes][:, None] * lin.K[nodes][:, nodes].toarray() for nodes in blocks.nodes]
+    return [kick if kick.any() else None for kick in kicks]
 
 
 def _kicked_block_limit(scheme: expint.SplitScheme, a: np.ndarray, kick: np.ndarray,

@@ -35,7 +35,7 @@ from dataclasses import asdict, dataclass
 from springc.integrators import Tableau, get_tableau
 from springc.ir import FlatNetlist
 
-KERNEL_VERSION = 2  # bump when the generated text or its calling convention changes
+KERNEL_VERSION = 3  # bump when the generated text or its calling convention changes
 LANE_CHOICES = (32, 16, 4, 1)  # compile-time lane widths a kernel is generated for (32: the
 # per-element index and loop work spread over more lanes, measured 24% faster in float32)
 STAGE_BLOCK = 32  # steps of input samples staged at a time
@@ -100,7 +100,7 @@ _ACCEL_ARGS = {
     "local_damping": ("bm",),
     "springs": ("km",),
     "duffings": ("d_node", "d_lm"),
-    "couplings": ("c_i", "c_j", "c_a", "c_ki", "c_kj"),
+    "couplings": ("l_ptr", "l_col", "l_val"),
     "quads": ("q_i", "q_j", "q_a", "q_gi", "q_gj"),
     "dashpots": ("b_i", "b_j", "b_bi", "b_bj"),
     "monomials": ("p_c", "p_ptr", "p_var", "p_exp"),
@@ -318,25 +318,11 @@ def emit_stage_loop(c: _Code, feat: Features, tab: Tableau, width: LaneLayout,
 
 def emit_accel_body(c: _Code, feat: Features, width: LaneLayout) -> None:
     """The force code: ka = M^-1 F(xa, va, uc, grow), element kind by element kind."""
-    c("for i in range(n):")
-    c.indent()
-    c("bi = bm[i]")
-    c("ki = km[i]")
-    lanes(c, width, ["V{b} = va[i, {b}]", "X{b} = xa[i, {b}]"], [],
-          ["ka[i, {b}] = -(bi * V{b} + ki * X{b})"])
-    c.dedent()
+    emit_linear(c, feat, width)
     if feat.duffings:
         _element_loop(c, width, "d_node", ["i = d_node[e]", "lm = d_lm[e]"],
                       ["X{b} = xa[i, {b}]", "O{b} = ka[i, {b}]"], [],
                       ["ka[i, {b}] = O{b} - lm * (X{b} * X{b} * X{b})"])
-    if feat.couplings:
-        # potential k/(2a) (x_i - a x_j)^2: force -(k/a) s on i, +k s on j (each over its mass)
-        _element_loop(c, width, "c_i", ["i = c_i[e]", "j = c_j[e]", "a = c_a[e]", "ki = c_ki[e]",
-                                        "kj = c_kj[e]"],
-                      ["XI{b} = xa[i, {b}]", "XJ{b} = xa[j, {b}]", "OI{b} = ka[i, {b}]",
-                       "OJ{b} = ka[j, {b}]"],
-                      ["S{b} = XI{b} - a * XJ{b}"],
-                      ["ka[i, {b}] = OI{b} - ki * S{b}", "ka[j, {b}] = OJ{b} + kj * S{b}"])
     if feat.quads:
         _element_loop(c, width, "q_i", ["i = q_i[e]", "j = q_j[e]", "a = q_a[e]", "gi = q_gi[e]",
                                         "gj = q_gj[e]"],
@@ -357,6 +343,34 @@ def emit_accel_body(c: _Code, feat: Features, width: LaneLayout) -> None:
     if feat.common_forces:
         _element_loop(c, width, "fc_node", ["i = fc_node[e]", "fv = fc_gm[e] * grow[e]"],
                       ["O{b} = ka[i, {b}]"], [], ["ka[i, {b}] = O{b} + fv"])
+
+
+def emit_linear(c: _Code, feat: Features, width: LaneLayout) -> None:
+    """ka = -(bm v + km x) per node, plus (with couplings) the node's off-diagonal stiffness
+    row gathered into the lanes' accumulators (`simulate.linear_rows`): one store per node
+    instead of a load and a store per element end."""
+    c("for i in range(n):")
+    c.indent()
+    c("bi = bm[i]")
+    c("ki = km[i]")
+    if not feat.couplings:
+        lanes(c, width, ["V{b} = va[i, {b}]", "X{b} = xa[i, {b}]"], [],
+              ["ka[i, {b}] = -(bi * V{b} + ki * X{b})"])
+        c.dedent()
+        return
+    # All lanes at once (no group loop): the FMAs into one accumulator are a chain, and
+    # only the lanes' independent chains keep the FMA units busy.
+    full = LaneLayout(width.width, width.width)
+    lanes(c, full, ["V{b} = va[i, {b}]", "X{b} = xa[i, {b}]"],
+          ["A{b} = -(bi * V{b} + ki * X{b})"], [])
+    c("for e in range(l_ptr[i], l_ptr[i + 1]):")
+    c.indent()
+    c("j = l_col[e]")
+    c("w = l_val[e]")
+    lanes(c, full, ["Y{b} = xa[j, {b}]"], ["A{b} = A{b} + w * Y{b}"], [])
+    c.dedent()
+    lanes(c, full, [], [], ["ka[i, {b}] = A{b}"])
+    c.dedent()
 
 
 def _element_loop(c: _Code, width: LaneLayout, index: str, head: list[str], loads: list[str],

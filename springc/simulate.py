@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse
 
 from springc import codegen, expint, loader, physics, reductions, sources
 from springc.audio import resample
@@ -94,24 +95,21 @@ def settings(net: FlatNetlist, tstep=None, tstop=None, substeps=None, method=Non
 def coefficient_arrays(net: FlatNetlist, dtype) -> dict[str, np.ndarray]:
     """The kernel's coefficient and index arrays (names as in `codegen.accel_args`), with the
     inverse mass folded into every force coefficient (each end of an element over its own
-    node's mass) and the springs summed into a per-node diagonal."""
+    node's mass) and the linear springs and couplings as `linear_rows`."""
     f = lambda a: np.ascontiguousarray(a, dtype=dtype)  # noqa: E731
     i = lambda a: np.ascontiguousarray(a, dtype=np.int64)  # noqa: E731
-    s, d, c, q, b, p = (net.springs, net.duffings, net.couplings, net.quads, net.dashpots,
-                        net.monomials)
+    d, q, b, p = net.duffings, net.quads, net.dashpots, net.monomials
     fi, fc = sources.input_forces(net), sources.common_forces(net)
     force = net.forces
     chans = [force.source[e].channel for e in fi]
     minv = 1.0 / net.mass()
-    kdiag = np.zeros(net.n)
-    np.add.at(kdiag, s.node, s.k)
+    kdiag, l_ptr, l_col, l_val = linear_rows(net, minv)
     ground = b.j < 0
     bj = np.where(ground, 0.0, b.b * minv[np.where(ground, 0, b.j)])
     return {
-        "minv": f(minv), "bm": f(net.local_damping() * minv), "km": f(kdiag * minv),
+        "minv": f(minv), "bm": f(net.local_damping() * minv), "km": f(kdiag),
         "d_node": i(d.node), "d_lm": f(d.l * minv[d.node]),
-        "c_i": i(c.i), "c_j": i(c.j), "c_a": f(c.a), "c_ki": f(c.k / c.a * minv[c.i]),
-        "c_kj": f(c.k * minv[c.j]),
+        "l_ptr": i(l_ptr), "l_col": i(l_col), "l_val": f(l_val),
         "q_i": i(q.i), "q_j": i(q.j), "q_a": f(q.a), "q_gi": f(2 * q.g / q.a * minv[q.i]),
         "q_gj": f(q.g * minv[q.j]),
         "b_i": i(b.i), "b_j": i(b.j), "b_bi": f(b.b * minv[b.i]), "b_bj": f(bj),
@@ -120,6 +118,26 @@ def coefficient_arrays(net: FlatNetlist, dtype) -> dict[str, np.ndarray]:
         "fi_chan": i(chans),
         "fc_node": i(force.node[fc]), "fc_gm": f(force.gain[fc] * minv[force.node[fc]]),
     }
+
+
+def linear_rows(net: FlatNetlist, minv: np.ndarray):
+    """The linear stiffness of springs and couplings over the mass, -M^-1 K, as a per-node
+    diagonal (`km`, with the sign of a stiffness) and the off-diagonal rows in CSR form
+    (`ptr`, `col`, `val`: acceleration of node i per unit x_col). The kernel gathers each
+    node's row into registers and stores its acceleration once: a coupling pushed to both
+    ends cost two loads and a store of the force rows per end (issue 7: memory-bound).
+    A coupling k/(2a) (x_i - a x_j)^2 puts k/a on i's diagonal, k a on j's and -k off it."""
+    s, c = net.springs, net.couplings
+    rows = np.concatenate([s.node, c.i, c.j, c.i, c.j])
+    cols = np.concatenate([s.node, c.i, c.j, c.j, c.i])
+    vals = np.concatenate([s.k, c.k / c.a, c.k * c.a, -c.k, -c.k]) * minv[rows]
+    stiff = scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(net.n, net.n))
+    stiff.sum_duplicates()
+    diag = stiff.diagonal()
+    stiff.setdiag(0.0)
+    stiff.eliminate_zeros()
+    stiff.sort_indices()
+    return diag, stiff.indptr, stiff.indices, -stiff.data
 
 
 def resolve_probes(net: FlatNetlist, probes) -> list[Probe]:

@@ -57,10 +57,15 @@ SCIPY_PEERS = {"DOP853": ("DOP853", None), "DOP853 tstep/8": ("DOP853", 1 / 8),
                "RK45": ("RK45", 1 / 8)}
 ORDER = 4  # every kernel method is RK4-based: the ladder predicts errors with this order
 LADDER_GAIN = 0.5  # a ladder rung must at least halve the error, else round-off has won
-REPEATS = 3  # kernel timings: the least of up to 3 runs (the machine is shared)
-REPEAT_BUDGET = 8.0  # seconds: no further repeats once the runs of a row took this long
+# Timings: the least wall time of repeated calls (the machine is shared), kernels and peers
+# alike: at least MIN_CALLS (kernels) or 1 (peers), then more while the calls so far took
+# under REPEAT_FOR seconds, at most MAX_CALLS, never past REPEAT_BUDGET seconds.
+MIN_CALLS, MAX_CALLS = 3, 25
+REPEAT_FOR, REPEAT_BUDGET = 1.0, 8.0
 PAIRED_ROUNDS = 15  # rounds of alternating re-timing of a case's `paired` rows (load bursts)
-CEILING_TRIES = 3  # the ceiling is a best case: the most of 3 measurements
+CEILING_TRIES = 3  # the ceiling is a best case: the most of its measurements (a case with
+# `paired` rows measures it once per round of their re-timing as well, in alternation)
+BATCH = 64  # runs of a batched case: two chunks of 32 lanes, one per core (simulate's default)
 
 
 @dataclass
@@ -83,6 +88,7 @@ class Case:
     ref_substeps: int = 64
     check_tstop: float | None = None  # stretch of the DOP853 check (default: peer_tstop)
     skipped: dict[str, str] = field(default_factory=dict)  # peer -> why it does not run here
+    rounds: int = PAIRED_ROUNDS  # rounds of the `paired` re-timing
 
 
 @dataclass
@@ -225,40 +231,42 @@ def cases(quick: bool = False) -> list[Case]:
     own error estimate stays below what the ladder can reach."""
     rate = bn.KWS_RATE
     scale = 0.05 if quick else 1.0
-    runs = 2 if quick else 16
+    runs = 2 if quick else BATCH
     fe_t, kws_t = 1.0 * scale, 0.25 * scale
     both = ("float64", "float32")
+    rk4_x1 = (("rk4", 1, "float64"), ("rk4", 1, "float32"))  # the throughput rows
     exp = [("exp-rk4", 1, p) for p in both] + [("exp-rk4", 2, "float64")]
     line = bn.long_delay_line()
     duff = bn.duffing_resonator(amp=DUFFING_HARD)
     out = [
         Case("feature", "feature extractor (8 Mel filter pairs 0.1-8 kHz, squarers, low-pass)",
-             # 64 runs: two chunks of 32 lanes (simulate's DEFAULT_CHUNK), as in production
-             feature_extractor(), speech_like(fe_t, rate, 4 * runs), 1 / rate, fe_t,
+             feature_extractor(), speech_like(fe_t, rate, runs), 1 / rate, fe_t,
              _rk_configs((1, 2, 4, 8)) + [("rk4", 1, "float32")] + exp
              + _rk_configs((4, 8, 16), method="exp-rk4")
              + [("strang-rk4", 1, "float64")], 0.005 * scale,
-             paired=(("rk4", 1, "float64"), ("exp-rk4", 1, "float64"), ("exp-rk4", 2, "float64"),
-                     ("rk4", 1, "float32"), ("exp-rk4", 1, "float32")),
+             paired=rk4_x1 + (("exp-rk4", 1, "float64"), ("exp-rk4", 2, "float64"),
+                              ("exp-rk4", 1, "float32")),
              ladder=tuple(_rk_configs((32, 64), method="exp-rk4")),
              ref_method="exp-rk4", ref_substeps=128, check_tstop=0.0025 * scale),
         Case("kws", "8x3 keyword-spotting network (564 dofs)", bn.kws_network(),
-             speech_like(kws_t, rate, 2 * runs, seed=1), 1 / rate, kws_t,
+             speech_like(kws_t, rate, runs, seed=1), 1 / rate, kws_t,
              _rk_configs((1, 2, 4)) + [("rk4", 1, "float32"), ("exp-rk4", 1, "float64"),
                                        ("exp-rk4", 2, "float64")], 0.01 * scale,
-             peers=("DOP853", "DOP853 tstep/8", "RK45", "numpy-rk4"),
+             peers=("DOP853", "DOP853 tstep/8", "RK45", "numpy-rk4"), paired=rk4_x1,
              skipped={"ngspice": "not run on the 564-dof network: ngspice took 57 s for 5 ms "
                       "of the 24-dof feature extractor at its reltol 1e-9"},
              ladder=tuple(_rk_configs((4, 8, 16, 32), method="exp-rk4")),
              ref_method="exp-rk4", ref_substeps=64, check_tstop=0.005 * scale),
         Case("delay", "long delay line (200 sites)", line,
              speech_like(line.tran.tstop, 1 / line.tran.tstep, runs, seed=2), line.tran.tstep,
-             line.tran.tstop * (0.25 if quick else 1.0), _rk_configs((1, 2, 4, 8, 16)),
-             line.tran.tstop * (0.25 if quick else 0.75),
+             line.tran.tstop * (0.25 if quick else 1.0),
+             _rk_configs((1, 2, 4, 8, 16)) + [("rk4", 1, "float32")],
+             line.tran.tstop * (0.25 if quick else 0.75), paired=rk4_x1,
              ladder=tuple(_rk_configs((32, 64, 128, 256))), ref_substeps=512),
         Case("stiff", "stiff all-to-all block (24 masses, constraint springs 2e8)",
              stiff_block(), speech_like(0.25 * scale, rate, runs, seed=3), 1 / rate,
-             0.25 * scale, _rk_configs((1, 2, 4, 8, 16, 32)), 0.02 * scale,
+             0.25 * scale, _rk_configs((1, 2, 4, 8, 16, 32)) + [("rk4", 1, "float32")],
+             0.02 * scale, paired=rk4_x1,
              ladder=tuple(_rk_configs((64, 128, 256))), ref_substeps=1024,
              check_tstop=0.01 * scale),
         Case("duffing", "Duffing resonator driven hard (stiffness up 10x at the peak)", duff,
@@ -266,6 +274,8 @@ def cases(quick: bool = False) -> list[Case]:
              0.05 * scale, ladder=tuple(_rk_configs((8, 16, 32, 64, 128, 256))),
              ref_substeps=512),
     ]
+    for case in out:
+        case.rounds = 2 if quick else PAIRED_ROUNDS
     return out
 
 
@@ -290,12 +300,12 @@ def run_case(case: Case, progress: Callable[[str], None] = print) -> CaseResult:
             progress(f"[{case.name}] {method} x{sub} {precision}")
             res.rows.append(_kernel_row(case, ref, method, sub, precision, runs))
     res.ladder_note = _climb_ladder(case, ref, res.rows, peers, runs, progress)
-    if case.paired:
-        progress(f"[{case.name}] re-timing {len(case.paired)} rows in alternation")
-        _retime_paired(case, res.rows, runs)
-    res.rows += peers
-    progress(f"[{case.name}] ceiling")
+    progress(f"[{case.name}] ceiling" + (f", and {len(case.paired)} rows re-timed with it in "
+                                         f"alternation" if case.paired else ""))
     res.ceiling = _ceilings(case, runs)
+    if case.paired:
+        _retime_paired(case, res.rows, runs, res.ceiling)
+    res.rows += peers
     for row in res.rows:
         if row.precision in res.ceiling and row.name.startswith("kernel"):
             # the ceiling scales as 1 / rate: rate it at the row's own step
@@ -446,7 +456,8 @@ def _kernel_row(case: Case, ref: Reference, method: str, sub: int, precision: st
                     precision=precision)
     compile_s = float(warm.info["compile_s"] or 0.0)
     try:
-        out, wall = _timed(lambda: _sim(case, case.inputs, method, sub, precision))
+        out, wall = _timed(lambda: _sim(case, case.inputs, method, sub, precision),
+                           lambda out: float(out.info["wall_s"]))
     except SimulationError as err:
         return Row(f"kernel {method}", method, sub, precision, {}, math.nan, compile_s, 0.0,
                    0.0, note=f"stopped by the divergence guard: {err.message}")
@@ -456,28 +467,35 @@ def _kernel_row(case: Case, ref: Reference, method: str, sub: int, precision: st
                stretch_errors=_errors(got, out.t, ref, case.peer_tstop))
 
 
-def _retime_paired(case: Case, rows: list[Row], runs: int) -> None:
-    """Time the `paired` rows in turn, `PAIRED_ROUNDS` times, keeping each row's least wall
-    time: on a shared machine a load burst then hits every row alike, not just one."""
+def _retime_paired(case: Case, rows: list[Row], runs: int, ceilings: dict[str, float]) -> None:
+    """Time the `paired` rows and the ceiling in turn, `PAIRED_ROUNDS` times, keeping each
+    row's least wall time and the ceiling's best (in place): on a shared machine a load burst
+    then hits the rows and the ceiling alike, not just one of them (the ceiling alone varied
+    up to 5x between calls here)."""
     chosen = [r for r in rows for m, s, p in case.paired
               if r.name == f"kernel {m}" and (r.substeps, r.precision) == (s, p) and r.errors]
-    for _ in range(PAIRED_ROUNDS):
+    for _ in range(case.rounds):
         for row in chosen:
             out = _sim(case, case.inputs, row.method, row.substeps, row.precision)
             row.wall_s = min(row.wall_s, float(out.info["wall_s"]))
             row.throughput = runs * case.tstop / row.wall_s
-            row.note = f"least of {PAIRED_ROUNDS} alternating re-timings"
+            row.note = f"least of {case.rounds} re-timings in alternation with the ceiling"
+        for precision, best in _ceilings(case, runs, tries=1).items():
+            ceilings[precision] = max(ceilings[precision], best)
 
 
-def _timed(call: Callable[[], object]) -> tuple[object, float]:
-    """The result and the least wall time of up to `REPEATS` calls (while the calls so far
-    took under `REPEAT_BUDGET` seconds): the machine is shared, the minimum is the kernel's."""
+def _timed(call: Callable[[], object], wall_of: Callable[[object], float] | None = None,
+           min_calls: int = MIN_CALLS) -> tuple[object, float]:
+    """The result and the least wall time of repeated calls (the rule at MIN_CALLS): the
+    machine is shared, the minimum is the code's own time. `wall_of` reads a call's wall
+    time from its result (default: timed around the call)."""
     best, spent, out = math.inf, 0.0, None
-    for _ in range(REPEATS):
+    for n in range(1, MAX_CALLS + 1):
+        start = time.perf_counter()
         out = call()
-        wall = float(out.info["wall_s"])
+        wall = wall_of(out) if wall_of else time.perf_counter() - start
         best, spent = min(best, wall), spent + wall
-        if spent > REPEAT_BUDGET:
+        if spent > REPEAT_BUDGET or (n >= min_calls and spent >= REPEAT_FOR):
             break
     return out, best
 
@@ -487,20 +505,22 @@ def _peer_row(case: Case, ref: Reference, peer: str) -> Row | None:
 
     first = None if case.inputs is None else case.inputs[:1]
     tstop = case.peer_tstop
-    start = time.perf_counter()
+    wall = math.nan
     if peer in SCIPY_PEERS:
         method, per_sample = SCIPY_PEERS[peer]
-        t, probes, _ = reference.solve_ivp_reference(
+        (t, probes, _), wall = _timed(lambda: reference.solve_ivp_reference(
             case.net, first, tstep=case.tstep, tstop=tstop, method=method, rtol=PEER_RTOL,
             atol=PEER_RTOL * 1e-6,
-            max_step=math.inf if per_sample is None else case.tstep * per_sample)
+            max_step=math.inf if per_sample is None else case.tstep * per_sample), min_calls=1)
         note = (f"scipy solve_ivp rtol {PEER_RTOL:g}, atol {PEER_RTOL * 1e-6:g}, "
                 + ("free step size" if per_sample is None else
                    f"max_step tstep/{round(1 / per_sample)}"))
     elif peer == "numpy-rk4":
-        t, probes, _ = reference.rk4_numpy(case.net, first, tstep=case.tstep, tstop=tstop)
+        (t, probes, _), wall = _timed(lambda: reference.rk4_numpy(
+            case.net, first, tstep=case.tstep, tstop=tstop), min_calls=1)
         note = "plain numpy RK4 at 1/tstep"
     elif peer == "ngspice":
+        start = time.perf_counter()  # once: it runs for tens of seconds
         try:
             got = _ngspice(case, first, tstop)
         except SimulationError as err:  # a peer's failure is a result, not the end of the run
@@ -509,9 +529,9 @@ def _peer_row(case: Case, ref: Reference, peer: str) -> Row | None:
         if got is None:
             return None
         t, probes, note = got
+        wall = time.perf_counter() - start
     else:
         raise ValueError(f"unknown peer {peer!r}")
-    wall = time.perf_counter() - start
     errors = _errors({k: np.asarray(v)[0] if np.ndim(v) == 2 else v for k, v in probes.items()},
                      t, ref, tstop)
     return Row(f"peer {peer}", peer, 1, "float64", errors, wall, 0.0, tstop, tstop / wall,
@@ -533,15 +553,16 @@ def _ngspice(case: Case, first, tstop):
     return t, traces, "ngspice trap, reltol 1e-9 (sampled input), uic"
 
 
-def _ceilings(case: Case, runs: int) -> dict[str, float]:
-    """Ceiling run-seconds per wall-second at the input rate, per precision measured."""
+def _ceilings(case: Case, runs: int, tries: int = CEILING_TRIES) -> dict[str, float]:
+    """Ceiling run-seconds per wall-second at the input rate, per precision measured: the
+    best of `tries` measurements."""
     flops = ceiling.rk4_flops_per_dof_step(case.net)
     out = {}
     for precision in sorted({p for _, _, p in case.configs}):
         out[precision] = max(
             float(ceiling.measure_ceiling(case.net.n, runs, precision, threads=_threads(),
                                           flops_per_step=flops, rate=1.0 / case.tstep)
-                  ["run_seconds_per_wall_second"]) for _ in range(CEILING_TRIES))
+                  ["run_seconds_per_wall_second"]) for _ in range(tries))
     return out
 
 
@@ -614,6 +635,7 @@ def claims(results: list[CaseResult]) -> dict:
     out["ceiling_fraction"] = {
         r.name: {p: (_find(r, "rk4", 1, p).ceiling_fraction if _find(r, "rk4", 1, p) else None)
                  for p in ("float64", "float32")} for r in results}
+    out["runs"] = {r.name: r.runs for r in results}
     out["speedups"] = {r.name: speedups(r) for r in results}
     out["verdicts"] = verdicts(out, results)
     return out
@@ -630,10 +652,12 @@ def verdicts(found: dict, results: list[CaseResult]) -> list[dict]:
                         "met": ratio is not None and ratio <= 1.5, "value": ratio,
                         "target": 1.5, "detail": fe})
     for name, fr in found["ceiling_fraction"].items():
+        batched = found["runs"].get(name, 2) > 1  # the claim is about batched kernels
         for precision, frac in fr.items():
             if frac is not None:
                 out.append({"claim": "ceiling_70", "scope": f"{name} {precision}",
-                            "met": frac >= 0.7, "value": frac, "target": 0.7})
+                            "met": frac >= 0.7 if batched else None, "value": frac,
+                            "target": 0.7, "detail": None if batched else "single run"})
     ran = {r.name: {row.method for row in r.rows if row.name.startswith("peer")}
            for r in results}
     for peer, need in MUST_SPEEDUP.items():
@@ -712,12 +736,17 @@ def markdown(results: list[CaseResult], found: dict, machine: dict) -> str:
          "over the peers' shorter stretch (the peers only run that). Tables show the worst "
          "probe (all probes in bench.json). Equal-error comparisons use the stretch errors of "
          "both sides; a peer below the reference's floor (the larger of its estimate and the "
-         "check) counts as at the floor. Wall: the least of up to 3 runs. Compile: the first "
+         "check) counts as at the floor. Wall: the least of repeated calls, kernels and the "
+         f"scipy and numpy peers alike ({MIN_CALLS} or more for a kernel, 1 or more for a "
+         f"peer, repeated while they took under {REPEAT_FOR:g} s in all, at most {MAX_CALLS}; "
+         "ngspice once); rows re-timed in alternation with the ceiling say so. Compile: the first "
          "call's time (a load from numba's cache when the kernel was built before). "
          "Throughput: run-seconds per wall-second (the batch of runs in lockstep; the peers "
          "run one). Ceiling: the measured arithmetic ceiling (`springc.ceiling`) for the "
          "network's size and batch at the row's step, same precision, rated with the RK4 "
-         "flop count. scipy DOP853 runs twice: as issue 7 measured it (rtol 1e-6, atol "
+         "flop count, the best of its measurements (taken in alternation with the re-timed rows); "
+         "the claim is about batched kernels (a case of one run is reported, not judged). "
+         "scipy DOP853 runs twice: as issue 7 measured it (rtol 1e-6, atol "
          "1e-12, scipy's free step size) and held to max_step tstep/8 (`springc.reference`'s "
          "default: the linearly interpolated input has a kink at every sample, which the "
          "step control alone steps over with a visible error); RK45 runs held to tstep/8. "
@@ -801,7 +830,8 @@ def _verdict_part(v: dict) -> str:
         return (f"{v['scope']} {mark}: {d['cheapest']} (worst {_fmt(d['cheapest_error'])}) at "
                 f"{_fmt(v['value'], '.2f')}x RK4 x1's wall")
     if v["claim"] == "ceiling_70":
-        return f"{v['scope']} {_fmt(100 * v['value'], '.0f')}% ({mark})"
+        why = "a single run, not a batch: outside the claim" if v.get("detail") else mark
+        return f"{v['scope']} {_fmt(100 * v['value'], '.0f')}% ({why})"
     d = v["detail"]
     if isinstance(d, str):
         return f"{v['scope']}: {mark} ({d})"

@@ -7,6 +7,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import types
 
 import numpy as np
 import pytest
@@ -158,7 +159,10 @@ def test_verdicts_say_met_missed_and_partly_met_with_the_numbers():
     fe.name = "feature"
     other = _result([_kernel("rk4", 1, 1e-6, 0.01), _peer(1e-13, wall_per_run_s=500.0)])
     other.rows[0].ceiling_fraction = 0.8
-    found = bs.claims([fe, other])
+    single = _result([_kernel("rk4", 1, 1e-6, 0.01)])
+    single.name, single.rows[0].ceiling_fraction = "one", 0.1
+    fe.runs = other.runs = 64  # batched; `single` is one run: reported, not judged
+    found = bs.claims([fe, other, single])
     by = {(v["claim"], v["scope"]): v for v in found["verdicts"]}
     assert by[("feature_1e-3", "float64")]["met"]  # 0.005 / 0.004 = 1.25x
     assert by[("feature_1e-3", "float64")]["value"] == pytest.approx(1.25)
@@ -167,10 +171,12 @@ def test_verdicts_say_met_missed_and_partly_met_with_the_numbers():
     assert by[("speedup_ngspice", "net")]["met"] is None  # ngspice did not run there
     assert by[("ceiling_70", "net float64")]["met"]
     assert not by[("ceiling_70", "feature float64")]["met"]
+    assert by[("ceiling_70", "one float64")]["met"] is None
     md = "\n".join(bs._verdicts_md(found["verdicts"]))
     assert "**MET**: Feature extractor" in md
     assert "**PARTLY MET (1 of 2)**: At least 300x faster than scipy DOP853" in md
     assert "**PARTLY MET (1 of 2)**: Throughput" in md
+    assert "one float64 10% (a single run, not a batch: outside the claim)" in md
     assert "feature 6250x (met; exp-rk4 x16 float64 1e-12 vs 2e-11)" in md
     assert ("net missed: no measured kernel row reaches its error 1e-13 (most accurate: "
             "rk4 x1 float64 1e-06, 50000x faster; predicted, not measured: rk4 x64 float64 "
@@ -202,3 +208,31 @@ def test_run_case_writes_the_report_with_reference_and_ladder(tmp_path):
     assert "Reference: rk4 x256 and x128, Richardson-extrapolated" in md
     assert "the whole suite took 1.0 min" in md
     assert paths["osc"].stat().st_size > 1000
+
+
+def test_paired_rows_and_the_ceiling_are_timed_in_alternation_least_and_best(monkeypatch):
+    """The re-timed rows keep their least wall time and the ceiling its best measurement,
+    one of each per round (a load burst then hits both, not one)."""
+    calls = []
+    ceilings = iter([100.0, 300.0, 200.0])
+
+    def fake_ceiling(n_dof, batch, precision, **kw):
+        calls.append("ceiling")
+        return {"run_seconds_per_wall_second": next(ceilings)}
+
+    walls = iter([0.5, 0.2, 0.3])
+
+    def fake_sim(case, inputs, method, sub, precision, tstop=None):
+        calls.append("row")
+        return types.SimpleNamespace(info={"wall_s": next(walls)})
+
+    monkeypatch.setattr(bs.ceiling, "measure_ceiling", fake_ceiling)
+    monkeypatch.setattr(bs, "_sim", fake_sim)
+    case = _case(paired=(("rk4", 1, "float64"),), rounds=3)
+    row = _kernel("rk4", 1, 1e-6, 0.4)
+    best = {"float64": 150.0}
+    bs._retime_paired(case, [row], 1, best)
+    assert calls == ["row", "ceiling"] * 3
+    assert row.wall_s == 0.2 and row.throughput == pytest.approx(TSTOP / 0.2)
+    assert best["float64"] == 300.0
+    assert "least of 3 re-timings in alternation with the ceiling" in row.note

@@ -30,7 +30,7 @@ import functools
 import hashlib
 import re
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 from springc.integrators import Tableau, get_tableau
 from springc.ir import FlatNetlist
@@ -151,7 +151,7 @@ def generate(net: FlatNetlist, options: KernelOptions) -> str:
         "# springc generated kernel: do not edit (regenerated from the netlist)",
         f"# netlist: {net.file}",
         f"# title: {net.title}",
-        f"# options: {asdict(options)}",
+        f"# options: {vars(options)}",  # (asdict deep-copies: 60 us of a 1 ms call)
         f"# integrator: {tab.name} ({tab.description})",
         f"# dofs: {net.n}; elements: {net.element_counts()}",
         f"# body-hash: {digest}",
@@ -186,6 +186,7 @@ def shared_text(source: str) -> str:
                    if not line.startswith(_PER_NETLIST))
 
 
+@functools.lru_cache(maxsize=256)
 def kernel_hash(source: str) -> str:
     """The hash naming a kernel's cache file (of `shared_text`)."""
     return source_hash(shared_text(source))

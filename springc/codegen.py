@@ -104,7 +104,7 @@ _ACCEL_ARGS = {
     "quads": ("q_i", "q_j", "q_a", "q_gi", "q_gj"),
     "dashpots": ("b_i", "b_j", "b_bi", "b_bj"),
     "monomials": ("p_c", "p_ptr", "p_var", "p_exp"),
-    "in_forces": ("fi_node", "fi_gm", "fi_chan"),
+    "in_forces": ("fi_node", "fi_gm", "fi_chan", "fi_ptr"),
     "common_forces": ("fc_node", "fc_gm"),
 }
 
@@ -336,40 +336,40 @@ def emit_accel_body(c: _Code, feat: Features, width: LaneLayout) -> None:
         _emit_dashpots(c, width)
     if feat.monomials:
         _emit_monomials(c, width)
-    if feat.in_forces:
-        _element_loop(c, width, "fi_node", ["i = fi_node[e]", "gm = fi_gm[e]",
-                                            "ch = fi_chan[e]"],
-                      ["U{b} = uc[ch, {b}]", "O{b} = ka[i, {b}]"], [],
-                      ["ka[i, {b}] = O{b} + gm * U{b}"])
     if feat.common_forces:
         _element_loop(c, width, "fc_node", ["i = fc_node[e]", "fv = fc_gm[e] * grow[e]"],
                       ["O{b} = ka[i, {b}]"], [], ["ka[i, {b}] = O{b} + fv"])
 
 
 def emit_linear(c: _Code, feat: Features, width: LaneLayout) -> None:
-    """ka = -(bm v + km x) per node, plus (with couplings) the node's off-diagonal stiffness
-    row gathered into the lanes' accumulators (`simulate.linear_rows`): one store per node
-    instead of a load and a store per element end."""
+    """Per node, all lanes in registers and one store: ka = -(bm v + km x), plus (with
+    couplings) the node's off-diagonal stiffness row (`simulate.linear_rows`) and (with
+    inputs) its input forces (`fi_ptr`: the node's range of the node-ordered inputs). Pushing
+    each element into both ends' rows cost a load and a store per end, and the kernel was
+    bound by that memory traffic (issue 7). All lanes at once (no group loop): the FMAs into
+    one accumulator are a chain, and only the lanes' independent chains keep the FMA units
+    busy."""
+    full = LaneLayout(width.width, width.width)
     c("for i in range(n):")
     c.indent()
     c("bi = bm[i]")
     c("ki = km[i]")
-    if not feat.couplings:
-        lanes(c, width, ["V{b} = va[i, {b}]", "X{b} = xa[i, {b}]"], [],
-              ["ka[i, {b}] = -(bi * V{b} + ki * X{b})"])
-        c.dedent()
-        return
-    # All lanes at once (no group loop): the FMAs into one accumulator are a chain, and
-    # only the lanes' independent chains keep the FMA units busy.
-    full = LaneLayout(width.width, width.width)
     lanes(c, full, ["V{b} = va[i, {b}]", "X{b} = xa[i, {b}]"],
           ["A{b} = -(bi * V{b} + ki * X{b})"], [])
-    c("for e in range(l_ptr[i], l_ptr[i + 1]):")
-    c.indent()
-    c("j = l_col[e]")
-    c("w = l_val[e]")
-    lanes(c, full, ["Y{b} = xa[j, {b}]"], ["A{b} = A{b} + w * Y{b}"], [])
-    c.dedent()
+    if feat.couplings:
+        c("for e in range(l_ptr[i], l_ptr[i + 1]):")
+        c.indent()
+        c("j = l_col[e]")
+        c("w = l_val[e]")
+        lanes(c, full, ["Y{b} = xa[j, {b}]"], ["A{b} = A{b} + w * Y{b}"], [])
+        c.dedent()
+    if feat.in_forces:
+        c("for e in range(fi_ptr[i], fi_ptr[i + 1]):")
+        c.indent()
+        c("ch = fi_chan[e]")
+        c("gm = fi_gm[e]")
+        lanes(c, full, ["U{b} = uc[ch, {b}]"], ["A{b} = A{b} + gm * U{b}"], [])
+        c.dedent()
     lanes(c, full, [], [], ["ka[i, {b}] = A{b}"])
     c.dedent()
 

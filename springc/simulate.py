@@ -114,7 +114,7 @@ def coefficient_arrays(net: FlatNetlist, dtype) -> dict[str, np.ndarray]:
         "b_i": i(b.i), "b_j": i(b.j), "b_bi": f(b.b * minv[b.i]), "b_bj": f(bj),
         "p_c": f(p.c), "p_ptr": i(p.ptr), "p_var": i(p.var), "p_exp": i(p.exp),
         "fi_node": i(force.node[fi]), "fi_gm": f(force.gain[fi] * minv[force.node[fi]]),
-        "fi_chan": i(chans),
+        "fi_chan": i(chans), "fi_ptr": i(np.searchsorted(force.node[fi], np.arange(net.n + 1))),
         "fc_node": i(force.node[fc]), "fc_gm": f(force.gain[fc] * minv[force.node[fc]]),
     }
 

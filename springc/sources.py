@@ -56,8 +56,10 @@ def common_forces(net: FlatNetlist) -> list[int]:
 
 
 def input_forces(net: FlatNetlist) -> list[int]:
-    """Indices of the force elements fed from the runs' input channels (`in(k)`)."""
-    return [e for e, s in enumerate(net.forces.source) if s.kind == "in"]
+    """Indices of the force elements fed from the runs' input channels (`in(k)`), in node
+    order (the kernel adds each node's inputs in its own pass, `codegen.emit_linear`)."""
+    found = [e for e, s in enumerate(net.forces.source) if s.kind == "in"]
+    return sorted(found, key=lambda e: int(net.forces.node[e]))
 
 
 def channels_used(net: FlatNetlist) -> int:

@@ -83,6 +83,7 @@ def test_codegen_does_not_import_numba():
 
 def test_loader_writes_real_file_and_numba_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("SPRINGC_CACHE", str(tmp_path))
+    loader.forget()  # a kernel loaded by an earlier test would not be written here
     from springc.simulate import simulate
 
     net = small_net()

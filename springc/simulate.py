@@ -119,7 +119,7 @@ def coefficient_arrays(net: FlatNetlist, dtype) -> dict[str, np.ndarray]:
     }
 
 
-def linear_rows(net: FlatNetlist, minv: np.ndarray):
+def linear_rows(net: FlatNetlist, minv: np.ndarray) -> tuple[np.ndarray, ...]:
     """The linear stiffness of springs and couplings over the mass, -M^-1 K, as a per-node
     diagonal (`km`, with the sign of a stiffness) and the off-diagonal rows in CSR form
     (`ptr`, `col`, `val`: acceleration of node i per unit x_col). The kernel gathers each

@@ -276,8 +276,9 @@ def cases(quick: bool = False) -> list[Case]:
              0.05 * scale, ladder=tuple(_rk_configs((8, 16, 32, 64, 128, 256))),
              ref_substeps=512),
     ]
-    for case in out:
-        case.rounds = 2 if quick else PAIRED_ROUNDS
+    if quick:
+        for case in out:
+            case.rounds = 2
     return out
 
 
@@ -470,7 +471,7 @@ def _kernel_row(case: Case, ref: Reference, method: str, sub: int, precision: st
 
 
 def _retime_paired(case: Case, rows: list[Row], runs: int, ceilings: dict[str, float]) -> None:
-    """Time the `paired` rows and the ceiling in turn, `PAIRED_ROUNDS` times, keeping each
+    """Time the `paired` rows and the ceiling in turn, `case.rounds` times, keeping each
     row's least wall time and the ceiling's best (in place): on a shared machine a load burst
     then hits the rows and the ceiling alike, not just one of them (the ceiling alone varied
     up to 5x between calls here)."""

@@ -362,20 +362,22 @@ def emit_linear(c: _Code, feat: Features, width: LaneLayout) -> None:
     lanes(c, full, ["V{b} = va[i, {b}]", "X{b} = xa[i, {b}]"],
           ["A{b} = -(bi * V{b} + ki * X{b})"], [])
     if feat.couplings:
-        c("for e in range(l_ptr[i], l_ptr[i + 1]):")
-        c.indent()
-        c("j = l_col[e]")
-        c("w = l_val[e]")
-        lanes(c, full, ["Y{b} = xa[j, {b}]"], ["A{b} = A{b} + w * Y{b}"], [])
-        c.dedent()
+        _gather(c, full, "l_ptr", ("j = l_col[e]", "w = l_val[e]"), "w", "xa[j, {b}]")
     if feat.in_forces:
-        c("for e in range(fi_ptr[i], fi_ptr[i + 1]):")
-        c.indent()
-        c("ch = fi_chan[e]")
-        c("gm = fi_gm[e]")
-        lanes(c, full, ["U{b} = uc[ch, {b}]"], ["A{b} = A{b} + gm * U{b}"], [])
-        c.dedent()
+        _gather(c, full, "fi_ptr", ("ch = fi_chan[e]", "gm = fi_gm[e]"), "gm", "uc[ch, {b}]")
     lanes(c, full, [], [], ["ka[i, {b}] = A{b}"])
+    c.dedent()
+
+
+def _gather(c: _Code, full: LaneLayout, ptr: str, head: tuple[str, ...], coef: str,
+            row: str) -> None:
+    """A{b} += coef * row over node i's entries `ptr[i]..ptr[i + 1]` (`head` sets the
+    entry's scalars, among them `coef`; `row` is the row read, `{b}` its lane)."""
+    c(f"for e in range({ptr}[i], {ptr}[i + 1]):")
+    c.indent()
+    for line in head:
+        c(line)
+    lanes(c, full, [f"Y{{b}} = {row}"], [f"A{{b}} = A{{b}} + {coef} * Y{{b}}"], [])
     c.dedent()
 
 

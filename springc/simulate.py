@@ -97,6 +97,9 @@ def coefficient_arrays(net: FlatNetlist, dtype) -> dict[str, np.ndarray]:
     node's mass) and the linear springs and couplings as `linear_rows`."""
     f = lambda a: np.ascontiguousarray(a, dtype=dtype)  # noqa: E731
     i = lambda a: np.ascontiguousarray(a, dtype=np.int64)  # noqa: E731
+    # node indices that are never negative: unsigned, so that numba indexes without its
+    # negative-index wrap-around (4 instructions per index in the gather loops)
+    u = lambda a: np.ascontiguousarray(a, dtype=np.uint64)  # noqa: E731
     d, q, b, p = net.duffings, net.quads, net.dashpots, net.monomials
     fi, fc = sources.input_forces(net), sources.common_forces(net)
     force = net.forces
@@ -107,15 +110,15 @@ def coefficient_arrays(net: FlatNetlist, dtype) -> dict[str, np.ndarray]:
     bj = np.where(ground, 0.0, b.b * minv[np.where(ground, 0, b.j)])
     return {
         "minv": f(minv), "bm": f(net.local_damping() * minv), "km": f(kdiag),
-        "d_node": i(d.node), "d_lm": f(d.l * minv[d.node]),
-        "l_ptr": i(l_ptr), "l_col": i(l_col), "l_val": f(l_val),
-        "q_i": i(q.i), "q_j": i(q.j), "q_a": f(q.a), "q_gi": f(2 * q.g / q.a * minv[q.i]),
+        "d_node": u(d.node), "d_lm": f(d.l * minv[d.node]),
+        "l_ptr": u(l_ptr), "l_col": u(l_col), "l_val": f(l_val),
+        "q_i": u(q.i), "q_j": u(q.j), "q_a": f(q.a), "q_gi": f(2 * q.g / q.a * minv[q.i]),
         "q_gj": f(q.g * minv[q.j]),
-        "b_i": i(b.i), "b_j": i(b.j), "b_bi": f(b.b * minv[b.i]), "b_bj": f(bj),
+        "b_i": u(b.i), "b_j": i(b.j), "b_bi": f(b.b * minv[b.i]), "b_bj": f(bj),
         "p_c": f(p.c), "p_ptr": i(p.ptr), "p_var": i(p.var), "p_exp": i(p.exp),
-        "fi_node": i(force.node[fi]), "fi_gm": f(force.gain[fi] * minv[force.node[fi]]),
-        "fi_chan": i(chans), "fi_ptr": i(np.searchsorted(force.node[fi], np.arange(net.n + 1))),
-        "fc_node": i(force.node[fc]), "fc_gm": f(force.gain[fc] * minv[force.node[fc]]),
+        "fi_node": u(force.node[fi]), "fi_gm": f(force.gain[fi] * minv[force.node[fi]]),
+        "fi_chan": u(chans), "fi_ptr": u(np.searchsorted(force.node[fi], np.arange(net.n + 1))),
+        "fc_node": u(force.node[fc]), "fc_gm": f(force.gain[fc] * minv[force.node[fc]]),
     }
 
 
@@ -303,7 +306,7 @@ def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rplan, task
     T = st.nsteps // st.rec_every + 1
     # time-major (probe, record, run): the kernel stores a chunk's lanes contiguously; each
     # probe is handed out as its (run, record) transposed view
-    args.update(rec_every=st.rec_every, rec_node=np.array([p.node for p in plist], np.int64),
+    args.update(rec_every=st.rec_every, rec_node=np.array([p.node for p in plist], np.uint64),
                 rec_isv=np.array([p.quantity == "v" for p in plist], np.bool_),
                 rec=np.zeros((len(plist), T, runs), dtype))
     nf = len(net.forces)

@@ -14,10 +14,11 @@ from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
 from springc import physics
+from springc.codegen import nystrom_coefficients
 from springc.errors import SimulationError
-from springc.integrators import amplification, get_tableau, stability_polynomial
+from springc.integrators import TABLEAUX, amplification, get_tableau, stability_polynomial
 from springc.ir import IRBuilder, Source, Tran
-from springc.reference import solve_ivp_reference
+from springc.reference import rk4_numpy, solve_ivp_reference
 from springc.simulate import linear_rows, simulate
 
 W0 = 2 * np.pi * 10.0  # oscillator natural frequency (rad/s)
@@ -340,3 +341,41 @@ def test_golden_trajectories(path):
         assert got.shape == want.shape
         # round-off only: other machines and numba versions may reorder a few operations
         assert np.abs(got - want).max() <= 1e-9 * np.abs(want).max(), label
+
+
+@pytest.mark.parametrize("method", sorted(TABLEAUX))
+def test_nystrom_kernel_equals_the_textbook_tableau(method: str):
+    """The kernels take the stage positions from the force stages alone (Runge-Kutta-Nystrom
+    form, `codegen.nystrom_coefficients`); in exact arithmetic that is the tableau applied to
+    x' = v, v' = f. Against the textbook stages (`reference.rk4_numpy`) on a damped, driven
+    pair with a quadratic coupling, over 200 steps: equal to round-off."""
+    b = IRBuilder("nystrom check")
+    b.mass("M1", "a", 1.0, 3.0)
+    b.mass("M2", "c", 2.0, 1.0)
+    b.spring("K1", "a", 400.0)
+    b.spring("K2", "c", 900.0)
+    b.coupling("C1", "a", "c", 100.0, a=2.0)
+    b.quad("Q1", "a", "c", 50.0)
+    b.force("F1", "a", Source("in"), 30.0)
+    b.probe("x", "a")
+    b.probe("v", "c")
+    b.tran = Tran(2e-3, 0.4, None)
+    net = b.finish()
+    u = np.random.default_rng(5).standard_normal((2, 1, 201))
+    res = simulate(net, u, tstep=2e-3, method=method)
+    _, want, _ = rk4_numpy(net, u, tstep=2e-3, tstop=0.4, method=method)
+    for label, got in res.probes.items():
+        scale = np.abs(want[label]).max()
+        assert scale > 1e-3
+        assert np.abs(got - want[label]).max() <= 1e-12 * scale, label
+
+
+def test_nystrom_coefficients_of_classic_rk4():
+    """RK4 for x'' = f in Nystrom form: x_new = x + h v + h^2/6 (K0 + K1 + K2), stage
+    positions x + h/2 v, x + h/2 v + h^2/4 K0, x + h v + h^2/2 K1."""
+    cs, aa, ba, bsum = nystrom_coefficients(get_tableau("rk4"))
+    assert bsum == 1.0 and list(cs) == [0.0, 0.5, 0.5, 1.0]
+    assert np.allclose(ba, [1 / 6, 1 / 6, 1 / 6, 0.0], rtol=0, atol=1e-16)
+    want = np.zeros((4, 4))
+    want[2, 0], want[3, 1] = 0.25, 0.5
+    assert np.array_equal(aa, want)

@@ -454,7 +454,7 @@ def _emit_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> No
     c.indent()
     c('"""Integrate chunks c0..c1-1 of LANES runs (columns of x0) for nsteps steps of h."""')
     _emit_coefficients(c, tab)
-    _emit_nystrom_coefficients(c, tab)
+    emit_nystrom_coefficients(c, tab)
     c("for ci in range(c0, c1):")
     c.indent()
     emit_chunk_start(c, opts, ["xs", "vs"] + [f"kv{s}" for s in range(tab.stages)])
@@ -472,10 +472,10 @@ def _emit_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> No
 
     def after(s: int) -> None:
         if tab.b[s] != 0.0:
-            _emit_stage_reductions(c, feat, opts, s, _nystrom_velocity(s))
+            _emit_stage_reductions(c, feat, opts, s, nystrom_velocity(s))
 
     emit_stage_loop(c, feat, tab, ln, prelude, after if opts.work or opts.dissipation else None,
-                    _nystrom_velocity)
+                    nystrom_velocity)
     nystrom_combine(c, tab, ln)
     _emit_step_end(c, opts, ln)
     c.dedent()
@@ -566,9 +566,9 @@ def _stage_velocity(s: int) -> str:
 
 def stage_state(c: _Code, tab: Tableau, s: int, width: LaneLayout,
                 frozen: str | None = None) -> None:
-    """xs, vs{s} = x + h sum_j a_sj (v_j, kv_j), row by row in straight-line lanes. Rows
-    flagged in `frz` (the exactly propagated blocks of `springc.expint`) keep xs = x with
-    `frozen` 'hold', and are left to the block code with 'skip'."""
+    """xs, vs{s} = x + h sum_j a_sj (v_j, kv_j), row by row in straight-line lanes (the split
+    scheme of `springc.expint`; the RK kernels use `nystrom_stage_state`). Rows flagged in
+    `frz` (the exactly propagated blocks) keep xs = x with `frozen` 'hold'."""
     row = [j for j, a in enumerate(tab.a[s]) if a != 0.0]
     vel = [_stage_velocity(j) for j in row]
     c("for i in range(n):")
@@ -578,10 +578,7 @@ def stage_state(c: _Code, tab: Tableau, s: int, width: LaneLayout,
     loads = ["X{b} = x[i, {b}]", "V{b} = v[i, {b}]"]
     loads += [f"P{j}_{{b}} = {name}[i, {{b}}]" for j, name in zip(row, vel)]
     loads += [f"K{j}_{{b}} = kv{j}[i, {{b}}]" for j in row]
-    if frozen == "skip":
-        c("if frz[i]:")
-        c("    continue")
-    elif frozen == "hold":
+    if frozen == "hold":
         c("if frz[i]:")
         c.indent()
         lanes(c, width, loads, [], [f"vs{s}[i, {{b}}] = V{{b}} + {vterm}", "xs[i, {b}] = X{b}"])
@@ -604,7 +601,7 @@ def nystrom_coefficients(tab: Tableau) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return np.array([math.fsum(row) for row in a]), a @ a, b @ a, math.fsum(tab.b)
 
 
-def _emit_nystrom_coefficients(c: _Code, tab: Tableau) -> None:
+def emit_nystrom_coefficients(c: _Code, tab: Tableau) -> None:
     """h- and h^2-scaled constants of `nystrom_coefficients` (typed like the state)."""
     cs, aa, ba, bsum = nystrom_coefficients(tab)
     for s in range(1, tab.stages):
@@ -616,15 +613,17 @@ def _emit_nystrom_coefficients(c: _Code, tab: Tableau) -> None:
         c(f"hhb{k} = FT(h * h * {float(ba[k])!r})")
 
 
-def _nystrom_velocity(s: int) -> str:
+def nystrom_velocity(s: int) -> str:
     return "v" if s == 0 else "vs"
 
 
-def nystrom_stage_state(c: _Code, tab: Tableau, s: int, width: LaneLayout) -> None:
+def nystrom_stage_state(c: _Code, tab: Tableau, s: int, width: LaneLayout,
+                        skip_frozen: bool = False) -> None:
     """xs = x + h c_s v + h^2 sum_k (A A)_sk kv_k and vs = v + h sum_j a_sj kv_j, row by row:
     the stage state from the force stages alone, so that the combine reads no stage
     velocities and one vs row serves every stage (8 state rows instead of 10 for RK4, three
-    fewer reads per step)."""
+    fewer reads per step). With `skip_frozen`, rows flagged in `frz` (the exactly propagated
+    blocks of `springc.expint`) are left to the block code."""
     _, aa, _, _ = nystrom_coefficients(tab)
     row = [j for j, a in enumerate(tab.a[s]) if a != 0.0]
     sq = [int(k) for k in np.flatnonzero(aa[s])]
@@ -634,13 +633,18 @@ def nystrom_stage_state(c: _Code, tab: Tableau, s: int, width: LaneLayout) -> No
     loads += [f"K{k}_{{b}} = kv{k}[i, {{b}}]" for k in sorted(set(row) | set(sq))]
     c("for i in range(n):")
     c.indent()
+    if skip_frozen:
+        c("if frz[i]:")
+        c("    continue")
     lanes(c, width, loads, [], [f"xs[i, {{b}}] = X{{b}} + ({xterm})",
                                 f"vs[i, {{b}}] = V{{b}} + {vterm}"])
     c.dedent()
 
 
-def nystrom_combine(c: _Code, tab: Tableau, width: LaneLayout) -> None:
-    """x += h (sum b) v + h^2 sum_k (b A)_k kv_k; v += h sum_s b_s kv_s."""
+def nystrom_combine(c: _Code, tab: Tableau, width: LaneLayout, frozen: str | None = None
+                    ) -> None:
+    """x += h (sum b) v + h^2 sum_k (b A)_k kv_k; v += h sum_s b_s kv_s (rows flagged in
+    `frozen`, when given, take xn, vn instead: their exact flow)."""
     _, _, ba, _ = nystrom_coefficients(tab)
     used = [s for s, b in enumerate(tab.b) if b != 0.0]
     sq = [int(k) for k in np.flatnonzero(ba)]
@@ -650,6 +654,13 @@ def nystrom_combine(c: _Code, tab: Tableau, width: LaneLayout) -> None:
     vterm = " + ".join(f"hb{s} * K{s}_{{b}}" for s in used)
     c("for i in range(n):")
     c.indent()
+    if frozen:
+        c(f"if {frozen}[i]:")
+        c.indent()
+        lanes(c, width, ["A{b} = xn[i, {b}]", "B{b} = vn[i, {b}]"], [],
+              ["x[i, {b}] = A{b}", "v[i, {b}] = B{b}"])
+        c("continue")
+        c.dedent()
     lanes(c, width, loads, [], [f"x[i, {{b}}] = X{{b}} + ({xterm})",
                                 f"v[i, {{b}}] = V{{b}} + ({vterm})"])
     c.dedent()
@@ -677,29 +688,6 @@ def _emit_stage_reductions(c: _Code, feat: Features, opts: KernelOptions, s: int
         c("    for b in range(nb_):")
         c(f"        dv = {vs}[i, b] - ({vs}[j, b] if j >= 0 else 0.0)")
         c(f"        dsacc[d, b] += hbd{s} * ds_b[d] * dv * dv")
-
-
-def combine(c: _Code, tab: Tableau, width: LaneLayout, frozen: str | None = None) -> None:
-    """x += h sum_s b_s v_s; v += h sum_s b_s kv_s (rows flagged in `frozen`, when given,
-    take xn, vn instead: their exact flow)."""
-    used = [s for s, b in enumerate(tab.b) if b != 0.0]
-    c("for i in range(n):")
-    c.indent()
-    if frozen:
-        c(f"if {frozen}[i]:")
-        c.indent()
-        lanes(c, width, ["A{b} = xn[i, {b}]", "B{b} = vn[i, {b}]"], [],
-              ["x[i, {b}] = A{b}", "v[i, {b}] = B{b}"])
-        c("continue")
-        c.dedent()
-    loads = ["X{b} = x[i, {b}]", "V{b} = v[i, {b}]"]
-    loads += [f"P{s}_{{b}} = {_stage_velocity(s)}[i, {{b}}]" for s in used]
-    loads += [f"K{s}_{{b}} = kv{s}[i, {{b}}]" for s in used]
-    xterm = " + ".join(f"hb{s} * P{s}_{{b}}" for s in used)
-    vterm = " + ".join(f"hb{s} * K{s}_{{b}}" for s in used)
-    lanes(c, width, loads, [], [f"x[i, {{b}}] = X{{b}} + ({xterm})",
-                                f"v[i, {{b}}] = V{{b}} + ({vterm})"])
-    c.dedent()
 
 
 def emit_record(c: _Code, r: str, width: LaneLayout) -> None:

@@ -593,11 +593,12 @@ def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab:
     c('"""Integrate chunks c0..c1-1 of LANES runs (columns of x0) for nsteps exponential RK '
       'steps of h."""')
     codegen._emit_coefficients(c, tab)
+    codegen.emit_nystrom_coefficients(c, tab)
     c("hh = FT(h)")
     c("for ci in range(c0, c1):")
     c.indent()
-    codegen.emit_chunk_start(c, opts, ["xs", "xn", "vn"] + [f"kv{s}" for s in range(tab.stages)]
-                             + [f"vs{s}" for s in range(1, tab.stages)])
+    codegen.emit_chunk_start(c, opts, ["xs", "vs", "xn", "vn"]
+                             + [f"kv{s}" for s in range(tab.stages)])
     for k in range(len(lw.ufracs)):  # every channel: the rest's forces read them too
         c(f"ut{k} = np.zeros((max(nch, {lw.nch}), LANES), FT)")
     c("for step in range(nsteps):")
@@ -607,15 +608,15 @@ def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab:
         codegen.emit_interp(c, f"ut{k}", f"(sub + {frac!r}) / substeps", lw.ln)
     def prelude(s: int) -> None:
         if s > 0:
-            codegen.stage_state(c, tab, s, lw.ln, frozen="skip")
-            lw.emit_inline(c, s, "xs", f"vs{s}")
+            codegen.nystrom_stage_state(c, tab, s, lw.ln, skip_frozen=True)
+            lw.emit_inline(c, s, "xs", "vs")
         if feat.in_forces:
             # the input at the stage time: one of the interpolated ut rows
             c(f"uc = ut{lw.ufracs.index(tab.c[s])}")
 
-    codegen.emit_stage_loop(c, feat, tab, lw.ln, prelude)
+    codegen.emit_stage_loop(c, feat, tab, lw.ln, prelude, velocity=codegen.nystrom_velocity)
     lw.emit_inline(c, None, "xn", "vn")
-    codegen.combine(c, tab, lw.ln, frozen="frz")
+    codegen.nystrom_combine(c, tab, lw.ln, frozen="frz")
     codegen._emit_step_end(c, opts, lw.ln)
     c.dedent()
     codegen.emit_chunk_end(c, opts)

@@ -466,7 +466,7 @@ def lawson_arrays(net: FlatNetlist, blocks: Blocks, h: float, tab: Tableau,
                 for col, ch in enumerate(chans):  # forces on one channel add
                     p0[row, k, :, ch] += a0[:, col]
                     p1[row, k, :, ch] += a1[:, col]
-        out[f"lw{m}_node"] = np.array([blocks.nodes[q] for q in idx], np.int64).reshape(-1, m)
+        out[f"lw{m}_node"] = np.array([blocks.nodes[q] for q in idx], np.uint64).reshape(-1, m)
         out[f"lw{m}_e"], out[f"lw{m}_p0"], out[f"lw{m}_p1"] = (
             np.ascontiguousarray(a, dtype=dtype) for a in (e, p0, p1))
     frz = np.zeros(net.n, np.bool_)
@@ -534,12 +534,10 @@ class _Lawson:
     def emit_inline(self, c: _Code, stage: int | None, xo: str, vo: str) -> None:
         """The blocks' state at this stage (or step end) into their rows of `xo`, `vo`,
         written in place in the step (a call would pass a dozen arrays per stage)."""
-        c(f"xo = {xo}")
-        c(f"vo = {vo}")
         for m in self.sizes:
-            self._emit_size(c, stage, m)
+            self._emit_size(c, stage, m, xo, vo)
 
-    def _emit_size(self, c: _Code, stage: int | None, m: int) -> None:
+    def _emit_size(self, c: _Code, stage: int | None, m: int, xo: str, vo: str) -> None:
         frac, terms = self.terms(stage)
         if frac not in self.ufracs:
             raise ValueError(f"tableau stage time {frac} is not an input fraction")
@@ -579,8 +577,8 @@ class _Lawson:
                 elif r >= m:
                     parts.append(f"S{j}_{r - m}_{{b}}")
             arith.append(f"O{r}_{{b}} = {' + '.join(parts)}")
-        stores = [f"xo[i{r}, {{b}}] = O{r}_{{b}}" for r in range(m)]
-        stores += [f"vo[i{r}, {{b}}] = O{m + r}_{{b}}" for r in range(m)]
+        stores = [f"{xo}[i{r}, {{b}}] = O{r}_{{b}}" for r in range(m)]
+        stores += [f"{vo}[i{r}, {{b}}] = O{m + r}_{{b}}" for r in range(m)]
         codegen.lanes(c, self.ln, loads, arith, stores)
         c.dedent()
 

@@ -531,23 +531,26 @@ class _Lawson:
         return ci, [(j, a, ci - self.tab.c[j]) for j, a in enumerate(self.tab.a[stage])
                     if a != 0.0]
 
-    def emit_inline(self, c: _Code, stage: int | None, xo: str, vo: str) -> None:
-        """The blocks' state at this stage (or step end) into their rows of `xo`, `vo`,
-        written in place in the step (a call would pass a dozen arrays per stage)."""
+    def emit_inline(self, c: _Code, stage: int | None, xo: str, vo: str | None) -> None:
+        """The blocks' state at this stage (or step end) into their rows of `xo`, `vo` (the
+        positions alone when `vo` is None), written in place in the step (a call would pass a
+        dozen arrays per stage)."""
         for m in self.sizes:
             self._emit_size(c, stage, m, xo, vo)
 
-    def _emit_size(self, c: _Code, stage: int | None, m: int, xo: str, vo: str) -> None:
+    def _emit_size(self, c: _Code, stage: int | None, m: int, xo: str, vo: str | None
+                   ) -> None:
         frac, terms = self.terms(stage)
         if frac not in self.ufracs:
             raise ValueError(f"tableau stage time {frac} is not an input fraction")
         f0, fu = self.fi(frac), self.ufracs.index(frac)
         n2 = 2 * m
+        rows = n2 if vo else m  # output rows: positions, then velocities
         c(f"for q in range(lw{m}_node.shape[0]):")
         c.indent()
         for r in range(m):
             c(f"i{r} = lw{m}_node[q, {r}]")
-        for r in range(n2):
+        for r in range(rows):
             for k in range(n2):
                 c(f"e{r}_{k} = lw{m}_e[q, {f0}, {r}, {k}]")
             for ch in range(self.nch):
@@ -556,7 +559,7 @@ class _Lawson:
         for j, w, fr in terms:
             c(f"hw{j} = FT(hh * {w!r})")  # FT: a float64 here would promote the lanes
             if fr != 0.0:
-                for r in range(n2):
+                for r in range(rows):
                     for k in range(m):
                         c(f"g{j}_{r}_{k} = lw{m}_e[q, {self.fi(fr)}, {r}, {m + k}]")
         loads = []
@@ -567,7 +570,7 @@ class _Lawson:
             loads += [f"UA{ch}_{{b}} = ut0[{ch}, {{b}}]", f"UB{ch}_{{b}} = ut{fu}[{ch}, {{b}}]"]
         arith = [f"S{j}_{r}_{{b}} = hw{j} * N{j}_{r}_{{b}}" for j, _, _ in terms
                  for r in range(m)]
-        for r in range(n2):
+        for r in range(rows):
             parts = [f"e{r}_{k} * Z{k}_{{b}}" for k in range(n2)]
             parts += [f"pa{r}_{ch} * UA{ch}_{{b}} + pb{r}_{ch} * UB{ch}_{{b}}"
                       for ch in range(self.nch)]
@@ -578,7 +581,7 @@ class _Lawson:
                     parts.append(f"S{j}_{r - m}_{{b}}")
             arith.append(f"O{r}_{{b}} = {' + '.join(parts)}")
         stores = [f"{xo}[i{r}, {{b}}] = O{r}_{{b}}" for r in range(m)]
-        stores += [f"{vo}[i{r}, {{b}}] = O{m + r}_{{b}}" for r in range(m)]
+        stores += [f"{vo}[i{r}, {{b}}] = O{m + r}_{{b}}" for r in range(m) if vo]
         codegen.lanes(c, self.ln, loads, arith, stores)
         c.dedent()
 
@@ -607,7 +610,10 @@ def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab:
     def prelude(s: int) -> None:
         if s > 0:
             codegen.nystrom_stage_state(c, tab, s, lw.ln, skip_frozen=True)
-            lw.emit_inline(c, s, "xs", "vs")
+            # the blocks' stage positions only: nothing in the rest reads a block node's
+            # velocity (`split_netlist` moves their damping and dashpots into the blocks, and
+            # the rest's zero damping on them multiplies the untouched zero rows of vs)
+            lw.emit_inline(c, s, "xs", None)
         if feat.in_forces:
             # the input at the stage time: one of the interpolated ut rows
             c(f"uc = ut{lw.ufracs.index(tab.c[s])}")

@@ -301,15 +301,12 @@ def _lane_stmt(stmt: str, b: int, lane: str) -> str:
 
 def emit_stage_loop(c: _Code, feat: Features, tab: Tableau, width: LaneLayout,
                     prelude: Callable[[int], None],
-                    after: Callable[[int], None] | None = None,
-                    velocity: Callable[[int], str] | None = None) -> None:
+                    after: Callable[[int], None] | None = None) -> None:
     """The stages of one step as a loop whose body holds the force code once (a function
     call per stage, with its ~20 array arguments, measured 35% of a float32 step; writing the
     force code out per stage quadrupled the compile time). `prelude(s)` writes stage s's own
-    code (its state xs, vs{s}, its input); the force code then reads xa, va and writes ka;
-    `after(s)`, when given, writes what follows stage s's forces; `velocity(s)` names stage
-    s's velocity row (default `vs{s}`, one row per stage)."""
-    velocity = velocity or _stage_velocity
+    code (its state xs, vs, its input); the force code then reads xa, va and writes ka;
+    `after(s)`, when given, writes what follows stage s's forces."""
     c("for s_ in range(STAGES):")
     c.indent()
     for s in range(tab.stages):
@@ -317,7 +314,7 @@ def emit_stage_loop(c: _Code, feat: Features, tab: Tableau, width: LaneLayout,
         c.indent()
         prelude(s)
         c("xa = x" if s == 0 else "xa = xs")
-        c(f"va = {velocity(s)}")
+        c(f"va = {nystrom_velocity(s)}")
         c(f"ka = kv{s}")
         c.dedent()
     c("grow = g[step, s_]" if feat.common_forces else "grow = g[0, 0]")
@@ -478,10 +475,9 @@ def _emit_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> No
 
     def after(s: int) -> None:
         if tab.b[s] != 0.0:
-            _emit_stage_reductions(c, feat, opts, s, nystrom_velocity(s))
+            _emit_stage_reductions(c, feat, opts, s)
 
-    emit_stage_loop(c, feat, tab, ln, prelude, after if opts.work or opts.dissipation else None,
-                    nystrom_velocity)
+    emit_stage_loop(c, feat, tab, ln, prelude, after if opts.work or opts.dissipation else None)
     nystrom_combine(c, tab, ln)
     _emit_step_end(c, opts, ln)
     c.dedent()
@@ -566,35 +562,6 @@ def _emit_coefficients(c: _Code, tab: Tableau) -> None:
             c(f"hbd{s} = h * {b!r}")
 
 
-def _stage_velocity(s: int) -> str:
-    return "v" if s == 0 else f"vs{s}"
-
-
-def stage_state(c: _Code, tab: Tableau, s: int, width: LaneLayout,
-                frozen: str | None = None) -> None:
-    """xs, vs{s} = x + h sum_j a_sj (v_j, kv_j), row by row in straight-line lanes (the split
-    scheme of `springc.expint`; the RK kernels use `nystrom_stage_state`). Rows flagged in
-    `frz` (the exactly propagated blocks) keep xs = x with `frozen` 'hold'."""
-    row = [j for j, a in enumerate(tab.a[s]) if a != 0.0]
-    vel = [_stage_velocity(j) for j in row]
-    c("for i in range(n):")
-    c.indent()
-    xterm = " + ".join(f"ha{s}_{j} * P{j}_{{b}}" for j in row) or "FT(0.0)"
-    vterm = " + ".join(f"ha{s}_{j} * K{j}_{{b}}" for j in row) or "FT(0.0)"
-    loads = ["X{b} = x[i, {b}]", "V{b} = v[i, {b}]"]
-    loads += [f"P{j}_{{b}} = {name}[i, {{b}}]" for j, name in zip(row, vel)]
-    loads += [f"K{j}_{{b}} = kv{j}[i, {{b}}]" for j in row]
-    if frozen == "hold":
-        c("if frz[i]:")
-        c.indent()
-        lanes(c, width, loads, [], [f"vs{s}[i, {{b}}] = V{{b}} + {vterm}", "xs[i, {b}] = X{b}"])
-        c("continue")
-        c.dedent()
-    lanes(c, width, loads, [], [f"xs[i, {{b}}] = X{{b}} + {xterm}",
-                                f"vs{s}[i, {{b}}] = V{{b}} + {vterm}"])
-    c.dedent()
-
-
 def nystrom_coefficients(tab: Tableau) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """The tableau for x' = v, v' = f with the velocity stages substituted (Runge-Kutta-Nystrom
     form): X_s = x + h c_s v + h^2 sum_k (A A)_sk K_k, x_new = x + h (sum b) v + h^2
@@ -624,12 +591,13 @@ def nystrom_velocity(s: int) -> str:
 
 
 def nystrom_stage_state(c: _Code, tab: Tableau, s: int, width: LaneLayout,
-                        skip_frozen: bool = False) -> None:
+                        frozen: str | None = None) -> None:
     """xs = x + h c_s v + h^2 sum_k (A A)_sk kv_k and vs = v + h sum_j a_sj kv_j, row by row:
     the stage state from the force stages alone, so that the combine reads no stage
     velocities and one vs row serves every stage (8 state rows instead of 10 for RK4, three
-    fewer reads per step). With `skip_frozen`, rows flagged in `frz` (the exactly propagated
-    blocks of `springc.expint`) are left to the block code."""
+    fewer reads per step). Rows flagged in `frz` (the exactly propagated blocks of
+    `springc.expint`) are left to the block code with `frozen` 'skip', and keep xs = x (their
+    velocity kicked) with 'hold'."""
     _, aa, _, _ = nystrom_coefficients(tab)
     row = [j for j, a in enumerate(tab.a[s]) if a != 0.0]
     sq = [int(k) for k in np.flatnonzero(aa[s])]
@@ -639,9 +607,13 @@ def nystrom_stage_state(c: _Code, tab: Tableau, s: int, width: LaneLayout,
     loads += [f"K{k}_{{b}} = kv{k}[i, {{b}}]" for k in sorted(set(row) | set(sq))]
     c("for i in range(n):")
     c.indent()
-    if skip_frozen:
+    if frozen:
         c("if frz[i]:")
-        c("    continue")
+        c.indent()
+        if frozen == "hold":
+            lanes(c, width, loads, [], [f"vs[i, {{b}}] = V{{b}} + {vterm}", "xs[i, {b}] = X{b}"])
+        c("continue")
+        c.dedent()
     lanes(c, width, loads, [], [f"xs[i, {{b}}] = X{{b}} + ({xterm})",
                                 f"vs[i, {{b}}] = V{{b}} + {vterm}"])
     c.dedent()
@@ -649,8 +621,9 @@ def nystrom_stage_state(c: _Code, tab: Tableau, s: int, width: LaneLayout,
 
 def nystrom_combine(c: _Code, tab: Tableau, width: LaneLayout, frozen: str | None = None
                     ) -> None:
-    """x += h (sum b) v + h^2 sum_k (b A)_k kv_k; v += h sum_s b_s kv_s (rows flagged in
-    `frozen`, when given, take xn, vn instead: their exact flow)."""
+    """x += h (sum b) v + h^2 sum_k (b A)_k kv_k; v += h sum_s b_s kv_s. Rows flagged in
+    `frz` take xn, vn (their exact flow) with `frozen` 'exact', and keep x (their velocity
+    kicked) with 'hold'."""
     _, _, ba, _ = nystrom_coefficients(tab)
     used = [s for s, b in enumerate(tab.b) if b != 0.0]
     sq = [int(k) for k in np.flatnonzero(ba)]
@@ -661,10 +634,13 @@ def nystrom_combine(c: _Code, tab: Tableau, width: LaneLayout, frozen: str | Non
     c("for i in range(n):")
     c.indent()
     if frozen:
-        c(f"if {frozen}[i]:")
+        c("if frz[i]:")
         c.indent()
-        lanes(c, width, ["A{b} = xn[i, {b}]", "B{b} = vn[i, {b}]"], [],
-              ["x[i, {b}] = A{b}", "v[i, {b}] = B{b}"])
+        if frozen == "exact":
+            lanes(c, width, ["A{b} = xn[i, {b}]", "B{b} = vn[i, {b}]"], [],
+                  ["x[i, {b}] = A{b}", "v[i, {b}] = B{b}"])
+        else:
+            lanes(c, width, loads, [], [f"v[i, {{b}}] = V{{b}} + ({vterm})"])
         c("continue")
         c.dedent()
     lanes(c, width, loads, [], [f"x[i, {{b}}] = X{{b}} + ({xterm})",
@@ -672,11 +648,10 @@ def nystrom_combine(c: _Code, tab: Tableau, width: LaneLayout, frozen: str | Non
     c.dedent()
 
 
-def _emit_stage_reductions(c: _Code, feat: Features, opts: KernelOptions, s: int,
-                           vs: str) -> None:
-    """Quadrature of power over the step with the tableau weights (consistent with RK), `vs`
-    the stage's velocity row. The force on a node is its acceleration times its mass:
-    `fi_gm` holds gain / mass."""
+def _emit_stage_reductions(c: _Code, feat: Features, opts: KernelOptions, s: int) -> None:
+    """Quadrature of power over the step with the tableau weights (consistent with RK). The
+    force on a node is its acceleration times its mass: `fi_gm` holds gain / mass."""
+    vs = nystrom_velocity(s)
     if opts.work and feat.in_forces:
         c("for e in range(fi_node.shape[0]):")
         c("    fw = hbd" + str(s) + " * fi_gm[e] / minv[fi_node[e]]")

@@ -372,10 +372,10 @@ def _emit_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab: Tablea
     c.indent()
     c('"""Integrate chunks c0..c1-1 of LANES runs (columns of x0) for nsteps split steps."""')
     codegen._emit_coefficients(c, tab)
+    codegen.emit_nystrom_coefficients(c, tab)
     c("for ci in range(c0, c1):")
     c.indent()
-    codegen.emit_chunk_start(c, opts, ["xs"] + [f"kv{s}" for s in range(tab.stages)]
-                             + [f"vs{s}" for s in range(1, tab.stages)])
+    codegen.emit_chunk_start(c, opts, ["xs", "vs"] + [f"kv{s}" for s in range(tab.stages)])
     c("zt = np.empty((2 * MAX_BLOCK, LANES), FT)")
     c("zn = np.empty((2 * MAX_BLOCK, LANES), FT)")
     for name in ("ua", "um", "ub"):
@@ -391,39 +391,17 @@ def _emit_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab: Tablea
     def prelude(s: int) -> None:
         # one Runge-Kutta stage of the rest; block positions stay frozen (exact flow)
         if s > 0:
-            codegen.stage_state(c, tab, s, ln, frozen="hold")
+            codegen.nystrom_stage_state(c, tab, s, ln, frozen="hold")
         if feat.in_forces and (s == 0 or tab.c[s] != tab.c[s - 1]):
             codegen.emit_interp(c, "uc", f"(sub + {tab.c[s]!r}) / substeps", ln)
 
     codegen.emit_stage_loop(c, feat, tab, ln, prelude)
-    _emit_combine(c, tab, ln)
+    codegen.nystrom_combine(c, tab, ln, frozen="hold")
     c(f"blocks(x, v, zt, zn, um, ub, {bk_args})")
     codegen._emit_step_end(c, opts, ln)
     c.dedent()
     codegen.emit_chunk_end(c, opts)
     c.dedent(2)
-
-
-def _emit_combine(c: _Code, tab: Tableau, ln: codegen.LaneLayout) -> None:
-    """x += h sum b_s v_s except on frozen rows; v += h sum b_s kv_s everywhere."""
-    vel = lambda j: "v" if j == 0 else f"vs{j}"
-    used = [s for s, b in enumerate(tab.b) if b != 0.0]
-    xterm = " + ".join(f"hb{s} * P{s}_{{b}}" for s in used)
-    vterm = " + ".join(f"hb{s} * K{s}_{{b}}" for s in used)
-    loads = ["X{b} = x[i, {b}]", "V{b} = v[i, {b}]"]
-    loads += [f"P{s}_{{b}} = {vel(s)}[i, {{b}}]" for s in used]
-    loads += [f"K{s}_{{b}} = kv{s}[i, {{b}}]" for s in used]
-    c("for i in range(n):")
-    c.indent()
-    c("if frz[i]:")
-    c.indent()
-    codegen.lanes(c, ln, [ld for ld in loads if not ld.startswith("P")], [],
-                  [f"v[i, {{b}}] = V{{b}} + ({vterm})"])
-    c("continue")
-    c.dedent()
-    codegen.lanes(c, ln, loads, [], [f"x[i, {{b}}] = X{{b}} + ({xterm})",
-                                     f"v[i, {{b}}] = V{{b}} + ({vterm})"])
-    c.dedent()
 
 
 # --- Lawson (integrating factor) scheme -------------------------------------------------
@@ -609,7 +587,7 @@ def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab:
         codegen.emit_interp(c, f"ut{k}", f"(sub + {frac!r}) / substeps", lw.ln)
     def prelude(s: int) -> None:
         if s > 0:
-            codegen.nystrom_stage_state(c, tab, s, lw.ln, skip_frozen=True)
+            codegen.nystrom_stage_state(c, tab, s, lw.ln, frozen="skip")
             # the blocks' stage positions only: nothing in the rest reads a block node's
             # velocity (`split_netlist` moves their damping and dashpots into the blocks, and
             # the rest's zero damping on them multiplies the untouched zero rows of vs)
@@ -618,9 +596,9 @@ def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab:
             # the input at the stage time: one of the interpolated ut rows
             c(f"uc = ut{lw.ufracs.index(tab.c[s])}")
 
-    codegen.emit_stage_loop(c, feat, tab, lw.ln, prelude, velocity=codegen.nystrom_velocity)
+    codegen.emit_stage_loop(c, feat, tab, lw.ln, prelude)
     lw.emit_inline(c, None, "xn", "vn")
-    codegen.nystrom_combine(c, tab, lw.ln, frozen="frz")
+    codegen.nystrom_combine(c, tab, lw.ln, frozen="exact")
     codegen._emit_step_end(c, opts, lw.ln)
     c.dedent()
     codegen.emit_chunk_end(c, opts)

@@ -237,6 +237,8 @@ def preamble(c: _Code, opts: KernelOptions, args: list[str], stages: int) -> Non
     """Imports and module constants of a generated kernel."""
     c("import numpy as np")
     c("import numba as nb")
+    if opts.record:
+        c("from springc.streamstore import stream_store, store_fence")
     c("")
     c(f"FT = np.{opts.precision}")
     c(f"ARGS = {tuple(args)!r}")
@@ -272,12 +274,13 @@ def lane_layout(opts: KernelOptions) -> LaneLayout:
 
 
 def lanes(c: _Code, ln: LaneLayout, loads: list[str], arith: list[str],
-          stores: list[str]) -> None:
+          stores: list[str], group_stmt: str = "") -> None:
     """Straight-line code for the lanes: the loads, then the arithmetic, then the stores, each
-    statement for every lane of a group in turn (`{b}` in a statement is the lane). Loads
-    before stores lets LLVM's SLP vectoriser merge a group's lanes into vector loads, FMAs
-    and stores without alias checks; the generator guarantees that no store of an element
-    overlaps a load of the same element (distinct nodes)."""
+    statement for every lane of a group in turn (`{b}` in a statement is the lane), then
+    `group_stmt` once per group (`{g}`: its first lane). Loads before stores lets LLVM's SLP
+    vectoriser merge a group's lanes into vector loads, FMAs and stores without alias checks;
+    the generator guarantees that no store of an element overlaps a load of the same element
+    (distinct nodes)."""
     if ln.group < ln.width:
         c(f"for g_ in range(0, {ln.width}, {ln.group}):")
         c.indent()
@@ -288,6 +291,8 @@ def lanes(c: _Code, ln: LaneLayout, loads: list[str], arith: list[str],
             for b in range(ln.group):
                 lane = str(b) if ln.group == ln.width else (f"g_ + {b}" if b else "g_")
                 c(_lane_stmt(stmt, b, lane))
+    if group_stmt:
+        c(group_stmt.replace("{g}", "0" if ln.group == ln.width else "g_"))
     if ln.group < ln.width:
         c.dedent()
 
@@ -505,6 +510,9 @@ def emit_chunk_start(c: _Code, opts: KernelOptions, scratch: list[str]) -> None:
     c("        v[i, b] = v0[i, lo_ + min(b, nv_ - 1)]")
     _emit_reduction_init(c, opts)
     if opts.record:
+        # the streaming stores fault on a misaligned address: refuse such a buffer instead
+        c("if rec.ctypes.data % 64 or (rec.shape[2] * rec.itemsize) % 64:")
+        c("    raise ValueError('rec must be 64-byte aligned with rows padded to 64 bytes')")
         emit_record(c, "0", lane_layout(opts))
 
 
@@ -542,12 +550,15 @@ def emit_interp(c: _Code, target: str, pos: str, width: LaneLayout, channels: st
 
 
 def emit_chunk_end(c: _Code, opts: KernelOptions) -> None:
-    """Store the final state and the reductions of the valid lanes."""
+    """Store the final state and the reductions of the valid lanes; fence the record's
+    streaming stores."""
     c("for i in range(n):")
     c("    for b in range(nv_):")
     c("        xf[i, lo_ + b] = x[i, b]")
     c("        vf[i, lo_ + b] = v[i, b]")
     _emit_reduction_store(c, opts)
+    if opts.record:
+        c("store_fence()")
 
 
 def _emit_coefficients(c: _Code, tab: Tableau) -> None:
@@ -672,22 +683,27 @@ def _emit_stage_reductions(c: _Code, feat: Features, opts: KernelOptions, s: int
 
 
 def emit_record(c: _Code, r: str, width: LaneLayout) -> None:
-    """Probes into record `r`: rec is (probe, record, run), so the chunk's lanes are one
-    contiguous vector store per probe (written out straight for a full chunk)."""
+    """Probes into record `r`: rec is (probe, record, run) with its rows padded to 64 bytes
+    and 64-byte aligned (`springc.simulate.record_buffer`), so a full chunk's lanes are
+    aligned vector stores per probe, written non-temporally (`springc.streamstore`: the
+    record is written once and read after the call, so it bypasses the caches)."""
     c(f"r_ = {r}")
     c("for p in range(rec_node.shape[0]):")
     c.indent()
     c("q = rec_node[p]")
     c("if nv_ == LANES:")
     c.indent()
-    c("if rec_isv[p]:")
-    c.indent()
-    lanes(c, width, ["A{b} = v[q, {b}]"], [], ["rec[p, r_, lo_ + {b}] = A{b}"])
+    for cond, src in (("if rec_isv[p]:", "v"), ("else:", "x")):
+        c(cond)
+        c.indent()
+        if width.group == 1:
+            lanes(c, width, [f"A{{b}} = {src}[q, {{b}}]"], [], ["rec[p, r_, lo_ + {b}] = A{b}"])
+        else:
+            group = ", ".join(f"A{b}" for b in range(width.group))
+            lanes(c, width, [f"A{{b}} = {src}[q, {{b}}]"], [], [],
+                  f"stream_store(rec, p, r_, lo_ + {{g}}, ({group}))")
+        c.dedent()
     c.dedent()
-    c("else:")
-    c.indent()
-    lanes(c, width, ["A{b} = x[q, {b}]"], [], ["rec[p, r_, lo_ + {b}] = A{b}"])
-    c.dedent(2)
     c("else:")
     c("    for b in range(nv_):")
     c("        rec[p, r_, lo_ + b] = v[q, b] if rec_isv[p] else x[q, b]")

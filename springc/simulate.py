@@ -304,11 +304,9 @@ def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rplan, task
         status=np.zeros(runs, np.int64), bad_node=np.zeros(runs, np.int64),
     )
     T = st.nsteps // st.rec_every + 1
-    # time-major (probe, record, run): the kernel stores a chunk's lanes contiguously; each
-    # probe is handed out as its (run, record) transposed view
     args.update(rec_every=st.rec_every, rec_node=np.array([p.node for p in plist], np.uint64),
                 rec_isv=np.array([p.quantity == "v" for p in plist], np.bool_),
-                rec=np.zeros((len(plist), T, runs), dtype))
+                rec=record_buffer(len(plist), T, runs, dtype))
     nf = len(net.forces)
     args.update(work_in=np.zeros((len(sources.input_forces(net)), runs)),
                 work_c=np.zeros((len(sources.common_forces(net)), runs)))
@@ -329,7 +327,25 @@ def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rplan, task
     work = np.zeros((nf, runs))
     work[sources.input_forces(net)] = args["work_in"]
     work[sources.common_forces(net)] = args["work_c"]
-    return [r.T for r in args["rec"]], _finish_reductions(net, rplan, args, work, wins, st)
+    return [r[:, :runs].T for r in args["rec"]], _finish_reductions(net, rplan, args, work,
+                                                                      wins, st)
+
+
+RECORD_ALIGN = 64  # bytes: a cache line, and a multiple of every streaming store's size
+
+
+def record_buffer(probes: int, records: int, runs: int, dtype) -> np.ndarray:
+    """Zeros (probe, record, run) for the kernel's recording: time-major, so that a chunk's
+    lanes are contiguous; each row padded to, and the whole aligned to, RECORD_ALIGN bytes,
+    which the kernel's aligned streaming stores of a chunk's lane groups need (a misaligned
+    one would fault). Each probe is handed out as a (run, record) view of it."""
+    dtype = np.dtype(dtype)
+    per_line = RECORD_ALIGN // dtype.itemsize
+    width = -(-runs // per_line) * per_line
+    size = probes * records * width
+    raw = np.zeros(size + per_line, dtype)
+    skip = (-raw.ctypes.data % RECORD_ALIGN) // dtype.itemsize
+    return raw[skip:skip + size].reshape(probes, records, width)
 
 
 def _run_chunks(kernel, args: dict, runs: int, task: int) -> None:

@@ -30,9 +30,13 @@ Why the kernel looks the way it does (each measured against `springc.ceiling`, i
 - the input samples are staged every `STAGE_BLOCK` steps into a (time, channel, lane) buffer,
   so interpolation reads contiguous lanes instead of one cache line per lane; probes are
   recorded time-major, (probe, record, run), one contiguous store per probe and step
-  (`springc.simulate` hands out each probe as a (run, record) view of it).
+  (`springc.simulate` hands out each probe as a (run, record) view of it), as aligned
+  non-temporal stores (`springc.streamstore`): a record at every step outgrows the caches,
+  and ordinary stores read each line before writing it (feature extractor, 262 MB per call:
+  float64 23% faster).
 
-This module never imports numba: `springc.loader` compiles the text.
+This module never imports numba: `springc.loader` compiles the text (the kernels call
+`springc.streamstore`'s intrinsics).
 """
 
 from __future__ import annotations

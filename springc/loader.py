@@ -1,4 +1,5 @@
-"""Loading generated kernels: the only module that imports numba.
+"""Loading generated kernels: the only module that imports numba (besides
+`springc.streamstore`, the intrinsics the generated kernels call).
 
 The source from `springc.codegen` is written to `<cache>/springc_kernel_<hash>.py` (a real
 file, so that numba's `cache=True` can store the compiled machine code beside it and a second

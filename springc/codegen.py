@@ -54,6 +54,8 @@ from springc.integrators import Tableau, get_tableau
 from springc.ir import FlatNetlist
 
 KERNEL_VERSION = 3  # bump when the generated text or its calling convention changes
+RECORD_ALIGN = 64  # bytes: the record's alignment and row padding (a cache line, and a
+# multiple of every streaming store's size), which `emit_record`'s aligned stores rely on
 LANE_CHOICES = (32, 16, 4, 1)  # compile-time lane widths a kernel is generated for (32: the
 # per-element index and loop work spread over more lanes, measured 24% faster in float32)
 STAGE_BLOCK = 32  # steps of input samples staged at a time
@@ -515,8 +517,9 @@ def emit_chunk_start(c: _Code, opts: KernelOptions, scratch: list[str]) -> None:
     _emit_reduction_init(c, opts)
     if opts.record:
         # the streaming stores fault on a misaligned address: refuse such a buffer instead
-        c("if rec.ctypes.data % 64 or (rec.shape[2] * rec.itemsize) % 64:")
-        c("    raise ValueError('rec must be 64-byte aligned with rows padded to 64 bytes')")
+        c(f"if rec.ctypes.data % {RECORD_ALIGN} or (rec.shape[2] * rec.itemsize) % {RECORD_ALIGN}:")
+        c(f"    raise ValueError('rec must be {RECORD_ALIGN}-byte aligned with rows padded to "
+          f"{RECORD_ALIGN} bytes')")
         emit_record(c, "0", lane_layout(opts))
 
 
@@ -687,8 +690,8 @@ def _emit_stage_reductions(c: _Code, feat: Features, opts: KernelOptions, s: int
 
 
 def emit_record(c: _Code, r: str, width: LaneLayout) -> None:
-    """Probes into record `r`: rec is (probe, record, run) with its rows padded to 64 bytes
-    and 64-byte aligned (`springc.simulate.record_buffer`), so a full chunk's lanes are
+    """Probes into record `r`: rec is (probe, record, run) with its rows padded to and aligned
+    on RECORD_ALIGN bytes (`springc.simulate.record_buffer`), so a full chunk's lanes are
     aligned vector stores per probe, written non-temporally (`springc.streamstore`: the
     record is written once and read after the call, so it bypasses the caches)."""
     c(f"r_ = {r}")

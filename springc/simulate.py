@@ -331,20 +331,17 @@ def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rplan, task
                                                                       wins, st)
 
 
-RECORD_ALIGN = 64  # bytes: a cache line, and a multiple of every streaming store's size
-
-
 def record_buffer(probes: int, records: int, runs: int, dtype) -> np.ndarray:
     """Zeros (probe, record, run) for the kernel's recording: time-major, so that a chunk's
-    lanes are contiguous; each row padded to, and the whole aligned to, RECORD_ALIGN bytes,
-    which the kernel's aligned streaming stores of a chunk's lane groups need (a misaligned
-    one would fault). Each probe is handed out as a (run, record) view of it."""
+    lanes are contiguous; each row padded to, and the whole aligned on, `codegen.RECORD_ALIGN`
+    bytes, which the kernel's aligned streaming stores of a chunk's lane groups need (a
+    misaligned one would fault). Each probe is handed out as a (run, record) view of it."""
     dtype = np.dtype(dtype)
-    per_line = RECORD_ALIGN // dtype.itemsize
+    per_line = codegen.RECORD_ALIGN // dtype.itemsize
     width = -(-runs // per_line) * per_line
     size = probes * records * width
     raw = np.zeros(size + per_line, dtype)
-    skip = (-raw.ctypes.data % RECORD_ALIGN) // dtype.itemsize
+    skip = (-raw.ctypes.data % codegen.RECORD_ALIGN) // dtype.itemsize
     return raw[skip:skip + size].reshape(probes, records, width)
 
 

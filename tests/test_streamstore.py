@@ -6,7 +6,8 @@ import numba as nb
 import numpy as np
 import pytest
 
-from springc.simulate import RECORD_ALIGN, record_buffer
+from springc.codegen import RECORD_ALIGN
+from springc.simulate import record_buffer
 from springc.streamstore import store_fence, stream_store
 
 

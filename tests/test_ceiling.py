@@ -97,3 +97,14 @@ def test_measurement_reports_consistent_positive_numbers(precision):
 def test_unknown_precision_is_refused():
     with pytest.raises(ValueError, match="float16"):
         ceiling.measure_ceiling(4, 4, "float16")
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_state_arrays_start_spread_over_a_page(dtype):
+    """The six arrays start at distinct cache-line offsets, 4096/6 bytes (to a line) apart,
+    within a 4 KiB page, so no two alias (see `make_state`); their values are unchanged."""
+    state = ceiling.make_state(24, 64, dtype, threads=2)
+    offsets = [a.ctypes.data % ceiling.PAGE for a in state]
+    assert offsets == [k * ceiling.PAGE // 6 // ceiling.LINE * ceiling.LINE for k in range(6)]
+    np.testing.assert_array_equal(state[0].ravel(), np.linspace(0.1, 1.0, 24 * 64).astype(dtype))
+    assert all(a.flags.c_contiguous and not a.any() for a in state[1:])

@@ -109,6 +109,39 @@ def test_reductions_match_scipy_energy_integrals():
     assert red["loss:all"][0] == pytest.approx(loss, rel=1e-12)
 
 
+def test_undamped_nodes_with_a_dashpot_and_work_reductions():
+    """Masses with no local damping: the kernel computes stage velocities only on nodes
+    something reads them on (`codegen.velocity_needed`): the ends of the dashpot coupling a
+    and c (checked without reductions), and the driven node d for the input-work reduction."""
+    kc, kd, bd = (0.5 * W0) ** 2, (0.63 * W0) ** 2, B_LOCAL + B_POT
+    b = IRBuilder("dashpot-coupled pair and a driven mass")
+    for name, node, mass, k in (("1", "a", 1.0, W0**2), ("2", "c", 2.0, kc), ("3", "d", 1.0, kd)):
+        b.mass(f"M{name}", node, mass, 0.0)
+        b.spring(f"K{name}", node, k)
+    b.dashpot("B1", "a", "c", bd)
+    b.force("F1", "a", Source("sin", (AMP, WF / (2 * np.pi))))
+    b.force("F3", "d", Source("sin", (AMP, WF / (2 * np.pi))))
+    b.probe("x", "a")
+    b.probe("x", "c")
+    b.tran = Tran(2.5e-4, 1.0, None)
+    net = b.finish()
+    res = simulate(net)
+
+    def rhs(t, y):  # xa, va, xc, vc, xd, vd, input work, dissipated by the dashpot
+        f, fd = AMP * np.sin(WF * t), bd * (y[1] - y[3])
+        return [y[1], f - W0**2 * y[0] - fd, y[3], (fd - kc * y[2]) / 2.0, y[5],
+                f - kd * y[4], f * (y[1] + y[5]), fd * (y[1] - y[3])]
+
+    ref = solve_ivp(rhs, (0, 1.0), np.zeros(8), method="DOP853", t_eval=res.t, rtol=1e-12,
+                    atol=1e-16).y
+    for k, label in ((0, "x(a)"), (2, "x(c)")):
+        got, want = res.probes[label][0], ref[k]
+        assert np.abs(got - want).max() < 1e-8 * np.abs(want).max(), label  # RK4's error
+    for reduction, want in (("work:in", ref[6, -1]), ("dissipated:B1", ref[7, -1])):
+        red = simulate(net, probes=[], reductions=[reduction]).reductions
+        assert red[reduction][0] == pytest.approx(want, rel=1e-8), reduction
+
+
 def test_msq_and_final_match_the_recorded_trajectory():
     res = sim_osc(1e-3, tstop=2.0, outrate=1e3)
     t, x = res.t, res.probes["x(a)"][0]

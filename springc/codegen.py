@@ -26,6 +26,8 @@ Why the kernel looks the way it does (each measured against `springc.ceiling`, i
   faster in float64, where the 10 rows overflowed the 1 MB L2);
 - node indices are unsigned (uint64), so numba indexes without its negative-index
   wrap-around, four instructions per gathered row (float32 gathers 25% faster);
+- a stage velocity is computed only where something reads it (`velocity_needed`): most
+  nodes of delay lines and of the keyword-spotting network are undamped (10-17% faster);
 - FMA contraction (fastmath "contract" only: no reassociation, results within round-off);
 - the input samples are staged every `STAGE_BLOCK` steps into a (time, channel, lane) buffer,
   so interpolation reads contiguous lanes instead of one cache line per lane; probes are
@@ -656,10 +658,10 @@ def nystrom_stage_state(c: _Code, tab: Tableau, s: int, width: LaneLayout,
 
 def velocity_needed(c: _Code, feat: Features, opts: KernelOptions) -> None:
     """vneed[i]: whether anything reads node i's stage velocity: its own damping, a dashpot
-    on it, or (with the work reduction) a force on it; the dissipation reduction reads only
-    those dampers'. Most nodes of a delay line or the keyword-spotting network are undamped:
-    their stage velocity rows, a read and a write per stage, are skipped (delay line and
-    564-dof network 10-17% faster)."""
+    on it, or (with the work reduction) a force on it. (The dissipation reduction reads the
+    dampers' nodes, already among these.) Most nodes of a delay line or the keyword-spotting
+    network are undamped: their stage velocity rows, a read and a write per stage, are
+    skipped (delay line and 564-dof network 10-17% faster)."""
     c("vneed = np.zeros(x0.shape[0], np.bool_)")
     c("for i in range(x0.shape[0]):")
     c("    vneed[i] = bm[i] != 0.0")

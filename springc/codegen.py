@@ -45,10 +45,12 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import importlib.util
 import math
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -234,6 +236,15 @@ class _Code:
         return "\n".join(self.lines) + "\n"
 
 
+@functools.cache
+def _streamstore_hash() -> str:
+    """A hash of `springc.streamstore`'s source, written into the kernels that call it: numba's
+    cache of a kernel checks only the kernel's own file, so a change there must change the
+    kernel's text (and so its cache key). Read, not imported: this module never imports numba."""
+    origin = importlib.util.find_spec("springc.streamstore").origin
+    return hashlib.sha256(Path(origin).read_bytes()).hexdigest()[:16]
+
+
 def decorator(parallel: bool = False) -> str:
     """The njit decorator of every generated function."""
     if parallel:
@@ -246,7 +257,7 @@ def preamble(c: _Code, opts: KernelOptions, args: list[str], stages: int) -> Non
     c("import numpy as np")
     c("import numba as nb")
     if opts.record:
-        c("from springc.streamstore import stream_store, store_fence")
+        c(f"from springc.streamstore import stream_store, store_fence  # {_streamstore_hash()}")
     c("")
     c(f"FT = np.{opts.precision}")
     c(f"ARGS = {tuple(args)!r}")

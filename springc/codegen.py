@@ -681,8 +681,11 @@ def velocity_needed(c: _Code, feat: Features, opts: KernelOptions) -> None:
     ends += (["fc_node"] if opts.work and feat.common_forces else [])
     for index in ends:
         c(f"for e in range({index}.shape[0]):")
-        c(f"    if {index}[e] >= 0:")
-        c(f"        vneed[{index}[e]] = True")
+        if index == "b_j":  # the only signed one: -1 is ground
+            c(f"    if {index}[e] >= 0:")
+            c(f"        vneed[{index}[e]] = True")
+        else:
+            c(f"    vneed[{index}[e]] = True")
 
 
 def nystrom_combine(c: _Code, tab: Tableau, width: LaneLayout, frozen: str | None = None

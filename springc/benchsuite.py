@@ -82,6 +82,9 @@ class Case:
     peer_tstop: float  # stretch of run 0 the peers simulate
     peers: tuple[str, ...] = ("DOP853", "DOP853 tstep/8", "RK45", "numpy-rk4", "ngspice")
     paired: tuple[tuple[str, int, str], ...] = ()  # rows re-timed in alternation (fair ratios)
+    # rows run again recording no probe (re-timed with the paired ones): what the recording
+    # of the probes costs, which the ceiling, writing nothing, does not do
+    unrecorded: tuple[tuple[str, int, str], ...] = ()
     # finer rows, measured in turn until one is as accurate as every peer on their stretch
     ladder: tuple[tuple[str, int, str], ...] = ()
     ref_method: str = "rk4"  # the reference: this method at ref_substeps and half as many
@@ -107,6 +110,7 @@ class Row:
     ceiling_fraction: float | None = None
     note: str = ""
     stretch_errors: dict[str, float] = field(default_factory=dict)  # on the peers' stretch
+    recorded: bool = True  # False: run without probes (no errors; timing only)
 
     @property
     def max_error(self) -> float:
@@ -249,6 +253,7 @@ def cases(quick: bool = False) -> list[Case]:
              + [("strang-rk4", 1, "float64")], 0.005 * scale,
              paired=rk4_x1 + (("exp-rk4", 1, "float64"), ("exp-rk4", 2, "float64"),
                               ("exp-rk4", 1, "float32")),
+             unrecorded=rk4_x1,  # it records 16 probes at every step (262 MB a call)
              ladder=tuple(_rk_configs((32, 64), method="exp-rk4")),
              ref_method="exp-rk4", ref_substeps=128, check_tstop=0.0025 * scale),
         Case("kws", "8x3 keyword-spotting network (564 dofs)", bn.kws_network(),
@@ -302,6 +307,9 @@ def run_case(case: Case, progress: Callable[[str], None] = print) -> CaseResult:
         if _applies(case, method):
             progress(f"[{case.name}] {method} x{sub} {precision}")
             res.rows.append(_kernel_row(case, ref, method, sub, precision, runs))
+    for method, sub, precision in case.unrecorded:
+        progress(f"[{case.name}] {method} x{sub} {precision}, no probes recorded")
+        res.rows.append(_unrecorded_row(case, method, sub, precision, runs))
     res.ladder_note = _climb_ladder(case, ref, res.rows, peers, runs, progress)
     progress(f"[{case.name}] ceiling" + (f", and {len(case.paired)} rows re-timed with it in "
                                          f"alternation" if case.paired else ""))
@@ -432,9 +440,10 @@ def _check(case: Case, first, ref: Reference) -> tuple[dict[str, float], float]:
     return _errors({k: v[0] for k, v in probes.items()}, t, ref, ref.check_tstop), wall
 
 
-def _sim(case: Case, inputs, method: str, substeps: int, precision: str, tstop=None):
+def _sim(case: Case, inputs, method: str, substeps: int, precision: str, tstop=None,
+         probes=None):
     return simulate(case.net, inputs, tstep=case.tstep, tstop=tstop or case.tstop,
-                    substeps=substeps, method=method, precision=precision)
+                    substeps=substeps, method=method, precision=precision, probes=probes)
 
 
 def _rel(got: np.ndarray, want: np.ndarray) -> float:
@@ -470,19 +479,35 @@ def _kernel_row(case: Case, ref: Reference, method: str, sub: int, precision: st
                stretch_errors=_errors(got, out.t, ref, case.peer_tstop))
 
 
+def _unrecorded_row(case: Case, method: str, sub: int, precision: str, runs: int) -> Row:
+    """The kernel of `method` run recording no probe: its wall time only."""
+    warm = _sim(case, None if case.inputs is None else case.inputs[:, :, :4], method, sub,
+                precision, tstop=2 * case.tstep, probes=[])  # compiles: not in the timing
+    out, wall = _timed(lambda: _sim(case, case.inputs, method, sub, precision, probes=[]),
+                       lambda out: float(out.info["wall_s"]))
+    return Row(f"kernel {method}", method, sub, precision, {}, wall,
+               float(warm.info["compile_s"] or 0.0), runs * case.tstop, runs * case.tstop / wall,
+               note="no probes recorded (timing only)", recorded=False)
+
+
 def _retime_paired(case: Case, rows: list[Row], runs: int, ceilings: dict[str, float]) -> None:
-    """Time the `paired` rows and the ceiling in turn, `case.rounds` times, keeping each
-    row's least wall time and the ceiling's best (in place): on a shared machine a load burst
-    then hits the rows and the ceiling alike, not just one of them (the ceiling alone varied
-    up to 5x between calls here)."""
+    """Time the `paired` and `unrecorded` rows and the ceiling in turn, `case.rounds` times,
+    keeping each row's least wall time and the ceiling's best (in place): on a shared machine
+    a load burst then hits the rows and the ceiling alike, not just one of them (the ceiling
+    alone varied up to 5x between calls here)."""
     chosen = [r for r in rows for m, s, p in case.paired
               if r.name == f"kernel {m}" and (r.substeps, r.precision) == (s, p) and r.errors]
+    chosen += [r for r in rows for m, s, p in case.unrecorded
+               if r.name == f"kernel {m}" and (r.substeps, r.precision) == (s, p)
+               and not r.recorded]
     for _ in range(case.rounds):
         for row in chosen:
-            out = _sim(case, case.inputs, row.method, row.substeps, row.precision)
+            out = _sim(case, case.inputs, row.method, row.substeps, row.precision,
+                       probes=None if row.recorded else [])
             row.wall_s = min(row.wall_s, float(out.info["wall_s"]))
             row.throughput = runs * case.tstop / row.wall_s
-            row.note = f"least of {case.rounds} re-timings in alternation with the ceiling"
+            row.note = ("" if row.recorded else "no probes recorded (timing only); ") + (
+                f"least of {case.rounds} re-timings in alternation with the ceiling")
         for precision, best in _ceilings(case, runs, tries=1).items():
             ceilings[precision] = max(ceilings[precision], best)
 
@@ -638,6 +663,11 @@ def claims(results: list[CaseResult]) -> dict:
     out["ceiling_fraction"] = {
         r.name: {p: (_find(r, "rk4", 1, p).ceiling_fraction if _find(r, "rk4", 1, p) else None)
                  for p in ("float64", "float32")} for r in results}
+    # informative, decides nothing: the same rows recording no probe, where measured
+    out["ceiling_fraction_unrecorded"] = {
+        r.name: {row.precision: row.ceiling_fraction for row in r.rows
+                 if not row.recorded and row.method == "rk4" and row.substeps == 1}
+        for r in results}
     out["runs"] = {r.name: r.runs for r in results}
     out["speedups"] = {r.name: speedups(r) for r in results}
     out["verdicts"] = verdicts(out, results)
@@ -687,7 +717,8 @@ def _find(res: CaseResult, method: str, sub: int, precision: str) -> Row | None:
 def _label(row: Row) -> str:
     if row.name.startswith("peer"):
         return row.method
-    return f"{row.method} x{row.substeps} {row.precision}"
+    return f"{row.method} x{row.substeps} {row.precision}" + ("" if row.recorded else
+                                                              ", no probes")
 
 
 def write_report(results: list[CaseResult], outdir: Path, machine: dict) -> dict[str, Path]:
@@ -749,6 +780,8 @@ def markdown(results: list[CaseResult], found: dict, machine: dict) -> str:
          "network's size and batch at the row's step, same precision, rated with the RK4 "
          "flop count, the best of its measurements (taken in alternation with the re-timed rows); "
          "the claim is about batched kernels (a case of one run is reported, not judged). "
+         "Rows marked 'no probes' run the same kernel recording nothing (timing only): what "
+         "recording the probes costs, memory traffic the ceiling does not do. "
          "scipy DOP853 runs twice: as issue 7 measured it (rtol 1e-6, atol "
          "1e-12, scipy's free step size) and held to max_step tstep/8 (`springc.reference`'s "
          "default: the linearly interpolated input has a kink at every sample, which the "
@@ -769,7 +802,7 @@ def markdown(results: list[CaseResult], found: dict, machine: dict) -> str:
         for row in r.rows:
             worst = max(row.errors, key=row.errors.get) if row.errors else ""
             whole = (f"{_fmt(row.max_error)} ({worst})" if row.name.startswith("kernel")
-                     else f"- ({worst})")
+                     else f"- ({worst})") if row.errors else "-"
             lines.append(
                 f"| {_label(row)} | {whole} | {_fmt(row.max_stretch_error)} | "
                 f"{_fmt(row.wall_s)} | {_fmt(row.compile_s, '.2f')} | "
@@ -867,8 +900,12 @@ def _claims_md(found: dict) -> list[str]:
         if parts:
             target = ("target: 70%" if found["runs"].get(name, 2) > 1
                       else "a single run: reported, the target is for batches")
+            bare = [f"{p} {_fmt(100 * v, '.0f')}%" for p, v in
+                    found["ceiling_fraction_unrecorded"].get(name, {}).items() if v]
             lines.append(f"- {name}: RK4 x1 throughput as a fraction of the ceiling: "
-                         + ", ".join(parts) + f" ({target}).")
+                         + ", ".join(parts) + f" ({target})"
+                         + ("; the same kernels recording no probe (the ceiling writes "
+                            "nothing): " + ", ".join(bare) if bare else "") + ".")
     for name, rows in found["speedups"].items():
         for s in rows:
             at = (f" (below the reference's floor {_fmt(s['floor'])}: compared at the floor)"

@@ -222,7 +222,7 @@ def test_paired_rows_and_the_ceiling_are_timed_in_alternation_least_and_best(mon
 
     walls = iter([0.5, 0.2, 0.3])
 
-    def fake_sim(case, inputs, method, sub, precision, tstop=None):
+    def fake_sim(case, inputs, method, sub, precision, tstop=None, probes=None):
         calls.append("row")
         return types.SimpleNamespace(info={"wall_s": next(walls)})
 
@@ -236,3 +236,36 @@ def test_paired_rows_and_the_ceiling_are_timed_in_alternation_least_and_best(mon
     assert row.wall_s == 0.2 and row.throughput == pytest.approx(TSTOP / 0.2)
     assert best["float64"] == 300.0
     assert "least of 3 re-timings in alternation with the ceiling" in row.note
+
+
+def test_unrecorded_rows_record_nothing_are_rated_and_never_decide_a_claim(monkeypatch):
+    """A row run without probes: its simulations ask for no probe, it has a throughput and a
+    ceiling fraction but no error, is labelled so, and the claims keep using the recorded
+    row of the same configuration."""
+    asked = []
+    real = bs.simulate
+
+    def spy(net, inputs, **kw):
+        asked.append(kw.get("probes"))
+        return real(net, inputs, **kw)
+
+    monkeypatch.setattr(bs, "simulate", spy)
+    x1 = ("rk4", 1, "float64")
+    case = _case(configs=[x1], peers=(), ladder=(), paired=(x1,), unrecorded=(x1,), rounds=2)
+    res = bs.run_case(case, progress=lambda m: None)
+    bare = [r for r in res.rows if not r.recorded]
+    assert len(bare) == 1 and bare[0].errors == {} and bare[0].stretch_errors == {}
+    assert bare[0].throughput == pytest.approx(TSTOP / bare[0].wall_s)
+    assert bare[0].ceiling_fraction == pytest.approx(bare[0].throughput / res.ceiling["float64"])
+    # the unrecorded row: a warm-up, at least MIN_CALLS timed calls (more while they are
+    # short) and 2 re-timings, each with no probe; every other call: the netlist's probes
+    assert asked.count([]) >= 1 + bs.MIN_CALLS + 2
+    assert all(p is None for p in asked if p != [])
+    recorded = bs._find(res, "rk4", 1, "float64")
+    assert recorded.recorded and recorded.errors
+    assert bs.claims([res])["ceiling_fraction"]["osc"]["float64"] == recorded.ceiling_fraction
+    md = bs.markdown([res], bs.claims([res]), bs.machine_info())
+    assert "| rk4 x1 float64, no probes | - | - |" in md
+    frac = f"{100 * bare[0].ceiling_fraction:.0f}%"
+    assert f"the same kernels recording no probe (the ceiling writes nothing): float64 {frac}" in md
+    assert "no probes recorded (timing only); least of 2 re-timings" in md

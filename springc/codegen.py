@@ -57,7 +57,7 @@ import numpy as np
 from springc.integrators import Tableau, get_tableau
 from springc.ir import FlatNetlist
 
-KERNEL_VERSION = 3  # bump when the generated text or its calling convention changes
+KERNEL_VERSION = 4  # bump when the generated text or its calling convention changes
 RECORD_ALIGN = 64  # bytes: the record's alignment and row padding (a cache line, and a
 # multiple of every streaming store's size), which `emit_record`'s aligned stores rely on
 LANE_CHOICES = (32, 16, 4, 1)  # compile-time lane widths a kernel is generated for (32: the
@@ -154,7 +154,7 @@ def run_args(feat: Features, opts: KernelOptions) -> list[str]:
              "check_every", "limit"]
     names += accel_args(feat)
     if opts.record:
-        names += ["rec_every", "rec_node", "rec_isv", "rec"]
+        names += ["rec_every", "rec_node", "rec_isv", "rec", "rec_col"]
     if opts.work:
         names += ["work_in", "work_c"]
     if opts.dissipation:
@@ -540,9 +540,10 @@ def emit_chunk_start(c: _Code, opts: KernelOptions, scratch: list[str]) -> None:
     _emit_reduction_init(c, opts)
     if opts.record:
         # the streaming stores fault on a misaligned address: refuse such a buffer instead
-        c(f"if rec.ctypes.data % {RECORD_ALIGN} or (rec.shape[2] * rec.itemsize) % {RECORD_ALIGN}:")
-        c(f"    raise ValueError('rec must be {RECORD_ALIGN}-byte aligned with rows padded to "
-          f"{RECORD_ALIGN} bytes')")
+        c(f"if ((rec.ctypes.data + rec_col * rec.itemsize) % {RECORD_ALIGN}"
+          f" or (rec.shape[2] * rec.itemsize) % {RECORD_ALIGN}):")
+        c(f"    raise ValueError('rec must be {RECORD_ALIGN}-byte aligned from column rec_col "
+          f"with rows padded to {RECORD_ALIGN} bytes')")
         emit_record(c, "0", lane_layout(opts))
 
 
@@ -742,9 +743,11 @@ def _emit_stage_reductions(c: _Code, feat: Features, opts: KernelOptions, s: int
 
 def emit_record(c: _Code, r: str, width: LaneLayout) -> None:
     """Probes into record `r`: rec is (probe, record, run) with its rows padded to and aligned
-    on RECORD_ALIGN bytes (`springc.simulate.record_buffer`), so a full chunk's lanes are
-    aligned vector stores per probe, written non-temporally (`springc.streamstore`: the
-    record is written once and read after the call, so it bypasses the caches)."""
+    on RECORD_ALIGN bytes (`springc.simulate.record_buffer`), the call's runs from column
+    `rec_col` on (a multiple of RECORD_ALIGN bytes: one buffer serves every call of a
+    simulation), so a full chunk's lanes are aligned vector stores per probe, written
+    non-temporally (`springc.streamstore`: the record is written once and read after the
+    call, so it bypasses the caches)."""
     c(f"r_ = {r}")
     c("for p in range(rec_node.shape[0]):")
     c.indent()
@@ -755,16 +758,17 @@ def emit_record(c: _Code, r: str, width: LaneLayout) -> None:
         c(cond)
         c.indent()
         if width.group == 1:
-            lanes(c, width, [f"A{{b}} = {src}[q, {{b}}]"], [], ["rec[p, r_, lo_ + {b}] = A{b}"])
+            lanes(c, width, [f"A{{b}} = {src}[q, {{b}}]"], [],
+                  ["rec[p, r_, rec_col + lo_ + {b}] = A{b}"])
         else:
             group = ", ".join(f"A{b}" for b in range(width.group))
             lanes(c, width, [f"A{{b}} = {src}[q, {{b}}]"], [], [],
-                  f"stream_store(rec, p, r_, lo_ + {{g}}, ({group}))")
+                  f"stream_store(rec, p, r_, rec_col + lo_ + {{g}}, ({group}))")
         c.dedent()
     c.dedent()
     c("else:")
     c("    for b in range(nv_):")
-    c("        rec[p, r_, lo_ + b] = v[q, b] if rec_isv[p] else x[q, b]")
+    c("        rec[p, r_, rec_col + lo_ + b] = v[q, b] if rec_isv[p] else x[q, b]")
     c.dedent()
 
 

@@ -483,8 +483,12 @@ def _unrecorded_row(case: Case, method: str, sub: int, precision: str, runs: int
     """The kernel of `method` run recording no probe: its wall time only."""
     warm = _sim(case, None if case.inputs is None else case.inputs[:, :, :4], method, sub,
                 precision, tstop=2 * case.tstep, probes=[])  # compiles: not in the timing
-    out, wall = _timed(lambda: _sim(case, case.inputs, method, sub, precision, probes=[]),
-                       lambda out: float(out.info["wall_s"]))
+    try:
+        out, wall = _timed(lambda: _sim(case, case.inputs, method, sub, precision, probes=[]),
+                           lambda out: float(out.info["wall_s"]))
+    except SimulationError as err:
+        return Row(f"kernel {method}", method, sub, precision, {}, math.nan, 0.0, 0.0, 0.0,
+                   note=f"stopped by the divergence guard: {err.message}", recorded=False)
     return Row(f"kernel {method}", method, sub, precision, {}, wall,
                float(warm.info["compile_s"] or 0.0), runs * case.tstop, runs * case.tstop / wall,
                note="no probes recorded (timing only)", recorded=False)
@@ -499,7 +503,7 @@ def _retime_paired(case: Case, rows: list[Row], runs: int, ceilings: dict[str, f
               if r.name == f"kernel {m}" and (r.substeps, r.precision) == (s, p) and r.errors]
     chosen += [r for r in rows for m, s, p in case.unrecorded
                if r.name == f"kernel {m}" and (r.substeps, r.precision) == (s, p)
-               and not r.recorded]
+               and not r.recorded and math.isfinite(r.wall_s)]
     for _ in range(case.rounds):
         for row in chosen:
             out = _sim(case, case.inputs, row.method, row.substeps, row.precision,

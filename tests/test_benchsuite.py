@@ -269,3 +269,27 @@ def test_unrecorded_rows_record_nothing_are_rated_and_never_decide_a_claim(monke
     frac = f"{100 * bare[0].ceiling_fraction:.0f}%"
     assert f"the same kernels recording no probe (the ceiling writes nothing): float64 {frac}" in md
     assert "no probes recorded (timing only); least of 2 re-timings" in md
+
+
+def test_an_unrecorded_row_the_guard_stops_says_so_and_is_not_re_timed(monkeypatch):
+    from springc.errors import SimulationError
+
+    calls = []
+
+    def fake_sim(case, inputs, method, sub, precision, tstop=None, probes=None):
+        calls.append(tstop)
+        if tstop is None:  # the full runs diverge, the two-step warm-up does not
+            raise SimulationError("diverged at t = 0.01 s")
+        return types.SimpleNamespace(info={"wall_s": 0.1, "compile_s": 1.0})
+
+    monkeypatch.setattr(bs, "_sim", fake_sim)
+    monkeypatch.setattr(bs.ceiling, "measure_ceiling",
+                        lambda *a, **kw: {"run_seconds_per_wall_second": 100.0})
+    x1 = ("rk4", 1, "float64")
+    case = _case(unrecorded=(x1,), rounds=2)
+    row = bs._unrecorded_row(case, *x1, 1)
+    assert not row.recorded and not math.isfinite(row.wall_s)
+    assert row.note == "stopped by the divergence guard: diverged at t = 0.01 s"
+    calls.clear()
+    bs._retime_paired(case, [row], 1, {"float64": 50.0})
+    assert calls == []

@@ -283,9 +283,11 @@ def _run_batches(net, kernel, st: Settings, signals, names, plist, rplan, batch,
 
 
 def batch_size(batch: int | None, runs: int) -> int:
-    """Runs per kernel call: `batch` (default DEFAULT_BATCH), rounded up to a multiple of
+    """Runs per kernel call: `batch` (None: DEFAULT_BATCH), rounded up to a multiple of
     BATCH_ALIGN when the runs take several calls, so that each call's columns of the shared
     record start on an aligned address."""
+    if batch is not None and batch < 1:
+        raise UsageError(f"batch must be a positive number of runs, not {batch}")
     batch = batch or DEFAULT_BATCH
     if batch >= runs:
         return batch

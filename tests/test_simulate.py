@@ -15,7 +15,7 @@ from scipy.linalg import expm
 
 from springc import physics
 from springc.codegen import nystrom_coefficients
-from springc.errors import SimulationError
+from springc.errors import SimulationError, UsageError
 from springc.integrators import TABLEAUX, amplification, get_tableau, stability_polynomial
 from springc.ir import IRBuilder, Source, Tran
 from springc.reference import rk4_numpy, solve_ivp_reference
@@ -348,6 +348,11 @@ def test_runs_over_several_calls_equal_one_call(precision):
         assert calls.probes[label].shape == arr.shape == (40, 501)
         np.testing.assert_allclose(calls.probes[label], arr, rtol=0,
                                    atol=tol * np.abs(arr).max())
+
+
+def test_a_batch_of_no_runs_is_a_usage_error():
+    with pytest.raises(UsageError, match="batch must be a positive number of runs, not 0"):
+        simulate(nonlinear_net(), np.zeros((3, 1, 11)), batch=0)
 
 
 def test_sound_file_input_equals_analytic_source(tmp_path):

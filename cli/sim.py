@@ -41,8 +41,7 @@ REDUCE_HELP = (
 @click.option("--channel", type=int, default=None,
               help="File channel feeding in(0) (needed for stereo files).")
 @click.option("--batch", type=click.IntRange(min=1), default=None,
-              help="Runs per kernel call (default 256; a multiple of 16 when the runs take "
-              "several calls).")
+              help="Runs per kernel call (default 256).")
 @run_user_errors
 def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precision, method,
             outrate, reduce_, channel, batch, tolerance):

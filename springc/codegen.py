@@ -30,12 +30,16 @@ Why the kernel looks the way it does (each measured against `springc.ceiling`, i
   nodes of delay lines and of the keyword-spotting network are undamped (10-17% faster);
 - FMA contraction (fastmath "contract" only: no reassociation, results within round-off);
 - the input samples are staged every `STAGE_BLOCK` steps into a (time, channel, lane) buffer,
-  so interpolation reads contiguous lanes instead of one cache line per lane; probes are
-  recorded time-major, (probe, record, run), one contiguous store per probe and step
-  (`springc.simulate` hands out each probe as a (run, record) view of it), as aligned
-  non-temporal stores (`springc.streamstore`): a record at every step outgrows the caches,
-  and ordinary stores read each line before writing it (feature extractor, 262 MB per call:
-  float64 23% faster).
+  so interpolation reads contiguous lanes instead of one cache line per lane;
+- probes are recorded run-major, (probe, run, record), each run's trajectory contiguous:
+  a chunk stages `RB` records of its lanes (`emit_record`), then writes each run's line of
+  them as one aligned non-temporal store (`springc.streamstore`; a record at every step
+  outgrows the caches, and ordinary stores read each line before writing it: feature
+  extractor, 262 MB per call, float64 23% faster). Each thread so writes only pages of its
+  own runs (time-major, both threads first-touched every page: the feature extractor's
+  calls were about 6% (float64) and 7% (float32) slower), and callers get each run's
+  trajectory contiguous (a contiguous copy of the time-major views took five times the
+  feature extractor's simulation).
 
 This module never imports numba: `springc.loader` compiles the text (the kernels call
 `springc.streamstore`'s intrinsics).
@@ -57,7 +61,7 @@ import numpy as np
 from springc.integrators import Tableau, get_tableau
 from springc.ir import FlatNetlist
 
-KERNEL_VERSION = 4  # bump when the generated text or its calling convention changes
+KERNEL_VERSION = 5  # bump when the generated text or its calling convention changes
 RECORD_ALIGN = 64  # bytes: the record's alignment and row padding (a cache line, and a
 # multiple of every streaming store's size), which `emit_record`'s aligned stores rely on
 LANE_CHOICES = (32, 16, 4, 1)  # compile-time lane widths a kernel is generated for (32: the
@@ -264,6 +268,8 @@ def preamble(c: _Code, opts: KernelOptions, args: list[str], stages: int) -> Non
     c(f"STAGES = {stages}")
     c(f"LANES = {opts.lanes}  # runs per chunk (compile-time: the lane code is unrolled)")
     c(f"STAGE_BLOCK = {STAGE_BLOCK}")
+    if opts.record:
+        c(f"RB = {record_block(opts.precision)}  # records staged per run before one line is written")
     c("CHUNK_RANGE = True  # run(c0, c1) integrates only chunks c0..c1-1: callers use threads")
 
 
@@ -540,11 +546,12 @@ def emit_chunk_start(c: _Code, opts: KernelOptions, scratch: list[str]) -> None:
     _emit_reduction_init(c, opts)
     if opts.record:
         # the streaming stores fault on a misaligned address: refuse such a buffer instead
-        c(f"if ((rec.ctypes.data + rec_col * rec.itemsize) % {RECORD_ALIGN}"
-          f" or (rec.shape[2] * rec.itemsize) % {RECORD_ALIGN}):")
-        c(f"    raise ValueError('rec must be {RECORD_ALIGN}-byte aligned from column rec_col "
-          f"with rows padded to {RECORD_ALIGN} bytes')")
-        emit_record(c, "0", lane_layout(opts))
+        c(f"if rec.ctypes.data % {RECORD_ALIGN} or (rec.shape[2] * rec.itemsize) % {RECORD_ALIGN}:")
+        c(f"    raise ValueError('rec must be {RECORD_ALIGN}-byte aligned with rows padded to "
+          f"{RECORD_ALIGN} bytes')")
+        c("stg = np.zeros((max(rec_node.shape[0], 1), RB, LANES), FT)")
+        c("r_hi = -1")
+        emit_record(c, "0", lane_layout(opts), record_block(opts.precision))
 
 
 def emit_step_start(c: _Code, inputs: bool) -> None:
@@ -589,6 +596,7 @@ def emit_chunk_end(c: _Code, opts: KernelOptions) -> None:
     c("        vf[i, lo_ + b] = v[i, b]")
     _emit_reduction_store(c, opts)
     if opts.record:
+        emit_record_tail(c)
         c("store_fence()")
 
 
@@ -741,35 +749,49 @@ def _emit_stage_reductions(c: _Code, feat: Features, opts: KernelOptions, s: int
         c(f"        dsacc[d, b] += hbd{s} * ds_b[d] * dv * dv")
 
 
-def emit_record(c: _Code, r: str, width: LaneLayout) -> None:
-    """Probes into record `r`: rec is (probe, record, run) with its rows padded to and aligned
-    on RECORD_ALIGN bytes (`springc.simulate.record_buffer`), the call's runs from column
-    `rec_col` on (a multiple of RECORD_ALIGN bytes: one buffer serves every call of a
-    simulation), so a full chunk's lanes are aligned vector stores per probe, written
-    non-temporally (`springc.streamstore`: the record is written once and read after the
-    call, so it bypasses the caches)."""
+def record_block(precision: str) -> int:
+    """Records staged per run before they are written as one aligned line (RECORD_ALIGN
+    bytes)."""
+    return RECORD_ALIGN // np.dtype(precision).itemsize
+
+
+def emit_record(c: _Code, r: str, width: LaneLayout, rb: int) -> None:
+    """Probes of record `r` into the staging block `stg` (probe, RB, lane); a full block is
+    written to rec (probe, run, record: each run's trajectory contiguous, rows padded to and
+    aligned on RECORD_ALIGN bytes) as one non-temporal line per probe and run
+    (`springc.streamstore`), each chunk's runs from row `rec_col + lo_` on: every thread
+    writes pages of its own runs only."""
     c(f"r_ = {r}")
+    c("rb_ = r_ % RB")
     c("for p in range(rec_node.shape[0]):")
     c.indent()
     c("q = rec_node[p]")
-    c("if nv_ == LANES:")
-    c.indent()
     for cond, src in (("if rec_isv[p]:", "v"), ("else:", "x")):
         c(cond)
         c.indent()
-        if width.group == 1:
-            lanes(c, width, [f"A{{b}} = {src}[q, {{b}}]"], [],
-                  ["rec[p, r_, rec_col + lo_ + {b}] = A{b}"])
-        else:
-            group = ", ".join(f"A{b}" for b in range(width.group))
-            lanes(c, width, [f"A{{b}} = {src}[q, {{b}}]"], [], [],
-                  f"stream_store(rec, p, r_, rec_col + lo_ + {{g}}, ({group}))")
+        lanes(c, width, [f"A{{b}} = {src}[q, {{b}}]"], [], ["stg[p, rb_, {b}] = A{b}"])
         c.dedent()
     c.dedent()
-    c("else:")
+    c("r_hi = r_")
+    c("if rb_ == RB - 1:")
+    c.indent()
+    c("r0 = r_ - (RB - 1)")
+    c("for p in range(rec_node.shape[0]):")
     c("    for b in range(nv_):")
-    c("        rec[p, r_, rec_col + lo_ + b] = v[q, b] if rec_isv[p] else x[q, b]")
-    c.dedent()
+    c.indent(2)
+    c("stream_store(rec, p, rec_col + lo_ + b, r0, ("
+      + ", ".join(f"stg[p, {k}, b]" for k in range(rb)) + "))")
+    c.dedent(3)
+
+
+def emit_record_tail(c: _Code) -> None:
+    """The records of the last, partial staging block (ordinary stores)."""
+    c("if r_hi >= 0 and r_hi % RB != RB - 1:")
+    c("    r0 = r_hi - r_hi % RB")
+    c("    for p in range(rec_node.shape[0]):")
+    c("        for b in range(nv_):")
+    c("            for k in range(r_hi % RB + 1):")
+    c("                rec[p, rec_col + lo_ + b, r0 + k] = stg[p, k, b]")
 
 
 def _emit_step_end(c: _Code, opts: KernelOptions, width: LaneLayout) -> None:
@@ -785,7 +807,7 @@ def _emit_step_end(c: _Code, opts: KernelOptions, width: LaneLayout) -> None:
     if opts.record:
         c("if k1 % rec_every == 0:")
         c.indent()
-        emit_record(c, "k1 // rec_every", width)
+        emit_record(c, "k1 // rec_every", width, record_block(opts.precision))
         c.dedent()
     # Divergence guard: NaN/Inf or a state beyond `limit` stops the chunk; the caller raises.
     c("if k1 % check_every == 0 or k1 == nsteps:")

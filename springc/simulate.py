@@ -25,9 +25,6 @@ from springc.integrators import DEFAULT_METHOD, TABLEAUX, get_tableau, max_stabl
 from springc.ir import FlatNetlist, Probe
 
 DEFAULT_BATCH = 256  # runs per kernel call (one progress-bar tick)
-# runs: the calls of a simulation start at multiples of this many columns of the shared
-# record, a multiple of its alignment in float32 (and so in float64)
-BATCH_ALIGN = codegen.RECORD_ALIGN // 4
 CHECK_EVERY = 256  # steps between divergence checks
 LIMITS = {"float64": 1e30, "float32": 1e15}  # |x| or |v| beyond this counts as divergence
 
@@ -177,7 +174,7 @@ def simulate(net: FlatNetlist, inputs=None, input_rate: float | None = None, *,
     st = settings(net, tstep, tstop, substeps, method, precision, outrate, seconds)
     plist = resolve_probes(net, probes)
     rplan = reductions_plan(list(reductions), net)
-    batch = batch_size(batch, len(names))
+    batch = batch_size(batch)
     task = task_runs(len(names), batch, chunk)
     opts = codegen.KernelOptions(st.method, st.precision, codegen.choose_lanes(task),
                                  record=bool(plist), work=rplan.work,
@@ -261,8 +258,8 @@ def _run_batches(net, kernel, st: Settings, signals, names, plist, rplan, batch,
     tab = stage_tableau(st.method)
     coeffs = kernel_arrays(net, st, dtype)
     g = sources.common_table(net, st.nsteps, st.h, st.tstep, tab).astype(dtype)
-    # one record for all the calls, each writing its own columns: no copy at the end, and
-    # the pages are first touched once (a recording at every step is hundreds of MB)
+    # one record for all the calls, each writing its own runs' rows: no copy at the end (a
+    # recording at every step is hundreds of MB)
     rec = record_buffer(len(plist), st.nsteps // st.rec_every + 1, runs, dtype)
     chunks = []
     bar = _progress(runs, progress)
@@ -276,22 +273,17 @@ def _run_batches(net, kernel, st: Settings, signals, names, plist, rplan, batch,
     if bar is not None:
         bar.close()
     t = np.arange(st.nsteps // st.rec_every + 1) * st.rec_every * st.h
-    probes = {p.label: rec[k, :, :runs].T for k, p in enumerate(plist)}
+    probes = {p.label: rec[k, :, :st.nsteps // st.rec_every + 1] for k, p in enumerate(plist)}
     join = (lambda parts: parts[0]) if len(chunks) == 1 else np.concatenate
     reds = {k: join([c[k] for c in chunks]) for k in chunks[0]}
     return SimResult(t, probes, reds, list(names))
 
 
-def batch_size(batch: int | None, runs: int) -> int:
-    """Runs per kernel call: `batch` (None: DEFAULT_BATCH), rounded up to a multiple of
-    BATCH_ALIGN when the runs take several calls, so that each call's columns of the shared
-    record start on an aligned address."""
+def batch_size(batch: int | None) -> int:
+    """Runs per kernel call: `batch` (None: DEFAULT_BATCH)."""
     if batch is not None and batch < 1:
         raise UsageError(f"batch must be a positive number of runs, not {batch}")
-    batch = batch or DEFAULT_BATCH
-    if batch >= runs:
-        return batch
-    return -(-batch // BATCH_ALIGN) * BATCH_ALIGN
+    return batch or DEFAULT_BATCH
 
 
 def _progress(runs: int, enabled: bool):
@@ -348,20 +340,18 @@ def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rec, col, r
 
 
 def record_buffer(probes: int, records: int, runs: int, dtype) -> np.ndarray:
-    """Zeros (probe, record, run) for the kernel's recording: time-major, so that a chunk's
-    lanes are contiguous; each row padded to, and the whole aligned on, `codegen.RECORD_ALIGN`
-    bytes, which the kernel's aligned streaming stores of a chunk's lane groups need (a
-    misaligned one would fault). One buffer holds all the runs of a simulation, each kernel
-    call writing its own columns, and each probe is handed out as a (run, record) view of it:
-    gluing per-call buffers together copied every trajectory into fresh memory (feature
-    extractor, 512 runs in four calls: 316 against 203 ms, and twice the memory)."""
+    """Zeros (probe, run, record) for the kernel's recording: each run's trajectory
+    contiguous, each row padded to, and the whole aligned on, `codegen.RECORD_ALIGN` bytes,
+    which the kernel's aligned streaming stores of whole lines need (a misaligned one would
+    fault). One buffer holds all the runs of a simulation, each kernel call writing its own
+    rows, and each probe is handed out as a (run, record) view of it."""
     dtype = np.dtype(dtype)
     per_line = codegen.RECORD_ALIGN // dtype.itemsize
-    width = -(-runs // per_line) * per_line
-    size = probes * records * width
+    width = -(-records // per_line) * per_line
+    size = probes * runs * width
     raw = np.zeros(size + per_line, dtype)
     skip = (-raw.ctypes.data % codegen.RECORD_ALIGN) // dtype.itemsize
-    return raw[skip:skip + size].reshape(probes, records, width)
+    return raw[skip:skip + size].reshape(probes, runs, width)
 
 
 def _run_chunks(kernel, args: dict, runs: int, task: int) -> None:

@@ -331,9 +331,8 @@ def test_batch_equals_runs_one_at_a_time():
 
 @pytest.mark.parametrize("precision", ["float64", "float32"])
 def test_runs_over_several_calls_equal_one_call(precision):
-    """40 runs in calls of 10 (rounded up to 16: 16, 16 and 8 runs, the last chunk partial),
-    all recording into one buffer from their own aligned columns, equal the same runs in one
-    call; a misaligned start column would make the kernel refuse the buffer."""
+    """40 runs in four calls of 10 (chunks of 4 lanes, the last partial), all recording into
+    one buffer from their own rows, equal the same runs in one call."""
     net = nonlinear_net()
     u = np.random.default_rng(6).standard_normal((40, 1, 501))
     one = simulate(net, u, tstop=0.5, precision=precision, reductions=["msq:x(a)"])
@@ -347,6 +346,25 @@ def test_runs_over_several_calls_equal_one_call(precision):
     for label, arr in one.probes.items():
         assert calls.probes[label].shape == arr.shape == (40, 501)
         np.testing.assert_allclose(calls.probes[label], arr, rtol=0,
+                                   atol=tol * np.abs(arr).max())
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+@pytest.mark.parametrize("every", [1, 100, 400])
+def test_records_on_any_output_grid_equal_plain_numpy_rk4(precision, every):
+    """The kernel stages records per run and writes them a line (8 float64, 16 float32) at
+    a time, the last, partial line at the end: 1001, 11 or 3 records (1001 % 8, 11 % 8 and
+    all 3 in a partial line) equal numpy RK4 recording the same samples; 7 runs leave a chunk
+    partial."""
+    net = nonlinear_net()
+    u = np.random.default_rng(8).standard_normal((7, 1, 1001))
+    t, want, _ = rk4_numpy(net, u, tstep=1e-3, tstop=1.0, rec_every=every)
+    got = simulate(net, u, precision=precision, outrate=1e3 / every)
+    np.testing.assert_allclose(got.t, t, rtol=1e-12)
+    tol = 1e-9 if precision == "float64" else 1e-4
+    for label, arr in want.items():
+        assert got.probes[label].shape == arr.shape == (7, 1000 // every + 1)
+        np.testing.assert_allclose(got.probes[label], arr, rtol=0,
                                    atol=tol * np.abs(arr).max())
 
 

@@ -46,11 +46,11 @@ def test_a_streaming_store_touches_only_its_own_lanes():
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 @pytest.mark.parametrize("runs", [1, 5, 16, 33, 64])
 def test_record_buffer_rows_are_aligned_and_padded(dtype, runs):
-    rec = record_buffer(3, 7, runs, dtype)
+    rec = record_buffer(3, 7 * runs, runs, dtype)  # (probe, run, record)
     item = np.dtype(dtype).itemsize
     assert rec.ctypes.data % RECORD_ALIGN == 0
     assert rec.strides[1] % RECORD_ALIGN == 0
-    assert rec.shape[:2] == (3, 7) and runs <= rec.shape[2] < runs + RECORD_ALIGN // item
+    assert rec.shape[:2] == (3, runs) and 7 * runs <= rec.shape[2] < 7 * runs + RECORD_ALIGN // item
     assert rec.flags.c_contiguous and not rec.any()
 
 
@@ -66,8 +66,9 @@ def test_a_kernel_refuses_a_misaligned_record_buffer(monkeypatch):
     net = b.finish()
 
     def shifted(probes, records, runs, dtype):
-        good = record_buffer(probes, records, runs + 1, dtype).ravel()
-        return good[1:1 + probes * records * runs].reshape(probes, records, runs)
+        good = record_buffer(probes, records, runs + 1, dtype)
+        width = good.shape[2]
+        return good.ravel()[1:1 + probes * runs * width].reshape(probes, runs, width)
 
     monkeypatch.setattr(sim, "record_buffer", shifted)
     with pytest.raises(ValueError, match="64-byte aligned"):

@@ -762,6 +762,13 @@ def emit_record(c: _Code, r: str, width: LaneLayout, rb: int) -> None:
     (`springc.streamstore`), each chunk's runs from row `rec_col + lo_` on: every thread
     writes pages of its own runs only."""
     c(f"r_ = {r}")
+    if width.width == 1:
+        # one run per chunk: its records are consecutive already, and stay in the caches
+        # when the run is short (streaming them out measured 9% slower on one oscillator)
+        c("for p in range(rec_node.shape[0]):")
+        c("    q = rec_node[p]")
+        c("    rec[p, rec_col + lo_, r_] = v[q, 0] if rec_isv[p] else x[q, 0]")
+        return
     c("rb_ = r_ % RB")
     c("for p in range(rec_node.shape[0]):")
     c.indent()

@@ -269,7 +269,7 @@ def preamble(c: _Code, opts: KernelOptions, args: list[str], stages: int) -> Non
     c(f"LANES = {opts.lanes}  # runs per chunk (compile-time: the lane code is unrolled)")
     c(f"STAGE_BLOCK = {STAGE_BLOCK}")
     if opts.record:
-        c(f"RB = {record_block(opts.precision)}  # records staged per run before one line is written")
+        c(f"RB = {record_block(opts.precision)}  # records staged per run, written by lines")
     c("CHUNK_RANGE = True  # run(c0, c1) integrates only chunks c0..c1-1: callers use threads")
 
 

@@ -296,7 +296,7 @@ def _progress(runs: int, enabled: bool):
 
 def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rec, col, rplan, task,
                    names):
-    """Simulate `runs` runs in one kernel call (their probes into columns col.. of `rec`);
+    """Simulate `runs` runs in one kernel call (their probes into rows col.. of `rec`);
     returns the reductions."""
     dtype = np.dtype(st.precision)
     x0, v0 = net.initial_state()

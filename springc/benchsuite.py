@@ -499,11 +499,7 @@ def _retime_paired(case: Case, rows: list[Row], runs: int, ceilings: dict[str, f
     keeping each row's least wall time and the ceiling's best (in place): on a shared machine
     a load burst then hits the rows and the ceiling alike, not just one of them (the ceiling
     alone varied up to 5x between calls here)."""
-    chosen = [r for r in rows for m, s, p in case.paired
-              if r.name == f"kernel {m}" and (r.substeps, r.precision) == (s, p) and r.errors]
-    chosen += [r for r in rows for m, s, p in case.unrecorded
-               if r.name == f"kernel {m}" and (r.substeps, r.precision) == (s, p)
-               and not r.recorded and math.isfinite(r.wall_s)]
+    chosen = _measured(rows, case.paired, True) + _measured(rows, case.unrecorded, False)
     for _ in range(case.rounds):
         for row in chosen:
             out = _sim(case, case.inputs, row.method, row.substeps, row.precision,
@@ -514,6 +510,14 @@ def _retime_paired(case: Case, rows: list[Row], runs: int, ceilings: dict[str, f
                 f"least of {case.rounds} re-timings in alternation with the ceiling")
         for precision, best in _ceilings(case, runs, tries=1).items():
             ceilings[precision] = max(ceilings[precision], best)
+
+
+def _measured(rows: list[Row], configs, recorded: bool) -> list[Row]:
+    """The kernel rows of `configs` (recording or not) that ran to the end (not stopped by
+    the divergence guard)."""
+    return [r for r in rows for m, s, p in configs
+            if r.name == f"kernel {m}" and (r.substeps, r.precision) == (s, p)
+            and r.recorded == recorded and math.isfinite(r.wall_s)]
 
 
 def _timed(call: Callable[[], object], wall_of: Callable[[object], float] | None = None,

@@ -299,13 +299,12 @@ def lane_layout(opts: KernelOptions) -> LaneLayout:
 
 
 def lanes(c: _Code, ln: LaneLayout, loads: list[str], arith: list[str],
-          stores: list[str], group_stmt: str = "") -> None:
+          stores: list[str]) -> None:
     """Straight-line code for the lanes: the loads, then the arithmetic, then the stores, each
-    statement for every lane of a group in turn (`{b}` in a statement is the lane), then
-    `group_stmt` once per group (`{g}`: its first lane). Loads before stores lets LLVM's SLP
-    vectoriser merge a group's lanes into vector loads, FMAs and stores without alias checks;
-    the generator guarantees that no store of an element overlaps a load of the same element
-    (distinct nodes)."""
+    statement for every lane of a group in turn (`{b}` in a statement is the lane). Loads
+    before stores lets LLVM's SLP vectoriser merge a group's lanes into vector loads, FMAs
+    and stores without alias checks; the generator guarantees that no store of an element
+    overlaps a load of the same element (distinct nodes)."""
     if ln.group < ln.width:
         c(f"for g_ in range(0, {ln.width}, {ln.group}):")
         c.indent()
@@ -316,8 +315,6 @@ def lanes(c: _Code, ln: LaneLayout, loads: list[str], arith: list[str],
             for b in range(ln.group):
                 lane = str(b) if ln.group == ln.width else (f"g_ + {b}" if b else "g_")
                 c(_lane_stmt(stmt, b, lane))
-    if group_stmt:
-        c(group_stmt.replace("{g}", "0" if ln.group == ln.width else "g_"))
     if ln.group < ln.width:
         c.dedent()
 

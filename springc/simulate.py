@@ -258,9 +258,10 @@ def _run_batches(net, kernel, st: Settings, signals, names, plist, rplan, batch,
     tab = stage_tableau(st.method)
     coeffs = kernel_arrays(net, st, dtype)
     g = sources.common_table(net, st.nsteps, st.h, st.tstep, tab).astype(dtype)
+    records = st.nsteps // st.rec_every + 1
     # one record for all the calls, each writing its own runs' rows: no copy at the end (a
     # recording at every step is hundreds of MB)
-    rec = record_buffer(len(plist), st.nsteps // st.rec_every + 1, runs, dtype)
+    rec = record_buffer(len(plist), records, runs, dtype)
     chunks = []
     bar = _progress(runs, progress)
     for lo in range(0, runs, batch):
@@ -272,8 +273,8 @@ def _run_batches(net, kernel, st: Settings, signals, names, plist, rplan, batch,
             bar.update(hi - lo)
     if bar is not None:
         bar.close()
-    t = np.arange(st.nsteps // st.rec_every + 1) * st.rec_every * st.h
-    probes = {p.label: rec[k, :, :st.nsteps // st.rec_every + 1] for k, p in enumerate(plist)}
+    t = np.arange(records) * st.rec_every * st.h
+    probes = {p.label: rec[k, :, :records] for k, p in enumerate(plist)}
     join = (lambda parts: parts[0]) if len(chunks) == 1 else np.concatenate
     reds = {k: join([c[k] for c in chunks]) for k in chunks[0]}
     return SimResult(t, probes, reds, list(names))

@@ -119,7 +119,8 @@ def eval_cmd(model_dir, data, realisation, as_json, jobs, no_cache, scheduler, b
     report = evaluate(model_dir, data, realisation, jobs=jobs, use_cache=not no_cache,
                       scheduler=scheduler)
     if as_json:
-        keys = ("accuracy", "majority_rate", "n", "per_class") + (("pairs",) if "pairs" in report else ())
+        keys = ("accuracy", "majority_rate", "n", "per_class")
+        keys += ("pairs",) if "pairs" in report else ()
         keys += tuple(k for k in _NETWORK_KEYS if k in report)
         click.echo(json.dumps({k: report[k] for k in keys}))
     else:

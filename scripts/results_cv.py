@@ -86,7 +86,8 @@ def page(reports: list[dict], data: Path, minutes: float, plot_name: str) -> str
             f"{100 * s['se']:.1f}% | **{g['points']:+.1f} +- {g['se']:.1f}** | "
             f"{g['ci95'][0]:+.1f} .. {g['ci95'][1]:+.1f} | {100 * g['disagree']:.0f}% | "
             f"{_cs(d['c_per_fold'])} / {_cs(s['c_per_fold'])} | {r['seconds'] / 60:.1f} min |")
-    lines += ["", HISTORY, "", f"Plot: `{plot_name}` beside this page after a run (not committed).", "",
+    lines += ["", HISTORY, "",
+              f"Plot: `{plot_name}` beside this page after a run (not committed).", "",
               "## Per class (true-positive rate, %)", ""]
     classes = list(reports[-1]["realisations"]["digital"]["per_class"])
     lines.append("| size | realisation | " + " | ".join(classes) + " |")

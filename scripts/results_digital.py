@@ -115,7 +115,8 @@ def findings(rows: list[dict], n_test: int) -> str:
     return textwrap.fill(f"At 8 x 3 the two-mode filterbank {verdict} the single-mode one: "
             f"{100 * two:.1f}% vs {100 * one:.1f}% (paper: 81.4% vs 75.2%); the triangular "
             f"digital filterbank gives {100 * tri:.1f}% (paper: 82.0%). The best size here is "
-            f"{best['bins']} x {best['delays']} ({best['filterbank']}, {100 * best['accuracy']:.1f}%), "
+            f"{best['bins']} x {best['delays']} "
+            f"({best['filterbank']}, {100 * best['accuracy']:.1f}%), "
             f"the log-Mel baseline reaches {100 * base:.1f}%. With {n_test} test clips one "
             f"accuracy has a standard error of about {100 * se:.1f} points, so differences of "
             f"a few points between rows are within the noise of this small corpus.", 95)
@@ -169,8 +170,9 @@ the paper's are on the Google Speech Commands Dataset (105 829 recordings of 2 6
 Compare trends (size, filterbank, baseline), not absolute values. The corpus speaks
 {len(spoken)} words; the held-out splits are class-balanced as in the paper (every command
 clip, `_unknown_` subsampled to the mean command count, as many `_silence_` clips), so always
-answering `{majority}` scores {100 * chance:.1f}% on its test split; with about {per_command:.0f} training clips per command word (GSCD
-has about 3000) the command classes are learnt from little data. The paper's 82.0% and 88.1%
+answering `{majority}` scores {100 * chance:.1f}% on its test split; with about
+{per_command:.0f} training clips per command word (GSCD has about 3000) the command
+classes are learnt from little data. The paper's 82.0% and 88.1%
 use a digital (triangular) Mel filterbank; its 81.4% / 75.2% compare two-mode and single-mode
 mechanical filterbanks (Fig. 4 caption), and 80.7% is its mass-spring model at 8 x 3.
 

@@ -250,8 +250,13 @@ def block_arrays(net: FlatNetlist, blocks: Blocks, h: float, scheme: SplitScheme
     """The kernel's block arguments for step `h`: flattened per-block propagators E, P0, P1 of
     the partial step `scheme.half * h`, node lists and input channels, and the frozen-position
     mask `frz` of the RK part."""
-    f = lambda a: np.ascontiguousarray(np.concatenate(a) if a else np.zeros(0), dtype=dtype)
-    i = lambda a: np.ascontiguousarray(a, dtype=np.int64)
+
+    def f(a):
+        return np.ascontiguousarray(np.concatenate(a) if a else np.zeros(0), dtype=dtype)
+
+    def i(a):
+        return np.ascontiguousarray(a, dtype=np.int64)
+
     es, p0s, p1s, eoff, poff = [], [], [], [0], [0]
     for a, b in zip(blocks.a, blocks.b):
         e, p0, p1 = propagator(a, b, scheme.half * h)

@@ -264,7 +264,10 @@ def experiment_energetics(amplitudes: np.ndarray | None = None, n: int = 40, g: 
     r = res.reductions
     e_in, e_out = r["work:Fq"], r["dissipated:Mqn"]
     lo, hi = slice(0, fit_points), slice(len(amps) - fit_points, None)
-    slope = lambda s: float(np.polyfit(np.log(e_in[s]), np.log(e_out[s]), 1)[0])
+
+    def slope(s):
+        return float(np.polyfit(np.log(e_in[s]), np.log(e_out[s]), 1)[0])
+
     return Energetics(amps, r["work:Fl"], r["dissipated:Mln"], e_in, e_out, slope(lo),
                       slope(hi))
 
@@ -415,7 +418,10 @@ def plot_melbank(bank: Melbank, path: str | Path) -> Path:
 def _plot_modes(ax, bank: Melbank, f: np.ndarray, k: int) -> None:
     flt = bank.two_mode[k]
     w, wa, wb = 2 * np.pi * f, 2 * np.pi * flt.fa, 2 * np.pi * flt.fb
-    mode = lambda w0: flt.gain * flt.alpha * w0**2 / (w0**2 - w**2 + 1j * flt.alpha * w)
+
+    def mode(w0):
+        return flt.gain * flt.alpha * w0**2 / (w0**2 - w**2 + 1j * flt.alpha * w)
+
     ax.plot(f, np.abs(flt.response(f)), color="gray", label="filter (difference)")
     ax.plot(f, np.abs(mode(wa)), color="blue", label=f"mode a, {flt.fa:.0f} Hz")
     ax.plot(f, np.abs(mode(wb)), color="red", label=f"mode b, {flt.fb:.0f} Hz")

@@ -138,7 +138,10 @@ def test_bounded_polynomial_is_accepted() -> None:
 def test_vanishing_top_form_needs_the_sphere_search() -> None:
     """Q's quartic (x1^4/2) vanishes along x2: with -x2 the potential falls along the valley
     x2 = x1^2; with +x2^2 instead it is bounded."""
-    quad = lambda b: b.quad("Q1", "x1", "x2", 1.0)
+
+    def quad(b):
+        b.quad("Q1", "x1", "x2", 1.0)
+
     msg, = _errors(_poly([(-1, [("x2", 1)])], quad))
     u = _direction(msg)
     assert u["x2"] > 0.99

@@ -105,7 +105,8 @@ def test_loader_writes_real_file_and_numba_cache(tmp_path, monkeypatch):
     # a second process loads the compiled code from the cache and gets the same numbers
     code = ("import numpy as np; from tests.test_codegen import small_net; "
             "from springc.simulate import simulate; "
-            "r = simulate(small_net(), np.ones((1, 1, 101))); print(repr(float(r.probes['x(a)'][0, -1])))")
+            "r = simulate(small_net(), np.ones((1, 1, 101))); "
+            "print(repr(float(r.probes['x(a)'][0, -1])))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True, env={**os.environ, "SPRINGC_CACHE": str(tmp_path)},
                          cwd=ROOT)

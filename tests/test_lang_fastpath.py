@@ -27,7 +27,8 @@ def args(draw) -> str:
     kind = draw(st.sampled_from(["value", "key", "call", "factor", "junk"]))
     value = draw(st.sampled_from(VALUES))
     if kind == "key":
-        return f"{draw(st.sampled_from(['m', 'k', 'gain', 'x0']))}{draw(st.sampled_from(['=', ' = ']))}{value}"
+        key = draw(st.sampled_from(['m', 'k', 'gain', 'x0']))
+        return f"{key}{draw(st.sampled_from(['=', ' = ']))}{value}"
     if kind == "call":
         inner = draw(st.lists(st.sampled_from(VALUES), max_size=3))
         sep = draw(st.sampled_from([" ", ", ", ","]))

@@ -38,7 +38,10 @@ def test_output_is_the_b_mass_the_other_mass_carries_the_sum():
     f = np.geomspace(1, 1e4, 50)
     w, wa = 2 * np.pi * f, 2 * np.pi * FA
     wb = DELTA * wa
-    mode = lambda w0: ALPHA * w0**2 / (w0**2 - w**2 + 1j * ALPHA * w)
+
+    def mode(w0):
+        return ALPHA * w0**2 / (w0**2 - w**2 + 1j * ALPHA * w)
+
     assert response(net, "Xf.a", f).h == pytest.approx(GAIN * (mode(wa) + mode(wb)), rel=1e-9)
     dc = np.array([1e-3])
     out, a = response(net, "out", dc).h[0], response(net, "Xf.a", dc).h[0]

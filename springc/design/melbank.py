@@ -124,7 +124,10 @@ def _peak(kind: str, fa: float, delta: float, alpha: float) -> tuple[float, floa
     f = np.geomspace(fa * 1e-3, max(fa * delta, fa) * 4.0, 2001)
     amp = np.abs(_raw_response(kind, f, fa, delta, alpha))
     i = int(np.clip(np.argmax(amp), 1, len(f) - 2))
-    neg = lambda u: -np.abs(_raw_response(kind, np.exp(u), fa, delta, alpha))
+
+    def neg(u):
+        return -np.abs(_raw_response(kind, np.exp(u), fa, delta, alpha))
+
     res = minimize_scalar(neg, bounds=(np.log(f[i - 1]), np.log(f[i + 1])), method="bounded",
                           options={"xatol": 1e-12})
     return float(np.exp(res.x)), float(-res.fun)

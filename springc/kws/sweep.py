@@ -46,8 +46,8 @@ def epsilon_sweep(model_dir: Path, data: Path, epsilons, *, scheduler: str | Non
 def compression_sweep(data: Path, thresholds, out: Path, *, bins: int = 4, delays: int = 2,
                       task: str = "kws12", scheduler: str | None = None,
                       jobs: int = 0) -> list[dict]:
-    """[{threshold, compressor Duffing range, accuracy, ...}]: a mass-spring model trained and simulated
-    for every compression threshold A_c (models in `out/threshold-<A_c>`)."""
+    """[{threshold, compressor Duffing range, accuracy, ...}]: a mass-spring model trained and
+    simulated for every compression threshold A_c (models in `out/threshold-<A_c>`)."""
     from springc.kws.digital import FeatureSettings
     from springc.kws.evaluate import evaluate
     from springc.kws.train import TrainOptions, train

@@ -252,8 +252,9 @@ def fit_task(x: dict[str, np.ndarray], y: dict[str, np.ndarray], task: str, kind
     fits = []
     for pair in itertools.combinations(DIGITS, 2):
         m = {s: np.isin(y[s], pair) for s in x}
-        model, c, scores = select(x["train"][m["train"]], y["train"][m["train"]],
-                                  x["validation"][m["validation"]], y["validation"][m["validation"]],
+        tr, va = m["train"], m["validation"]
+        model, c, scores = select(x["train"][tr], y["train"][tr],
+                                  x["validation"][va], y["validation"][va],
                                   kind, grid, jobs, class_weight)
         fits.append((pair, model, c, scores))
     return fits

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from springc import bench_networks as bn
-from springc import ceiling, expint
+from springc import ceiling, codegen, expint
 from springc.design.emit import write_atomic
 from springc.errors import SimulationError
 from springc.ir import FlatNetlist, IRBuilder, Source, Tran
@@ -170,6 +170,9 @@ class CaseResult:
     reference: dict = field(default_factory=dict)  # Reference.summary()
     ladder_note: str = ""  # why the ladder stopped
     skipped: dict[str, str] = field(default_factory=dict)  # peer -> why it did not run
+    # precision -> {"mb", "s"}: the OS's first touch of as much fresh memory as a recorded
+    # call writes (cases with rows run recording no probe; `ceiling.first_touch_seconds`)
+    first_touch: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
 def speech_like(seconds: float, rate: float, runs: int, seed: int = 0) -> np.ndarray:
@@ -315,7 +318,7 @@ def run_case(case: Case, progress: Callable[[str], None] = print) -> CaseResult:
                                          f"alternation" if case.paired else ""))
     res.ceiling = _ceilings(case, runs)
     if case.paired:
-        _retime_paired(case, res.rows, runs, res.ceiling)
+        _retime_paired(case, res.rows, runs, res.ceiling, res.first_touch)
     res.rows += peers
     for row in res.rows:
         if row.precision in res.ceiling and row.name.startswith("kernel"):
@@ -494,22 +497,45 @@ def _unrecorded_row(case: Case, method: str, sub: int, precision: str, runs: int
                note="no probes recorded (timing only)", recorded=False)
 
 
-def _retime_paired(case: Case, rows: list[Row], runs: int, ceilings: dict[str, float]) -> None:
+def _retime_paired(case: Case, rows: list[Row], runs: int, ceilings: dict[str, float],
+                   first_touch: dict[str, dict[str, float]]) -> None:
     """Time the `paired` and `unrecorded` rows and the ceiling in turn, `case.rounds` times,
     keeping each row's least wall time and the ceiling's best (in place): on a shared machine
     a load burst then hits the rows and the ceiling alike, not just one of them (the ceiling
-    alone varied up to 5x between calls here)."""
+    alone varied up to 5x between calls here). With unrecorded rows, also time the first
+    touch of as much fresh memory as each precision's recorded row writes (least, in place
+    in `first_touch`): what of the recording's cost is the OS's."""
     chosen = _measured(rows, case.paired, True) + _measured(rows, case.unrecorded, False)
+    shapes = {}
     for _ in range(case.rounds):
         for row in chosen:
             out = _sim(case, case.inputs, row.method, row.substeps, row.precision,
                        probes=None if row.recorded else [])
+            if row.recorded and case.unrecorded and out.probes:
+                shapes[row.precision] = _record_shape(out)
             row.wall_s = min(row.wall_s, float(out.info["wall_s"]))
             row.throughput = runs * case.tstop / row.wall_s
             row.note = ("" if row.recorded else "no probes recorded (timing only); ") + (
                 f"least of {case.rounds} re-timings in alternation with the ceiling")
         for precision, best in _ceilings(case, runs, tries=1).items():
             ceilings[precision] = max(ceilings[precision], best)
+        for precision, shape in shapes.items():
+            took = ceiling.first_touch_seconds(shape, precision)
+            seen = first_touch.setdefault(precision, {"mb": _megabytes(shape, precision),
+                                                      "s": took})
+            seen["s"] = min(seen["s"], took)
+
+
+def _record_shape(out) -> tuple[int, int, int]:
+    """(probe, run, record) of the buffer a simulation recorded into: its rows padded to
+    whole lines (`simulate.record_buffer`)."""
+    first = next(iter(out.probes.values()))
+    per_line = codegen.RECORD_ALIGN // first.itemsize
+    return len(out.probes), first.shape[0], -(-first.shape[1] // per_line) * per_line
+
+
+def _megabytes(shape: tuple[int, int, int], precision: str) -> float:
+    return math.prod(shape) * np.dtype(precision).itemsize / 1e6
 
 
 def _measured(rows: list[Row], configs, recorded: bool) -> list[Row]:
@@ -676,9 +702,21 @@ def claims(results: list[CaseResult]) -> dict:
         r.name: {row.precision: row.ceiling_fraction for row in r.rows
                  if not row.recorded and row.method == "rk4" and row.substeps == 1}
         for r in results}
+    out["first_touch"] = {r.name: _first_touch_shares(r) for r in results if r.first_touch}
     out["runs"] = {r.name: r.runs for r in results}
     out["speedups"] = {r.name: speedups(r) for r in results}
     out["verdicts"] = verdicts(out, results)
+    return out
+
+
+def _first_touch_shares(r: CaseResult) -> dict[str, dict[str, float]]:
+    """Per precision: MB of fresh memory a recorded call writes, the OS's first touch of that
+    much (s) and its share of the recorded RK4 x1 call's wall time."""
+    out = {}
+    for precision, ft in r.first_touch.items():
+        row = _find(r, "rk4", 1, precision)
+        share = ft["s"] / row.wall_s if row and math.isfinite(row.wall_s) else None
+        out[precision] = {"mb": ft["mb"], "s": ft["s"], "share": share}
     return out
 
 
@@ -892,6 +930,17 @@ def _verdict_part(v: dict) -> str:
             f"{_fmt(d['predicted_speedup'], '.0f')}x faster at linear cost)")
 
 
+def _first_touch_md(touch: dict[str, dict[str, float]]) -> str:
+    """One line: how much of a recorded call is the OS handing out fresh pages."""
+    parts = [f"{_fmt(t['mb'])} MB in {p}: {_fmt(1e3 * t['s'], '.3g')} ms"
+             + (f", {_fmt(100 * t['share'], '.0f')}% of the RK4 x1 call" if t["share"] else "")
+             for p, t in touch.items()]
+    return ("a recorded call writes its probes into fresh memory; the first touch of that "
+            "much alone (a zeroed array, one write per 4 KiB page, 2 threads each on its own "
+            "runs, least of the re-timing rounds), which the ceiling, reusing its memory, "
+            "does not pay: " + "; ".join(parts) + ".")
+
+
 def _claims_md(found: dict) -> list[str]:
     lines = ["## The issue's figures (measured in this run)", ""]
     for precision in ("float64", "float32"):
@@ -914,6 +963,9 @@ def _claims_md(found: dict) -> list[str]:
                          + ", ".join(parts) + f" ({target})"
                          + ("; the same kernels recording no probe (the ceiling writes "
                             "nothing): " + ", ".join(bare) if bare else "") + ".")
+        touch = found.get("first_touch", {}).get(name)
+        if touch:
+            lines.append(f"- {name}: " + _first_touch_md(touch))
     for name, rows in found["speedups"].items():
         for s in rows:
             at = (f" (below the reference's floor {_fmt(s['floor'])}: compared at the floor)"

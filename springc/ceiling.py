@@ -23,8 +23,10 @@ dof-step cannot beat this figure on this machine without doing less arithmetic.
 from __future__ import annotations
 
 import functools
+import math
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
@@ -277,3 +279,45 @@ def reference_steps(state: tuple[np.ndarray, ...], n_pad: int, steps: int) -> No
         v += av
         ax[...] = 0
         av[...] = 0
+
+
+def first_touch_seconds(shape: tuple[int, int, int], precision: str, threads: int = 2) -> float:
+    """Wall time to allocate a zeroed (probe, run, record) array of `shape`, as a kernel's
+    record, and write one value into each of its 4 KiB pages (`touch_record`). The OS hands
+    out fresh memory a page at a time on first write (a fault and the zeroing of the page):
+    a cost of any method that writes that much output into new memory, which the ceiling
+    loop, reusing its memory, does not pay."""
+    dtype = _dtype(precision)
+    touch_pages(np.zeros(2 * PAGE, dtype), 0, 2 * PAGE, 1)  # compile outside the timing
+    start = time.perf_counter()
+    flat = np.zeros(math.prod(shape), dtype)  # untouched: the OS maps zero pages lazily
+    touch_record(flat, shape, threads)
+    return time.perf_counter() - start
+
+
+def touch_record(flat: np.ndarray, shape: tuple[int, int, int], threads: int) -> None:
+    """One write into each page of `flat`, a (probe, run, record) array of `shape` flattened,
+    by `threads` threads, each the rows of its own runs (as the kernels' threads write)."""
+    probes, runs, width = shape
+    threads = max(1, min(threads, runs))
+    bounds = [runs * t // threads for t in range(threads + 1)]
+    stride = PAGE // flat.itemsize
+
+    def rows_of(t: int) -> None:
+        for p in range(probes):
+            touch_pages(flat, (p * runs + bounds[t]) * width,
+                        (p * runs + bounds[t + 1]) * width, stride)
+
+    with ThreadPoolExecutor(threads) as pool:
+        list(pool.map(rows_of, range(threads)))
+
+
+@numba.njit(nogil=True)
+def touch_pages(flat: np.ndarray, lo: int, hi: int, stride: int) -> None:
+    """flat[k] = 1 for k = lo, lo + stride, ... below hi, and at hi - 1: writes at most
+    `stride` elements (a page) apart from the first element to the last, so every page
+    that flat[lo:hi] overlaps gets one (the first touch, which makes the OS fault it in)."""
+    for k in range(lo, hi, stride):
+        flat[k] = 1
+    if hi > lo:
+        flat[hi - 1] = 1

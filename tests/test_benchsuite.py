@@ -231,7 +231,7 @@ def test_paired_rows_and_the_ceiling_are_timed_in_alternation_least_and_best(mon
     case = _case(paired=(("rk4", 1, "float64"),), rounds=3)
     row = _kernel("rk4", 1, 1e-6, 0.4)
     best = {"float64": 150.0}
-    bs._retime_paired(case, [row], 1, best)
+    bs._retime_paired(case, [row], 1, best, {})
     assert calls == ["row", "ceiling"] * 3
     assert row.wall_s == 0.2 and row.throughput == pytest.approx(TSTOP / 0.2)
     assert best["float64"] == 300.0
@@ -269,6 +269,15 @@ def test_unrecorded_rows_record_nothing_are_rated_and_never_decide_a_claim(monke
     frac = f"{100 * bare[0].ceiling_fraction:.0f}%"
     assert f"the same kernels recording no probe (the ceiling writes nothing): float64 {frac}" in md
     assert "no probes recorded (timing only); least of 2 re-timings" in md
+    # and the OS's first touch of as much fresh memory as the recorded row writes: one probe
+    # of one run, 201 records padded to whole 64-byte lines of 8 float64
+    touch = res.first_touch["float64"]
+    assert touch["mb"] == pytest.approx(1 * 1 * 208 * 8 / 1e6)
+    assert math.isfinite(touch["s"]) and touch["s"] > 0
+    share = bs.claims([res])["first_touch"]["osc"]["float64"]["share"]
+    assert share == pytest.approx(touch["s"] / recorded.wall_s)
+    assert (f"0.00166 MB in float64: {1e3 * touch['s']:.3g} ms, {100 * share:.0f}% of the "
+            "RK4 x1 call") in md
 
 
 def test_an_unrecorded_row_the_guard_stops_says_so_and_is_not_re_timed(monkeypatch):
@@ -291,5 +300,5 @@ def test_an_unrecorded_row_the_guard_stops_says_so_and_is_not_re_timed(monkeypat
     assert not row.recorded and not math.isfinite(row.wall_s)
     assert row.note == "stopped by the divergence guard: diverged at t = 0.01 s"
     calls.clear()
-    bs._retime_paired(case, [row], 1, {"float64": 50.0})
+    bs._retime_paired(case, [row], 1, {"float64": 50.0}, {})
     assert calls == []

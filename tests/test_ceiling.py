@@ -108,3 +108,23 @@ def test_state_arrays_start_spread_over_a_page(dtype):
     assert offsets == [k * ceiling.PAGE // 6 // ceiling.LINE * ceiling.LINE for k in range(6)]
     np.testing.assert_array_equal(state[0].ravel(), np.linspace(0.1, 1.0, 24 * 64).astype(dtype))
     assert all(a.flags.c_contiguous and not a.any() for a in state[1:])
+
+
+def test_touch_record_writes_into_every_page_of_the_record():
+    """Each 4 KiB page the (probe, run, record) array occupies gets a write (by address, as
+    the OS sees it), however the rows of the two threads' runs fall on the pages: here also
+    rows exactly a page long starting 64 bytes before a page's end (so each spans two)."""
+    for shape, dtype, start in (((3, 5, 700), np.float64, 0), ((2, 7, 16), np.float32, 0),
+                                ((1, 1, 1024), np.float32, 4032), ((2, 3, 512), np.float64,
+                                                                   4032)):
+        flat = ceiling.staggered(np.zeros(int(np.prod(shape)), dtype), start)
+        ceiling.touch_record(flat, shape, threads=2)
+        page = (flat.ctypes.data + np.arange(flat.size) * flat.itemsize) // ceiling.PAGE
+        assert set(page[flat == 1]) == set(page)
+        if flat.size * flat.itemsize > 8 * ceiling.PAGE:  # writes, not a fill
+            assert np.count_nonzero(flat) < flat.size / 100
+
+
+def test_first_touch_is_timed():
+    took = ceiling.first_touch_seconds((2, 4, 1024), "float32")
+    assert math.isfinite(took) and took > 0

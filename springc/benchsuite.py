@@ -170,8 +170,8 @@ class CaseResult:
     reference: dict = field(default_factory=dict)  # Reference.summary()
     ladder_note: str = ""  # why the ladder stopped
     skipped: dict[str, str] = field(default_factory=dict)  # peer -> why it did not run
-    # precision -> {"mb", "s"}: the OS's first touch of as much fresh memory as a recorded
-    # call writes (cases with rows run recording no probe; `ceiling.first_touch_seconds`)
+    # precision -> {"mb", "s", "threads"}: the OS's first touch of as much fresh memory as a
+    # recorded call writes (cases with rows recording no probe; `ceiling.first_touch_seconds`)
     first_touch: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
@@ -520,9 +520,10 @@ def _retime_paired(case: Case, rows: list[Row], runs: int, ceilings: dict[str, f
         for precision, best in _ceilings(case, runs, tries=1).items():
             ceilings[precision] = max(ceilings[precision], best)
         for precision, shape in shapes.items():
-            took = ceiling.first_touch_seconds(shape, precision)
+            threads = min(_threads(), runs)  # as many as the kernel calls use
+            took = ceiling.first_touch_seconds(shape, precision, threads)
             seen = first_touch.setdefault(precision, {"mb": _megabytes(shape, precision),
-                                                      "s": took})
+                                                      "s": took, "threads": threads})
             seen["s"] = min(seen["s"], took)
 
 
@@ -716,7 +717,7 @@ def _first_touch_shares(r: CaseResult) -> dict[str, dict[str, float]]:
     for precision, ft in r.first_touch.items():
         row = _find(r, "rk4", 1, precision)
         share = ft["s"] / row.wall_s if row and math.isfinite(row.wall_s) else None
-        out[precision] = {"mb": ft["mb"], "s": ft["s"], "share": share}
+        out[precision] = {**ft, "share": share}
     return out
 
 
@@ -935,10 +936,12 @@ def _first_touch_md(touch: dict[str, dict[str, float]]) -> str:
     parts = [f"{_fmt(t['mb'])} MB in {p}: {_fmt(1e3 * t['s'], '.3g')} ms"
              + (f", {_fmt(100 * t['share'], '.0f')}% of the RK4 x1 call" if t["share"] else "")
              for p, t in touch.items()]
+    threads = max(t["threads"] for t in touch.values())
     return ("a recorded call writes its probes into fresh memory; the first touch of that "
-            "much alone (a zeroed array, one write per 4 KiB page, 2 threads each on its own "
-            "runs, least of the re-timing rounds), which the ceiling, reusing its memory, "
-            "does not pay: " + "; ".join(parts) + ".")
+            f"much alone (a zeroed array, one write per 4 KiB page, {threads} "
+            f"thread{'s' if threads > 1 else ''} each on its own runs, least of the re-timing "
+            "rounds), which the ceiling, reusing its memory, does not pay: "
+            + "; ".join(parts) + ".")
 
 
 def _claims_md(found: dict) -> list[str]:

@@ -18,6 +18,10 @@ about `min_seconds`. From the wall time it reports flop/s and the equivalent thr
 for the given flop count F per dof-step at the given sample rate (a "run" is one batch lane
 simulated for one second of signal). An actual kernel on the same network with F flops per
 dof-step cannot beat this figure on this machine without doing less arithmetic.
+
+The loop reuses its memory. A kernel that records its probes writes them into fresh memory,
+which the OS hands out a page at a time on first write; `first_touch_seconds` measures that
+cost alone for a record of a given size, so that a report can tell it from the kernel's own.
 """
 
 from __future__ import annotations

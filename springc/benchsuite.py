@@ -315,7 +315,9 @@ def run_case(case: Case, progress: Callable[[str], None] = print) -> CaseResult:
         res.rows.append(_unrecorded_row(case, method, sub, precision, runs))
     res.ladder_note = _climb_ladder(case, ref, res.rows, peers, runs, progress)
     progress(f"[{case.name}] ceiling" + (f", and {len(case.paired)} rows re-timed with it in "
-                                         f"alternation" if case.paired else ""))
+                                         f"alternation" if case.paired else "")
+             + (", with the first touch of the record" if case.paired and case.unrecorded
+                else ""))
     res.ceiling = _ceilings(case, runs)
     if case.paired:
         _retime_paired(case, res.rows, runs, res.ceiling, res.first_touch)

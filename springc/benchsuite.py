@@ -39,11 +39,11 @@ from pathlib import Path
 import numpy as np
 
 from springc import bench_networks as bn
-from springc import ceiling, codegen, expint
+from springc import ceiling, expint
 from springc.design.emit import write_atomic
 from springc.errors import SimulationError
 from springc.ir import FlatNetlist, IRBuilder, Source, Tran
-from springc.simulate import simulate
+from springc.simulate import record_shape, simulate
 
 REF_CHECK_RTOL = 1e-12  # the independent check of the reference: scipy DOP853 at this rtol
 REF_CHECK_MAX_STEP = 32  # ... with max_step tstep / 32 (kinks of the interpolated input)
@@ -530,11 +530,10 @@ def _retime_paired(case: Case, rows: list[Row], runs: int, ceilings: dict[str, f
 
 
 def _record_shape(out) -> tuple[int, int, int]:
-    """(probe, run, record) of the buffer a simulation recorded into: its rows padded to
-    whole lines (`simulate.record_buffer`)."""
+    """(probe, run, record) of the buffer a simulation recorded into."""
     first = next(iter(out.probes.values()))
-    per_line = codegen.RECORD_ALIGN // first.itemsize
-    return len(out.probes), first.shape[0], -(-first.shape[1] // per_line) * per_line
+    runs, records = first.shape
+    return record_shape(len(out.probes), records, runs, first.dtype)
 
 
 def _megabytes(shape: tuple[int, int, int], precision: str) -> float:

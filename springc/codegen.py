@@ -746,9 +746,9 @@ def _emit_stage_reductions(c: _Code, feat: Features, opts: KernelOptions, s: int
         c(f"        dsacc[d, b] += hbd{s} * ds_b[d] * dv * dv")
 
 
-def record_block(precision: str) -> int:
-    """Records staged per run before they are written as one aligned line (RECORD_ALIGN
-    bytes)."""
+def record_block(precision) -> int:
+    """Records of `precision` (a name or dtype) staged per run before they are written as one
+    aligned line (RECORD_ALIGN bytes): the elements a line holds."""
     return RECORD_ALIGN // np.dtype(precision).itemsize
 
 

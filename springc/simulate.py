@@ -347,12 +347,18 @@ def record_buffer(probes: int, records: int, runs: int, dtype) -> np.ndarray:
     fault). One buffer holds all the runs of a simulation, each kernel call writing its own
     rows, and each probe is handed out as a (run, record) view of it."""
     dtype = np.dtype(dtype)
-    per_line = codegen.RECORD_ALIGN // dtype.itemsize
-    width = -(-records // per_line) * per_line
-    size = probes * runs * width
-    raw = np.zeros(size + per_line, dtype)
+    shape = record_shape(probes, records, runs, dtype)
+    size = math.prod(shape)
+    raw = np.zeros(size + codegen.record_block(dtype), dtype)
     skip = (-raw.ctypes.data % codegen.RECORD_ALIGN) // dtype.itemsize
-    return raw[skip:skip + size].reshape(probes, runs, width)
+    return raw[skip:skip + size].reshape(shape)
+
+
+def record_shape(probes: int, records: int, runs: int, dtype) -> tuple[int, int, int]:
+    """(probe, run, record) of `record_buffer`: each row padded to whole lines of
+    `codegen.RECORD_ALIGN` bytes."""
+    per_line = codegen.record_block(dtype)
+    return probes, runs, -(-records // per_line) * per_line
 
 
 def _run_chunks(kernel, args: dict, runs: int, task: int) -> None:

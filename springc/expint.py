@@ -298,7 +298,7 @@ def _header(rest: FlatNetlist, options: KernelOptions, scheme: SplitScheme, tab:
         "# springc generated kernel: do not edit (regenerated from the netlist)",
         f"# netlist: {rest.file}",
         f"# title: {rest.title}",
-        f"# options: {options}",
+        *codegen.options_header(options),
         f"# integrator: {scheme.name} ({scheme.description}; inner {tab.name})",
         *extra,
         f"# dofs: {rest.n}; elements of the Runge-Kutta part: {rest.element_counts()}",

@@ -26,6 +26,12 @@ from springc.ir import FlatNetlist, Probe
 
 DEFAULT_BATCH = 256  # runs per kernel call (one progress-bar tick)
 CHECK_EVERY = 256  # steps between divergence checks
+# dof-steps (dofs x steps x runs) from which a simulation gets a kernel with its force code
+# written out per node (`codegen.node_terms`): such a kernel is compiled once per netlist
+# structure (about 10 s, then cached) instead of being shared by every netlist of the same
+# element kinds, so short simulations (tests, one-off runs) keep the shared kernel. About
+# 10 ms of kernel time, where a 15-25% gain begins to be worth a compile per structure.
+WRITE_OUT_FROM = 10_000_000
 LIMITS = {"float64": 1e30, "float32": 1e15}  # |x| or |v| beyond this counts as divergence
 
 
@@ -163,12 +169,14 @@ def simulate(net: FlatNetlist, inputs=None, input_rate: float | None = None, *,
              tstep=None, tstop=None, substeps=None, method=None, precision=None, outrate=None,
              probes=None, reductions: tuple[str, ...] | list[str] = (), batch: int | None = None,
              channel: int | None = None, progress: bool = False,
-             chunk: int | None = None) -> SimResult:
+             chunk: int | None = None, write_out: bool | None = None) -> SimResult:
     """Simulate `net` for every input signal.
 
     `inputs`: None (one run, no input), an array (runs, channels, samples) sampled at
     `input_rate` (default 1/tstep), or a list of sound files / folders. Returns a `SimResult`
-    with only the probed quantities and the requested reductions."""
+    with only the probed quantities and the requested reductions. `write_out`: whether the
+    kernel's force code is written out per node (None: for small networks and long
+    simulations, `WRITE_OUT_FROM`)."""
     tstep0 = tstep or (net.tran.tstep if net.tran else None)
     signals, names, seconds = _gather_inputs(net, inputs, input_rate, tstep0, channel)
     st = settings(net, tstep, tstop, substeps, method, precision, outrate, seconds)
@@ -176,19 +184,36 @@ def simulate(net: FlatNetlist, inputs=None, input_rate: float | None = None, *,
     rplan = reductions_plan(list(reductions), net)
     batch = batch_size(batch)
     task = task_runs(len(names), batch, chunk)
+    coeffs = kernel_arrays(net, st, np.dtype(st.precision))
     opts = codegen.KernelOptions(st.method, st.precision, codegen.choose_lanes(task),
                                  record=bool(plist), work=rplan.work,
                                  dissipation=bool(rplan.damper_rows), msq=bool(rplan.msq),
-                                 gram=bool(rplan.gram))
+                                 gram=bool(rplan.gram),
+                                 nodes=written_out(net, coeffs, st, len(names), write_out))
     start = time.perf_counter()
     kernel = loader.load(kernel_source(net, opts))
-    out = _run_batches(net, kernel, st, signals, names, plist, rplan, batch, task, progress)
+    out = _run_batches(net, kernel, st, coeffs, signals, names, plist, rplan, batch, task,
+                       progress)
     out.info.update(wall_s=time.perf_counter() - start, kernel=str(kernel.path),
                     compile_s=kernel.compile_s, settings=st)
     return out
 
 
 reductions_plan = reductions.plan
+
+
+def written_out(net: FlatNetlist, coeffs: dict, st: Settings, runs: int,
+                write_out: bool | None) -> tuple | None:
+    """The per-node force terms for a kernel with its force code written out
+    (`codegen.node_terms`), or None for the shared kernel: as `write_out` says, or (None) when
+    the simulation has at least `WRITE_OUT_FROM` dof-steps. Networks too large to write out,
+    and splitting schemes (`springc.expint`: their exact block updates dominate; the feature
+    extractor's exp-rk4 measured no faster written out), always get the shared kernel."""
+    if expint.is_split(st.method):
+        return None
+    if write_out is None:
+        write_out = net.n * st.nsteps * runs >= WRITE_OUT_FROM
+    return codegen.node_terms(coeffs, net.n) if write_out else None
 
 
 def task_runs(runs: int, batch: int | None, chunk: int | None) -> int:
@@ -251,12 +276,11 @@ def _threads() -> int:
         return os.cpu_count() or 1
 
 
-def _run_batches(net, kernel, st: Settings, signals, names, plist, rplan, batch, task,
+def _run_batches(net, kernel, st: Settings, coeffs, signals, names, plist, rplan, batch, task,
                  progress) -> SimResult:
     runs = len(names)
     dtype = np.dtype(st.precision)
     tab = stage_tableau(st.method)
-    coeffs = kernel_arrays(net, st, dtype)
     g = sources.common_table(net, st.nsteps, st.h, st.tstep, tab).astype(dtype)
     records = st.nsteps // st.rec_every + 1
     # one record for all the calls, each writing its own runs' rows: no copy at the end (a

@@ -1,0 +1,173 @@
+"""Kernels with the force code written out per node (`codegen.node_terms`, `emit_nodes`): the
+same trajectories as the shared kernel, which loops over the runtime index arrays, and as
+scipy; which simulations get them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from springc import benchsuite, codegen, simulate as sm
+from springc.codegen import KernelOptions, generate
+from springc.ir import IRBuilder, Source, Tran
+
+W = 2 * np.pi * 40.0  # rad/s: every node's local frequency scale
+H = 1e-4  # s: tstep, about 40 steps per period of the fastest mode
+T = 0.05  # s
+RUNS = 8  # 4 runs a thread: kernels of 4 lanes (vector code)
+
+
+def every_kind() -> object:
+    """Four masses with every force kind: a, b damped, c undamped, d undamped; springs on
+    all; a coupling a-b; quadratic couplings a->c and b->c (c is the second end of two);
+    a Duffing term on d; a dashpot b-d; inputs on a (channel 0), b (channel 1) and c
+    (channel 0, twice); a sine drive on d."""
+    b = IRBuilder("every force kind", "every_kind.spr")
+    for name, node, m, damp in (("1", "a", 1.0, 30.0), ("2", "b", 2.0, 10.0),
+                                ("3", "c", 0.5, 0.0), ("4", "d", 1.0, 0.0)):
+        b.mass(f"M{name}", node, m, damp)
+        b.spring(f"K{name}", node, W**2 * m)
+    b.coupling("C1", "a", "b", 0.3 * W**2, a=1.5)
+    b.quad("Q1", "a", "c", 2e3, a=0.5)
+    b.quad("Q2", "b", "c", 1e3, a=2.0)
+    b.duffing("D1", "d", 1e7)
+    b.dashpot("B1", "b", "d", 5.0)
+    b.force("F1", "a", Source("in", channel=0), 1e3)
+    b.force("F2", "b", Source("in", channel=1), 2e3)
+    b.force("F3", "c", Source("in", channel=0), 5e2)
+    b.force("F4", "c", Source("in", channel=0), -2e2)
+    b.force("F5", "d", Source("sin", (50.0, 60.0)))
+    for node in "abcd":
+        b.probe("x", node)
+    b.tran = Tran(H, T, None)
+    return b.finish()
+
+
+def inputs(seed: int = 0) -> np.ndarray:
+    """(runs, 2 channels, samples) of smooth random signals at 1/H."""
+    t = np.arange(int(round(T / H)) + 2) * H
+    rng = np.random.default_rng(seed)
+    f = rng.uniform(20.0, 120.0, (RUNS, 2, 3))
+    return np.sin(2 * np.pi * f[..., None] * t).sum(axis=2) * 1e-3
+
+
+def scipy_run(net, u: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Positions of a, b, c, d from scipy DOP853 on the same equations (the input linearly
+    interpolated between samples, as the kernel reads it)."""
+    grid = np.arange(u.shape[1]) * H
+    m = np.array([1.0, 2.0, 0.5, 1.0])
+    damp = np.array([30.0, 10.0, 0.0, 0.0])
+
+    def rhs(time, y):
+        x, v = y[:4], y[4:]
+        u0, u1 = (np.interp(time, grid, u[ch]) for ch in (0, 1))
+        f = -W**2 * m * x - damp * v
+        k, a = 0.3 * W**2, 1.5  # k/(2a) (x_a - a x_b)^2
+        s = x[0] - a * x[1]
+        f[0] -= k / a * s
+        f[1] += k * s
+        for i, g, aq in ((0, 2e3, 0.5), (1, 1e3, 2.0)):  # g/(2a) (x_i^2 - a x_c)^2
+            s = x[i] ** 2 - aq * x[2]
+            f[i] -= 2 * g / aq * x[i] * s
+            f[2] += g * s
+        f[3] -= 1e7 * x[3] ** 3
+        fd = 5.0 * (v[1] - v[3])
+        f[1] -= fd
+        f[3] += fd
+        f += [1e3 * u0, 2e3 * u1, 3e2 * u0, 50.0 * np.sin(2 * np.pi * 60.0 * time)]
+        return np.concatenate([v, f / m])
+
+    sol = solve_ivp(rhs, (0, t[-1]), np.zeros(8), method="DOP853", t_eval=t, rtol=1e-11,
+                    atol=1e-15, max_step=H / 4)
+    return sol.y[:4]
+
+
+@pytest.mark.parametrize("method", ["rk4", "rk38"])
+def test_written_out_kernel_gives_the_shared_kernels_trajectories(method):
+    """Bitwise or within a few round-offs: the same arithmetic, only the indices constant."""
+    net, u = every_kind(), inputs()
+    kw = dict(method=method, precision="float64")
+    out = sm.simulate(net, u, write_out=True, **kw)
+    ref = sm.simulate(net, u, write_out=False, **kw)
+    for label, want in ref.probes.items():
+        scale = np.abs(want).max()
+        assert scale > 1e-6, label  # every node moves
+        assert np.abs(out.probes[label] - want).max() <= 1e-12 * scale, (method, label)
+
+
+def test_written_out_kernel_matches_scipy():
+    net, u = every_kind(), inputs(seed=1)
+    res = sm.simulate(net, u, write_out=True, substeps=4)
+    for r in range(RUNS):
+        want = scipy_run(net, u[r], res.t)
+        for k, node in enumerate("abcd"):
+            got = res.probes[f"x({node})"][r]
+            err = np.linalg.norm(got - want[k]) / np.linalg.norm(want[k])
+            assert err < 1e-6, (r, node, err)
+
+
+def test_written_out_float32_agrees_with_float64():
+    net, u = every_kind(), inputs(seed=2)
+    lo = sm.simulate(net, u, write_out=True, precision="float32")
+    hi = sm.simulate(net, u, write_out=True, precision="float64")
+    for label, want in hi.probes.items():
+        err = np.linalg.norm(lo.probes[label] - want) / np.linalg.norm(want)
+        assert err < 1e-4, (label, err)
+
+
+def test_node_terms_of_the_feature_extractor():
+    """Per node of a Mel band (fa, fb, lp): the coupling between the pair, the input on both,
+    and the squarer's quadratic coupling from fa (its first end) to lp (its second)."""
+    net = benchsuite.feature_extractor(bands=2)
+    co = sm.coefficient_arrays(net, np.float64)
+    terms = codegen.node_terms(co, net.n)
+    names = net.nodes
+    by_name = dict(zip(names, terms))
+    fa, fb, lp = (by_name[n] for n in ("f0a", "f0b", "lp0"))
+    assert all(t[0] and t[1] and not t[5] for t in (fa, fb, lp))  # damped, sprung, no others
+    assert [names[j] for _, j in fa[2]] == ["f0b"] and [names[j] for _, j in fb[2]] == ["f0a"]
+    assert len(fa[3]) == len(fb[3]) == 1 and lp[2] == lp[3] == ()
+    assert [(end, names[j]) for _, end, j in fa[4]] == [("i", "lp0")]
+    assert [(end, names[j]) for _, end, j in lp[4]] == [("j", "f0a")]
+    assert fb[4] == ()
+
+
+def test_too_large_or_too_dense_networks_keep_the_shared_kernel():
+    dense = benchsuite.stiff_block()  # 23 couplings on every node
+    co = sm.coefficient_arrays(dense, np.float64)
+    assert max(len(r) for r in np.split(co["l_col"], co["l_ptr"][1:-1])) > codegen.NODE_TERMS_MAX
+    assert codegen.node_terms(co, dense.n) is None
+    big = benchsuite.feature_extractor(bands=codegen.NODES_MAX // 3 + 1)
+    assert big.n > codegen.NODES_MAX
+    assert codegen.node_terms(sm.coefficient_arrays(big, np.float64), big.n) is None
+    small = benchsuite.feature_extractor(bands=codegen.NODES_MAX // 3)
+    assert codegen.node_terms(sm.coefficient_arrays(small, np.float64), small.n) is not None
+
+
+def test_long_simulations_get_the_written_out_kernel():
+    """`write_out=None`: from `WRITE_OUT_FROM` dof-steps (dofs x steps x runs) on; an
+    explicit choice wins."""
+    net = every_kind()
+    co = sm.coefficient_arrays(net, np.float64)
+    st = sm.settings(net)
+    steps = st.nsteps * net.n
+    enough = -(-sm.WRITE_OUT_FROM // steps)
+    assert sm.written_out(net, co, st, enough - 1, None) is None
+    assert sm.written_out(net, co, st, enough, None) == codegen.node_terms(co, net.n)
+    assert sm.written_out(net, co, st, enough, False) is None
+    assert sm.written_out(net, co, st, 1, True) is not None
+    split = sm.settings(net, method="exp-rk4")
+    assert sm.written_out(net, co, split, enough, True) is None  # splitting schemes: shared
+
+
+def test_written_out_text_has_constant_rows_and_no_index_loops():
+    net = every_kind()
+    nodes = codegen.node_terms(sm.coefficient_arrays(net, np.float64), net.n)
+    text = generate(net, KernelOptions(lanes=4, nodes=nodes))
+    shared = generate(net, KernelOptions(lanes=4))
+    assert "# force code: written out per node" in text
+    assert "ka[2, b] =" in text and "for e in range(l_ptr[i]" not in text
+    assert "for e in range(q_i.shape[0])" not in text  # quadratic couplings folded in
+    assert "for e in range(d_node.shape[0])" in text  # other kinds keep their loops
+    assert "for e in range(l_ptr[i], l_ptr[i + 1])" in shared

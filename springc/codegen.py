@@ -6,11 +6,10 @@ recorded quantities. Node indices and coefficients are *runtime arguments*, so c
 parameter value reuses the compiled kernel, and netlists of the same element kinds share one.
 For long simulations of small networks (`simulate.WRITE_OUT_FROM`, `NODES_MAX`) the linear,
 input and quadratic-coupling forces are instead written out node by node with constant
-indices (`emit_nodes`): one kernel per netlist structure, coefficients still arguments. The
-state is laid out `(n_dof, lanes)` per chunk
-of `lanes` runs (a compile-time constant: the last chunk is padded), the lanes innermost;
-`run` integrates a range of chunks of runs and releases the GIL, so the runtime runs chunks on
-several threads.
+indices (`emit_nodes`): one kernel per netlist structure, coefficients still arguments.
+The state is laid out `(n_dof, lanes)` per chunk of `lanes` runs (a compile-time constant: the
+last chunk is padded), the lanes innermost; `run` integrates a range of chunks of runs and
+releases the GIL, so the runtime runs chunks on several threads.
 
 Why the kernel looks the way it does (each measured against `springc.ceiling`, issue 7):
 - per element, the lane arithmetic is written out as straight-line code (all loads, then the
@@ -448,7 +447,7 @@ def emit_nodes(c: _Code, nodes: tuple, width: LaneLayout) -> None:
     over index arrays: feature extractor 15-25% faster, both precisions. The scalars are read
     before the loop so that the loop reads no coefficient array (LLVM cannot prove they do not
     alias ka, and each one added a runtime alias check). A node without any force keeps its
-    rows of zeros (a split scheme's block nodes: their forces are in the blocks)."""
+    rows of zeros."""
     for i, (damped, sprung, row, ins, quads, touched) in enumerate(nodes):
         parts = []
         if damped:

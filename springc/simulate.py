@@ -205,8 +205,8 @@ reductions_plan = reductions.plan
 def written_out(net: FlatNetlist, coeffs: dict, st: Settings, runs: int,
                 write_out: bool | None) -> tuple | None:
     """The per-node force terms for a kernel with its force code written out
-    (`codegen.node_terms`), or None for the shared kernel: as `write_out` says, or (None) when
-    the simulation has at least `WRITE_OUT_FROM` dof-steps. Networks too large to write out,
+    (`codegen.node_terms`), or None for the shared kernel: as `write_out` says, and when it is
+    None, for simulations of at least `WRITE_OUT_FROM` dof-steps. Networks too large to write out,
     and splitting schemes (`springc.expint`: their exact block updates dominate; the feature
     extractor's exp-rk4 measured no faster written out), always get the shared kernel."""
     if expint.is_split(st.method):

@@ -423,20 +423,20 @@ def node_terms(co: dict, n: int) -> tuple | None:
         return None
     touched = set()
     for key in ("d_node", "b_i", "b_j", "p_var", "fc_node"):
-        touched.update(int(i) for i in co[key] if i >= 0)
+        touched.update(i for i in co[key].tolist() if i >= 0)
+    quads: list[list] = [[] for _ in range(n)]
+    for e, (i, j) in enumerate(zip(co["q_i"].tolist(), co["q_j"].tolist())):
+        quads[i].append((e, "i", j))
+        quads[j].append((e, "j", i))
+    ptr, col, fptr, chan = (co[k].tolist() for k in ("l_ptr", "l_col", "fi_ptr", "fi_chan"))
     out = []
     for i in range(n):
-        row = tuple((int(e), int(co["l_col"][e]))
-                    for e in range(co["l_ptr"][i], co["l_ptr"][i + 1]))
-        ins = tuple((int(e), int(co["fi_chan"][e]))
-                    for e in range(co["fi_ptr"][i], co["fi_ptr"][i + 1]))
-        quads = tuple((int(e), end, int(co["q_j" if end == "i" else "q_i"][e]))
-                      for e in range(len(co["q_i"])) for end in ("i", "j")
-                      if co[f"q_{end}"][e] == i)
-        if len(row) + len(ins) + len(quads) > NODE_TERMS_MAX:
+        row = tuple((e, col[e]) for e in range(ptr[i], ptr[i + 1]))
+        ins = tuple((e, chan[e]) for e in range(fptr[i], fptr[i + 1]))
+        if len(row) + len(ins) + len(quads[i]) > NODE_TERMS_MAX:
             return None
-        out.append((bool(co["bm"][i] != 0.0), bool(co["km"][i] != 0.0), row, ins, quads,
-                    i in touched))
+        out.append((bool(co["bm"][i] != 0.0), bool(co["km"][i] != 0.0), row, ins,
+                    tuple(sorted(quads[i])), i in touched))
     return tuple(out)
 
 
@@ -449,35 +449,32 @@ def emit_nodes(c: _Code, nodes: tuple, width: LaneLayout) -> None:
     alias ka, and each one added a runtime alias check). A node without any force keeps its
     rows of zeros."""
     for i, (damped, sprung, row, ins, quads, touched) in enumerate(nodes):
-        parts = []
+        own = []
         if damped:
             c(f"bi = bm[{i}]")
-            parts.append(f"bi * va[{i}, b]")
+            own.append(f"bi * va[{i}, b]")
         if sprung:
             c(f"ki = km[{i}]")
-            parts.append(f"ki * xa[{i}, b]")
-        expr = f"-({' + '.join(parts)})" if parts else ""
+            own.append(f"ki * xa[{i}, b]")
+        terms = [f"- ({' + '.join(own)})"] if own else []  # summed left to right, as written
         for k, (e, j) in enumerate(row):
             c(f"w{k} = l_val[{e}]")
-            expr = f"({expr}) + w{k} * xa[{j}, b]" if expr else f"w{k} * xa[{j}, b]"
+            terms.append(f"+ w{k} * xa[{j}, b]")
         for k, (e, ch) in enumerate(ins):
             c(f"gm{k} = fi_gm[{e}]")
-            expr = f"({expr}) + gm{k} * uc[{ch}, b]" if expr else f"gm{k} * uc[{ch}, b]"
+            terms.append(f"+ gm{k} * uc[{ch}, b]")
         for k, (e, end, j) in enumerate(quads):
             # U = g/(2a) (x_i^2 - a x_j)^2 (`q_gi`, `q_gj`: the ends' factors over the mass)
             c(f"qa{k} = q_a[{e}]")
-            if end == "i":
-                c(f"qg{k} = q_gi[{e}]")
-                term = f"qg{k} * xa[{i}, b] * (xa[{i}, b] * xa[{i}, b] - qa{k} * xa[{j}, b])"
-                expr = f"({expr}) - {term}" if expr else f"-({term})"
-            else:
-                c(f"qg{k} = q_gj[{e}]")
-                term = f"qg{k} * (xa[{j}, b] * xa[{j}, b] - qa{k} * xa[{i}, b])"
-                expr = f"({expr}) + {term}" if expr else term
-        if not expr and not touched:
+            c(f"qg{k} = q_g{end}[{e}]")
+            terms.append(f"- qg{k} * xa[{i}, b] * (xa[{i}, b] * xa[{i}, b] - qa{k} * xa[{j}, b])"
+                         if end == "i" else
+                         f"+ qg{k} * (xa[{j}, b] * xa[{j}, b] - qa{k} * xa[{i}, b])")
+        if not terms and not touched:
             continue  # its force rows stay zero
+        expr = " ".join(terms).removeprefix("+ ") if terms else "FT(0.0)"
         c(f"for b in range({width.width}):")
-        c(f"    ka[{i}, b] = {expr or 'FT(0.0)'}")
+        c(f"    ka[{i}, b] = {expr}")
 
 
 def emit_linear(c: _Code, feat: Features, width: LaneLayout) -> None:

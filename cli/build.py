@@ -19,7 +19,7 @@ from springc.lang.options import known_methods
               help="Also write the generated kernel source to this file.")
 @click.option("--method", default=None,
               help="Integrator (overrides .options method=): "
-                   f"{', '.join(known_methods())}. The split schemes (strang-rk4, exp-rk4) "
+                   f"{', '.join(known_methods())}. The split schemes (strang-rk4, exp-rk4, exp-heun3) "
                    "integrate the driven linear filter blocks exactly: only the rest limits "
                    "the step.")
 @run_user_errors

@@ -30,8 +30,9 @@ REDUCE_HELP = (
 @click.option("--substeps", type=int, help="Integration steps per input sample (default 1).")
 @precision_option
 @click.option("--method", type=click.Choice([*TABLEAUX, *SCHEMES]), default=None,
-              help="Integrator (default: netlist option or rk4); strang-rk4 propagates the "
-                   "driven linear filter blocks exactly and the rest with RK4.")
+              help="Integrator (default: netlist option or rk4); the split schemes strang-rk4, "
+                   "exp-rk4 and exp-heun3 propagate the driven linear filter blocks exactly "
+                   "and the rest with RK4 (Heun3: three stages).")
 @click.option("--tolerance", type=float, default=None,
               help="Pick the cheapest integrator and substeps whose estimated per-mode error "
                    "(relative L2, modes up to the input Nyquist frequency) is at most this; "

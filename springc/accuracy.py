@@ -38,7 +38,7 @@ from springc.ir import FlatNetlist
 SUBSTEPS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64)  # candidates of the choice
 # strang-rk4 is left out: the linear estimate cannot see its splitting error (it freezes the
 # blocks over the Runge-Kutta step), which exp-rk4 avoids at about the same cost.
-CANDIDATES = ("rk4", "rk38", "ssprk3", "heun3", "exp-rk4")
+CANDIDATES = ("rk4", "rk38", "ssprk3", "heun3", "exp-rk4", "exp-heun3")
 LAWSON_BLOCK_COST = 0.65  # measured: exp-rk4 / rk4 wall time = 1 + 0.65 * (block dof share)
 
 

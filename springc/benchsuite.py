@@ -242,7 +242,8 @@ def cases(quick: bool = False) -> list[Case]:
     fe_t, kws_t = 1.0 * scale, 0.25 * scale
     both = ("float64", "float32")
     rk4_x1 = (("rk4", 1, "float64"), ("rk4", 1, "float32"))  # the throughput rows
-    exp = [("exp-rk4", 1, p) for p in both] + [("exp-rk4", 2, "float64")]
+    exp = [(m, 1, p) for m in ("exp-rk4", "exp-heun3") for p in both] + [
+        ("exp-rk4", 2, "float64"), ("exp-heun3", 2, "float64")]
     line = bn.long_delay_line()
     # 0.25 s of input, like the 564-dof network and the stiff block, rather than the line's
     # own 0.04 s .tran: about 1.5 ms of a call is start-up, 15% of a 0.04 s batch
@@ -255,14 +256,16 @@ def cases(quick: bool = False) -> list[Case]:
              + _rk_configs((4, 8, 16), method="exp-rk4")
              + [("strang-rk4", 1, "float64")], 0.005 * scale,
              paired=rk4_x1 + (("exp-rk4", 1, "float64"), ("exp-rk4", 2, "float64"),
-                              ("exp-rk4", 1, "float32")),
+                              ("exp-rk4", 1, "float32"), ("exp-heun3", 1, "float64"),
+                              ("exp-heun3", 1, "float32")),
              unrecorded=rk4_x1,  # it records 16 probes at every step (262 MB a call)
              ladder=tuple(_rk_configs((32, 64), method="exp-rk4")),
              ref_method="exp-rk4", ref_substeps=128, check_tstop=0.0025 * scale),
         Case("kws", "8x3 keyword-spotting network (564 dofs)", bn.kws_network(),
              speech_like(kws_t, rate, runs, seed=1), 1 / rate, kws_t,
-             _rk_configs((1, 2, 4)) + [("rk4", 1, "float32"), ("exp-rk4", 1, "float64"),
-                                       ("exp-rk4", 2, "float64")], 0.01 * scale,
+             _rk_configs((1, 2, 4)) + [("rk4", 1, "float32")]
+             + _rk_configs((1, 2), method="exp-rk4") + _rk_configs((1, 2), method="exp-heun3"),
+             0.01 * scale,
              peers=("DOP853", "DOP853 tstep/8", "RK45", "numpy-rk4"), paired=rk4_x1,
              skipped={"ngspice": "not run on the 564-dof network: ngspice took 57 s for 5 ms "
                       "of the 24-dof feature extractor at its reltol 1e-9"},

@@ -66,6 +66,9 @@ SCHEMES: dict[str, SplitScheme] = {
                     "Strang split: driven linear blocks exact (matrix exponential), rest RK4"),
         SplitScheme("exp-rk4", "rk4", "Lawson exponential RK4: driven linear blocks exact "
                     "at every stage (matrix exponential), rest RK4", kind="lawson"),
+        SplitScheme("exp-heun3", "heun3", "Lawson exponential Heun3: driven linear blocks "
+                    "exact at every stage (matrix exponential), rest Heun's third-order "
+                    "Runge-Kutta (three stages)", kind="lawson"),
     ]
 }
 

@@ -462,7 +462,8 @@ def test_unknown_method_lists_every_integrator() -> None:
     net = _oscillator(10.0)
     diag, = checks.diagnose(net, "rk5").errors
     assert diag.message == "unknown integrator 'rk5'"
-    assert diag.hint == "known: rk4, rk38, ssprk3, heun3, midpoint, strang-rk4, exp-rk4"
+    assert diag.hint == ("known: rk4, rk38, ssprk3, heun3, midpoint, strang-rk4, exp-rk4, "
+                         "exp-heun3")
     net.options["method"] = "exp_rk4"  # the spelling .options takes
     assert checks.check(net).method == "exp-rk4"
 

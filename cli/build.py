@@ -19,9 +19,9 @@ from springc.lang.options import known_methods
               help="Also write the generated kernel source to this file.")
 @click.option("--method", default=None,
               help="Integrator (overrides .options method=): "
-                   f"{', '.join(known_methods())}. The split schemes (strang-rk4, exp-rk4, exp-heun3) "
-                   "integrate the driven linear filter blocks exactly: only the rest limits "
-                   "the step.")
+                   f"{', '.join(known_methods())}. The split schemes (strang-rk4, exp-rk4, "
+                   "exp-heun3) integrate the driven linear filter blocks exactly: only the rest "
+                   "limits the step.")
 @run_user_errors
 def build_cmd(netlist: str, as_json: bool, emit_kernel: str | None, method: str | None) -> None:
     """Parse, elaborate and check NETLIST; print dofs, elements, fastest mode and dt_max."""

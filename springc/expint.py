@@ -18,6 +18,11 @@ samples is exact (phi functions, computed with Van Loan's augmented matrix expon
 Everything else, including quadratic couplings that touch a block, stays in the RK4 part. A
 netlist without blocks gets plain RK4.
 
+Schemes `exp-rk4` and `exp-heun3` are of Lawson type instead (the comment above
+`lawson_fractions`): every stage sees the blocks' exact driven flow to its own time. Heun's
+third-order tableau takes three stages instead of four; on the feature extractor at one step
+per sample its worst probe is within 3.9e-4 (exp-rk4: 3.3e-4) at about 0.85x exp-rk4's wall.
+
 Schemes are data (`SplitScheme`); `generate` writes the kernel text (it reuses the force code
 of `springc.codegen`), `split_netlist` and `block_arrays` prepare its arguments.
 """

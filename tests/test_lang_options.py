@@ -64,7 +64,8 @@ def test_unknown_method_lists_every_method() -> None:
         KNOWN_OPTIONS["method"].convert("exp_rk5")
     assert str(info.value) == (
         "unknown integration method 'exp_rk5'; known: rk4, rk38, ssprk3, heun3, midpoint, "
-        "strang-rk4, exp-rk4 (write strang_rk4, exp_rk4 or quote the name in .options)")
+        "strang-rk4, exp-rk4, exp-heun3 (write strang_rk4, exp_rk4, exp_heun3 or quote the "
+        "name in .options)")
 
 
 SPLIT = "M1 a m=1\nK1 a k=1\nF1 a in(0)\n.options method={}\n.tran 1m 1\n"

@@ -64,7 +64,7 @@ import numpy as np
 from springc.integrators import Tableau, get_tableau
 from springc.ir import FlatNetlist
 
-KERNEL_VERSION = 5  # bump when the generated text or its calling convention changes
+KERNEL_VERSION = 6  # bump when the generated text or its calling convention changes
 RECORD_ALIGN = 64  # bytes: the record's alignment and row padding (a cache line, and a
 # multiple of every streaming store's size), which `emit_record`'s aligned stores rely on
 LANE_CHOICES = (32, 16, 4, 1)  # compile-time lane widths a kernel is generated for (32: the
@@ -645,13 +645,22 @@ def emit_chunk_start(c: _Code, opts: KernelOptions, scratch: list[str]) -> None:
         c("stg = np.zeros((max(rec_node.shape[0], 1), RB, LANES), FT)")
         c("r_hi = -1")
         emit_record(c, "0", lane_layout(opts), record_block(opts.precision))
+    # counters, not step % substeps and friends: a 64-bit division costs tens of cycles, and
+    # four a step were 40% of a one-dof kernel's time
+    c("sub = substeps - 1")
+    c("k0 = -1")
+    c("rc_ = 0")
+    c("rn_ = 0")
+    c("cc_ = 0")
 
 
 def emit_step_start(c: _Code, inputs: bool) -> None:
     """Step counters; with `inputs`, restage the input samples when the step leaves the
     staged block."""
-    c("sub = step % substeps")
-    c("k0 = step // substeps")
+    c("sub += 1")
+    c("if sub == substeps:")
+    c("    sub = 0")
+    c("    k0 += 1")
     if not inputs:
         return
     c("if k0 >= ubase + STAGE_BLOCK:")
@@ -905,13 +914,18 @@ def _emit_step_end(c: _Code, opts: KernelOptions, width: LaneLayout) -> None:
     if opts.gram:
         _emit_gram_step(c)
     if opts.record:
-        c("if k1 % rec_every == 0:")
+        c("rc_ += 1")
+        c("if rc_ == rec_every:")
         c.indent()
-        emit_record(c, "k1 // rec_every", width, record_block(opts.precision))
+        c("rc_ = 0")
+        c("rn_ += 1")
+        emit_record(c, "rn_", width, record_block(opts.precision))
         c.dedent()
     # Divergence guard: NaN/Inf or a state beyond `limit` stops the chunk; the caller raises.
-    c("if k1 % check_every == 0 or k1 == nsteps:")
+    c("cc_ += 1")
+    c("if cc_ == check_every or k1 == nsteps:")
     c.indent()
+    c("cc_ = 0")
     c("bad = False")
     c("for b in range(nv_):")
     c.indent()

@@ -8,7 +8,7 @@ import soundfile as sf
 
 from springc import sources
 from springc.errors import DataError, UsageError
-from springc.integrators import get_tableau
+from springc.integrators import TABLEAUX, get_tableau
 from springc.ir import IRBuilder, Source
 
 
@@ -33,6 +33,23 @@ def test_interpolate_is_linear_and_zero_after_the_end():
 def test_stage_times_use_the_tableau_nodes():
     t = sources.stage_times(3, 0.1, get_tableau("rk4"))
     np.testing.assert_allclose(t[2], [0.2, 0.25, 0.25, 0.3])
+
+
+@pytest.mark.parametrize("name", sorted(TABLEAUX))
+def test_at_stage_times_is_f_at_every_stage_time_bitwise(name):
+    """Evaluated once per distinct time, the table is still f(stage_times) to the bit (a
+    step's end is computed as the next step's start: (k + 1.0) h == (k + 1) h exactly)."""
+    tab = get_tableau(name)
+    calls = []
+
+    def f(t):
+        calls.append(t.size)
+        return np.sin(2 * np.pi * 440.0 * t) * np.exp(t)
+
+    got = sources.at_stage_times(f, 1000, 3e-5, tab)
+    assert np.array_equal(got, f(sources.stage_times(1000, 3e-5, tab)))
+    distinct = len(set(tab.c) - ({1.0} if 0.0 in tab.c else set()))
+    assert calls[0] == 1001 * distinct  # RK4: two a step (c = 0 and 1/2), not four
 
 
 def test_common_table_tabulates_wav_and_analytic(tmp_path):

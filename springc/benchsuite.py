@@ -4,9 +4,10 @@ For each reference network (`CASES`: the feature extractor, the 8x3 keyword-spot
 a long delay line, a stiff all-to-all block, a hard-driven Duffing resonator) `run_case`:
 1. computes a tight reference for run 0 (`reference`): the case's `ref_method` at
    `ref_substeps` and half as many substeps per input sample, Richardson-extrapolated, with
-   its own error estimate (the fine run's error, |fine - coarse| / 15, an upper bound for the
-   extrapolated values) and an independent check by scipy DOP853 at rtol 1e-12 on the
-   peers' stretch; their larger is the case's *floor*, the least error it can resolve;
+   its own error estimate (the fine run's error, |fine - coarse| / (2^p - 1) for a method of
+   order p, 15 for the fourth-order references, an upper bound for the extrapolated values)
+   and an independent check by scipy DOP853 at rtol 1e-12 on the peers' stretch; their
+   larger is the case's *floor*, the least error it can resolve;
 2. runs the peers on a shorter stretch of run 0 (scipy RK45 and DOP853 at rtol 1e-6, plain
    numpy RK4, ngspice on the exported netlist when installed), with their errors against the
    reference on that stretch and their wall time per simulated second;
@@ -43,7 +44,7 @@ from springc import ceiling, expint
 from springc.design.emit import write_atomic
 from springc.errors import SimulationError
 from springc.ir import FlatNetlist, IRBuilder, Source, Tran
-from springc.simulate import record_shape, simulate
+from springc.simulate import record_shape, simulate, stage_tableau
 
 REF_CHECK_RTOL = 1e-12  # the independent check of the reference: scipy DOP853 at this rtol
 REF_CHECK_MAX_STEP = 32  # ... with max_step tstep / 32 (kinks of the interpolated input)
@@ -55,7 +56,6 @@ MUST_SPEEDUP = {"DOP853": 300.0, "DOP853 tstep/8": 300.0, "ngspice": 50.0}
 # issue 7 measured DOP853; 1/8: springc.reference's default, 8+ steps per sample)
 SCIPY_PEERS = {"DOP853": ("DOP853", None), "DOP853 tstep/8": ("DOP853", 1 / 8),
                "RK45": ("RK45", 1 / 8)}
-ORDER = 4  # every kernel method is RK4-based: the ladder predicts errors with this order
 LADDER_GAIN = 0.5  # a ladder rung must at least halve the error, else round-off has won
 # Timings: the least wall time of repeated calls (the machine is shared), kernels and peers
 # alike: at least MIN_CALLS (kernels) or 1 (peers), then more while the calls so far took
@@ -134,7 +134,7 @@ class Reference:
     substeps: int
     t: np.ndarray
     probes: dict[str, np.ndarray]  # label -> (T,)
-    estimate: dict[str, float]  # |fine - coarse| / 15 over the whole run (fine run's error)
+    estimate: dict[str, float]  # |fine - coarse| / (2^p - 1) over the whole run (fine run's)
     stretch_estimate: dict[str, float]  # the same on the peers' stretch
     check: dict[str, float]  # scipy DOP853 at REF_CHECK_RTOL against it, on check_tstop
     check_tstop: float
@@ -341,7 +341,8 @@ def _climb_ladder(case: Case, ref: Reference, rows: list[Row], peers: list[Row],
                   progress: Callable[[str], None]) -> str:
     """Measure the case's finer rows in turn while a peer's error on the peers' stretch (or
     the reference's floor, if larger) is not yet reached by any row and is within reach of
-    the ladder's last rung by fourth-order convergence from the most accurate row so far;
+    the ladder's last rung by its method's order of convergence from the most accurate row
+    so far;
     stop early when a rung fails to halve the error of the one before (round-off). Returns
     what it did and why it stopped."""
     targets = {p.method: max(p.max_stretch_error, ref.floor) for p in peers if p.stretch_errors}
@@ -373,14 +374,14 @@ def _climb_ladder(case: Case, ref: Reference, rows: list[Row], peers: list[Row],
 
 
 def _predicted(rows: list[Row], method: str, substeps: int) -> float:
-    """The stretch error of `method` at `substeps` by fourth-order convergence from its most
+    """The stretch error of `method` at `substeps` by its order of convergence from its most
     accurate measured float64 row (0 when there is none: nothing to predict from)."""
     mine = [r for r in rows if r.method == method and r.precision == "float64"
             and r.stretch_errors]
     if not mine:
         return 0.0
     base = min(mine, key=lambda r: r.max_stretch_error)
-    return base.max_stretch_error * (base.substeps / substeps) ** ORDER
+    return base.max_stretch_error * (base.substeps / substeps) ** order(method)
 
 
 def _out_of_reach(pending: dict[str, float], rows: list[Row], method: str, top: int,
@@ -392,10 +393,10 @@ def _out_of_reach(pending: dict[str, float], rows: list[Row], method: str, top: 
     base = min(mine, key=lambda r: r.max_stretch_error)
     parts = []
     for peer, t in pending.items():
-        need = base.substeps * (base.max_stretch_error / t) ** (1 / ORDER)
+        need = base.substeps * (base.max_stretch_error / t) ** (1 / order(method))
         parts.append(f"{peer}'s {t:.3g} needs about {method} x{2 ** math.ceil(math.log2(need))}")
     return (f"out of reach of the affordable ladder (up to x{top}): " + "; ".join(parts)
-            + f" by fourth-order convergence from {_label(base)} "
+            + f" by {_ordinal(order(method))}-order convergence from {_label(base)} "
             f"({base.max_stretch_error:.3g}); " + _reached(targets, rows))
 
 
@@ -415,14 +416,16 @@ def _worst(errors: dict[str, float]) -> float:
 
 def reference(case: Case, first) -> Reference:
     """Run 0 by `case.ref_method` at `case.ref_substeps` and half as many substeps,
-    Richardson-extrapolated for a fourth-order method: y = y_fine + (y_fine - y_coarse) / 15,
-    with the fine run's own error |y_fine - y_coarse| / 15 as the estimate (the extrapolated
+    Richardson-extrapolated for its order p: y = y_fine + (y_fine - y_coarse) / (2^p - 1) (15
+    for the fourth-order rk4 and exp-rk4), with the fine run's own error
+    |y_fine - y_coarse| / (2^p - 1) as the estimate (the extrapolated
     values are better still) and scipy DOP853 at REF_CHECK_RTOL as an independent check."""
     start = time.perf_counter()
     fine = _sim(case, first, case.ref_method, case.ref_substeps, "float64")
     coarse = _sim(case, first, case.ref_method, case.ref_substeps // 2, "float64")
     wall = time.perf_counter() - start
-    probes = {label: y[0] + (y[0] - coarse.probes[label][0]) / 15.0
+    gain = 2.0 ** order(case.ref_method) - 1.0
+    probes = {label: y[0] + (y[0] - coarse.probes[label][0]) / gain
               for label, y in fine.probes.items()}
     ref = Reference(case.ref_method, case.ref_substeps, fine.t, probes, {}, {}, {},
                     case.check_tstop or case.peer_tstop, wall, 0.0)
@@ -666,18 +669,29 @@ def speedups(res: CaseResult) -> list[dict]:
                     "closest_error": closest.max_stretch_error if closest else None,
                     "closest_speedup": peer.wall_per_run_second / closest.wall_per_run_second
                     if closest else None,
-                    # out of reach: the substeps fourth-order convergence says it would take,
+                    # out of reach: the substeps its order of convergence says it would take,
                     # and the speed-up there if the cost grows linearly with the substeps
                     "needed": f"{closest.method} x{need} {closest.precision}" if need else None,
+                    "order": _ordinal(order(closest.method)) if need else None,
                     "predicted_speedup": peer.wall_per_run_second
                     / (closest.wall_per_run_second * need / closest.substeps) if need else None})
     return out
 
 
+def order(method: str) -> int:
+    """Order of convergence of a kernel method (a split scheme's: its inner tableau's; the
+    blocks are exact)."""
+    return stage_tableau(method).order
+
+
+def _ordinal(k: int) -> str:
+    return {2: "second", 3: "third", 4: "fourth"}.get(k, f"{k}th")
+
+
 def _needed_substeps(row: Row, target: float) -> int:
-    """Substeps (a power of two) at which `row`'s method reaches `target` by fourth-order
+    """Substeps (a power of two) at which `row`'s method reaches `target` by its order of
     convergence from `row`'s stretch error."""
-    need = row.substeps * (row.max_stretch_error / target) ** (1 / ORDER)
+    need = row.substeps * (row.max_stretch_error / target) ** (1 / order(row.method))
     return 2 ** max(0, math.ceil(math.log2(need)))
 
 
@@ -871,7 +885,8 @@ def _reference_md(r: CaseResult) -> str:
         return "Reference: none recorded."
     return (f"Reference: {ref['method']} x{ref['substeps']} and x{ref['substeps'] // 2}, "
             f"Richardson-extrapolated ({_fmt(ref['wall_s'], '.1f')} s). Its error estimate "
-            f"(|fine - coarse| / 15, the fine run's own error; worst probe): "
+            f"(|fine - coarse| / {2 ** order(ref['method']) - 1}, the fine run's own error; "
+            "worst probe): "
             f"{_fmt(_worst(ref['estimate']))} over the run, "
             f"{_fmt(_worst(ref['stretch_estimate']))} over the peers' stretch. Check: scipy "
             f"DOP853 at rtol {ref['check_rtol']:g} (max_step tstep/{REF_CHECK_MAX_STEP}) "
@@ -987,7 +1002,8 @@ def _claims_md(found: dict) -> list[str]:
                              f"{_fmt(s['peer_error'])}{at}; the most accurate, {s['closest']} "
                              f"({_fmt(s['closest_error'])}), is "
                              f"{_fmt(s['closest_speedup'], '.0f')}x faster per run-second; "
-                             f"by fourth-order convergence {s['needed']} would reach it, "
+                             f"by {s['order']}-order convergence {s['needed']} would reach "
+                             "it, "
                              f"about {_fmt(s['predicted_speedup'], '.0f')}x faster if its "
                              "cost grows linearly with the substeps (predicted, not measured).")
     return lines + [""]
@@ -1007,7 +1023,8 @@ def plot(r: CaseResult, path: Path) -> None:
         if not row.stretch_errors or not row.simulated_s:
             continue
         kernel = row.name.startswith("kernel")
-        marker = {"rk4": "o", "strang-rk4": "s"}.get(row.method, "^") if kernel else "x"
+        marker = {"rk4": "o", "strang-rk4": "s", "exp-heun3": "D"}.get(row.method, "^") \
+            if kernel else "x"
         err = max(row.max_stretch_error, 1e-16)
         ax.loglog(row.wall_per_run_second, err, marker,
                   color=("C0" if row.precision == "float64" else "C1") if kernel else "C3")

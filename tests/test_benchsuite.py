@@ -148,6 +148,16 @@ def test_speedup_counts_a_peer_below_the_floor_at_the_floor_and_reports_the_clos
     assert s["predicted_speedup"] == pytest.approx(100.0 / (0.16 * 4))
 
 
+def test_predictions_use_the_methods_own_order_of_convergence():
+    """exp-heun3 is third order: 1e-6 -> 1e-9 takes 10x the substeps (x2 -> x20 -> x32),
+    where a fourth-order method would take 5.6x (x2 -> x16)."""
+    for method, need, word in (("exp-heun3", 32, "third"), ("exp-rk4", 16, "fourth")):
+        rows = [_kernel(method, 2, 1e-6, 0.02), _peer(1e-9, wall_per_run_s=100.0)]
+        s = bs.speedups(_result(rows, floor=1e-14))[0]
+        assert s["needed"] == f"{method} x{need} float64" and s["order"] == word
+        assert bs._predicted(rows, method, 4) == pytest.approx(1e-6 * 0.5 ** bs.order(method))
+
+
 def test_verdicts_say_met_missed_and_partly_met_with_the_numbers():
     fe_rows = [_kernel("rk4", 1, 0.5, 0.004, whole=0.8), _kernel("exp-rk4", 1, 1e-4, 0.005,
                                                                  whole=3e-4),

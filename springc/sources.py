@@ -11,6 +11,7 @@ Conventions (the kernel relies on them):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -86,14 +87,15 @@ def common_table(net: FlatNetlist, nsteps: int, h: float, tstep: float,
     return out
 
 
-def at_stage_times(f, nsteps: int, h: float, tab: Tableau) -> np.ndarray:
+def at_stage_times(f: Callable[[np.ndarray], np.ndarray], nsteps: int, h: float,
+                   tab: Tableau) -> np.ndarray:
     """f at every stage time, shape (nsteps, stages) (`stage_times`), evaluated once per
     distinct time: stages at equal fractions share it, and a step's end (c = 1) is the next
     step's start (c = 0). Half the evaluations for RK4, whose sines were half the call's time
     on a one-dof resonator."""
     cs = sorted(set(tab.c) - ({1.0} if 0.0 in tab.c else set()))
     vals = f((np.arange(nsteps + 1)[:, None] + np.asarray(cs)[None, :]) * h)
-    cols = [vals[1:, 0] if c == 1.0 and 0.0 in tab.c else vals[:-1, cs.index(c)]
+    cols = [vals[1:, cs.index(0.0)] if c == 1.0 and 0.0 in tab.c else vals[:-1, cs.index(c)]
             for c in tab.c]
     return np.stack(cols, axis=1)
 

@@ -57,7 +57,8 @@ def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precisio
     results.check_output_path(output)
     net = load_file(netlist)
     if tolerance is not None:
-        method, substeps = _choose(net, tolerance, method, substeps, tstep, tstop)
+        method, substeps = _choose(net, tolerance, method, substeps, tstep, tstop, inputs,
+                                   channel)
     res = simulate(net, list(inputs) or None, tstep=tstep, tstop=tstop, substeps=substeps,
                    method=method, precision=precision, outrate=outrate,
                    reductions=list(reduce_), batch=batch, channel=channel, progress=True)
@@ -68,10 +69,12 @@ def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precisio
                f"-> {output}" + (f", plot {plot_path}" if plot_path else ""))
 
 
-def _choose(net, tolerance, method, substeps, tstep, tstop) -> tuple[str, int]:
+def _choose(net, tolerance, method, substeps, tstep, tstop, inputs, channel
+            ) -> tuple[str, int]:
     """(method, substeps) from `springc.accuracy.choose`, echoed for the user."""
     from springc.accuracy import choose
     from springc.errors import UsageError
+    from springc.stepcheck import verify
 
     if method or substeps:
         raise UsageError("--tolerance chooses the method and substeps itself",
@@ -80,6 +83,14 @@ def _choose(net, tolerance, method, substeps, tstep, tstop) -> tuple[str, int]:
     if tstep is None:
         raise UsageError("no time step: the netlist has no .tran and no --tstep was given")
     duration = tstop or (net.tran.tstop if net.tran else 1.0)
-    choice = choose(net, tstep, duration, tolerance)
+    choice = verify(net, choose(net, tstep, duration, tolerance), tstep, duration, tolerance,
+                    _first_run(inputs), channel)
     click.echo(choice.describe())
     return choice.method, choice.substeps
+
+
+def _first_run(inputs) -> list | None:
+    """The first input file, for the step-doubling check (None: a run without input)."""
+    from springc.sources import expand_inputs
+
+    return expand_inputs(inputs)[:1] if inputs else None

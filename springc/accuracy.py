@@ -180,12 +180,23 @@ class Choice:
     worst: ModeError | None
     band_hz: float
     modes_complete: bool
+    # set by `springc.stepcheck.verify` on a nonlinear netlist: the step-doubling error over
+    # the first run's first `pilot_s` seconds, and the substeps the linear estimate chose
+    pilot_error: float | None = None
+    pilot_s: float = 0.0
+    linear_substeps: int = 0
 
     def describe(self) -> str:
         worst = f"; worst mode {self.worst.describe()}" if self.worst else ""
+        linear = (f" (at {self.linear_substeps} substep(s))"
+                  if self.linear_substeps and self.linear_substeps != self.substeps else "")
+        pilot = ("" if self.pilot_error is None else
+                 f"; on the nonlinear terms, step doubling over the first {self.pilot_s:g} s "
+                 f"of the first run: estimated error {self.pilot_error:.3g}")
         return (f"chose {self.method} with {self.substeps} substep(s) (h = {self.h:.4g} s): "
-                f"estimated error {self.error:.3g} for modes up to {self.band_hz:.5g} Hz, "
-                f"cost {self.cost:.3g} stages per sample{worst}")
+                f"estimated error {self.error:.3g} for the linear modes up to "
+                f"{self.band_hz:.5g} Hz{linear}{pilot}, cost {self.cost:.3g} stages per "
+                f"sample{worst}")
 
 
 def cost(net: FlatNetlist, method: str, substeps: int) -> float:

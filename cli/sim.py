@@ -36,7 +36,9 @@ REDUCE_HELP = (
 @click.option("--tolerance", type=float, default=None,
               help="Pick the cheapest integrator and substeps whose estimated per-mode error "
                    "(relative L2, modes up to the input Nyquist frequency) is at most this; "
-                   "prints the choice. Not with --method/--substeps.")
+                   "on a netlist with nonlinear terms, raise the substeps until step doubling "
+                   "over the first run's start agrees; prints the choice. Not with "
+                   "--method/--substeps.")
 @click.option("--outrate", type=float, help="Output sample rate in Hz (default 1/tstep).")
 @click.option("--reduce", "reduce_", multiple=True, metavar="SPEC", help=REDUCE_HELP)
 @click.option("--channel", type=int, default=None,

@@ -342,9 +342,8 @@ def _climb_ladder(case: Case, ref: Reference, rows: list[Row], peers: list[Row],
     """Measure the case's finer rows in turn while a peer's error on the peers' stretch (or
     the reference's floor, if larger) is not yet reached by any row and is within reach of
     the ladder's last rung by its method's order of convergence from the most accurate row
-    so far;
-    stop early when a rung fails to halve the error of the one before (round-off). Returns
-    what it did and why it stopped."""
+    so far; stop early when a rung fails to halve the error of the one before (round-off).
+    Returns what it did and why it stopped."""
     targets = {p.method: max(p.max_stretch_error, ref.floor) for p in peers if p.stretch_errors}
     last = math.inf
     for method, sub, precision in case.ladder:
@@ -418,8 +417,8 @@ def reference(case: Case, first) -> Reference:
     """Run 0 by `case.ref_method` at `case.ref_substeps` and half as many substeps,
     Richardson-extrapolated for its order p: y = y_fine + (y_fine - y_coarse) / (2^p - 1) (15
     for the fourth-order rk4 and exp-rk4), with the fine run's own error
-    |y_fine - y_coarse| / (2^p - 1) as the estimate (the extrapolated
-    values are better still) and scipy DOP853 at REF_CHECK_RTOL as an independent check."""
+    |y_fine - y_coarse| / (2^p - 1) as the estimate (the extrapolated values are better
+    still) and scipy DOP853 at REF_CHECK_RTOL as an independent check."""
     start = time.perf_counter()
     fine = _sim(case, first, case.ref_method, case.ref_substeps, "float64")
     coarse = _sim(case, first, case.ref_method, case.ref_substeps // 2, "float64")

@@ -10,8 +10,9 @@ So for a netlist with nonlinear terms, `verify` simulates the start of the first
 (`PILOT_S` seconds or `PILOT_SAMPLES` input samples, the longer, within the run) at the
 chosen substeps and at twice as many and takes the difference as the error: for a method of
 order p, y(s) - y(2s) is (1 - 2^-p) of y(s)'s error. While that exceeds the tolerance it
-moves to the substeps the order predicts (of `accuracy.SUBSTEPS`) and checks again. The pilot stretch is short, so errors that only build up later (a slow mode's drift
-over a long run) are the linear estimate's to catch.
+moves to the substeps the order predicts (of `accuracy.SUBSTEPS`) and checks again. The
+pilot stretch is short, so errors that only build up later (a slow mode's drift over a long
+run) are the linear estimate's to catch.
 """
 
 from __future__ import annotations

@@ -44,7 +44,7 @@ from springc import ceiling, expint
 from springc.design.emit import write_atomic
 from springc.errors import SimulationError
 from springc.ir import FlatNetlist, IRBuilder, Source, Tran
-from springc.simulate import record_shape, simulate, stage_tableau
+from springc.simulate import method_order, record_shape, simulate
 
 REF_CHECK_RTOL = 1e-12  # the independent check of the reference: scipy DOP853 at this rtol
 REF_CHECK_MAX_STEP = 32  # ... with max_step tstep / 32 (kinks of the interpolated input)
@@ -380,7 +380,7 @@ def _predicted(rows: list[Row], method: str, substeps: int) -> float:
     if not mine:
         return 0.0
     base = min(mine, key=lambda r: r.max_stretch_error)
-    return base.max_stretch_error * (base.substeps / substeps) ** order(method)
+    return base.max_stretch_error * (base.substeps / substeps) ** method_order(method)
 
 
 def _out_of_reach(pending: dict[str, float], rows: list[Row], method: str, top: int,
@@ -392,10 +392,11 @@ def _out_of_reach(pending: dict[str, float], rows: list[Row], method: str, top: 
     base = min(mine, key=lambda r: r.max_stretch_error)
     parts = []
     for peer, t in pending.items():
-        need = base.substeps * (base.max_stretch_error / t) ** (1 / order(method))
+        need = base.substeps * (base.max_stretch_error / t) ** (1 / method_order(method))
         parts.append(f"{peer}'s {t:.3g} needs about {method} x{2 ** math.ceil(math.log2(need))}")
     return (f"out of reach of the affordable ladder (up to x{top}): " + "; ".join(parts)
-            + f" by {_ordinal(order(method))}-order convergence from {_label(base)} "
+            + f" by {_ordinal(method_order(method))}-order convergence from "
+            f"{_label(base)} "
             f"({base.max_stretch_error:.3g}); " + _reached(targets, rows))
 
 
@@ -423,7 +424,7 @@ def reference(case: Case, first) -> Reference:
     fine = _sim(case, first, case.ref_method, case.ref_substeps, "float64")
     coarse = _sim(case, first, case.ref_method, case.ref_substeps // 2, "float64")
     wall = time.perf_counter() - start
-    gain = 2.0 ** order(case.ref_method) - 1.0
+    gain = 2.0 ** method_order(case.ref_method) - 1.0
     probes = {label: y[0] + (y[0] - coarse.probes[label][0]) / gain
               for label, y in fine.probes.items()}
     ref = Reference(case.ref_method, case.ref_substeps, fine.t, probes, {}, {}, {},
@@ -671,16 +672,10 @@ def speedups(res: CaseResult) -> list[dict]:
                     # out of reach: the substeps its order of convergence says it would take,
                     # and the speed-up there if the cost grows linearly with the substeps
                     "needed": f"{closest.method} x{need} {closest.precision}" if need else None,
-                    "order": _ordinal(order(closest.method)) if need else None,
+                    "order": _ordinal(method_order(closest.method)) if need else None,
                     "predicted_speedup": peer.wall_per_run_second
                     / (closest.wall_per_run_second * need / closest.substeps) if need else None})
     return out
-
-
-def order(method: str) -> int:
-    """Order of convergence of a kernel method (a split scheme's: its inner tableau's; the
-    blocks are exact)."""
-    return stage_tableau(method).order
 
 
 def _ordinal(k: int) -> str:
@@ -690,7 +685,7 @@ def _ordinal(k: int) -> str:
 def _needed_substeps(row: Row, target: float) -> int:
     """Substeps (a power of two) at which `row`'s method reaches `target` by its order of
     convergence from `row`'s stretch error."""
-    need = row.substeps * (row.max_stretch_error / target) ** (1 / order(row.method))
+    need = row.substeps * (row.max_stretch_error / target) ** (1 / method_order(row.method))
     return 2 ** max(0, math.ceil(math.log2(need)))
 
 
@@ -884,8 +879,8 @@ def _reference_md(r: CaseResult) -> str:
         return "Reference: none recorded."
     return (f"Reference: {ref['method']} x{ref['substeps']} and x{ref['substeps'] // 2}, "
             f"Richardson-extrapolated ({_fmt(ref['wall_s'], '.1f')} s). Its error estimate "
-            f"(|fine - coarse| / {2 ** order(ref['method']) - 1}, the fine run's own error; "
-            "worst probe): "
+            f"(|fine - coarse| / {2 ** method_order(ref['method']) - 1}, the fine run's own "
+            "error; worst probe): "
             f"{_fmt(_worst(ref['estimate']))} over the run, "
             f"{_fmt(_worst(ref['stretch_estimate']))} over the peers' stretch. Check: scipy "
             f"DOP853 at rtol {ref['check_rtol']:g} (max_step tstep/{REF_CHECK_MAX_STEP}) "

@@ -248,6 +248,12 @@ def stage_tableau(method: str):
     return expint.SCHEMES[method].tableau if expint.is_split(method) else get_tableau(method)
 
 
+def method_order(method: str) -> int:
+    """Order of convergence of `method` (a split scheme's: its inner tableau's; the blocks are
+    exact)."""
+    return stage_tableau(method).order
+
+
 def _gather_inputs(net, inputs, input_rate, tstep, channel):
     """Input signals at the input grid rate 1/tstep: (array or None, run names, seconds)."""
     nch = sources.channels_used(net)

@@ -45,7 +45,7 @@ def doubling_error(net: FlatNetlist, method: str, substeps: int, tstep: float, i
     kw = dict(tstep=tstep, tstop=duration, method=method, probes=probes, channel=channel)
     coarse = simulate.simulate(net, inputs, substeps=substeps, **kw).probes
     fine = simulate.simulate(net, inputs, substeps=2 * substeps, **kw).probes
-    shrink = 1.0 - 2.0 ** -simulate.stage_tableau(method).order
+    shrink = 1.0 - 2.0 ** -simulate.method_order(method)
     worst = 0.0
     for label, y in fine.items():
         norm = float(np.linalg.norm(y[0]))
@@ -64,7 +64,7 @@ def verify(net: FlatNetlist, choice: accuracy.Choice, tstep: float, duration: fl
     if not nonlinear(net):
         return choice
     pilot = min(duration, max(PILOT_S, PILOT_SAMPLES * tstep))
-    order = simulate.stage_tableau(choice.method).order
+    order = simulate.method_order(choice.method)
     sub = choice.substeps
     for _ in range(MAX_TRIES):
         err = doubling_error(net, choice.method, sub, tstep, inputs, pilot, channel)

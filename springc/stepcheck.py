@@ -38,13 +38,19 @@ def nonlinear(net: FlatNetlist) -> bool:
 
 
 def doubling_error(net: FlatNetlist, method: str, substeps: int, tstep: float, inputs,
-                   duration: float, channel: int | None = None) -> float:
+                   duration: float, channel: int | None = None,
+                   runs: dict[int, dict] | None = None) -> float:
     """Worst probe's relative L2 error of `method` at `substeps` over the first `duration`
-    seconds of `inputs` (one run), estimated by step doubling (module docstring)."""
+    seconds of `inputs` (one run), estimated by step doubling (module docstring). `runs`:
+    probes already simulated, by substeps (filled in; a retry at twice the substeps reuses
+    the finer run)."""
+    runs = {} if runs is None else runs
     probes = None if net.probes else [f"x({n})" for n in net.nodes]
     kw = dict(tstep=tstep, tstop=duration, method=method, probes=probes, channel=channel)
-    coarse = simulate.simulate(net, inputs, substeps=substeps, **kw).probes
-    fine = simulate.simulate(net, inputs, substeps=2 * substeps, **kw).probes
+    for sub in (substeps, 2 * substeps):
+        if sub not in runs:
+            runs[sub] = simulate.simulate(net, inputs, substeps=sub, **kw).probes
+    coarse, fine = runs[substeps], runs[2 * substeps]
     shrink = 1.0 - 2.0 ** -simulate.method_order(method)
     worst = 0.0
     for label, y in fine.items():
@@ -66,8 +72,9 @@ def verify(net: FlatNetlist, choice: accuracy.Choice, tstep: float, duration: fl
     pilot = min(duration, max(PILOT_S, PILOT_SAMPLES * tstep))
     order = simulate.method_order(choice.method)
     sub = choice.substeps
+    runs: dict[int, dict] = {}
     for _ in range(MAX_TRIES):
-        err = doubling_error(net, choice.method, sub, tstep, inputs, pilot, channel)
+        err = doubling_error(net, choice.method, sub, tstep, inputs, pilot, channel, runs)
         if err <= tol:
             return replace(choice, substeps=sub, h=tstep / sub,
                            cost=accuracy.cost(net, choice.method, sub), pilot_error=err,

@@ -82,7 +82,8 @@ class KernelOptions:
     `gram`: leaky Gram sums of node-pair products (springc.reductions `gram`); `lanes`: runs
     per chunk, a compile-time constant (`choose_lanes`); `nodes`: each node's force terms
     (`node_terms`) when the force code is written out per node, None for the shared kernel
-    that loops over the runtime index arrays."""
+    that loops over the runtime index arrays; `registers`: each node's terms
+    (`springc.regkernel.terms`) for a kernel of one run with its state in registers."""
 
     method: str = "rk4"
     precision: str = "float64"
@@ -93,6 +94,7 @@ class KernelOptions:
     msq: bool = False
     gram: bool = False
     nodes: tuple | None = None
+    registers: tuple | None = None
 
 
 @dataclass(frozen=True)
@@ -198,8 +200,10 @@ def options_header(options: KernelOptions) -> list[str]:
     """Header lines naming the options (the per-node terms only by how the force code is
     written: they are in the body)."""
     # (vars, not asdict, which deep-copies: 60 us of a 1 ms call)
-    shown = {k: v for k, v in vars(options).items() if k != "nodes"}
-    how = "written out per node" if options.nodes else "loops over the runtime index arrays"
+    shown = {k: v for k, v in vars(options).items() if k not in ("nodes", "registers")}
+    how = ("written out per node, the state in registers (springc.regkernel)"
+           if options.registers else "written out per node" if options.nodes
+           else "loops over the runtime index arrays")
     return [f"# options: {shown}", f"# force code: {how}"]
 
 
@@ -921,11 +925,19 @@ def _emit_step_end(c: _Code, opts: KernelOptions, width: LaneLayout) -> None:
         c("rn_ += 1")
         emit_record(c, "rn_", width, record_block(opts.precision))
         c.dedent()
-    # Divergence guard: NaN/Inf or a state beyond `limit` stops the chunk; the caller raises.
+    emit_guard(c)
+
+
+def emit_guard(c: _Code, before: Callable[[], None] | None = None) -> None:
+    """Divergence guard every `check_every` steps and at the last: NaN/Inf or a state beyond
+    `limit` stops the chunk, and the caller raises. `before` writes what precedes the check
+    (a register kernel's write-back of its state)."""
     c("cc_ += 1")
     c("if cc_ == check_every or k1 == nsteps:")
     c.indent()
     c("cc_ = 0")
+    if before is not None:
+        before()
     c("bad = False")
     c("for b in range(nv_):")
     c.indent()

@@ -14,11 +14,11 @@ import math
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from springc import codegen, expint, loader, physics, reductions, sources
+from springc import codegen, expint, loader, physics, reductions, regkernel, sources
 from springc.audio import resample
 from springc.errors import SimulationError, UsageError
 from springc.integrators import DEFAULT_METHOD, TABLEAUX, get_tableau, max_stable_step
@@ -188,8 +188,8 @@ def simulate(net: FlatNetlist, inputs=None, input_rate: float | None = None, *,
     opts = codegen.KernelOptions(st.method, st.precision, codegen.choose_lanes(task),
                                  record=bool(plist), work=rplan.work,
                                  dissipation=bool(rplan.damper_rows), msq=bool(rplan.msq),
-                                 gram=bool(rplan.gram),
-                                 nodes=written_out(net, coeffs, st, len(names), write_out))
+                                 gram=bool(rplan.gram))
+    opts = kernel_form(net, opts, coeffs, st, len(names), write_out)
     start = time.perf_counter()
     kernel = loader.load(kernel_source(net, opts))
     out = _run_batches(net, kernel, st, coeffs, signals, names, plist, rplan, batch, task,
@@ -200,6 +200,21 @@ def simulate(net: FlatNetlist, inputs=None, input_rate: float | None = None, *,
 
 
 reductions_plan = reductions.plan
+
+
+def kernel_form(net: FlatNetlist, opts: codegen.KernelOptions, coeffs: dict, st: Settings,
+                runs: int, write_out: bool | None) -> codegen.KernelOptions:
+    """`opts` with the form of the force code: for chunks of one run, a register kernel
+    (`springc.regkernel`) where the network is small (`REGISTER_ALWAYS`) or the force code
+    would be written out anyway, unless `write_out` is False; else the per-node terms of
+    `written_out` (None: the shared kernel)."""
+    nodes = written_out(net, coeffs, st, runs, write_out)
+    small = net.n <= regkernel.REGISTER_ALWAYS and write_out is not False
+    if (small or nodes is not None) and regkernel.eligible(net, opts):
+        regs = regkernel.terms(coeffs, net.n)
+        if regs is not None:
+            return replace(opts, registers=regs)
+    return replace(opts, nodes=nodes)
 
 
 def written_out(net: FlatNetlist, coeffs: dict, st: Settings, runs: int,
@@ -229,6 +244,8 @@ def kernel_source(net: FlatNetlist, opts: codegen.KernelOptions) -> str:
     splitting scheme (`springc.expint`, generated for the Runge-Kutta part of the split)."""
     if expint.is_split(opts.method):
         return expint.kernel_source(net, opts)
+    if opts.registers is not None:
+        return regkernel.generate(net, opts)
     return codegen.generate(net, opts)
 
 

@@ -88,7 +88,7 @@ def test_loader_writes_real_file_and_numba_cache(tmp_path, monkeypatch):
 
     net = small_net()
     u = np.ones((1, 1, 101))
-    res = simulate(net, u)
+    res = simulate(net, u, write_out=False)  # the shared kernel (not one run's register kernel)
     one_run = KernelOptions(lanes=codegen.choose_lanes(1))  # what simulate picks for 1 run
     text = generate(net, one_run)
     path = loader.kernel_path(text)

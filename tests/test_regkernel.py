@@ -1,0 +1,144 @@
+"""Register kernels (`springc.regkernel`): one run of a small network with its state in
+scalars. The same trajectories as the shared kernel and as scipy; the same divergence guard;
+which simulations get them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_written_out import RUNS, every_kind, inputs, scipy_run
+
+from springc import bench_networks as bn, benchsuite, codegen, regkernel, simulate as sm
+from springc.errors import SimulationError
+from springc.ir import IRBuilder, Source, Tran
+from springc.reference import solve_ivp_reference
+
+FEW = 3  # runs: two threads of chunks of one run (lanes 1), one of them two chunks
+
+
+def _kernel_text(res) -> str:
+    return open(res.info["kernel"]).read()
+
+
+@pytest.mark.parametrize("method", ["rk4", "rk38", "heun3"])
+def test_register_kernel_gives_the_shared_kernels_trajectories(method):
+    """Every force kind, three runs: within a few round-offs of the shared kernel (the same
+    sums in the same order; FMA contraction may pair them differently)."""
+    net, u = every_kind(), inputs()[:FEW]
+    out = sm.simulate(net, u, method=method)
+    ref = sm.simulate(net, u, method=method, write_out=False)
+    assert "state in registers" in _kernel_text(out)
+    assert "state in registers" not in _kernel_text(ref)
+    for label, want in ref.probes.items():
+        scale = np.abs(want).max()
+        assert scale > 1e-6, label  # every node moves
+        assert np.abs(out.probes[label] - want).max() <= 1e-12 * scale, (method, label)
+    np.testing.assert_allclose(out.t, ref.t)
+
+
+def test_register_kernel_matches_scipy():
+    net, u = every_kind(), inputs(seed=1)[:FEW]
+    res = sm.simulate(net, u, substeps=4)
+    assert "state in registers" in _kernel_text(res)
+    for r in range(FEW):
+        want = scipy_run(net, u[r], res.t)
+        for k, node in enumerate("abcd"):
+            got = res.probes[f"x({node})"][r]
+            err = np.linalg.norm(got - want[k]) / np.linalg.norm(want[k])
+            assert err < 1e-6, (r, node, err)
+
+
+def test_register_kernel_float32_agrees_with_float64():
+    net, u = every_kind(), inputs(seed=2)[:1]
+    lo = sm.simulate(net, u, precision="float32")
+    hi = sm.simulate(net, u, precision="float64")
+    assert "state in registers" in _kernel_text(lo)
+    for label, want in hi.probes.items():
+        err = np.linalg.norm(lo.probes[label] - want) / np.linalg.norm(want)
+        assert err < 1e-4, (label, err)
+
+
+def test_hard_driven_duffing_against_dop853():
+    """The bench's Duffing resonator (stiffness up tenfold at the peak): RK4 with two steps a
+    sample within 1e-6 of DOP853 at rtol 1e-11, velocities recorded at half the rate."""
+    net = bn.duffing_resonator(amp=benchsuite.DUFFING_HARD)
+    kw = dict(tstep=net.tran.tstep, tstop=0.1)
+    res = sm.simulate(net, None, substeps=2, probes=["x(a)", "v(a)"], outrate=5e3, **kw)
+    assert "state in registers" in _kernel_text(res)
+    probes = sm.resolve_probes(net, ["x(a)", "v(a)"])
+    t, want, _ = solve_ivp_reference(net, None, probes=probes, method="DOP853",
+                                     rtol=1e-11, atol=1e-14, max_step=net.tran.tstep / 8, **kw)
+    assert np.allclose(res.t, t[::2])
+    for label in ("x(a)", "v(a)"):
+        ref = want[label][0][::2]
+        err = np.linalg.norm(res.probes[label][0] - ref) / np.linalg.norm(ref)
+        assert err < 1e-6, (label, err)
+
+
+def test_register_kernel_stops_a_diverging_run_like_the_shared_kernel():
+    """A run whose second mass is pushed beyond the limit: both kernels stop it at the same
+    check with the same node named."""
+    b = IRBuilder("runaway", "runaway.spr")
+    b.mass("M1", "a", 1.0, 1.0)
+    b.spring("K1", "a", 1e4)
+    b.mass("M2", "b", 1.0, 0.0)
+    b.force("F1", "b", Source("step", (1e35, 0.0)))
+    b.probe("x", "a")
+    b.tran = Tran(1e-3, 1.0, None)
+    net = b.finish()
+    msgs = []
+    for write_out in (None, False):
+        with pytest.raises(SimulationError) as err:
+            sm.simulate(net, None, write_out=write_out)
+        msgs.append(err.value.message)
+    assert "node b" in msgs[0] and msgs[0] == msgs[1]
+
+
+def _opts(net, runs: int, **kw) -> codegen.KernelOptions:
+    st = sm.settings(net, **{k: v for k, v in kw.items() if k == "method"})
+    co = sm.kernel_arrays(net, st, np.float64)
+    opts = codegen.KernelOptions(st.method, lanes=codegen.choose_lanes(sm.task_runs(runs, None,
+                                                                                     None)),
+                                 msq=kw.get("msq", False))
+    return sm.kernel_form(net, opts, co, st, runs, kw.get("write_out"))
+
+
+def test_which_simulations_get_a_register_kernel():
+    """One run per chunk, a Runge-Kutta tableau, no reductions, no monomial terms, not asked
+    for the shared kernel; a network beyond REGISTER_ALWAYS masses only where the force code
+    would be written out (a long simulation, or asked for)."""
+    net = every_kind()
+    assert _opts(net, 1).registers is not None
+    assert _opts(net, FEW).registers is not None
+    assert _opts(net, RUNS).registers is None  # 4 runs a thread: 4 lanes, vector code
+    assert _opts(net, 1, write_out=False).registers is None
+    assert _opts(net, 1, method="exp-rk4").registers is None
+    assert _opts(net, 1, msq=True).registers is None
+    big = benchsuite.feature_extractor(bands=regkernel.REGISTER_ALWAYS // 3 + 1)
+    assert big.n > regkernel.REGISTER_ALWAYS and _opts(big, 1).registers is None
+    assert _opts(big, 1, write_out=True).registers is not None
+    b = IRBuilder("monomial", "m.spr")
+    b.mass("M1", "a", 1.0, 1.0)
+    b.spring("K1", "a", 1.0)
+    b.monomial("P1", 1.0, [("a", 4)])
+    b.tran = Tran(1e-3, 0.01, None)
+    assert _opts(b.finish(), 1).registers is None
+
+
+def test_register_terms_of_every_kind():
+    """Per node: damping, spring, stiffness row, inputs, quadratic couplings, Duffing terms,
+    dashpot ends and shared signals, as indices into the coefficient arrays."""
+    net = every_kind()
+    co = sm.coefficient_arrays(net, np.float64)
+    a, b, c, d = regkernel.terms(co, net.n)
+    assert a.damped and b.damped and not c.damped and not d.damped
+    assert [j for _, j in a.row] == [1] and [j for _, j in b.row] == [0] and c.row == ()
+    assert [ch for _, ch in c.ins] == [0, 0] and [ch for _, ch in b.ins] == [1]
+    assert [(end, j) for _, end, j in c.quads] == [("j", 0), ("j", 1)]
+    assert d.duffings == (0,) and a.duffings == ()
+    assert [(end, j) for _, end, j in b.dashpots] == [("i", 3)]
+    assert [(end, j) for _, end, j in d.dashpots] == [("j", 1)]
+    assert d.common == (0,) and a.common == ()
+    text = regkernel.generate(net, codegen.KernelOptions(lanes=1, registers=(a, b, c, d)))
+    assert "for e in range" not in text  # no loop over index arrays
+    assert "K3_3 = " in text and "- dl0 * (XA3 * XA3 * XA3)" in text

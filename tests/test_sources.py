@@ -52,6 +52,23 @@ def test_at_stage_times_is_f_at_every_stage_time_bitwise(name):
     assert calls[0] == 1001 * distinct  # RK4: two a step (c = 0 and 1/2), not four
 
 
+@pytest.mark.parametrize("name", ["rk4", "heun3"])
+def test_sine_table_is_the_sine_at_every_stage_time(name):
+    """Angle addition against numpy's sine of the stage times: within a few round-offs of the
+    angle (up to 2 pi 1234 Hz x 0.8 s: 6e3 rad), over more steps than one block and a partial
+    last block."""
+    tab = get_tableau(name)
+    src = Source("sin", (3.0, 1234.0, 0.7))
+    nsteps, h = 3 * sources.SINE_BLOCK + 17, 1e-3
+    got = sources.sine_at_stage_times(src, nsteps, h, tab)
+    t = sources.stage_times(nsteps, h, tab)
+    want = sources.analytic(src, t)
+    assert got.shape == want.shape == (nsteps, tab.stages)
+    angle = 2 * np.pi * 1234.0 * t.max()
+    # the amplitude times a few round-offs of the angle (measured 3.4e-12 of this 1.6e-11)
+    assert np.abs(got - want).max() <= 3.0 * 4 * np.finfo(float).eps * angle
+
+
 def test_common_table_tabulates_wav_and_analytic(tmp_path):
     wav = tmp_path / "ramp.wav"
     sf.write(wav, np.linspace(0, 0.99, 100), 100, subtype="DOUBLE")

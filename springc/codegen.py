@@ -616,7 +616,7 @@ def _emit_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> No
     emit_stage_loop(c, feat, tab, ln, prelude, after if opts.work or opts.dissipation else None,
                     opts.nodes)
     nystrom_combine(c, tab, ln)
-    _emit_step_end(c, opts, ln)
+    emit_step_end(c, opts, ln)
     c.dedent()
     emit_chunk_end(c, opts)
     c.dedent(2)
@@ -907,7 +907,8 @@ def emit_record_tail(c: _Code) -> None:
     c("                rec[p, rec_col + lo_ + b, r0 + k] = stg[p, k, b]")
 
 
-def _emit_step_end(c: _Code, opts: KernelOptions, width: LaneLayout) -> None:
+def emit_step_end(c: _Code, opts: KernelOptions, width: LaneLayout) -> None:
+    """After a step's combine: reductions, the record when due, the divergence guard."""
     c("k1 = step + 1")
     if opts.msq:
         c("for m in range(ms_node.shape[0]):")

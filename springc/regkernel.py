@@ -1,20 +1,28 @@
-"""Register kernels: one run of a small network with its whole state in local scalars.
+"""Register kernels: each run's step with its whole state in local scalars.
 
-The shared kernel (`springc.codegen`) keeps the state in `(n_dof, lanes)` rows and picks each
-stage's rows at run time (`xa`, `va`, `ka`). For one run of a few masses those rows are a
-chain of stores and loads through memory at every term, and the loops over the runtime index
-arrays have more control than arithmetic: the hard-driven Duffing resonator (one mass) took
-80 ns a step. Here every stage is written out with every node's position, velocity and force
-a named scalar, so LLVM keeps the step in registers: 23-25 ns a step on that resonator (10,000
-steps in 0.23-0.25 ms against 0.81 ms), and one run of the 6-mass two-band feature extractor
-2.6-3.6x faster (1.0-1.4 against 3.5 ms for 0.5 s), within round-off of the shared kernel. Such a kernel is compiled per netlist
-structure (as a written-out kernel, `codegen.node_terms`); the coefficients stay runtime
-arguments, read once per call.
+The shared kernel (`springc.codegen`) keeps the state in `(n_dof, lanes)` rows and runs each
+stage as passes over rows (`xa`, `va`, `ka`, picked at run time). Here the whole step is
+written out, every node's position, velocity and stage force a named scalar, so no stage row
+goes through memory:
+- chunks of one run keep the state in scalars from step to step. The hard-driven Duffing
+  resonator (one mass) took 80 ns a step in the shared kernel, 23-25 ns here (10,000 steps
+  in 0.23-0.25 ms against 0.81 ms); one run of the 6-mass two-band feature extractor
+  2.6-3.6x faster (1.0-1.4 against 3.5 ms for 0.5 s);
+- chunks of many runs loop over the lanes inside each step, the loop body the whole step
+  (LLVM vectorises it across lanes); the state rows are read and written once a step. The
+  feature extractor, 64 runs of 1 s recording nothing: float32 32.0 -> 25.5 ms, float64
+  62.6 -> 45.1 ms against the kernel with its force code written out per node
+  (`codegen.emit_nodes`); recording its 16 probes into fresh memory, no faster (the record's
+  memory traffic bounds it).
+Within round-off of the shared kernel. Such a kernel is compiled per netlist structure, as a
+written-out kernel (`codegen.node_terms`); the coefficients stay runtime arguments, read once
+per call.
 
-Used for chunks of one run (`lanes` 1) with only the term kinds written here (`eligible`), for
-networks of up to `REGISTER_ALWAYS` masses always and up to `codegen.NODES_MAX` for long
-simulations; everything else keeps the shared (or the written-out) kernel. The state
-goes back to its rows only to be recorded and checked by the divergence guard.
+Used where the force code would be written out (`simulate.written_out`: long simulations of
+networks of at most `codegen.NODES_MAX` masses) and, for chunks of one run, always up to
+`REGISTER_ALWAYS` masses, with only the term kinds written here (`eligible`: no reductions,
+no monomials); everything else keeps the shared or the written-out kernel. Records and the
+divergence guard read the state rows (a one-run kernel writes its scalars back first).
 """
 
 from __future__ import annotations
@@ -25,9 +33,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from springc.codegen import (Features, KernelOptions, LaneLayout, _Code, _emit_coefficients,
-                             decorator, emit_guard, emit_nystrom_coefficients, emit_record,
-                             features, node_terms, nystrom_coefficients, options_header, preamble,
-                             run_args, source_hash)
+                             decorator, emit_chunk_end, emit_chunk_start, emit_guard,
+                             emit_nystrom_coefficients, emit_record, emit_step_end,
+                             emit_step_start, features, lane_layout, node_terms,
+                             nystrom_coefficients, options_header, preamble, run_args,
+                             source_hash)
 from springc.integrators import TABLEAUX, Tableau, get_tableau
 from springc.ir import FlatNetlist
 
@@ -53,9 +63,9 @@ class NodeTerms:
 
 
 def eligible(net: FlatNetlist, opts: KernelOptions) -> bool:
-    """Whether a register kernel serves these options: one run per chunk, a Runge-Kutta
-    tableau (not a splitting scheme), no reductions, no monomial terms."""
-    return (opts.lanes == 1 and opts.method in TABLEAUX and len(net.monomials) == 0
+    """Whether a register kernel serves these options: a Runge-Kutta tableau (not a
+    splitting scheme), no reductions, no monomial terms."""
+    return (opts.method in TABLEAUX and len(net.monomials) == 0
             and not (opts.work or opts.dissipation or opts.msq or opts.gram))
 
 
@@ -107,19 +117,28 @@ def _needs_velocity(node: NodeTerms) -> bool:
 def _body(feat: Features, opts: KernelOptions) -> tuple[str, str]:
     """The kernel body and its hash (kept per process, as `codegen.hashed_body`)."""
     tab = get_tableau(opts.method)
-    nodes = opts.registers
     c = _Code()
-    c('"""Generated by springc.regkernel; see the header. One run per chunk, state in '
-      'scalars."""')
+    c('"""Generated by springc.regkernel; see the header. Each run\'s step in scalars."""')
     preamble(c, opts, run_args(feat, opts), tab.stages)
     c("")
     c(decorator())
     c(f"def run({', '.join(run_args(feat, opts))}):")
     c.indent()
-    c('"""Integrate chunks c0..c1-1 of one run each (columns of x0) for nsteps steps of h."""')
+    c('"""Integrate chunks c0..c1-1 of LANES runs (columns of x0) for nsteps steps of h."""')
     _emit_coefficients(c, tab)
     emit_nystrom_coefficients(c, tab)
-    _emit_scalars(c, nodes)
+    _emit_scalars(c, opts.registers)
+    if opts.lanes == 1:
+        _emit_one_run(c, opts, tab)
+    else:
+        _emit_lanes(c, feat, opts, tab)
+    text = c.text()
+    return text, source_hash(text)
+
+
+def _emit_one_run(c: _Code, opts: KernelOptions, tab: Tableau) -> None:
+    """Chunks of one run: the state stays in scalars from step to step."""
+    nodes = opts.registers
     c("n = x0.shape[0]")
     c("x = np.zeros((n, 1), FT)  # the state's rows: written back to record and to check")
     c("v = np.zeros((n, 1), FT)")
@@ -143,9 +162,8 @@ def _body(feat: Features, opts: KernelOptions) -> tuple[str, str]:
     c("if sub == substeps:")
     c("    sub = 0")
     c("    k0 += 1")
-    for s in range(tab.stages):
-        _emit_stage(c, tab, s, nodes)
-    _emit_combine(c, tab, len(nodes))
+    _emit_input_positions(c, tab, nodes, "k0")
+    _emit_step(c, tab, nodes, "u[lo_, {ch}, {k}]")
     c("k1 = step + 1")
     if opts.record:
         c("rc_ += 1")
@@ -160,9 +178,36 @@ def _body(feat: Features, opts: KernelOptions) -> tuple[str, str]:
     for i in range(len(nodes)):
         c(f"xf[{i}, lo_] = X{i}")
         c(f"vf[{i}, lo_] = V{i}")
-    c.dedent(2)
-    text = c.text()
-    return text, source_hash(text)
+    c.dedent()
+
+
+def _emit_lanes(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> None:
+    """Chunks of LANES runs, as the shared kernel lays them out (`codegen`: state rows, staged
+    inputs, staged records, guard), but each step a loop over the lanes whose body is the
+    whole step in scalars: no stage rows go through memory, and LLVM vectorises the loop
+    across lanes."""
+    nodes = opts.registers
+    c("for ci in range(c0, c1):")
+    c.indent()
+    emit_chunk_start(c, opts, [])
+    c("for step in range(nsteps):")
+    c.indent()
+    emit_step_start(c, feat.in_forces)
+    _emit_input_positions(c, tab, nodes, "k0 - ubase")
+    c(f"for b in range({opts.lanes}):")
+    c.indent()
+    for i in range(len(nodes)):
+        c(f"X{i} = x[{i}, b]")
+        c(f"V{i} = v[{i}, b]")
+    _emit_step(c, tab, nodes, "ustg[{k}, {ch}, b]")
+    for i in range(len(nodes)):
+        c(f"x[{i}, b] = X{i}")
+        c(f"v[{i}, b] = V{i}")
+    c.dedent()
+    emit_step_end(c, opts, lane_layout(opts))
+    c.dedent()
+    emit_chunk_end(c, opts)
+    c.dedent()
 
 
 def _emit_scalars(c: _Code, nodes: tuple[NodeTerms, ...]) -> None:
@@ -188,8 +233,43 @@ def _emit_scalars(c: _Code, nodes: tuple[NodeTerms, ...]) -> None:
             c(f"fg{e} = fc_gm[{e}]")
 
 
+def _input_times(tab: Tableau) -> list[int]:
+    """Stages whose time differs from the stage before (each needs its own input values)."""
+    return [s for s in range(tab.stages) if s == 0 or tab.c[s] != tab.c[s - 1]]
+
+
+def _emit_input_positions(c: _Code, tab: Tableau, nodes: tuple[NodeTerms, ...],
+                          base: str) -> None:
+    """Per distinct stage time: the input sample `kk{s}` before it (`base` + the step's
+    sample) and the linear interpolation weights, as the shared kernel (`emit_interp`)."""
+    if not any(node.ins for node in nodes):
+        return
+    for s in _input_times(tab):
+        c(f"pos{s} = (sub + {tab.c[s]!r}) / substeps")
+        c(f"kk{s} = {base} + int(pos{s})")
+        c(f"fr{s} = FT(pos{s} - int(pos{s}))")
+        c(f"gr{s} = FT(1.0) - fr{s}")
+
+
+def _emit_step(c: _Code, tab: Tableau, nodes: tuple[NodeTerms, ...], read: str) -> None:
+    """One step from scalars X{i}, V{i} to the new X{i}, V{i}; inputs read as `read`
+    formatted with the channel and the sample index."""
+    channels = sorted({ch for node in nodes for _, ch in node.ins})
+    for s in range(tab.stages):
+        _emit_stage(c, tab, s, nodes)
+        if channels and s in _input_times(tab):
+            for ch in channels:
+                a, b = read.format(ch=ch, k=f"kk{s}"), read.format(ch=ch, k=f"kk{s} + 1")
+                c(f"U{ch} = gr{s} * {a} + fr{s} * {b}")
+        for e in sorted({e for node in nodes for e in node.common}):
+            c(f"G{e} = g[step, {s}, {e}]")
+        for i, node in enumerate(nodes):
+            c(f"K{s}_{i} = {_force(i, node)}")
+    _emit_combine(c, tab, len(nodes))
+
+
 def _emit_stage(c: _Code, tab: Tableau, s: int, nodes: tuple[NodeTerms, ...]) -> None:
-    """Stage s: its positions XA, velocities VA (where read) and inputs, then forces K{s}_i."""
+    """Stage s's positions XA{i} and velocities VA{i} (where read)."""
     c(f"# stage {s} (c = {tab.c[s]!r})")
     _, aa, _, _ = nystrom_coefficients(tab)
     row = [j for j, a in enumerate(tab.a[s]) if a != 0.0]
@@ -203,19 +283,6 @@ def _emit_stage(c: _Code, tab: Tableau, s: int, nodes: tuple[NodeTerms, ...]) ->
         if _needs_velocity(node):
             vterm = " + ".join(f"ha{s}_{j} * K{j}_{i}" for j in row)
             c(f"VA{i} = V{i}" if s == 0 else f"VA{i} = V{i} + {vterm or 'FT(0.0)'}")
-    channels = sorted({ch for node in nodes for _, ch in node.ins})
-    if channels and (s == 0 or tab.c[s] != tab.c[s - 1]):
-        # linear interpolation of the input samples at the stage time (as the shared kernel)
-        c(f"pos = (sub + {tab.c[s]!r}) / substeps")
-        c("kk = k0 + int(pos)")
-        c("fr = FT(pos - int(pos))")
-        c("gr = FT(1.0) - fr")
-        for ch in channels:
-            c(f"U{ch} = gr * u[lo_, {ch}, kk] + fr * u[lo_, {ch}, kk + 1]")
-    for e in sorted({e for node in nodes for e in node.common}):
-        c(f"G{e} = g[step, {s}, {e}]")
-    for i, node in enumerate(nodes):
-        c(f"K{s}_{i} = {_force(i, node)}")
 
 
 def _force(i: int, node: NodeTerms) -> str:

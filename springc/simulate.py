@@ -204,12 +204,13 @@ reductions_plan = reductions.plan
 
 def kernel_form(net: FlatNetlist, opts: codegen.KernelOptions, coeffs: dict, st: Settings,
                 runs: int, write_out: bool | None) -> codegen.KernelOptions:
-    """`opts` with the form of the force code: for chunks of one run, a register kernel
-    (`springc.regkernel`) where the network is small (`REGISTER_ALWAYS`) or the force code
-    would be written out anyway, unless `write_out` is False; else the per-node terms of
+    """`opts` with the form of the force code: a register kernel (`springc.regkernel`) where
+    the force code would be written out (`written_out`), and for chunks of one run of a small
+    network (`REGISTER_ALWAYS`) unless `write_out` is False; else the per-node terms of
     `written_out` (None: the shared kernel)."""
     nodes = written_out(net, coeffs, st, runs, write_out)
-    small = net.n <= regkernel.REGISTER_ALWAYS and write_out is not False
+    small = (opts.lanes == 1 and net.n <= regkernel.REGISTER_ALWAYS
+             and write_out is not False)
     if (small or nodes is not None) and regkernel.eligible(net, opts):
         regs = regkernel.terms(coeffs, net.n)
         if regs is not None:

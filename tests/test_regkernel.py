@@ -75,23 +75,28 @@ def test_hard_driven_duffing_against_dop853():
         assert err < 1e-6, (label, err)
 
 
-def test_register_kernel_stops_a_diverging_run_like_the_shared_kernel():
-    """A run whose second mass is pushed beyond the limit: both kernels stop it at the same
-    check with the same node named."""
+@pytest.mark.parametrize("runs", [1, RUNS])
+def test_register_kernel_stops_a_diverging_run_like_the_shared_kernel(runs):
+    """Runs whose second mass is pushed beyond the limit: both kernels stop them at the same
+    check with the same node named (one run: the state written back from its scalars; 8 runs:
+    the lane loop's rows)."""
     b = IRBuilder("runaway", "runaway.spr")
     b.mass("M1", "a", 1.0, 1.0)
     b.spring("K1", "a", 1e4)
     b.mass("M2", "b", 1.0, 0.0)
-    b.force("F1", "b", Source("step", (1e35, 0.0)))
+    b.force("F1", "b", Source("step", (1e31, 0.0)))
     b.probe("x", "a")
     b.tran = Tran(1e-3, 1.0, None)
     net = b.finish()
+    u = np.zeros((runs, 1, 1001))
     msgs = []
-    for write_out in (None, False):
+    for write_out in (True, False):
         with pytest.raises(SimulationError) as err:
-            sm.simulate(net, None, write_out=write_out)
+            sm.simulate(net, u, write_out=write_out)
         msgs.append(err.value.message)
     assert "node b" in msgs[0] and msgs[0] == msgs[1]
+    res = sm.simulate(net, u, write_out=True, tstop=0.05)  # before the guard stops it
+    assert "state in registers" in _kernel_text(res)
 
 
 def _opts(net, runs: int, **kw) -> codegen.KernelOptions:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from springc import benchsuite, codegen, simulate as sm
+from springc import benchsuite, codegen, regkernel, simulate as sm
 from springc.codegen import KernelOptions, generate
 from springc.ir import IRBuilder, Source, Tran
 
@@ -83,22 +83,42 @@ def scipy_run(net, u: np.ndarray, t: np.ndarray) -> np.ndarray:
     return sol.y[:4]
 
 
+FORMS = {"registers": "the state in registers", "nodes": "# force code: written out per node\n"}
+
+
+@pytest.fixture(params=sorted(FORMS))
+def form(request, monkeypatch) -> str:
+    """Both written-out forms: the register kernel (`springc.regkernel`, chosen where it
+    serves) and the per-node force code (`codegen.emit_nodes`, where it does not)."""
+    if request.param == "nodes":
+        monkeypatch.setattr(regkernel, "eligible", lambda net, opts: False)
+    return request.param
+
+
+def _form_of(res) -> str:
+    text = open(res.info["kernel"]).read()
+    return next(name for name, mark in FORMS.items() if mark in text)
+
+
 @pytest.mark.parametrize("method", ["rk4", "rk38"])
-def test_written_out_kernel_gives_the_shared_kernels_trajectories(method):
-    """Bitwise or within a few round-offs: the same arithmetic, only the indices constant."""
+def test_written_out_kernel_gives_the_shared_kernels_trajectories(method, form):
+    """Within a few round-offs: the same sums in the same order (FMA contraction may pair
+    them differently), only the indices constant."""
     net, u = every_kind(), inputs()
     kw = dict(method=method, precision="float64")
     out = sm.simulate(net, u, write_out=True, **kw)
     ref = sm.simulate(net, u, write_out=False, **kw)
+    assert _form_of(out) == form
     for label, want in ref.probes.items():
         scale = np.abs(want).max()
         assert scale > 1e-6, label  # every node moves
         assert np.abs(out.probes[label] - want).max() <= 1e-12 * scale, (method, label)
 
 
-def test_written_out_kernel_matches_scipy():
+def test_written_out_kernel_matches_scipy(form):
     net, u = every_kind(), inputs(seed=1)
     res = sm.simulate(net, u, write_out=True, substeps=4)
+    assert _form_of(res) == form
     for r in range(RUNS):
         want = scipy_run(net, u[r], res.t)
         for k, node in enumerate("abcd"):
@@ -107,10 +127,11 @@ def test_written_out_kernel_matches_scipy():
             assert err < 1e-6, (r, node, err)
 
 
-def test_written_out_float32_agrees_with_float64():
+def test_written_out_float32_agrees_with_float64(form):
     net, u = every_kind(), inputs(seed=2)
     lo = sm.simulate(net, u, write_out=True, precision="float32")
     hi = sm.simulate(net, u, write_out=True, precision="float64")
+    assert _form_of(lo) == form
     for label, want in hi.probes.items():
         err = np.linalg.norm(lo.probes[label] - want) / np.linalg.norm(want)
         assert err < 1e-4, (label, err)

@@ -368,6 +368,27 @@ def test_records_on_any_output_grid_equal_plain_numpy_rk4(precision, every):
                                    atol=tol * np.abs(arr).max())
 
 
+def test_record_into_an_earlier_calls_buffer():
+    """`record_into`: the same records as into fresh memory, written into the given buffer
+    (the earlier result's probes are views of it); a buffer of another shape or precision is
+    a usage error naming both."""
+    net = nonlinear_net()
+    u = np.random.default_rng(9).standard_normal((40, 1, 501))
+    first = simulate(net, u, tstop=0.5)
+    buf = first.info["records"]
+    again = simulate(net, 0.5 * u, tstop=0.5, record_into=buf)
+    fresh = simulate(net, 0.5 * u, tstop=0.5)
+    assert again.info["records"] is buf
+    for label, arr in fresh.probes.items():
+        np.testing.assert_array_equal(again.probes[label], arr)
+        np.testing.assert_array_equal(first.probes[label], arr)  # overwritten in place
+    with pytest.raises(UsageError, match=r"float64 buffer of shape \(3, 40, 504\); this call "
+                                         r"records into float64 \(3, 20, 504\)"):
+        simulate(net, u[:20], tstop=0.5, record_into=buf)
+    with pytest.raises(UsageError, match="records into float32"):
+        simulate(net, u, tstop=0.5, precision="float32", record_into=buf)
+
+
 def test_a_batch_of_no_runs_is_a_usage_error():
     with pytest.raises(UsageError, match="batch must be a positive number of runs, not 0"):
         simulate(nonlinear_net(), np.zeros((3, 1, 11)), batch=0)

@@ -92,6 +92,9 @@ class Case:
     check_tstop: float | None = None  # stretch of the DOP853 check (default: peer_tstop)
     skipped: dict[str, str] = field(default_factory=dict)  # peer -> why it does not run here
     rounds: int = PAIRED_ROUNDS  # rounds of the `paired` re-timing
+    # record buffers the timed kernel calls reuse, per (inputs shape, tstop, precision,
+    # probes recorded): as the ceiling reuses its memory (`_sim`)
+    buffers: dict[tuple, np.ndarray] = field(default_factory=dict)
 
 
 @dataclass
@@ -173,6 +176,9 @@ class CaseResult:
     # precision -> {"mb", "s", "threads"}: the OS's first touch of as much fresh memory as a
     # recorded call writes (cases with rows recording no probe; `ceiling.first_touch_seconds`)
     first_touch: dict[str, dict[str, float]] = field(default_factory=dict)
+    # precision -> least wall time of the recorded RK4 x1 call into fresh memory (cases with
+    # rows recording no probe)
+    fresh_wall: dict[str, float] = field(default_factory=dict)
 
 
 def speech_like(seconds: float, rate: float, runs: int, seed: int = 0) -> np.ndarray:
@@ -323,7 +329,8 @@ def run_case(case: Case, progress: Callable[[str], None] = print) -> CaseResult:
                 else ""))
     res.ceiling = _ceilings(case, runs)
     if case.paired:
-        _retime_paired(case, res.rows, runs, res.ceiling, res.first_touch)
+        _retime_paired(case, res.rows, runs, res.ceiling, res.first_touch, res.fresh_wall)
+    case.buffers.clear()
     res.rows += peers
     for row in res.rows:
         if row.precision in res.ceiling and row.name.startswith("kernel"):
@@ -452,9 +459,19 @@ def _check(case: Case, first, ref: Reference) -> tuple[dict[str, float], float]:
 
 
 def _sim(case: Case, inputs, method: str, substeps: int, precision: str, tstop=None,
-         probes=None):
-    return simulate(case.net, inputs, tstep=case.tstep, tstop=tstop or case.tstop,
-                    substeps=substeps, method=method, precision=precision, probes=probes)
+         probes=None, reuse: bool = False):
+    """A simulation of the case; with `reuse`, recording into the buffer of the last such
+    call of the same shape (`simulate`'s `record_into`), as the ceiling reuses its memory:
+    the calls a row is timed by pay the OS's zeroing of fresh pages once, not every time.
+    Only for calls whose result is read before the next one (the timed rows')."""
+    key = (None if inputs is None else inputs.shape, tstop or case.tstop, precision,
+           probes is None)
+    out = simulate(case.net, inputs, tstep=case.tstep, tstop=tstop or case.tstop,
+                   substeps=substeps, method=method, precision=precision, probes=probes,
+                   record_into=case.buffers.get(key) if reuse else None)
+    if reuse:
+        case.buffers[key] = out.info["records"]
+    return out
 
 
 def _rel(got: np.ndarray, want: np.ndarray) -> float:
@@ -479,7 +496,7 @@ def _kernel_row(case: Case, ref: Reference, method: str, sub: int, precision: st
                     precision=precision)
     compile_s = float(warm.info["compile_s"] or 0.0)
     try:
-        out, wall = _timed(lambda: _sim(case, case.inputs, method, sub, precision),
+        out, wall = _timed(lambda: _sim(case, case.inputs, method, sub, precision, reuse=True),
                            lambda out: float(out.info["wall_s"]))
     except SimulationError as err:
         return Row(f"kernel {method}", method, sub, precision, {}, math.nan, compile_s, 0.0,
@@ -495,7 +512,8 @@ def _unrecorded_row(case: Case, method: str, sub: int, precision: str, runs: int
     warm = _sim(case, None if case.inputs is None else case.inputs[:, :, :4], method, sub,
                 precision, tstop=2 * case.tstep, probes=[])  # compiles: not in the timing
     try:
-        out, wall = _timed(lambda: _sim(case, case.inputs, method, sub, precision, probes=[]),
+        out, wall = _timed(lambda: _sim(case, case.inputs, method, sub, precision, probes=[],
+                                        reuse=True),
                            lambda out: float(out.info["wall_s"]))
     except SimulationError as err:
         return Row(f"kernel {method}", method, sub, precision, {}, math.nan, 0.0, 0.0, 0.0,
@@ -506,21 +524,27 @@ def _unrecorded_row(case: Case, method: str, sub: int, precision: str, runs: int
 
 
 def _retime_paired(case: Case, rows: list[Row], runs: int, ceilings: dict[str, float],
-                   first_touch: dict[str, dict[str, float]]) -> None:
+                   first_touch: dict[str, dict[str, float]],
+                   fresh_wall: dict[str, float]) -> None:
     """Time the `paired` and `unrecorded` rows and the ceiling in turn, `case.rounds` times,
     keeping each row's least wall time and the ceiling's best (in place): on a shared machine
     a load burst then hits the rows and the ceiling alike, not just one of them (the ceiling
-    alone varied up to 5x between calls here). With unrecorded rows, also time the first
-    touch of as much fresh memory as each precision's recorded row writes (least, in place
-    in `first_touch`): what of the recording's cost is the OS's."""
+    alone varied up to 5x between calls here). With unrecorded rows, also time the recorded
+    RK4 x1 calls into fresh memory (least, in `fresh_wall`) and the first touch of as much
+    fresh memory as each precision's recorded row writes (least, in `first_touch`): what of
+    the recording's cost is the OS's."""
     chosen = _measured(rows, case.paired, True) + _measured(rows, case.unrecorded, False)
     shapes = {}
     for _ in range(case.rounds):
         for row in chosen:
             out = _sim(case, case.inputs, row.method, row.substeps, row.precision,
-                       probes=None if row.recorded else [])
+                       probes=None if row.recorded else [], reuse=True)
             if row.recorded and case.unrecorded and out.probes:
                 shapes[row.precision] = _record_shape(out)
+                if (row.method, row.substeps) == ("rk4", 1):
+                    wall = float(_sim(case, case.inputs, "rk4", 1, row.precision
+                                      ).info["wall_s"])
+                    fresh_wall[row.precision] = min(fresh_wall.get(row.precision, wall), wall)
             row.wall_s = min(row.wall_s, float(out.info["wall_s"]))
             row.throughput = runs * case.tstop / row.wall_s
             row.note = ("" if row.recorded else "no probes recorded (timing only); ") + (
@@ -716,6 +740,10 @@ def claims(results: list[CaseResult]) -> dict:
                  if not row.recorded and row.method == "rk4" and row.substeps == 1}
         for r in results}
     out["first_touch"] = {r.name: _first_touch_shares(r) for r in results if r.first_touch}
+    # informative, decides nothing: the recorded RK4 x1 calls into fresh memory every call
+    out["ceiling_fraction_fresh"] = {
+        r.name: {p: r.runs * r.tstop / wall / r.ceiling[p] for p, wall in r.fresh_wall.items()}
+        for r in results if r.fresh_wall}
     out["runs"] = {r.name: r.runs for r in results}
     out["speedups"] = {r.name: speedups(r) for r in results}
     out["verdicts"] = verdicts(out, results)
@@ -832,7 +860,10 @@ def markdown(results: list[CaseResult], found: dict, machine: dict) -> str:
          "check) counts as at the floor. Wall: the least of repeated calls, kernels and the "
          f"scipy and numpy peers alike ({MIN_CALLS} or more for a kernel, 1 or more for a "
          f"peer, repeated while they took under {REPEAT_FOR:g} s in all, at most {MAX_CALLS}; "
-         "ngspice once); rows re-timed in alternation with the ceiling say so. Compile: the first "
+         "ngspice once); rows re-timed in alternation with the ceiling say so; a kernel's "
+         "repeated calls record into the buffer of the one before (`simulate`'s "
+         "`record_into`), as the ceiling reuses its memory, so they do not wait for the OS to "
+         "zero fresh pages (what that costs is stated per case). Compile: the first "
          "call's time (a load from numba's cache when the kernel was built before). "
          "Throughput: run-seconds per wall-second (the batch of runs in lockstep; the peers "
          "run one). Ceiling: the measured arithmetic ceiling (`springc.ceiling`) for the "
@@ -950,11 +981,11 @@ def _first_touch_md(touch: dict[str, dict[str, float]]) -> str:
              + (f", {_fmt(100 * t['share'], '.0f')}% of the RK4 x1 call" if t["share"] else "")
              for p, t in touch.items()]
     threads = max(t["threads"] for t in touch.values())
-    return ("a recorded call writes its probes into fresh memory; the first touch of that "
-            f"much alone (a zeroed array, one write per 4 KiB page, {threads} "
-            f"thread{'s' if threads > 1 else ''} each on its own runs, least of the re-timing "
-            "rounds), which the ceiling, reusing its memory, does not pay: "
-            + "; ".join(parts) + ".")
+    return ("a recorded call into fresh memory pays first the OS's zeroing of its pages (the "
+            "timed calls reuse their record buffer, as the ceiling reuses its memory); the "
+            f"first touch of that much alone (a zeroed array, one write per 4 KiB page, "
+            f"{threads} thread{'s' if threads > 1 else ''} each on its own runs, least of the "
+            "re-timing rounds): " + "; ".join(parts) + ".")
 
 
 def _claims_md(found: dict) -> list[str]:
@@ -975,10 +1006,15 @@ def _claims_md(found: dict) -> list[str]:
                       else "a single run: reported, the target is for batches")
             bare = [f"{p} {_fmt(100 * v, '.0f')}%" for p, v in
                     found["ceiling_fraction_unrecorded"].get(name, {}).items() if v]
+            fresh = [f"{p} {_fmt(100 * v, '.0f')}%" for p, v in
+                     found.get("ceiling_fraction_fresh", {}).get(name, {}).items()]
             lines.append(f"- {name}: RK4 x1 throughput as a fraction of the ceiling: "
                          + ", ".join(parts) + f" ({target})"
                          + ("; the same kernels recording no probe (the ceiling writes "
-                            "nothing): " + ", ".join(bare) if bare else "") + ".")
+                            "nothing): " + ", ".join(bare) if bare else "")
+                         + ("; recording into fresh memory every call (the OS zeroes each "
+                            "page before the kernel writes it): " + ", ".join(fresh)
+                            if fresh else "") + ".")
         touch = found.get("first_touch", {}).get(name)
         if touch:
             lines.append(f"- {name}: " + _first_touch_md(touch))

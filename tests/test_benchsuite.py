@@ -233,7 +233,7 @@ def test_paired_rows_and_the_ceiling_are_timed_in_alternation_least_and_best(mon
 
     walls = iter([0.5, 0.2, 0.3])
 
-    def fake_sim(case, inputs, method, sub, precision, tstop=None, probes=None):
+    def fake_sim(case, inputs, method, sub, precision, tstop=None, probes=None, reuse=False):
         calls.append("row")
         return types.SimpleNamespace(info={"wall_s": next(walls)})
 
@@ -242,7 +242,7 @@ def test_paired_rows_and_the_ceiling_are_timed_in_alternation_least_and_best(mon
     case = _case(paired=(("rk4", 1, "float64"),), rounds=3)
     row = _kernel("rk4", 1, 1e-6, 0.4)
     best = {"float64": 150.0}
-    bs._retime_paired(case, [row], 1, best, {})
+    bs._retime_paired(case, [row], 1, best, {}, {})
     assert calls == ["row", "ceiling"] * 3
     assert row.wall_s == 0.2 and row.throughput == pytest.approx(TSTOP / 0.2)
     assert best["float64"] == 300.0
@@ -289,6 +289,30 @@ def test_unrecorded_rows_record_nothing_are_rated_and_never_decide_a_claim(monke
     assert share == pytest.approx(touch["s"] / recorded.wall_s)
     assert (f"0.00166 MB in float64: {1e3 * touch['s']:.3g} ms, {100 * share:.0f}% of the "
             "RK4 x1 call") in md
+    # the recorded row's calls into fresh memory, timed beside it: rated, deciding nothing
+    fresh = res.fresh_wall["float64"]
+    assert math.isfinite(fresh) and fresh > 0
+    frac = bs.claims([res])["ceiling_fraction_fresh"]["osc"]["float64"]
+    assert frac == pytest.approx(TSTOP / fresh / res.ceiling["float64"])
+    assert ("recording into fresh memory every call (the OS zeroes each page before the "
+            f"kernel writes it): float64 {100 * frac:.0f}%") in md
+
+
+def test_timed_calls_record_into_the_buffer_of_the_call_before():
+    """`_sim(reuse=True)`: the same buffer for calls of the same shape (the earlier result's
+    views overwritten, with the same numbers), a fresh one otherwise."""
+    case = _case()
+    a = bs._sim(case, None, "rk4", 1, "float64", reuse=True)
+    first = a.probes["x(a)"].copy()
+    b = bs._sim(case, None, "rk4", 2, "float64", reuse=True)
+    fresh = bs._sim(case, None, "rk4", 2, "float64")
+    assert b.info["records"] is a.info["records"]
+    assert fresh.info["records"] is not a.info["records"]
+    np.testing.assert_array_equal(b.probes["x(a)"], fresh.probes["x(a)"])
+    assert np.array_equal(a.probes["x(a)"], b.probes["x(a)"])  # overwritten by b
+    assert not np.array_equal(first, b.probes["x(a)"])  # x2 differs from x1
+    other = bs._sim(case, None, "rk4", 1, "float32", reuse=True)
+    assert other.info["records"] is not a.info["records"]
 
 
 def test_an_unrecorded_row_the_guard_stops_says_so_and_is_not_re_timed(monkeypatch):
@@ -296,7 +320,7 @@ def test_an_unrecorded_row_the_guard_stops_says_so_and_is_not_re_timed(monkeypat
 
     calls = []
 
-    def fake_sim(case, inputs, method, sub, precision, tstop=None, probes=None):
+    def fake_sim(case, inputs, method, sub, precision, tstop=None, probes=None, reuse=False):
         calls.append(tstop)
         if tstop is None:  # the full runs diverge, the two-step warm-up does not
             raise SimulationError("diverged at t = 0.01 s")
@@ -311,5 +335,5 @@ def test_an_unrecorded_row_the_guard_stops_says_so_and_is_not_re_timed(monkeypat
     assert not row.recorded and not math.isfinite(row.wall_s)
     assert row.note == "stopped by the divergence guard: diverged at t = 0.01 s"
     calls.clear()
-    bs._retime_paired(case, [row], 1, {"float64": 50.0}, {})
+    bs._retime_paired(case, [row], 1, {"float64": 50.0}, {}, {})
     assert calls == []

@@ -181,8 +181,13 @@ def run_args(feat: Features, opts: KernelOptions) -> list[str]:
 
 def generate(net: FlatNetlist, options: KernelOptions) -> str:
     """Python source of the kernel for `net` under `options`, with a descriptive header."""
+    return with_header(net, options, *hashed_body(features(net), options))
+
+
+def with_header(net: FlatNetlist, options: KernelOptions, body: str, digest: str) -> str:
+    """A kernel body under its header: the netlist, the options, the integrator, the body's
+    hash."""
     tab = get_tableau(options.method)
-    body, digest = hashed_body(features(net), options)
     header = [
         "# springc generated kernel: do not edit (regenerated from the netlist)",
         f"# netlist: {net.file}",
@@ -585,14 +590,7 @@ def _emit_monomials(c: _Code, width: LaneLayout) -> None:
 
 def _emit_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> None:
     ln = lane_layout(opts)
-    # Serial and nogil: the runtime runs chunks on threads. numba's parallel=True (prange)
-    # measured as fast but compiled 3-4x slower (22 s against 6 s of CPU for one oscillator).
-    c(decorator())
-    c(f"def run({', '.join(run_args(feat, opts))}):")
-    c.indent()
-    c('"""Integrate chunks c0..c1-1 of LANES runs (columns of x0) for nsteps steps of h."""')
-    _emit_coefficients(c, tab)
-    emit_nystrom_coefficients(c, tab)
+    emit_run_head(c, feat, opts, tab)
     velocity_needed(c, feat, opts)
     c("for ci in range(c0, c1):")
     c.indent()
@@ -620,6 +618,19 @@ def _emit_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> No
     c.dedent()
     emit_chunk_end(c, opts)
     c.dedent(2)
+
+
+def emit_run_head(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> None:
+    """The kernel function's decorator, signature and docstring, then its h-scaled
+    coefficients (the body follows, indented)."""
+    # Serial and nogil: the runtime runs chunks on threads. numba's parallel=True (prange)
+    # measured as fast but compiled 3-4x slower (22 s against 6 s of CPU for one oscillator).
+    c(decorator())
+    c(f"def run({', '.join(run_args(feat, opts))}):")
+    c.indent()
+    c('"""Integrate chunks c0..c1-1 of LANES runs (columns of x0) for nsteps steps of h."""')
+    _emit_coefficients(c, tab)
+    emit_nystrom_coefficients(c, tab)
 
 
 def emit_chunk_start(c: _Code, opts: KernelOptions, scratch: list[str]) -> None:
@@ -907,8 +918,10 @@ def emit_record_tail(c: _Code) -> None:
     c("                rec[p, rec_col + lo_ + b, r0 + k] = stg[p, k, b]")
 
 
-def emit_step_end(c: _Code, opts: KernelOptions, width: LaneLayout) -> None:
-    """After a step's combine: reductions, the record when due, the divergence guard."""
+def emit_step_end(c: _Code, opts: KernelOptions, width: LaneLayout,
+                  before: Callable[[], None] | None = None) -> None:
+    """After a step's combine: reductions, the record when due, the divergence guard.
+    `before` writes what precedes reading the state rows (a register kernel's write-back)."""
     c("k1 = step + 1")
     if opts.msq:
         c("for m in range(ms_node.shape[0]):")
@@ -924,9 +937,11 @@ def emit_step_end(c: _Code, opts: KernelOptions, width: LaneLayout) -> None:
         c.indent()
         c("rc_ = 0")
         c("rn_ += 1")
+        if before is not None:
+            before()
         emit_record(c, "rn_", width, record_block(opts.precision))
         c.dedent()
-    emit_guard(c)
+    emit_guard(c, before)
 
 
 def emit_guard(c: _Code, before: Callable[[], None] | None = None) -> None:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_written_out import RUNS, every_kind, inputs, scipy_run
+from test_written_out import RUNS, assert_matches_scipy, every_kind, inputs
 
 from springc import bench_networks as bn, benchsuite, codegen, regkernel, simulate as sm
 from springc.errors import SimulationError
@@ -40,12 +40,7 @@ def test_register_kernel_matches_scipy():
     net, u = every_kind(), inputs(seed=1)[:FEW]
     res = sm.simulate(net, u, substeps=4)
     assert "state in registers" in _kernel_text(res)
-    for r in range(FEW):
-        want = scipy_run(net, u[r], res.t)
-        for k, node in enumerate("abcd"):
-            got = res.probes[f"x({node})"][r]
-            err = np.linalg.norm(got - want[k]) / np.linalg.norm(want[k])
-            assert err < 1e-6, (r, node, err)
+    assert_matches_scipy(net, u, res)
 
 
 def test_register_kernel_float32_agrees_with_float64():

@@ -530,11 +530,13 @@ def _retime_paired(case: Case, rows: list[Row], runs: int, ceilings: dict[str, f
     keeping each row's least wall time and the ceiling's best (in place): on a shared machine
     a load burst then hits the rows and the ceiling alike, not just one of them (the ceiling
     alone varied up to 5x between calls here). With unrecorded rows, also time the recorded
-    RK4 x1 calls into fresh memory (least, in `fresh_wall`) and the first touch of as much
-    fresh memory as each precision's recorded row writes (least, in `first_touch`): what of
-    the recording's cost is the OS's."""
+    RK4 x1 calls into fresh memory (least, in `fresh_wall`), the first touch of as much
+    fresh memory as each precision's recorded row writes and the writing of its record's
+    lines alone into memory already handed out (least, in `first_touch`, "s" and "store_s"):
+    what of the recording's cost is the OS's and what the memory's."""
     chosen = _measured(rows, case.paired, True) + _measured(rows, case.unrecorded, False)
-    shapes = {}
+    shapes: dict[str, tuple] = {}
+    stores: dict[str, float] = {}
     for _ in range(case.rounds):
         for row in chosen:
             out = _sim(case, case.inputs, row.method, row.substeps, row.precision,
@@ -545,6 +547,8 @@ def _retime_paired(case: Case, rows: list[Row], runs: int, ceilings: dict[str, f
                     wall = float(_sim(case, case.inputs, "rk4", 1, row.precision
                                       ).info["wall_s"])
                     fresh_wall[row.precision] = min(fresh_wall.get(row.precision, wall), wall)
+                    took = ceiling.store_seconds(out.info["records"], min(_threads(), runs))
+                    stores[row.precision] = min(stores.get(row.precision, took), took)
             row.wall_s = min(row.wall_s, float(out.info["wall_s"]))
             row.throughput = runs * case.tstop / row.wall_s
             row.note = ("" if row.recorded else "no probes recorded (timing only); ") + (
@@ -557,6 +561,8 @@ def _retime_paired(case: Case, rows: list[Row], runs: int, ceilings: dict[str, f
             seen = first_touch.setdefault(precision, {"mb": _megabytes(shape, precision),
                                                       "s": took, "threads": threads})
             seen["s"] = min(seen["s"], took)
+            if precision in stores:
+                seen["store_s"] = stores[precision]
 
 
 def _record_shape(out) -> tuple[int, int, int]:
@@ -758,6 +764,10 @@ def _first_touch_shares(r: CaseResult) -> dict[str, dict[str, float]]:
         row = _find(r, "rk4", 1, precision)
         share = ft["s"] / row.wall_s if row and math.isfinite(row.wall_s) else None
         out[precision] = {**ft, "share": share}
+        if "store_s" in ft and precision in r.ceiling:
+            # the row's wall at the ceiling, plus the stores if they overlapped nothing
+            at_ceiling = r.runs * r.tstop / r.ceiling[precision]
+            out[precision]["store_bound"] = at_ceiling / (at_ceiling + ft["store_s"])
     return out
 
 
@@ -979,6 +989,11 @@ def _first_touch_md(touch: dict[str, dict[str, float]]) -> str:
     """One line: how much of a recorded call is the OS handing out fresh pages."""
     parts = [f"{_fmt(t['mb'])} MB in {p}: {_fmt(1e3 * t['s'], '.3g')} ms"
              + (f", {_fmt(100 * t['share'], '.0f')}% of the RK4 x1 call" if t["share"] else "")
+             + (f"; its lines written into memory handed out already (non-temporal stores, "
+                f"as the kernels write): {_fmt(1e3 * t['store_s'], '.3g')} ms, which after "
+                "the ceiling's own time would leave the row at most "
+                f"{_fmt(100 * t['store_bound'], '.0f')}% of the ceiling if the stores "
+                "overlapped none of the arithmetic" if "store_bound" in t else "")
              for p, t in touch.items()]
     threads = max(t["threads"] for t in touch.values())
     return ("a recorded call into fresh memory pays first the OS's zeroing of its pages (the "

@@ -19,9 +19,11 @@ for the given flop count F per dof-step at the given sample rate (a "run" is one
 simulated for one second of signal). An actual kernel on the same network with F flops per
 dof-step cannot beat this figure on this machine without doing less arithmetic.
 
-The loop reuses its memory. A kernel that records its probes writes them into fresh memory,
-which the OS hands out a page at a time on first write; `first_touch_seconds` measures that
-cost alone for a record of a given size, so that a report can tell it from the kernel's own.
+The loop reuses its memory and writes no output. A kernel that records its probes writes
+them too, as non-temporal lines (`springc.streamstore`), into fresh memory, which the OS hands
+out a page at a time on first write. `first_touch_seconds` measures the fresh pages alone for
+a record of a given size, and `store_seconds` the writing of the record's lines into memory
+already handed out, so that a report can tell each from the kernel's own arithmetic.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ import numba
 import numpy as np
 
 from springc.ir import FlatNetlist
+from springc.streamstore import store_fence, stream_store
 
 STAGES = 4
 # Flops of one (dof, lane) in one stage without padding, and per step outside the stages;
@@ -325,3 +328,50 @@ def touch_pages(flat: np.ndarray, lo: int, hi: int, stride: int) -> None:
         flat[k] = 1
     if hi > lo:
         flat[hi - 1] = 1
+
+
+def store_seconds(rec: np.ndarray, threads: int = 2) -> float:
+    """Wall time to write every line of the record `rec` (probe, run, record; rows padded to
+    and aligned on 64-byte lines, as `simulate.record_buffer` makes it) once with
+    non-temporal line stores, as the kernels write their records, by `threads` threads each
+    on the rows of its own runs; `rec` is first written once untimed, so its pages are
+    handed out already (a reused record buffer)."""
+    probes, runs, width = rec.shape
+    line = 64 // rec.itemsize
+    if rec.ctypes.data % 64 or width % line:
+        raise ValueError("rec must be 64-byte aligned with rows of whole 64-byte lines")
+    store = _store_lines8 if line == 8 else _store_lines16
+    threads = max(1, min(threads, runs))
+    bounds = [runs * t // threads for t in range(threads + 1)]
+
+    def rows_of(t: int) -> None:
+        store(rec, bounds[t], bounds[t + 1])
+
+    with ThreadPoolExecutor(threads) as pool:
+        list(pool.map(rows_of, range(threads)))  # compiles, and hands out the pages
+        start = time.perf_counter()
+        list(pool.map(rows_of, range(threads)))
+    return time.perf_counter() - start
+
+
+@numba.njit(nogil=True)
+def _store_lines8(rec: np.ndarray, r0: int, r1: int) -> None:
+    """Runs r0..r1-1 of every probe of `rec` (8 values a line: float64), line by line."""
+    one = rec.dtype.type(1.0)
+    for p in range(rec.shape[0]):
+        for r in range(r0, r1):
+            for k in range(0, rec.shape[2], 8):
+                stream_store(rec, p, r, k, (one, one, one, one, one, one, one, one))
+    store_fence()
+
+
+@numba.njit(nogil=True)
+def _store_lines16(rec: np.ndarray, r0: int, r1: int) -> None:
+    """Runs r0..r1-1 of every probe of `rec` (16 values a line: float32), line by line."""
+    one = rec.dtype.type(1.0)
+    for p in range(rec.shape[0]):
+        for r in range(r0, r1):
+            for k in range(0, rec.shape[2], 16):
+                stream_store(rec, p, r, k, (one, one, one, one, one, one, one, one,
+                                            one, one, one, one, one, one, one, one))
+    store_fence()

@@ -289,6 +289,14 @@ def test_unrecorded_rows_record_nothing_are_rated_and_never_decide_a_claim(monke
     assert share == pytest.approx(touch["s"] / recorded.wall_s)
     assert (f"0.00166 MB in float64: {1e3 * touch['s']:.3g} ms, {100 * share:.0f}% of the "
             "RK4 x1 call") in md
+    # and the record's lines written alone into memory handed out already: the bound they
+    # would set after the ceiling's own time if they overlapped none of it
+    assert math.isfinite(touch["store_s"]) and touch["store_s"] > 0
+    at_ceiling = TSTOP / res.ceiling["float64"]
+    bound = bs.claims([res])["first_touch"]["osc"]["float64"]["store_bound"]
+    assert bound == pytest.approx(at_ceiling / (at_ceiling + touch["store_s"]))
+    assert (f"{1e3 * touch['store_s']:.3g} ms, which after the ceiling's own time would "
+            f"leave the row at most {100 * bound:.0f}% of the ceiling") in md
     # the recorded row's calls into fresh memory, timed beside it: rated, deciding nothing
     fresh = res.fresh_wall["float64"]
     assert math.isfinite(fresh) and fresh > 0

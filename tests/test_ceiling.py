@@ -128,3 +128,19 @@ def test_touch_record_writes_into_every_page_of_the_record():
 def test_first_touch_is_timed():
     took = ceiling.first_touch_seconds((2, 4, 1024), "float32")
     assert math.isfinite(took) and took > 0
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_store_seconds_writes_every_line_of_the_record(dtype):
+    """Every value of every run's row, both threads' runs (3 runs: one and two), written;
+    a misaligned record is refused (the stores would fault)."""
+    from springc.simulate import record_buffer
+
+    rec = record_buffer(2, 100, 3, dtype)
+    took = ceiling.store_seconds(rec, threads=2)
+    assert math.isfinite(took) and took > 0
+    assert np.all(rec == 1)
+    flat = np.zeros(rec.size + 2, dtype)
+    skip = 1 if (flat.ctypes.data + flat.itemsize) % 64 else 2
+    with pytest.raises(ValueError, match="64-byte aligned"):
+        ceiling.store_seconds(flat[skip:skip + rec.size].reshape(rec.shape))

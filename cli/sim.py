@@ -8,6 +8,7 @@ from springc_cli.common import plot_option, precision_option, run_user_errors
 from springc.expint import SCHEMES
 from springc.integrators import TABLEAUX
 
+KERNEL_FORMS = {"auto": None, "written-out": True, "shared": False}  # simulate's write_out
 REDUCE_HELP = (
     "Streaming reduction (repeatable), stored under its text: final:x(N) | final:v(N) | "
     "msq:x(N)[:T0:T1] (mean square over T0 < t <= T1) | work:in | work:FNAME (input work, "
@@ -45,9 +46,16 @@ REDUCE_HELP = (
               help="File channel feeding in(0) (needed for stereo files).")
 @click.option("--batch", type=click.IntRange(min=1), default=None,
               help="Runs per kernel call (default 256).")
+@click.option("--kernel", "kernel_form", type=click.Choice(sorted(KERNEL_FORMS)),
+              default="auto",
+              help="auto: the force code written out (each run's step in registers where it "
+                   "serves) for long simulations of at most 48 masses and for single runs of "
+                   "up to 8, else one kernel shared by every netlist of the same element "
+                   "kinds; written-out: always where it serves (compiled once per netlist "
+                   "structure: for sweeps of short runs); shared: never.")
 @run_user_errors
 def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precision, method,
-            outrate, reduce_, channel, batch, tolerance):
+            outrate, reduce_, channel, batch, tolerance, kernel_form):
     """Simulate NETLIST for every input signal and write the probes and reductions.
 
     Runs are integrated together in lockstep by a kernel generated for the netlist; inputs
@@ -63,7 +71,8 @@ def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precisio
                                    channel)
     res = simulate(net, list(inputs) or None, tstep=tstep, tstop=tstop, substeps=substeps,
                    method=method, precision=precision, outrate=outrate,
-                   reductions=list(reduce_), batch=batch, channel=channel, progress=True)
+                   reductions=list(reduce_), batch=batch, channel=channel, progress=True,
+                   write_out=KERNEL_FORMS[kernel_form])
     results.write(res, output)
     if plot_path:
         results.plot(res, plot_path)

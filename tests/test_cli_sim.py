@@ -58,6 +58,27 @@ def test_npz_holds_t_probes_and_reductions_as_the_library_computes(case):
     assert (case / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.parametrize("form, write_out", [("auto", None), ("written-out", True),
+                                             ("shared", False)])
+def test_kernel_form_reaches_simulate(case, monkeypatch, form, write_out):
+    from springc import simulate as sm
+
+    seen = []
+    real = sm.simulate
+
+    def spy(*args, **kw):
+        seen.append(kw["write_out"])
+        return real(*args, **kw)
+
+    monkeypatch.setattr(sm, "simulate", spy)
+    res = invoke(case / "osc.spr", "-i", case / "inputs", "-o", case / f"{form}.npz",
+                 "--kernel", form)
+    assert res.exit_code == 0, res.output
+    assert seen == [write_out]
+    lib = real(load_file(case / "osc.spr"), [case / "inputs"], write_out=write_out)
+    np.testing.assert_array_equal(np.load(case / f"{form}.npz")["x(a)"], lib.probes["x(a)"])
+
+
 def test_csv_long_format_and_overrides(case):
     out = case / "out.csv"
     res = invoke(case / "osc.spr", "-o", out, "--tstop", "0.01", "--outrate", "5000",

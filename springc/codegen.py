@@ -83,7 +83,7 @@ class KernelOptions:
     per chunk, a compile-time constant (`choose_lanes`); `nodes`: each node's force terms
     (`node_terms`) when the force code is written out per node, None for the shared kernel
     that loops over the runtime index arrays; `registers`: each node's terms
-    (`springc.regkernel.terms`) for a kernel of one run with its state in registers."""
+    (`springc.regkernel.terms`) for a register kernel, each run's step in scalars."""
 
     method: str = "rk4"
     precision: str = "float64"

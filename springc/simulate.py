@@ -176,8 +176,10 @@ def simulate(net: FlatNetlist, inputs=None, input_rate: float | None = None, *,
     `inputs`: None (one run, no input), an array (runs, channels, samples) sampled at
     `input_rate` (default 1/tstep), or a list of sound files / folders. Returns a `SimResult`
     with only the probed quantities and the requested reductions. `write_out`: whether the
-    kernel's force code is written out per node (None: for small networks and long
-    simulations, `WRITE_OUT_FROM`). `record_into`: the record buffer of an earlier call
+    kernel's force code is written out, per node or as each run's step in registers where
+    `springc.regkernel` serves (None: for long simulations of small networks,
+    `WRITE_OUT_FROM`, and for single runs of up to `regkernel.REGISTER_ALWAYS` masses;
+    `kernel_form`). `record_into`: the record buffer of an earlier call
     (its `info["records"]`) to record into instead of fresh memory, for a caller simulating
     batch after batch: the OS zeroes every fresh page before the kernel writes it (the feature
     extractor's 131 MB a call in float32: 7 ms, 16% of the call). The earlier result's probes,

@@ -340,12 +340,12 @@ def store_seconds(rec: np.ndarray, threads: int = 2) -> float:
     line = 64 // rec.itemsize
     if rec.ctypes.data % 64 or width % line:
         raise ValueError("rec must be 64-byte aligned with rows of whole 64-byte lines")
-    store = _store_lines8 if line == 8 else _store_lines16
+    values = (rec.dtype.type(1.0),) * line
     threads = max(1, min(threads, runs))
     bounds = [runs * t // threads for t in range(threads + 1)]
 
     def rows_of(t: int) -> None:
-        store(rec, bounds[t], bounds[t + 1])
+        _store_lines(rec, bounds[t], bounds[t + 1], values)
 
     with ThreadPoolExecutor(threads) as pool:
         list(pool.map(rows_of, range(threads)))  # compiles, and hands out the pages
@@ -355,23 +355,11 @@ def store_seconds(rec: np.ndarray, threads: int = 2) -> float:
 
 
 @numba.njit(nogil=True)
-def _store_lines8(rec: np.ndarray, r0: int, r1: int) -> None:
-    """Runs r0..r1-1 of every probe of `rec` (8 values a line: float64), line by line."""
-    one = rec.dtype.type(1.0)
+def _store_lines(rec: np.ndarray, r0: int, r1: int, values: tuple) -> None:
+    """Runs r0..r1-1 of every probe of `rec`, one line of `values` (as many as a line holds)
+    at a time."""
     for p in range(rec.shape[0]):
         for r in range(r0, r1):
-            for k in range(0, rec.shape[2], 8):
-                stream_store(rec, p, r, k, (one, one, one, one, one, one, one, one))
-    store_fence()
-
-
-@numba.njit(nogil=True)
-def _store_lines16(rec: np.ndarray, r0: int, r1: int) -> None:
-    """Runs r0..r1-1 of every probe of `rec` (16 values a line: float32), line by line."""
-    one = rec.dtype.type(1.0)
-    for p in range(rec.shape[0]):
-        for r in range(r0, r1):
-            for k in range(0, rec.shape[2], 16):
-                stream_store(rec, p, r, k, (one, one, one, one, one, one, one, one,
-                                            one, one, one, one, one, one, one, one))
+            for k in range(0, rec.shape[2], len(values)):
+                stream_store(rec, p, r, k, values)
     store_fence()

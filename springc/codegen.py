@@ -941,13 +941,8 @@ def emit_step_end(c: _Code, opts: KernelOptions, width: LaneLayout,
             before()
         emit_record(c, "rn_", width, record_block(opts.precision))
         c.dedent()
-    emit_guard(c, before)
-
-
-def emit_guard(c: _Code, before: Callable[[], None] | None = None) -> None:
-    """Divergence guard every `check_every` steps and at the last: NaN/Inf or a state beyond
-    `limit` stops the chunk, and the caller raises. `before` writes what precedes the check
-    (a register kernel's write-back of its state)."""
+    # Divergence guard every `check_every` steps and at the last: NaN/Inf or a state beyond
+    # `limit` stops the chunk, and the caller raises.
     c("cc_ += 1")
     c("if cc_ == check_every or k1 == nsteps:")
     c.indent()

@@ -68,10 +68,11 @@ def eligible(net: FlatNetlist, opts: KernelOptions) -> bool:
             and not (opts.work or opts.dissipation or opts.msq or opts.gram))
 
 
-def terms(co: dict, n: int) -> tuple[NodeTerms, ...] | None:
-    """Every node's terms from the coefficient arrays `co` (`simulate.coefficient_arrays`);
-    None when the network is too large to write out (`codegen.node_terms`)."""
-    linear = node_terms(co, n)
+def terms(co: dict, n: int, linear: tuple | None = None) -> tuple[NodeTerms, ...] | None:
+    """Every node's terms from the coefficient arrays `co` (`simulate.coefficient_arrays`),
+    extending `linear`, their `codegen.node_terms` when the caller has them already; None
+    when the network is too large to write out."""
+    linear = linear if linear is not None else node_terms(co, n)
     if linear is None:
         return None
     duff: list[list[int]] = [[] for _ in range(n)]

@@ -238,7 +238,7 @@ def kernel_form(net: FlatNetlist, opts: codegen.KernelOptions, coeffs: dict, st:
     small = (opts.lanes == 1 and net.n <= regkernel.REGISTER_ALWAYS
              and write_out is not False)
     if (small or nodes is not None) and regkernel.eligible(net, opts):
-        regs = regkernel.terms(coeffs, net.n)
+        regs = regkernel.terms(coeffs, net.n, nodes)
         if regs is not None:
             return replace(opts, registers=regs)
     return replace(opts, nodes=nodes)

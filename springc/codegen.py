@@ -265,11 +265,12 @@ class _Code:
 
 
 @functools.cache
-def _streamstore_hash() -> str:
-    """A hash of `springc.streamstore`'s source, written into the kernels that call it: numba's
-    cache of a kernel checks only the kernel's own file, so a change there must change the
-    kernel's text (and so its cache key). Read, not imported: this module never imports numba."""
-    origin = importlib.util.find_spec("springc.streamstore").origin
+def _module_hash(module: str) -> str:
+    """A hash of an intrinsics module's source (`springc.streamstore`, `springc.stackalign`),
+    written into the kernels that import it: numba's cache of a kernel checks only the kernel's
+    own file, so a change there must change the kernel's text (and so its cache key). Read,
+    not imported: this module never imports numba."""
+    origin = importlib.util.find_spec(module).origin
     return hashlib.sha256(Path(origin).read_bytes()).hexdigest()[:16]
 
 
@@ -284,8 +285,10 @@ def preamble(c: _Code, opts: KernelOptions, args: list[str], stages: int) -> Non
     """Imports and module constants of a generated kernel."""
     c("import numpy as np")
     c("import numba as nb")
+    c(f"from springc.stackalign import align_stack  # {_module_hash('springc.stackalign')}")
     if opts.record:
-        c(f"from springc.streamstore import stream_store, store_fence  # {_streamstore_hash()}")
+        c("from springc.streamstore import stream_store, store_fence  "
+          f"# {_module_hash('springc.streamstore')}")
     c("")
     c(f"FT = np.{opts.precision}")
     c(f"ARGS = {tuple(args)!r}")
@@ -623,14 +626,21 @@ def _emit_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> No
 def emit_run_head(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> None:
     """The kernel function's decorator, signature and docstring, then its h-scaled
     coefficients (the body follows, indented)."""
+    emit_def(c, run_args(feat, opts), "nsteps steps of h")
+    _emit_coefficients(c, tab)
+    emit_nystrom_coefficients(c, tab)
+
+
+def emit_def(c: _Code, args: list[str], steps: str) -> None:
+    """The kernel function's decorator, signature and docstring (integrating for `steps`),
+    then its frame's alignment (`springc.stackalign`: the lane loops spill vectors)."""
     # Serial and nogil: the runtime runs chunks on threads. numba's parallel=True (prange)
     # measured as fast but compiled 3-4x slower (22 s against 6 s of CPU for one oscillator).
     c(decorator())
-    c(f"def run({', '.join(run_args(feat, opts))}):")
+    c(f"def run({', '.join(args)}):")
     c.indent()
-    c('"""Integrate chunks c0..c1-1 of LANES runs (columns of x0) for nsteps steps of h."""')
-    _emit_coefficients(c, tab)
-    emit_nystrom_coefficients(c, tab)
+    c(f'"""Integrate chunks c0..c1-1 of LANES runs (columns of x0) for {steps}."""')
+    c("align_stack()")
 
 
 def emit_chunk_start(c: _Code, opts: KernelOptions, scratch: list[str]) -> None:

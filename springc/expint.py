@@ -380,10 +380,7 @@ def _emit_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab: Tablea
     scheme = SCHEMES[opts.method]
     ln = codegen.lane_layout(opts)
     bk_args = ", ".join(BLOCK_ARGS[1:])
-    c(codegen.decorator())
-    c(f"def run({', '.join(run_args(feat, opts))}):")
-    c.indent()
-    c('"""Integrate chunks c0..c1-1 of LANES runs (columns of x0) for nsteps split steps."""')
+    codegen.emit_def(c, run_args(feat, opts), "nsteps split steps")
     codegen._emit_coefficients(c, tab)
     codegen.emit_nystrom_coefficients(c, tab)
     codegen.velocity_needed(c, feat, opts)
@@ -580,11 +577,7 @@ class _Lawson:
 
 def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab: Tableau,
                      lw: _Lawson) -> None:
-    c(codegen.decorator())
-    c(f"def run({', '.join(lawson_args(feat, opts, lw.sizes))}):")
-    c.indent()
-    c('"""Integrate chunks c0..c1-1 of LANES runs (columns of x0) for nsteps exponential RK '
-      'steps of h."""')
+    codegen.emit_def(c, lawson_args(feat, opts, lw.sizes), "nsteps exponential RK steps of h")
     codegen._emit_coefficients(c, tab)
     codegen.emit_nystrom_coefficients(c, tab)
     codegen.velocity_needed(c, feat, opts)

@@ -285,7 +285,8 @@ def preamble(c: _Code, opts: KernelOptions, args: list[str], stages: int) -> Non
     """Imports and module constants of a generated kernel."""
     c("import numpy as np")
     c("import numba as nb")
-    c(f"from springc.stackalign import align_stack  # {_module_hash('springc.stackalign')}")
+    if aligned_frame(opts):
+        c(f"from springc.stackalign import align_stack  # {_module_hash('springc.stackalign')}")
     if opts.record:
         c("from springc.streamstore import stream_store, store_fence  "
           f"# {_module_hash('springc.streamstore')}")
@@ -626,21 +627,30 @@ def _emit_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> No
 def emit_run_head(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> None:
     """The kernel function's decorator, signature and docstring, then its h-scaled
     coefficients (the body follows, indented)."""
-    emit_def(c, run_args(feat, opts), "nsteps steps of h")
+    emit_def(c, run_args(feat, opts), "nsteps steps of h", aligned_frame(opts))
     _emit_coefficients(c, tab)
     emit_nystrom_coefficients(c, tab)
 
 
-def emit_def(c: _Code, args: list[str], steps: str) -> None:
+def aligned_frame(opts: KernelOptions) -> bool:
+    """Whether the kernel aligns its stack frame (`springc.stackalign`): register kernels for
+    lanes, whose lane loop spills hundreds of vectors a step. The others spill few, and the
+    realignment costs them a register (the delay line's shared kernel, float64: 3-8% slower
+    aligned)."""
+    return bool(opts.registers) and opts.lanes > 1
+
+
+def emit_def(c: _Code, args: list[str], steps: str, align: bool = False) -> None:
     """The kernel function's decorator, signature and docstring (integrating for `steps`),
-    then its frame's alignment (`springc.stackalign`: the lane loops spill vectors)."""
+    and with `align`, the alignment of its frame."""
     # Serial and nogil: the runtime runs chunks on threads. numba's parallel=True (prange)
     # measured as fast but compiled 3-4x slower (22 s against 6 s of CPU for one oscillator).
     c(decorator())
     c(f"def run({', '.join(args)}):")
     c.indent()
     c(f'"""Integrate chunks c0..c1-1 of LANES runs (columns of x0) for {steps}."""')
-    c("align_stack()")
+    if align:
+        c("align_stack()")
 
 
 def emit_chunk_start(c: _Code, opts: KernelOptions, scratch: list[str]) -> None:

@@ -8,7 +8,7 @@ which ones depended on the caller's stack depth and the frame's size. The featur
 64 runs of 1 s recording 16 probes (A/B in one process, least of 9-11): float32 42.8 -> 36.2
 ms, float64 91.4 -> 56.0 ms; recording nothing, float64 63.6 -> 49.2 ms. LLVM realigns a
 frame when a function asks for it (`alignstack`); numba has no spelling for that, hence this
-intrinsic, called first in every kernel.
+intrinsic, called first in those kernels (`codegen.aligned_frame`).
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""Kernels ask LLVM for a 64-byte-aligned stack frame (`springc.stackalign`)."""
+"""Register kernels for lanes ask LLVM for a 64-byte-aligned stack frame
+(`springc.stackalign`)."""
 
 from __future__ import annotations
 
@@ -43,14 +44,14 @@ def test_align_stack_realigns_the_frame_and_leaves_the_result():
     assert "alignstack(64)" in next(iter(aligned.inspect_llvm().values()))
 
 
-@pytest.mark.parametrize("method, write_out, runs", [
-    ("rk4", False, 4),  # the shared kernel
-    ("rk4", True, 1),  # a register kernel for one run
-    ("rk4", True, 4),  # a register kernel for lanes
-    ("strang-rk4", None, 4),  # split: exact blocks and RK4
-    ("exp-heun3", None, 4),  # Lawson
+@pytest.mark.parametrize("method, write_out, runs, aligned", [
+    ("rk4", True, 16, True),  # a register kernel for lanes: its lane loop spills vectors
+    ("rk4", False, 16, False),  # the shared kernel
+    ("rk4", True, 1, False),  # a register kernel for one run: scalars
+    ("strang-rk4", None, 16, False),  # split: exact blocks and RK4
+    ("exp-heun3", None, 16, False),  # Lawson
 ])
-def test_every_kernel_aligns_its_frame_first(method, write_out, runs):
+def test_register_kernels_for_lanes_align_their_frame_first(method, write_out, runs, aligned):
     b = IRBuilder("oscillator")
     b.mass("M1", "a", 1.0, 1.0)
     b.spring("K1", "a", 100.0)
@@ -60,7 +61,8 @@ def test_every_kernel_aligns_its_frame_first(method, write_out, runs):
     res = simulate(net, np.zeros((runs, 1, 11)), method=method, write_out=write_out)
     assert np.isfinite(res.probes["x(a)"]).all()
     lines = Path(res.info["kernel"]).read_text().splitlines()
+    assert ("LANES = 1 " in "\n".join(lines)) == (runs == 1)
     head = next(i for i, line in enumerate(lines) if line.startswith("def run("))
-    assert lines[head + 2].strip() == "align_stack()"
+    assert (lines[head + 2].strip() == "align_stack()") == aligned
     assert any(line.startswith("from springc.stackalign import align_stack  # ")
-               for line in lines)
+               for line in lines) == aligned

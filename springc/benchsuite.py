@@ -17,7 +17,9 @@ a long delay line, a stiff all-to-all block, a hard-driven Duffing resonator) `r
    then climbs the case's `ladder` of finer rows until one is as accurate on the stretch as
    the most accurate peer (or the floor), or a rung stops gaining;
 4. measures the machine's arithmetic ceiling (`springc.ceiling`) for the network's size and
-   batch in both precisions, so that throughput is also a fraction of it.
+   batch in both precisions, so that throughput is also a fraction of it, and the machine's
+   FMA peak for the batch (`ceiling.measure_peak`), the bound a register kernel, which the
+   ceiling does not bound, is reported against.
 `write_report` writes `bench.json`, `bench.md` (the issue's must-show figures, met or missed,
 first) and one speed-versus-error PNG per network.
 
@@ -111,6 +113,7 @@ class Row:
     simulated_s: float  # runs x seconds simulated in `wall_s`
     throughput: float  # run-seconds per wall-second
     ceiling_fraction: float | None = None
+    peak_fraction: float | None = None  # of the machine's FMA peak (`ceiling.measure_peak`)
     note: str = ""
     stretch_errors: dict[str, float] = field(default_factory=dict)  # on the peers' stretch
     recorded: bool = True  # False: run without probes (no errors; timing only)
@@ -169,6 +172,7 @@ class CaseResult:
     tstop: float
     rows: list[Row] = field(default_factory=list)
     ceiling: dict[str, float] = field(default_factory=dict)  # precision -> run-s/wall-s @1/tstep
+    peak: dict[str, float] = field(default_factory=dict)  # the FMA peak, rated as the ceiling
     peer_tstop: float = 0.0
     reference: dict = field(default_factory=dict)  # Reference.summary()
     ladder_note: str = ""  # why the ladder stopped
@@ -328,14 +332,17 @@ def run_case(case: Case, progress: Callable[[str], None] = print) -> CaseResult:
              + (", with the first touch of the record" if case.paired and case.unrecorded
                 else ""))
     res.ceiling = _ceilings(case, runs)
+    res.peak = _ceilings(case, runs, peak=True)
     if case.paired:
-        _retime_paired(case, res.rows, runs, res.ceiling, res.first_touch, res.fresh_wall)
+        _retime_paired(case, res.rows, runs, (res.ceiling, res.peak), res.first_touch,
+                       res.fresh_wall)
     case.buffers.clear()
     res.rows += peers
     for row in res.rows:
         if row.precision in res.ceiling and row.name.startswith("kernel"):
             # the ceiling scales as 1 / rate: rate it at the row's own step
             row.ceiling_fraction = row.throughput / (res.ceiling[row.precision] / row.substeps)
+            row.peak_fraction = row.throughput / (res.peak[row.precision] / row.substeps)
     return res
 
 
@@ -523,17 +530,19 @@ def _unrecorded_row(case: Case, method: str, sub: int, precision: str, runs: int
                note="no probes recorded (timing only)", recorded=False)
 
 
-def _retime_paired(case: Case, rows: list[Row], runs: int, ceilings: dict[str, float],
+def _retime_paired(case: Case, rows: list[Row], runs: int,
+                   bounds: tuple[dict[str, float], dict[str, float]],
                    first_touch: dict[str, dict[str, float]],
                    fresh_wall: dict[str, float]) -> None:
-    """Time the `paired` and `unrecorded` rows and the ceiling in turn, `case.rounds` times,
-    keeping each row's least wall time and the ceiling's best (in place): on a shared machine
-    a load burst then hits the rows and the ceiling alike, not just one of them (the ceiling
-    alone varied up to 5x between calls here). With unrecorded rows, also time the recorded
-    RK4 x1 calls into fresh memory (least, in `fresh_wall`), the first touch of as much
-    fresh memory as each precision's recorded row writes and the writing of its record's
-    lines alone into memory already handed out (least, in `first_touch`, "s" and "store_s"):
-    what of the recording's cost is the OS's and what the memory's."""
+    """Time the `paired` and `unrecorded` rows and the ceiling and FMA peak (`bounds`) in
+    turn, `case.rounds` times, keeping each row's least wall time and the bounds' best (in
+    place): on a shared machine a load burst then hits the rows and the bounds alike, not just
+    one of them (the ceiling alone varied up to 5x between calls here). With unrecorded
+    rows, also time the recorded RK4 x1 calls into fresh memory (least, in `fresh_wall`), the
+    first touch of as much fresh memory as each precision's recorded row writes and the
+    writing of its record's lines alone into memory already handed out (least, in
+    `first_touch`, "s" and "store_s"): what of the recording's cost is the OS's and what the
+    memory's."""
     chosen = _measured(rows, case.paired, True) + _measured(rows, case.unrecorded, False)
     shapes: dict[str, tuple] = {}
     stores: dict[str, float] = {}
@@ -553,8 +562,9 @@ def _retime_paired(case: Case, rows: list[Row], runs: int, ceilings: dict[str, f
             row.throughput = runs * case.tstop / row.wall_s
             row.note = ("" if row.recorded else "no probes recorded (timing only); ") + (
                 f"least of {case.rounds} re-timings in alternation with the ceiling")
-        for precision, best in _ceilings(case, runs, tries=1).items():
-            ceilings[precision] = max(ceilings[precision], best)
+        for bound, peak in zip(bounds, (False, True)):
+            for precision, best in _ceilings(case, runs, tries=1, peak=peak).items():
+                bound[precision] = max(bound[precision], best)
         for precision, shape in shapes.items():
             threads = min(_threads(), runs)  # as many as the kernel calls use
             took = ceiling.first_touch_seconds(shape, precision, threads)
@@ -653,17 +663,24 @@ def _ngspice(case: Case, first, tstop):
     return t, traces, "ngspice trap, reltol 1e-9 (sampled input), uic"
 
 
-def _ceilings(case: Case, runs: int, tries: int = CEILING_TRIES) -> dict[str, float]:
+def _ceilings(case: Case, runs: int, tries: int = CEILING_TRIES, peak: bool = False
+              ) -> dict[str, float]:
     """Ceiling run-seconds per wall-second at the input rate, per precision measured: the
-    best of `tries` measurements."""
+    best of `tries` measurements; with `peak`, the FMA peak's (`ceiling.measure_peak`), rated
+    with the same flop count."""
     flops = ceiling.rk4_flops_per_dof_step(case.net)
-    out = {}
-    for precision in sorted({p for _, _, p in case.configs}):
-        out[precision] = max(
-            float(ceiling.measure_ceiling(case.net.n, runs, precision, threads=_threads(),
-                                          flops_per_step=flops, rate=1.0 / case.tstep)
-                  ["run_seconds_per_wall_second"]) for _ in range(tries))
-    return out
+    rate = 1.0 / case.tstep
+
+    def measure(precision: str) -> float:
+        if peak:
+            fps = ceiling.measure_peak(runs, precision, threads=_threads())["flops_per_second"]
+            return ceiling.run_seconds_per_wall_second(fps, flops, case.net.n, rate)
+        return float(ceiling.measure_ceiling(case.net.n, runs, precision, threads=_threads(),
+                                             flops_per_step=flops, rate=rate)
+                     ["run_seconds_per_wall_second"])
+
+    return {precision: max(measure(precision) for _ in range(tries))
+            for precision in sorted({p for _, _, p in case.configs})}
 
 
 def _threads() -> int:
@@ -744,6 +761,12 @@ def claims(results: list[CaseResult]) -> dict:
     out["ceiling_fraction_unrecorded"] = {
         r.name: {row.precision: row.ceiling_fraction for row in r.rows
                  if not row.recorded and row.method == "rk4" and row.substeps == 1}
+        for r in results}
+    # informative, decides nothing: the RK4 x1 rows against the machine's FMA peak
+    out["peak_fraction"] = {
+        r.name: {row.precision + ("" if row.recorded else ", no probes"): row.peak_fraction
+                 for row in r.rows if row.method == "rk4" and row.substeps == 1
+                 and row.peak_fraction is not None}
         for r in results}
     out["first_touch"] = {r.name: _first_touch_shares(r) for r in results if r.first_touch}
     # informative, decides nothing: the recorded RK4 x1 calls into fresh memory every call
@@ -880,6 +903,11 @@ def markdown(results: list[CaseResult], found: dict, machine: dict) -> str:
          "network's size and batch at the row's step, same precision, rated with the RK4 "
          "flop count, the best of its measurements (taken in alternation with the re-timed rows); "
          "the claim is about batched kernels (a case of one run is reported, not judged). "
+         "The ceiling is that of a kernel moving its stage rows through memory at every stage, "
+         "as the shared kernel does; a register kernel, its stage values in registers, can "
+         "pass it. FMA peak: the machine's (`ceiling.measure_peak`: chains of FMAs in "
+         "registers, vectorised over the batch's lanes), rated the same way; no kernel doing "
+         "the counted flops can pass that (informative, decides nothing). "
          "Rows marked 'no probes' run the same kernel recording nothing (timing only): what "
          "recording the probes costs, memory traffic the ceiling does not do. "
          "scipy DOP853 runs twice: as issue 7 measured it (rtol 1e-6, atol "
@@ -893,12 +921,15 @@ def markdown(results: list[CaseResult], found: dict, machine: dict) -> str:
         lines += [f"## {r.name}: {r.title}", "",
                   f"{r.dofs} dofs, {r.runs} run(s) of {r.tstop:g} s at tstep {r.tstep:.4g} s; "
                   f"peers' stretch {r.peer_tstop:g} s; ceiling (RK4-rated, 1 step per sample): "
-                  + ", ".join(f"{p} {v:.3g} run-s/s" for p, v in r.ceiling.items()), "",
+                  + ", ".join(f"{p} {v:.3g} run-s/s" for p, v in r.ceiling.items())
+                  + ("; FMA peak, rated the same: "
+                     + ", ".join(f"{p} {v:.3g} run-s/s" for p, v in r.peak.items())
+                     if r.peak else ""), "",
                   _reference_md(r), "", f"Ladder: {r.ladder_note}.", "",
                   ("| integrator | worst error, whole run (probe) | worst error, stretch | "
                    "wall s | compile s | wall s per run-s | throughput run-s/s | of ceiling | "
-                   "note |"),
-                  "|---|---|---|---|---|---|---|---|---|"]
+                   "of FMA peak | note |"),
+                  "|---|---|---|---|---|---|---|---|---|---|"]
         for row in r.rows:
             worst = max(row.errors, key=row.errors.get) if row.errors else ""
             whole = (f"{_fmt(row.max_error)} ({worst})" if row.name.startswith("kernel")
@@ -908,8 +939,8 @@ def markdown(results: list[CaseResult], found: dict, machine: dict) -> str:
                 f"{_fmt(row.wall_s)} | {_fmt(row.compile_s, '.2f')} | "
                 f"{_fmt(row.wall_per_run_second if row.simulated_s else None)} | "
                 f"{_fmt(row.throughput)} | "
-                f"{_fmt(100 * row.ceiling_fraction if row.ceiling_fraction else None, '.0f')}"
-                f"{'%' if row.ceiling_fraction else ''} | {row.note} |")
+                f"{_percent(row.ceiling_fraction)} | {_percent(row.peak_fraction)} | "
+                f"{row.note} |")
         lines.append("")
     return "\n".join(lines) + "\n"
 
@@ -1003,6 +1034,10 @@ def _first_touch_md(touch: dict[str, dict[str, float]]) -> str:
             "re-timing rounds): " + "; ".join(parts) + ".")
 
 
+def _percent(fraction: float | None) -> str:
+    return f"{_fmt(100 * fraction, '.0f')}%" if fraction else "-"
+
+
 def _claims_md(found: dict) -> list[str]:
     lines = ["## The issue's figures (measured in this run)", ""]
     for precision in ("float64", "float32"):
@@ -1030,6 +1065,10 @@ def _claims_md(found: dict) -> list[str]:
                          + ("; recording into fresh memory every call (the OS zeroes each "
                             "page before the kernel writes it): " + ", ".join(fresh)
                             if fresh else "") + ".")
+            peak = [f"{p} {_percent(v)}" for p, v in found["peak_fraction"].get(name, {}).items()]
+            if peak:
+                lines.append(f"- {name}: RK4 x1 throughput as a fraction of the machine's FMA "
+                             "peak (informative): " + ", ".join(peak) + ".")
         touch = found.get("first_touch", {}).get(name)
         if touch:
             lines.append(f"- {name}: " + _first_touch_md(touch))

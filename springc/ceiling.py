@@ -16,8 +16,13 @@ Timed after a warm-up (compilation and first touch of the memory), over enough s
 about `min_seconds`. From the wall time it reports flop/s and the equivalent throughput
     run-seconds per wall-second = flop/s / (F * n_dof * rate)
 for the given flop count F per dof-step at the given sample rate (a "run" is one batch lane
-simulated for one second of signal). An actual kernel on the same network with F flops per
-dof-step cannot beat this figure on this machine without doing less arithmetic.
+simulated for one second of signal). It is the ceiling of a kernel that moves its state and
+stage rows through memory at every stage, as the shared kernel does (`springc.codegen`): a
+kernel with F flops per dof-step of that shape cannot beat it on this machine without doing
+less arithmetic. A register kernel (`springc.regkernel`) keeps its stage values in registers
+and can: the feature extractor's, in float64, ran at 1.2-1.55x it. Hence `measure_peak`, the
+machine's FMA peak for the batch: chains of FMAs held in registers, which no kernel doing F
+flops per dof-step can beat at all.
 
 The loop reuses its memory and writes no output. A kernel that records its probes writes
 them too, as non-temporal lines (`springc.streamstore`), into fresh memory, which the OS hands
@@ -119,6 +124,62 @@ def measure_ceiling(
     finally:
         numba.set_num_threads(previous)  # the caller's kernels keep their thread count
     return _report(n_dof, batch, precision, threads, n_pad, steps, seconds, flops_per_step, rate)
+
+
+# The FMA peak: per lane, independent chains of FMAs held in registers, as a register
+# kernel's lane loop holds its step
+PEAK_CHAINS = 8  # enough to keep both FMA pipes busy through an FMA's latency
+PEAK_DEPTH = 32  # FMAs per chain between its load and its store
+
+
+def measure_peak(batch: int, precision: str = "float64", threads: int = 2,
+                 min_seconds: float = 0.3) -> dict:
+    """Measure the machine's FMA peak for `batch` lanes (see the module docstring): per lane
+    PEAK_CHAINS independent chains of PEAK_DEPTH fused multiply-adds in registers, the lanes
+    vectorised as a register kernel's are, one chunk of lanes per thread, a load and a store
+    per chain and pass of PEAK_DEPTH. Returns a dict with `passes`, `seconds`, `threads` and
+    `flops_per_second` (padding lanes of an uneven split included: the machine did them)."""
+    dtype = _dtype(precision)
+    previous = numba.get_num_threads()
+    try:
+        threads = _set_threads(threads)
+        chunks = max(1, min(threads, batch))
+        width = -(-batch // chunks)
+        acc = peak_state(chunks, width, dtype)
+        kernel = functools.partial(_peak_kernel(width), acc, np.array([_ALPHA, _BETA], dtype))
+        kernel(2)  # warm-up: compile
+        passes, seconds = _timed(kernel, min_seconds)
+    finally:
+        numba.set_num_threads(previous)
+    flops = 2 * PEAK_CHAINS * PEAK_DEPTH * chunks * width * passes
+    return {"batch": batch, "precision": precision, "threads": threads, "passes": passes,
+            "seconds": seconds, "flops_per_second": flops / seconds}
+
+
+def peak_state(chunks: int, width: int, dtype: type) -> np.ndarray:
+    """The peak loop's chains: (chunk, chain, lane), distinct starting values."""
+    start = np.linspace(-1.0, 1.0, chunks * PEAK_CHAINS * width)
+    return start.reshape(chunks, PEAK_CHAINS, width).astype(dtype)
+
+
+@functools.cache
+def _peak_kernel(width: int):
+    """The peak loop for chunks of `width` lanes: acc <- alpha * acc + beta, PEAK_DEPTH times
+    a pass, for `passes` passes. Written out as text, each chain a scalar of the lane loop's
+    body: LLVM then keeps the chains in registers and vectorises the lanes (numba compiles
+    the function from its code object)."""
+    body = [f"A{k} = acc[c, {k}, b]" for k in range(PEAK_CHAINS)]
+    body += [f"A{k} = alpha * A{k} + beta" for _ in range(PEAK_DEPTH) for k in range(PEAK_CHAINS)]
+    body += [f"acc[c, {k}, b] = A{k}" for k in range(PEAK_CHAINS)]
+    source = "\n".join(["def run(acc, coef, passes):",
+                        "    alpha, beta = coef[0], coef[1]",
+                        "    for c in numba.prange(acc.shape[0]):",
+                        "        for _ in range(passes):",
+                        f"            for b in range({width}):"]
+                       + ["                " + line for line in body])
+    scope = {"numba": numba}
+    exec(source, scope)  # noqa: S102  (our own text, no input in it)
+    return numba.njit(parallel=True, fastmath={"contract"}, error_model="numpy")(scope["run"])
 
 
 def _dtype(precision: str) -> type:

@@ -222,14 +222,19 @@ def test_run_case_writes_the_report_with_reference_and_ladder(tmp_path):
 
 
 def test_paired_rows_and_the_ceiling_are_timed_in_alternation_least_and_best(monkeypatch):
-    """The re-timed rows keep their least wall time and the ceiling its best measurement,
-    one of each per round (a load burst then hits both, not one)."""
+    """The re-timed rows keep their least wall time and the ceiling and FMA peak their best
+    measurement, one of each per round (a load burst then hits them all, not one)."""
     calls = []
     ceilings = iter([100.0, 300.0, 200.0])
+    peaks = iter([4e9, 9e9, 6e9])  # flop/s
 
     def fake_ceiling(n_dof, batch, precision, **kw):
         calls.append("ceiling")
         return {"run_seconds_per_wall_second": next(ceilings)}
+
+    def fake_peak(batch, precision, **kw):
+        calls.append("peak")
+        return {"flops_per_second": next(peaks)}
 
     walls = iter([0.5, 0.2, 0.3])
 
@@ -238,14 +243,18 @@ def test_paired_rows_and_the_ceiling_are_timed_in_alternation_least_and_best(mon
         return types.SimpleNamespace(info={"wall_s": next(walls)})
 
     monkeypatch.setattr(bs.ceiling, "measure_ceiling", fake_ceiling)
+    monkeypatch.setattr(bs.ceiling, "measure_peak", fake_peak)
     monkeypatch.setattr(bs, "_sim", fake_sim)
     case = _case(paired=(("rk4", 1, "float64"),), rounds=3)
     row = _kernel("rk4", 1, 1e-6, 0.4)
-    best = {"float64": 150.0}
-    bs._retime_paired(case, [row], 1, best, {}, {})
-    assert calls == ["row", "ceiling"] * 3
+    best, peak = {"float64": 150.0}, {"float64": 0.0}
+    bs._retime_paired(case, [row], 1, (best, peak), {}, {})
+    assert calls == ["row", "ceiling", "peak"] * 3
     assert row.wall_s == 0.2 and row.throughput == pytest.approx(TSTOP / 0.2)
     assert best["float64"] == 300.0
+    flops = bs.ceiling.rk4_flops_per_dof_step(case.net)
+    assert peak["float64"] == pytest.approx(
+        bs.ceiling.run_seconds_per_wall_second(9e9, flops, case.net.n, 1 / case.tstep))
     assert "least of 3 re-timings in alternation with the ceiling" in row.note
 
 
@@ -268,6 +277,7 @@ def test_unrecorded_rows_record_nothing_are_rated_and_never_decide_a_claim(monke
     assert len(bare) == 1 and bare[0].errors == {} and bare[0].stretch_errors == {}
     assert bare[0].throughput == pytest.approx(TSTOP / bare[0].wall_s)
     assert bare[0].ceiling_fraction == pytest.approx(bare[0].throughput / res.ceiling["float64"])
+    assert bare[0].peak_fraction == pytest.approx(bare[0].throughput / res.peak["float64"])
     # the unrecorded row: a warm-up, at least MIN_CALLS timed calls (more while they are
     # short) and 2 re-timings, each with no probe; every other call: the netlist's probes
     assert asked.count([]) >= 1 + bs.MIN_CALLS + 2
@@ -280,6 +290,13 @@ def test_unrecorded_rows_record_nothing_are_rated_and_never_decide_a_claim(monke
     frac = f"{100 * bare[0].ceiling_fraction:.0f}%"
     assert f"the same kernels recording no probe (the ceiling writes nothing): float64 {frac}" in md
     assert "no probes recorded (timing only); least of 2 re-timings" in md
+    # and both rows against the machine's FMA peak, which no kernel passes
+    peaks = bs.claims([res])["peak_fraction"]["osc"]
+    assert peaks == {"float64": recorded.peak_fraction, "float64, no probes": bare[0].peak_fraction}
+    assert 0 < recorded.peak_fraction < 1 and 0 < bare[0].peak_fraction < 1
+    assert (f"- osc: RK4 x1 throughput as a fraction of the machine's FMA peak (informative): "
+            f"float64 {100 * recorded.peak_fraction:.0f}%, float64, no probes "
+            f"{100 * bare[0].peak_fraction:.0f}%.") in md
     # and the OS's first touch of as much fresh memory as the recorded row writes: one probe
     # of one run, 201 records padded to whole 64-byte lines of 8 float64
     touch = res.first_touch["float64"]
@@ -343,5 +360,5 @@ def test_an_unrecorded_row_the_guard_stops_says_so_and_is_not_re_timed(monkeypat
     assert not row.recorded and not math.isfinite(row.wall_s)
     assert row.note == "stopped by the divergence guard: diverged at t = 0.01 s"
     calls.clear()
-    bs._retime_paired(case, [row], 1, {"float64": 50.0}, {}, {})
+    bs._retime_paired(case, [row], 1, ({"float64": 50.0}, {"float64": 50.0}), {}, {})
     assert calls == []

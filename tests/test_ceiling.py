@@ -144,3 +144,29 @@ def test_store_seconds_writes_every_line_of_the_record(dtype):
     skip = 1 if (flat.ctypes.data + flat.itemsize) % 64 else 2
     with pytest.raises(ValueError, match="64-byte aligned"):
         ceiling.store_seconds(flat[skip:skip + rec.size].reshape(rec.shape))
+
+
+def test_peak_loop_computes_every_counted_fma():
+    """The peak loop's chains after one pass are the affine map alpha x + beta applied
+    PEAK_DEPTH times (closed form, to rounding); one FMA less would show."""
+    acc = ceiling.peak_state(2, 3, np.float64)
+    x0 = acc.copy()
+    alpha, beta = 0.5, 1.0
+    ceiling._peak_kernel(3)(acc, np.array([alpha, beta]), 1)
+    fixed = beta / (1 - alpha)
+
+    def iterated(n):
+        return fixed + alpha ** n * (x0 - fixed)
+
+    np.testing.assert_allclose(acc, iterated(ceiling.PEAK_DEPTH), rtol=0, atol=1e-15)
+    assert np.max(np.abs(acc - iterated(ceiling.PEAK_DEPTH - 1))) > 1e-10
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_peak_measurement_counts_its_flops(precision):
+    r = ceiling.measure_peak(5, precision, threads=2, min_seconds=0.02)
+    chunks = min(r["threads"], 5)
+    width = -(-5 // chunks)
+    flops = 2 * ceiling.PEAK_CHAINS * ceiling.PEAK_DEPTH * chunks * width * r["passes"]
+    assert r["seconds"] >= 0.02
+    assert r["flops_per_second"] == pytest.approx(flops / r["seconds"])

@@ -12,8 +12,9 @@ goes through memory:
   (LLVM vectorises it across lanes); the state rows are read and written once a step. The
   feature extractor, 64 runs of 1 s recording nothing: float32 32.0 -> 25.5 ms, float64
   62.6 -> 45.1 ms against the kernel with its force code written out per node
-  (`codegen.emit_nodes`); recording its 16 probes into fresh memory, no faster (the record's
-  memory traffic bounds it).
+  (`codegen.emit_nodes`). The loop spills hundreds of vectors a step, so these kernels align
+  their stack frame (`springc.stackalign`: recording 16 probes, float32 42.8 -> 36.2 ms,
+  float64 91.4 -> 56.0 ms).
 Within round-off of the shared kernel. Such a kernel is compiled per netlist structure, as a
 written-out kernel (`codegen.node_terms`); the coefficients stay runtime arguments, read once
 per call.

@@ -52,14 +52,15 @@ def test_align_stack_realigns_the_frame_and_leaves_the_result():
     ("exp-heun3", None, 16, False),  # Lawson
 ])
 def test_register_kernels_for_lanes_align_their_frame_first(method, write_out, runs, aligned):
-    b = IRBuilder("oscillator")
-    b.mass("M1", "a", 1.0, 1.0)
-    b.spring("K1", "a", 100.0)
-    b.probe("x", "a")
+    b = IRBuilder("two coupled masses")
+    for node, k in (("a", 100.0), ("c", 150.0)):
+        b.mass(f"M{node}", node, 1.0, 1.0, x0=0.1)
+        b.spring(f"K{node}", node, k)
+        b.probe("x", node)
+    b.coupling("C1", "a", "c", 20.0)
     b.tran = Tran(1e-3, 0.01, None)
-    net = b.finish()
-    res = simulate(net, np.zeros((runs, 1, 11)), method=method, write_out=write_out)
-    assert np.isfinite(res.probes["x(a)"]).all()
+    res = simulate(b.finish(), np.zeros((runs, 1, 11)), method=method, write_out=write_out)
+    assert np.isfinite(res.probes["x(c)"]).all() and res.probes["x(c)"].any()
     lines = Path(res.info["kernel"]).read_text().splitlines()
     assert ("LANES = 1 " in "\n".join(lines)) == (runs == 1)
     head = next(i for i, line in enumerate(lines) if line.startswith("def run("))

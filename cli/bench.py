@@ -35,8 +35,9 @@ def bench_cmd(case_names, outdir, quick, issue3, seconds, batch, stretch, json_p
     spotter, long delay line, stiff all-to-all block, hard-driven Duffing resonator) every
     integrator at several steps and float64/float32, and the peers (scipy RK45/DOP853 at rtol
     1e-6, numpy RK4, ngspice when installed), with per-probe errors against a tight reference,
-    wall, compile time, throughput and its fraction of the measured arithmetic ceiling.
-    Writes OUT/bench.json, OUT/bench.md and OUT/<case>.png; prints the Markdown."""
+    wall, compile time, throughput and its fraction of the measured arithmetic ceiling and of
+    the machine's FMA peak. Writes OUT/bench.json, OUT/bench.md and OUT/<case>.png; prints
+    the Markdown."""
     if issue3:
         _issue3(seconds, batch, stretch, json_path)
         return

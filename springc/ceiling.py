@@ -36,8 +36,9 @@ from __future__ import annotations
 import functools
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 
 import numba
 import numpy as np
@@ -113,16 +114,12 @@ def measure_ceiling(
     `flops_per_second`, `bytes_per_second`, `dof_steps_per_second` and
     `run_seconds_per_wall_second` at `rate`, and the loop's own `flops_per_dof_step`."""
     dtype = _dtype(precision)
-    previous = numba.get_num_threads()
-    try:
-        threads = _set_threads(threads)
+    with _numba_threads(threads) as threads:
         n_pad = padding_for(flops_per_step)
         state = make_state(n_dof, batch, dtype, threads)
         kernel = functools.partial(_kernel(n_pad), *state, *_coefficients(dtype))
         kernel(2)  # warm-up: compile, first touch
         steps, seconds = _timed(kernel, min_seconds)
-    finally:
-        numba.set_num_threads(previous)  # the caller's kernels keep their thread count
     return _report(n_dof, batch, precision, threads, n_pad, steps, seconds, flops_per_step, rate)
 
 
@@ -140,17 +137,12 @@ def measure_peak(batch: int, precision: str = "float64", threads: int = 2,
     per chain and pass of PEAK_DEPTH. Returns a dict with `passes`, `seconds`, `threads` and
     `flops_per_second` (padding lanes of an uneven split included: the machine did them)."""
     dtype = _dtype(precision)
-    previous = numba.get_num_threads()
-    try:
-        threads = _set_threads(threads)
-        chunks = max(1, min(threads, batch))
-        width = -(-batch // chunks)
+    with _numba_threads(threads) as threads:
+        chunks, width = chunking(batch, threads)
         acc = peak_state(chunks, width, dtype)
         kernel = functools.partial(_peak_kernel(width), acc, np.array([_ALPHA, _BETA], dtype))
         kernel(2)  # warm-up: compile
         passes, seconds = _timed(kernel, min_seconds)
-    finally:
-        numba.set_num_threads(previous)
     flops = 2 * PEAK_CHAINS * PEAK_DEPTH * chunks * width * passes
     return {"batch": batch, "precision": precision, "threads": threads, "passes": passes,
             "seconds": seconds, "flops_per_second": flops / seconds}
@@ -188,10 +180,24 @@ def _dtype(precision: str) -> type:
     return np.float64 if precision == "float64" else np.float32
 
 
-def _set_threads(threads: int) -> int:
+def chunking(batch: int, threads: int) -> tuple[int, int]:
+    """(chunks, lanes per chunk) of a batch split over `threads`: min(threads, batch) chunks
+    of equal width, the last padded."""
+    chunks = max(1, min(threads, batch))
+    return chunks, -(-batch // chunks)
+
+
+@contextmanager
+def _numba_threads(threads: int) -> Iterator[int]:
+    """numba's thread count set to `threads` (at most what numba has) inside the block, and
+    back to the caller's after it; yields the count set."""
+    previous = numba.get_num_threads()
     threads = max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS))
-    numba.set_num_threads(threads)
-    return threads
+    try:
+        numba.set_num_threads(threads)
+        yield threads
+    finally:
+        numba.set_num_threads(previous)  # the caller's kernels keep their thread count
 
 
 def make_state(n_dof: int, batch: int, dtype: type, threads: int) -> tuple[np.ndarray, ...]:
@@ -204,8 +210,7 @@ def make_state(n_dof: int, batch: int, dtype: type, threads: int) -> tuple[np.nd
     to another array at the same offset (4K aliasing); measured here, that halved the loop's
     speed at random between measurements (feature extractor float32: 1,320 against 2,500
     run-s/s), and the ceiling is the machine's best."""
-    chunks = max(1, min(threads, batch))
-    width = -(-batch // chunks)
+    chunks, width = chunking(batch, threads)
     cells = n_dof * width
     x = np.linspace(0.1, 1.0, chunks * cells).reshape(chunks, cells).astype(dtype)
     arrays = (x, *(np.zeros((chunks, cells), dtype) for _ in range(5)))
@@ -320,12 +325,8 @@ def _kernel(n_pad: int):
 def run_loop(state: tuple[np.ndarray, ...], n_pad: int, steps: int, threads: int = 1) -> None:
     """Advance `state` (x, v, kx, kv, ax, av from `make_state`) by `steps` steps of the
     ceiling loop, one thread per chunk (at most `threads`)."""
-    previous = numba.get_num_threads()
-    try:
-        _set_threads(threads)
+    with _numba_threads(threads):
         _kernel(n_pad)(*state, *_coefficients(state[0].dtype.type), steps)
-    finally:
-        numba.set_num_threads(previous)
 
 
 def reference_steps(state: tuple[np.ndarray, ...], n_pad: int, steps: int) -> None:
@@ -398,8 +399,8 @@ def store_seconds(rec: np.ndarray, threads: int = 2) -> float:
     on the rows of its own runs; `rec` is first written once untimed, so its pages are
     handed out already (a reused record buffer)."""
     probes, runs, width = rec.shape
-    line = 64 // rec.itemsize
-    if rec.ctypes.data % 64 or width % line:
+    line = LINE // rec.itemsize
+    if rec.ctypes.data % LINE or width % line:
         raise ValueError("rec must be 64-byte aligned with rows of whole 64-byte lines")
     values = (rec.dtype.type(1.0),) * line
     threads = max(1, min(threads, runs))

@@ -4,7 +4,9 @@
 The source from `springc.codegen` is written to `<cache>/springc_kernel_<hash>.py` (a real
 file, so that numba's `cache=True` can store the compiled machine code beside it and a second
 process reuses it) and imported by path. The cache folder is `$SPRINGC_CACHE` or
-`~/.cache/springc/kernels`.
+`~/.cache/springc/kernels`. Processes share it safely (test workers, Dask workers): a kernel's
+file appears once and whole, and each kernel is compiled under its own lock file, so a second
+process waits and then loads the machine code the first one cached.
 
 Kernels are compiled with LLVM's SLP (straight-line) vectoriser on: the generated lane code
 is written for it (see `springc.codegen`), and without it every lane stays scalar (measured
@@ -16,6 +18,7 @@ other numba code in the process is compiled as before.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import importlib.util
 import os
 import sys
@@ -65,7 +68,8 @@ def cache_dir() -> Path:
 class Kernel:
     """A loaded kernel module: `run(**arrays)` calls the generated `run` with named arguments.
 
-    `compile_s` is the time of the first call (numba compiles, or loads its cache, lazily)."""
+    `compile_s` is the time its first call took to compile `run` or load it from numba's
+    cache."""
 
     module: ModuleType
     path: Path
@@ -82,11 +86,22 @@ class Kernel:
         extra = set(arrays) - set(self.args)
         if missing or extra:
             raise TypeError(f"kernel arguments: missing {sorted(missing)}, extra {sorted(extra)}")
-        start = time.perf_counter()
-        with slp_vectorize():
-            self.module.run(*(arrays[name] for name in self.args))
+        values = [arrays[name] for name in self.args]
         if self.compile_s is None:
-            self.compile_s = time.perf_counter() - start
+            self.compile(values)
+        with slp_vectorize():
+            self.module.run(*values)
+
+    def compile(self, values: list) -> None:
+        """Compile `run` for the types of `values` (or load it from numba's cache) under the
+        kernel's lock, so that concurrent processes compile each kernel once."""
+        import numba
+
+        start = time.perf_counter()
+        signature = tuple(numba.typeof(v) for v in values)
+        with compile_lock(self.path), slp_vectorize():
+            self.module.run.compile(signature)
+        self.compile_s = time.perf_counter() - start
 
 
 def kernel_path(source: str) -> Path:
@@ -95,17 +110,35 @@ def kernel_path(source: str) -> Path:
 
 
 def write_source(source: str) -> Path:
-    """Write the shared part of `source` (`codegen.shared_text`) to its cache file, atomically;
-    untouched if already there, so numba's cache, keyed on the file's timestamp, stays valid."""
+    """Write the shared part of `source` (`codegen.shared_text`) to its cache file, once: a file
+    already there is never replaced, because numba's cache is keyed on its timestamp and
+    another process may be compiling from it. Linking a complete temporary file into place
+    makes the file appear whole or not at all."""
     path = kernel_path(source)
-    source = shared_text(source)
-    if path.exists() and path.read_text() == source:
+    if path.exists():
         return path
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        fh.write(source)
-    os.replace(tmp, path)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(shared_text(source))
+        os.link(tmp, path)
+    except FileExistsError:
+        pass  # another process wrote the same text first
+    finally:
+        os.unlink(tmp)
     return path
+
+
+@contextlib.contextmanager
+def compile_lock(path: Path) -> Iterator[None]:
+    """Hold an exclusive lock on `path`'s lock file: a process about to compile a kernel waits
+    while another compiles it, then loads the machine code that one cached."""
+    with open(path.with_suffix(".lock"), "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
 
 
 def load(source: str) -> Kernel:

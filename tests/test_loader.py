@@ -1,0 +1,66 @@
+"""The kernel cache shared between processes: each kernel is compiled once under its lock and
+loaded by the others from numba's cache, and a kernel compiles exactly the signature it is
+called with."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from springc import lang, loader
+from springc.simulate import simulate
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "netlists" / "examples" / "duffing.spr"
+ONE_PROCESS = f"""
+import json, sys
+from springc import lang
+from springc.simulate import simulate
+sys.stdin.read()  # start together
+out = simulate(lang.load_file({str(EXAMPLE)!r}), tstop=0.5, method="heun3")
+from springc import loader
+run = loader._LOADED.popitem()[1].module.run
+print(json.dumps({{"x": out.probes["x(x)"][0].tolist(), "hits": sum(run.stats.cache_hits.values()),
+                  "misses": sum(run.stats.cache_misses.values())}}))
+"""
+
+
+def test_two_processes_compile_a_kernel_once(tmp_path: Path) -> None:
+    env = {**os.environ, "SPRINGC_CACHE": str(tmp_path)}
+    procs = [subprocess.Popen([sys.executable, "-c", ONE_PROCESS], env=env, text=True,
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE) for _ in range(2)]
+    for proc in procs:
+        proc.stdin.close()
+    results = [json.loads(proc.stdout.read()) for proc in procs]
+    for proc in procs:
+        proc.wait()
+    assert [p.returncode for p in procs] == [0, 0]
+    assert results[0]["x"] == results[1]["x"]
+    assert sorted((r["misses"], r["hits"]) for r in results) == [(0, 1), (1, 0)]
+    assert len(list(tmp_path.glob("springc_kernel_*.py"))) == 1
+
+
+def test_a_kernel_compiles_only_the_signature_it_is_called_with(tmp_path, monkeypatch) -> None:
+    monkeypatch.setenv("SPRINGC_CACHE", str(tmp_path))
+    net = lang.load_file(EXAMPLE)
+    first = simulate(net, tstop=0.2, method="heun3")
+    kernel = loader._LOADED[Path(first.info["kernel"]).stem.removeprefix("springc_kernel_")]
+    again = simulate(net, tstop=0.2, method="heun3")
+    assert len(kernel.module.run.overloads) == 1
+    np.testing.assert_array_equal(first.probes["x(x)"], again.probes["x(x)"])
+
+
+def test_a_kernel_file_is_written_once(tmp_path, monkeypatch) -> None:
+    monkeypatch.setenv("SPRINGC_CACHE", str(tmp_path))
+    source = "import numpy as np\nARGS = ()\n"
+    path = loader.write_source(source)
+    stamp = path.stat().st_mtime_ns
+    os.utime(path, ns=(stamp - 10**9, stamp - 10**9))
+    assert loader.write_source(source) == path
+    assert path.stat().st_mtime_ns == stamp - 10**9
+    assert path.read_text() == source
+    assert list(tmp_path.iterdir()) == [path]

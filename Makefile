@@ -1,23 +1,25 @@
-# springc: the two commands a new user needs are `make demo` and `make test`.
-PY ?= python3
+# springc: the two commands a new user needs are `make demo` and `make test`. Both install first:
+# Debian packages, then a virtual environment in $(VENV) with springc and its dependencies.
+VENV ?= .venv
+PY := $(VENV)/bin/python
 
 .PHONY: install demo test bench clean
 
-.installed: pyproject.toml scripts/install.sh
-	bash scripts/install.sh
-	touch .installed
+$(VENV)/.installed: pyproject.toml scripts/install.sh
+	bash scripts/install.sh $(VENV)
+	touch $@
 
-install: .installed
+install: $(VENV)/.installed
 
-demo: .installed
-	$(PY) -m springc_cli.main demo
+demo: install
+	$(VENV)/bin/springc demo
 
-test: .installed
-	$(PY) -m pytest -q
+test: install
+	PATH="$(abspath $(VENV))/bin:$$PATH" $(PY) -m pytest -q -n auto
 
-bench: .installed
-	$(PY) -m springc_cli.main bench --out bench-out
+bench: install
+	$(VENV)/bin/springc bench --out bench-out
 	mkdir -p docs && cp bench-out/bench.md docs/bench.md
 
 clean:
-	rm -rf .installed out bench-out .pytest_cache
+	rm -rf .venv out bench-out .pytest_cache

@@ -1,9 +1,12 @@
 #!/usr/bin/env bash
 # Installs what springc needs on a fresh Debian machine: the text-to-speech engines and ngspice
-# (Debian packages, for the built-in corpus and cross-checks) and the Python package itself.
+# (Debian packages, for the built-in corpus and cross-checks), then a virtual environment (the
+# first argument, default .venv) holding springc and its declared dependencies, nothing else.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+VENV="${1:-.venv}"
 DEBS="espeak-ng flite festival festvox-kallpc16k festvox-kdlpc16k festvox-us-slt-hts ngspice codec2 codec2-examples alsa-utils libsndfile1 sox"
+python3 -c "import ensurepip, venv" 2>/dev/null || DEBS="$DEBS python3-venv"
 missing=""
 for pkg in $DEBS; do
   dpkg -s "$pkg" >/dev/null 2>&1 || missing="$missing $pkg"
@@ -17,4 +20,6 @@ if [ -n "$missing" ]; then
     echo "warning: missing Debian packages:$missing (need root and apt-get); continuing" >&2
   fi
 fi
-python3 -m pip install -q --disable-pip-version-check -e ".[dev]"
+[ -x "$VENV/bin/python" ] || python3 -m venv "$VENV"
+echo "installing springc into $VENV"
+"$VENV/bin/python" -m pip install -q --disable-pip-version-check -e ".[dev]"

@@ -22,7 +22,8 @@ from springc_cli.common import plot_option, run_user_errors
 @run_user_errors
 def ac_cmd(netlist, node, channel, fmin, fmax, points, output, plot_path) -> None:
     """Frequency response H(f) = X(f)/U(f) of the linearisation at rest."""
-    from springc import checks, lang
+    from springc.check import checks
+    from springc import lang
     from springc.analyses import ac
     from springc.errors import UsageError
 
@@ -53,7 +54,8 @@ def ac_cmd(netlist, node, channel, fmin, fmax, points, output, plot_path) -> Non
 @run_user_errors
 def modes_cmd(netlist: str, as_json: bool, count: int | None) -> None:
     """Eigenfrequencies, damping rates, Q factors, dominant nodes and zero modes."""
-    from springc import checks, lang
+    from springc.check import checks
+    from springc import lang
     from springc.analyses.modes import mode_report, mode_text
 
     net = lang.load_file(netlist)

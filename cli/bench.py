@@ -41,7 +41,7 @@ def bench_cmd(case_names, outdir, quick, issue3, seconds, batch, stretch, json_p
     if issue3:
         _issue3(seconds, batch, stretch, json_path)
         return
-    from springc import benchsuite
+    from springc.bench import suite as benchsuite
 
     machine = benchsuite.machine_info()
     start = time.perf_counter()
@@ -57,7 +57,7 @@ def bench_cmd(case_names, outdir, quick, issue3, seconds, batch, stretch, json_p
 
 
 def _issue3(seconds, batch, stretch, json_path) -> None:
-    from springc.bench import markdown, run_bench, write_json
+    from springc.bench.throughput import markdown, run_bench, write_json
 
     result = run_bench(seconds, batch, stretch, progress=lambda m: click.echo(m, err=True))
     write_json(result, json_path)

@@ -25,7 +25,7 @@ from springc.lang.options import known_methods
 @run_user_errors
 def build_cmd(netlist: str, as_json: bool, emit_kernel: str | None, method: str | None) -> None:
     """Parse, elaborate and check NETLIST; print dofs, elements, fastest mode and dt_max."""
-    from springc import compiler
+    from springc.check import compiler
 
     report = compiler.build(netlist, method=method)
     if emit_kernel:

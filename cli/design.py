@@ -39,7 +39,7 @@ def melbank_cmd(bins: int, fmin: float, fmax: float, kind: str, name: str, outpu
     click.echo(melbank.misfit_table(bank))
     click.echo(f"wrote {output} ({kind} filters, subcircuit {name})")
     if plot_path:
-        from springc import figures
+        from springc.design import figures
 
         figures.plot_melbank(bank, plot_path)
         click.echo(f"wrote {plot_path}")

@@ -9,12 +9,12 @@ from pathlib import Path
 import click
 from springc_cli.common import plot_option, run_user_errors
 
-from springc import sources
+from springc.sim import sources
 from springc.design.emit import write_atomic
 from springc.errors import UsageError
-from springc.export_spice import SpiceOptions, export_spice, transient
-from springc.ir import FlatNetlist
-from springc.ngspice import CrossCheck, cross_check, plot_cross_check
+from springc.export.spice import SpiceOptions, export_spice, transient
+from springc.lang.ir import FlatNetlist
+from springc.export.ngspice import CrossCheck, cross_check, plot_cross_check
 
 
 @click.command("export")

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 from springc_cli.common import run_user_errors
 
-from springc import figures
+from springc.design import figures
 from springc.design.emit import write_atomic
 from springc.errors import UsageError
 

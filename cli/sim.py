@@ -5,8 +5,8 @@ from __future__ import annotations
 import click
 from springc_cli.common import plot_option, precision_option, run_user_errors
 
-from springc.expint import SCHEMES
-from springc.integrators import TABLEAUX
+from springc.kernels.expint import SCHEMES
+from springc.kernels.integrators import TABLEAUX
 
 KERNEL_FORMS = {"auto": None, "written-out": True, "shared": False}  # simulate's write_out
 REDUCE_HELP = (
@@ -60,9 +60,9 @@ def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precisio
 
     Runs are integrated together in lockstep by a kernel generated for the netlist; inputs
     are resampled to 1/tstep and interpolated linearly at the integrator's stage times."""
-    from springc import results
+    from springc.sim import results
     from springc.lang import load_file
-    from springc.simulate import simulate
+    from springc.sim.simulate import simulate
 
     results.check_output_path(output)
     net = load_file(netlist)
@@ -82,10 +82,10 @@ def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precisio
 
 def _choose(net, tolerance, method, substeps, tstep, tstop, inputs, channel
             ) -> tuple[str, int]:
-    """(method, substeps) from `springc.accuracy.choose`, echoed for the user."""
-    from springc.accuracy import choose
+    """(method, substeps) from `springc.check.accuracy.choose`, echoed for the user."""
+    from springc.check.accuracy import choose
     from springc.errors import UsageError
-    from springc.stepcheck import verify
+    from springc.sim.stepcheck import verify
 
     if method or substeps:
         raise UsageError("--tolerance chooses the method and substeps itself",
@@ -102,6 +102,6 @@ def _choose(net, tolerance, method, substeps, tstep, tstop, inputs, channel
 
 def _first_run(inputs) -> list | None:
     """The first input file, for the step-doubling check (None: a run without input)."""
-    from springc.sources import expand_inputs
+    from springc.sim.sources import expand_inputs
 
     return expand_inputs(inputs)[:1] if inputs else None

@@ -15,7 +15,7 @@ import argparse
 import math
 import time
 
-from springc.checks import check
+from springc.check.checks import check
 from springc.lang import elaborate, parse
 
 

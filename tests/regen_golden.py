@@ -35,8 +35,8 @@ def simulate_example(path: Path):
     """Simulate one example with the golden settings: its own .tran and .options, inputs from
     `golden_inputs` if it reads any, outputs thinned to at most MAX_SAMPLES samples."""
     from springc.lang import load_file
-    from springc.simulate import settings, simulate
-    from springc.sources import channels_used
+    from springc.sim.simulate import settings, simulate
+    from springc.sim.sources import channels_used
 
     net = load_file(path)
     tstop = min(net.tran.tstop, MAX_SECONDS) if channels_used(net) else net.tran.tstop

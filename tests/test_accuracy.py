@@ -1,4 +1,4 @@
-"""springc.accuracy: per-mode error estimates against measured errors, and the choice."""
+"""springc.check.accuracy: per-mode error estimates against measured errors, and the choice."""
 
 from __future__ import annotations
 
@@ -10,10 +10,11 @@ from click.testing import CliRunner
 from springc_cli.main import main as cli
 from test_checks import H16, _kicked_pair
 
-from springc import accuracy, benchsuite
+from springc.check import accuracy
+from springc.bench import suite as benchsuite
 from springc.errors import UsageError
-from springc.ir import IRBuilder, Tran
-from springc.simulate import likely_cause, settings, simulate
+from springc.lang.ir import IRBuilder, Tran
+from springc.sim.simulate import likely_cause, settings, simulate
 
 TWOMODE = "netlists/examples/twomode_filter.spr"
 

@@ -9,7 +9,7 @@ import pytest
 from springc.analyses import ac
 from springc.design.filters import two_mode_response
 from springc.errors import UsageError
-from springc.ir import IRBuilder, Source
+from springc.lang.ir import IRBuilder, Source
 from springc.lang import load_text
 
 SPEC_FILTER = """\

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from springc.analyses.modes import mode_report, mode_text
-from springc.ir import IRBuilder
+from springc.lang.ir import IRBuilder
 
 
 def _filter_like():

@@ -1,4 +1,4 @@
-"""springc.benchsuite: the tight reference against an analytic solution, the ladder of finer
+"""springc.bench.suite: the tight reference against an analytic solution, the ladder of finer
 rows, the equal-error speed-ups and the must-show verdicts. No timing is asserted (the machine
 is shared): the speed-up logic is checked on rows with given wall times."""
 
@@ -12,9 +12,9 @@ import types
 import numpy as np
 import pytest
 
-from springc import benchsuite as bs
-from springc.ir import IRBuilder, Source, Tran
-from springc.simulate import method_order
+from springc.bench import suite as bs
+from springc.lang.ir import IRBuilder, Source, Tran
+from springc.sim.simulate import method_order
 
 K, C, F, FREQ = (2 * np.pi * 300.0) ** 2, 60.0, 1e5, 280.0  # driven near resonance, Q ~ 31
 TSTEP, TSTOP, STRETCH = 1e-4, 0.02, 0.01

@@ -1,4 +1,4 @@
-"""springc.ceiling: the flop accounting of the ceiling loop, and that a measurement reports
+"""springc.bench.ceiling: the flop accounting of the ceiling loop, and that a measurement reports
 consistent, positive, finite numbers. No timing is asserted (the machine is shared)."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import numba
 import numpy as np
 import pytest
 
-from springc import ceiling
-from springc.ir import IRBuilder, Source
+from springc.bench import ceiling
+from springc.lang.ir import IRBuilder, Source
 
 N_PAD = ceiling.padding_for(70.0)  # the default rating: one compiled loop for all tests
 
@@ -134,7 +134,7 @@ def test_first_touch_is_timed():
 def test_store_seconds_writes_every_line_of_the_record(dtype):
     """Every value of every run's row, both threads' runs (3 runs: one and two), written;
     a misaligned record is refused (the stores would fault)."""
-    from springc.simulate import record_buffer
+    from springc.sim.simulate import record_buffer
 
     rec = record_buffer(2, 100, 3, dtype)
     took = ceiling.store_seconds(rec, threads=2)

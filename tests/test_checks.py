@@ -12,12 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from springc import checks, physics
+from springc.check import checks
+from springc.lang import physics
 from springc.errors import CheckError, SimulationError, SourceLoc
-from springc.integrators import get_tableau, max_stable_step, stability_polynomial
-from springc.ir import IRBuilder, Source, Tran
+from springc.kernels.integrators import get_tableau, max_stable_step, stability_polynomial
+from springc.lang.ir import IRBuilder, Source, Tran
 from springc.lang import load_file
-from springc.simulate import simulate
+from springc.sim.simulate import simulate
 
 CASES = sorted((Path(__file__).resolve().parent / "cases" / "check").glob("*.spr"))
 _HEADER = re.compile(r"^\* (expect|line): (.*)$")
@@ -107,7 +108,7 @@ def test_cubic_escape_direction() -> None:
     u = _direction(msg)
     top = -u["x1"] ** 2 * u["x2"]  # the cubic part at u: must be negative
     assert top < -0.38  # the minimum over the unit sphere is -2/(3 sqrt 3) = -0.3849
-    from springc.physics import potential
+    from springc.lang.physics import potential
     x = np.array([u["x1"], u["x2"]])
     assert potential(net, 1e3 * x) < -1e8 and potential(net, 1e4 * x) < -1e11
 
@@ -314,7 +315,7 @@ def test_large_component_negative_curvature() -> None:
     -4.32456 (scipy's dense eigvalsh of the same matrix, to 6 digits)."""
     net = _long_chain(lambda b: b.monomial("P1", -3.0, [("n200", 2)]))
     msg, = _errors(net)
-    from springc.physics import stiffness_matrix
+    from springc.lang.physics import stiffness_matrix
     lowest = np.linalg.eigvalsh(stiffness_matrix(net))[0]
     assert f"curvature {lowest:.6g} along (n200=0.974" in msg
 
@@ -347,7 +348,7 @@ def test_large_component_quartics() -> None:
     assert _errors(_long_chain(good)) == []
 
 
-# --- split schemes (springc.expint): blocks exact, the inner RK4 on the rest --------------
+# --- split schemes (springc.kernels.expint): blocks exact, the inner RK4 on the rest --------------
 
 H16 = 1 / 16000  # a 16 kHz input grid: the top Mel bands sit just below its Nyquist frequency
 WS = 2 * np.pi * 50  # the slow part

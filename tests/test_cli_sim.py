@@ -10,7 +10,7 @@ import soundfile as sf
 from click.testing import CliRunner
 
 from springc.lang import load_file
-from springc.simulate import simulate
+from springc.sim.simulate import simulate
 from springc_cli.main import main
 
 NETLIST = """\
@@ -61,7 +61,7 @@ def test_npz_holds_t_probes_and_reductions_as_the_library_computes(case):
 @pytest.mark.parametrize("form, write_out", [("auto", None), ("written-out", True),
                                              ("shared", False)])
 def test_kernel_form_reaches_simulate(case, monkeypatch, form, write_out):
-    from springc import simulate as sm
+    from springc.sim import simulate as sm
 
     seen = []
     real = sm.simulate

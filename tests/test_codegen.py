@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from springc import codegen, loader
-from springc.codegen import KernelOptions, generate
-from springc.ir import IRBuilder, Source, Tran
+from springc.kernels import codegen, loader
+from springc.kernels.codegen import KernelOptions, generate
+from springc.lang.ir import IRBuilder, Source, Tran
 
 ROOT = str(Path(__file__).parents[1])
 
@@ -73,7 +73,7 @@ def test_stages_follow_the_tableau():
 
 
 def test_codegen_does_not_import_numba():
-    code = ("import sys; from springc.codegen import generate, KernelOptions; "
+    code = ("import sys; from springc.kernels.codegen import generate, KernelOptions; "
             "from tests.test_codegen import small_net; generate(small_net(), KernelOptions()); "
             "print('numba' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
@@ -84,7 +84,7 @@ def test_codegen_does_not_import_numba():
 def test_loader_writes_real_file_and_numba_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("SPRINGC_CACHE", str(tmp_path))
     loader.forget()  # a kernel loaded by an earlier test would not be written here
-    from springc.simulate import simulate
+    from springc.sim.simulate import simulate
 
     net = small_net()
     u = np.ones((1, 1, 101))
@@ -104,7 +104,7 @@ def test_loader_writes_real_file_and_numba_cache(tmp_path, monkeypatch):
     assert abs(res.probes["x(a)"][0, 2] - (t**2 / 2 - 0.5 * t**3 / 6 - 105 * t**4 / 24)) < 2e-12
     # a second process loads the compiled code from the cache and gets the same numbers
     code = ("import numpy as np; from tests.test_codegen import small_net; "
-            "from springc.simulate import simulate; "
+            "from springc.sim.simulate import simulate; "
             "r = simulate(small_net(), np.ones((1, 1, 101))); "
             "print(repr(float(r.probes['x(a)'][0, -1])))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from springc import compiler
+from springc.check import compiler
 from springc.errors import CheckError, NetlistError
 
 FILTER = """\

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from scipy.linalg import subspace_angles
 
-from springc import figures, physics
+from springc.design import figures
+from springc.lang import physics
 from springc.design.mvm import design_mvm, load_matrix, mvm_text, write_mvm
 from springc.errors import DataError, UsageError
 from springc.lang import load_text
@@ -99,7 +100,7 @@ def test_outputs_equal_q_times_inputs_in_the_operating_band(check):
 def test_passes_the_compiler_checks(design, tmp_path):
     """`springc build`: the whole-potential check accepts the negative x^2 terms (PSD with N
     zero modes reported as info)."""
-    from springc.compiler import build
+    from springc.check.compiler import build
 
     path = write_mvm(design, tmp_path / "mvm.spr")
     top = tmp_path / "top.spr"

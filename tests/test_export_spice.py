@@ -1,5 +1,5 @@
-"""springc.export_spice + springc.ngspice: exported networks run in ngspice and agree with the
-analytic solution or scipy's DOP853 on the reference physics; export errors are located.
+"""springc.export.spice + springc.export.ngspice: exported networks run in ngspice and agree
+with the analytic solution or scipy's DOP853 on the reference physics; export errors are located.
 
 Tolerances (relative L2 over the probe traces) come from ngspice's trapezoidal rule, whose
 error shrinks as the square of its largest step `tmax`; the measured errors are in comments.
@@ -18,14 +18,14 @@ import soundfile as sf
 from click.testing import CliRunner
 from scipy.integrate import solve_ivp
 
-from springc import physics
-from springc.audio import load_audio
+from springc.lang import physics
+from springc.sim.audio import load_audio
 from springc.errors import NetlistError, SimulationError, SourceLoc
-from springc.export_spice import SpiceOptions, export_spice, probe_vectors
-from springc.ir import FlatNetlist, IRBuilder, Source, Tran
+from springc.export.spice import SpiceOptions, export_spice, probe_vectors
+from springc.lang.ir import FlatNetlist, IRBuilder, Source, Tran
 from springc.lang import load_text
-from springc.ngspice import cross_check, plot_cross_check, run_ngspice, simulate_ngspice
-from springc.sources import analytic
+from springc.export.ngspice import cross_check, plot_cross_check, run_ngspice, simulate_ngspice
+from springc.sim.sources import analytic
 
 needs_ngspice = pytest.mark.skipif(
     shutil.which("ngspice") is None,

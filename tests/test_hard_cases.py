@@ -6,12 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from springc import accuracy, benchsuite, physics
-from springc import bench_networks as bn
+from springc.check import accuracy
+from springc.bench import suite as benchsuite
+from springc.lang import physics
+from springc.bench import networks as bn
 from springc.errors import SimulationError
-from springc.ir import IRBuilder, Source, Tran
-from springc.reference import solve_ivp_reference
-from springc.simulate import simulate
+from springc.lang.ir import IRBuilder, Source, Tran
+from springc.bench.reference import solve_ivp_reference
+from springc.sim.simulate import simulate
 
 RATE = 32000.0
 

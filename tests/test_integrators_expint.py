@@ -1,4 +1,5 @@
-"""springc.expint: driven linear blocks integrated exactly (strang-rk4, exp-rk4, exp-heun3)."""
+"""springc.kernels.expint: driven linear blocks integrated exactly (strang-rk4, exp-rk4,
+exp-heun3)."""
 
 from __future__ import annotations
 
@@ -8,12 +9,14 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from springc import bench_networks as bn
-from springc import benchsuite, expint, physics
+from springc.bench import networks as bn
+from springc.bench import suite as benchsuite
+from springc.kernels import expint
+from springc.lang import physics
 from springc.errors import UsageError
-from springc.ir import IRBuilder, Tran
-from springc.reference import solve_ivp_reference
-from springc.simulate import simulate
+from springc.lang.ir import IRBuilder, Tran
+from springc.bench.reference import solve_ivp_reference
+from springc.sim.simulate import simulate
 
 RATE = 32000.0
 

@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 from scipy.signal import chirp
 
-from springc import physics
+from springc.lang import physics
 from springc.errors import UsageError
-from springc.ir import IRBuilder, Source, Tran
+from springc.lang.ir import IRBuilder, Source, Tran
 from springc.kws import massspring as msp
 from springc.kws.digital import FeatureSettings, features
 from springc.kws.phi import group_index, n_features, readout_weights
-from springc.reductions import gram_reduction
-from springc.simulate import simulate
+from springc.sim.reductions import gram_reduction
+from springc.sim.simulate import simulate
 
 # Kernels are content-addressed: one shared cache keeps repeated test runs from recompiling.
 KERNELS = Path(tempfile.gettempdir()) / "springc-test-kernels"

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.signal import chirp
 
-from springc.compiler import build
+from springc.check.compiler import build
 from springc.design.blocks import readout_params
 from springc.errors import UsageError
 from springc.kws import massspring as msp

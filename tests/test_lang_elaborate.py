@@ -11,9 +11,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from springc import physics
+from springc.lang import physics
 from springc.errors import NetlistError
-from springc.ir import GROUND
+from springc.lang.ir import GROUND
 from springc.lang import STDLIB_DIR, load_file, load_text
 
 SPEC_EXAMPLE = Path(__file__).resolve().parents[1] / "netlists" / "examples" / "twomode_filter.spr"
@@ -95,7 +95,7 @@ def test_probe_inside_a_subcircuit_is_labelled_with_the_instance_path() -> None:
 
 
 def test_a_node_named_only_by_a_force_or_probe_is_still_a_node() -> None:
-    # the IR can hold it; springc.checks reports that it carries no mass
+    # the IR can hold it; springc.check.checks reports that it carries no mass
     net = _load("M1 a m=1\nF1 b sin(1 2)\n.probe x(c) v(b)\n.ac c 1 2\n")
     assert net.nodes == ["a", "b", "c"]
     assert [(p.label, p.node) for p in net.probes] == [("x(c)", 2), ("v(b)", 1)]

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 
 from springc.errors import NetlistError
-from springc.expint import SCHEMES
-from springc.integrators import TABLEAUX
+from springc.kernels.expint import SCHEMES
+from springc.kernels.integrators import TABLEAUX
 from springc.lang import load_text
 from springc.lang.options import KNOWN_OPTIONS, OptionValueError, known_methods
 

@@ -7,7 +7,7 @@ import pytest
 
 from springc.kws.massspring import compressed
 from springc.lang import load_text
-from springc.simulate import simulate
+from springc.sim.simulate import simulate
 
 KQ, THRESHOLD = 10.0, 1e-4  # l = kq / threshold^2
 NETLIST = f""".include "compressor.spr"

@@ -12,7 +12,7 @@ import pytest
 from click.testing import CliRunner
 from springc_cli.main import main
 
-from springc import figures
+from springc.design import figures
 from springc.lang import load_text
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from springc import figures
-from springc.compiler import build
+from springc.design import figures
+from springc.check.compiler import build
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""`springc figures OUTDIR` (springc/figures.py, cli/figures.py): the building-block figures
+"""`springc figures OUTDIR` (springc/design/figures.py, cli/figures.py): the building-block figures
 are written as PNGs with the measured numbers beside them. The experiments behind them are
 asserted on in the other tests/test_lib_*.py files; here only the command itself."""
 

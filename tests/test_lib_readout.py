@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from springc import figures
+from springc.design import figures
 from springc.lang import load_text
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from springc import figures
+from springc.design import figures
 from springc.lang import load_text
 
 

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from springc import linear, physics
-from springc.integrators import TABLEAUX, max_stable_step
-from springc.ir import IRBuilder
+from springc.check import linear
+from springc.lang import physics
+from springc.kernels.integrators import TABLEAUX, max_stable_step
+from springc.lang.ir import IRBuilder
 
 
 def _mixed():

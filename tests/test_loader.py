@@ -12,17 +12,18 @@ from pathlib import Path
 
 import numpy as np
 
-from springc import lang, loader
-from springc.simulate import simulate
+from springc import lang
+from springc.kernels import loader
+from springc.sim.simulate import simulate
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "netlists" / "examples" / "duffing.spr"
 ONE_PROCESS = f"""
 import json, sys
 from springc import lang
-from springc.simulate import simulate
+from springc.sim.simulate import simulate
 sys.stdin.read()  # start together
 out = simulate(lang.load_file({str(EXAMPLE)!r}), tstop=0.5, method="heun3")
-from springc import loader
+from springc.kernels import loader
 run = loader._LOADED.popitem()[1].module.run
 print(json.dumps({{"x": out.probes["x(x)"][0].tolist(), "hits": sum(run.stats.cache_hits.values()),
                   "misses": sum(run.stats.cache_misses.values())}}))

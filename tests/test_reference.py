@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from springc.ir import IRBuilder, Source, Tran
-from springc.reference import forcing, rk4_numpy, solve_ivp_reference
+from springc.lang.ir import IRBuilder, Source, Tran
+from springc.bench.reference import forcing, rk4_numpy, solve_ivp_reference
 
 
 def oscillator(w0: float = 20.0, b: float = 2.0):

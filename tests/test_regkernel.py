@@ -1,4 +1,4 @@
-"""Register kernels (`springc.regkernel`): one run of a small network with its state in
+"""Register kernels (`springc.kernels.regkernel`): one run of a small network with its state in
 scalars. The same trajectories as the shared kernel and as scipy; the same divergence guard;
 which simulations get them."""
 
@@ -8,10 +8,12 @@ import numpy as np
 import pytest
 from test_written_out import RUNS, assert_matches_scipy, every_kind, inputs
 
-from springc import bench_networks as bn, benchsuite, codegen, regkernel, simulate as sm
+from springc.bench import networks as bn, suite as benchsuite
+from springc.kernels import codegen, regkernel
+from springc.sim import simulate as sm
 from springc.errors import SimulationError
-from springc.ir import IRBuilder, Source, Tran
-from springc.reference import solve_ivp_reference
+from springc.lang.ir import IRBuilder, Source, Tran
+from springc.bench.reference import solve_ivp_reference
 
 FEW = 3  # runs: two threads of chunks of one run (lanes 1), one of them two chunks
 

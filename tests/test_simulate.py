@@ -13,13 +13,13 @@ import soundfile as sf
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
-from springc import physics
-from springc.codegen import nystrom_coefficients
+from springc.lang import physics
+from springc.kernels.codegen import nystrom_coefficients
 from springc.errors import SimulationError, UsageError
-from springc.integrators import TABLEAUX, amplification, get_tableau, stability_polynomial
-from springc.ir import IRBuilder, Source, Tran
-from springc.reference import rk4_numpy, solve_ivp_reference
-from springc.simulate import linear_rows, simulate
+from springc.kernels.integrators import TABLEAUX, amplification, get_tableau, stability_polynomial
+from springc.lang.ir import IRBuilder, Source, Tran
+from springc.bench.reference import rk4_numpy, solve_ivp_reference
+from springc.sim.simulate import linear_rows, simulate
 
 W0 = 2 * np.pi * 10.0  # oscillator natural frequency (rad/s)
 WF = 2 * np.pi * 8.0  # drive frequency

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from springc import sources
+from springc.sim import sources
 from springc.errors import DataError, UsageError
-from springc.integrators import TABLEAUX, get_tableau
-from springc.ir import IRBuilder, Source
+from springc.kernels.integrators import TABLEAUX, get_tableau
+from springc.lang.ir import IRBuilder, Source
 
 
 def test_analytic_sources_follow_the_spec():

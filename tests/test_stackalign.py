@@ -1,5 +1,5 @@
 """Register kernels for lanes ask LLVM for a 64-byte-aligned stack frame
-(`springc.stackalign`)."""
+(`springc.kernels.stackalign`)."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import numba as nb
 import numpy as np
 import pytest
 
-from springc.ir import IRBuilder, Tran
-from springc.simulate import simulate
-from springc.stackalign import align_stack
+from springc.lang.ir import IRBuilder, Tran
+from springc.sim.simulate import simulate
+from springc.kernels.stackalign import align_stack
 
 
 def _sum(a):
@@ -65,5 +65,5 @@ def test_register_kernels_for_lanes_align_their_frame_first(method, write_out, r
     assert ("LANES = 1 " in "\n".join(lines)) == (runs == 1)
     head = next(i for i, line in enumerate(lines) if line.startswith("def run("))
     assert (lines[head + 2].strip() == "align_stack()") == aligned
-    assert any(line.startswith("from springc.stackalign import align_stack  # ")
+    assert any(line.startswith("from springc.kernels.stackalign import align_stack  # ")
                for line in lines) == aligned

@@ -1,4 +1,4 @@
-"""springc.stepcheck: step doubling catches the error the linear estimate cannot see."""
+"""springc.sim.stepcheck: step doubling catches the error the linear estimate cannot see."""
 
 from __future__ import annotations
 
@@ -9,11 +9,12 @@ from springc_cli.main import main as cli
 from test_accuracy import TWOMODE
 from test_integrators_expint import RATE, _filter_net, _rel
 
-from springc import accuracy, stepcheck
+from springc.check import accuracy
+from springc.sim import stepcheck
 from springc.errors import UsageError
 from springc.lang import load_file
-from springc.reference import solve_ivp_reference
-from springc.simulate import simulate
+from springc.bench.reference import solve_ivp_reference
+from springc.sim.simulate import simulate
 
 TOL = 1e-4
 

@@ -6,9 +6,9 @@ import numba as nb
 import numpy as np
 import pytest
 
-from springc.codegen import RECORD_ALIGN
-from springc.simulate import record_buffer
-from springc.streamstore import store_fence, stream_store
+from springc.kernels.codegen import RECORD_ALIGN
+from springc.sim.simulate import record_buffer
+from springc.kernels.streamstore import store_fence, stream_store
 
 
 @nb.njit
@@ -55,8 +55,8 @@ def test_record_buffer_rows_are_aligned_and_padded(dtype, runs):
 
 
 def test_a_kernel_refuses_a_misaligned_record_buffer(monkeypatch):
-    from springc import simulate as sim
-    from springc.ir import IRBuilder, Tran
+    from springc.sim import simulate as sim
+    from springc.lang.ir import IRBuilder, Tran
 
     b = IRBuilder("oscillator")
     b.mass("M1", "a", 1.0, 1.0)

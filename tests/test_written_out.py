@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from springc import benchsuite, codegen, regkernel, simulate as sm
-from springc.codegen import KernelOptions, generate
-from springc.ir import IRBuilder, Source, Tran
+from springc.bench import suite as benchsuite
+from springc.kernels import codegen, regkernel
+from springc.sim import simulate as sm
+from springc.kernels.codegen import KernelOptions, generate
+from springc.lang.ir import IRBuilder, Source, Tran
 
 W = 2 * np.pi * 40.0  # rad/s: every node's local frequency scale
 H = 1e-4  # s: tstep, about 40 steps per period of the fastest mode
@@ -88,7 +90,7 @@ FORMS = {"registers": "the state in registers", "nodes": "# force code: written 
 
 @pytest.fixture(params=sorted(FORMS))
 def form(request, monkeypatch) -> str:
-    """Both written-out forms: the register kernel (`springc.regkernel`, chosen where it
+    """Both written-out forms: the register kernel (`springc.kernels.regkernel`, chosen where it
     serves) and the per-node force code (`codegen.emit_nodes`, where it does not)."""
     if request.param == "nodes":
         monkeypatch.setattr(regkernel, "eligible", lambda net, opts: False)

@@ -17,9 +17,9 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
-from springc import linear
+from springc.check import linear
 from springc.errors import UsageError
-from springc.ir import FlatNetlist
+from springc.lang.ir import FlatNetlist
 
 DENSE_MAX = 400  # networks up to this many dofs are solved with batched dense LU
 DEFAULT_POINTS = 200

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import math
 
-from springc import linear
-from springc.ir import FlatNetlist
+from springc.check import linear
+from springc.lang.ir import FlatNetlist
 
 
 def mode_report(net: FlatNetlist, count: int | None = None) -> dict:

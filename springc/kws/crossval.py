@@ -30,7 +30,7 @@ from springc.kws.dataset import SILENCE
 from springc.kws.digital import FeatureSettings
 from springc.kws.svm import SVM_GRID, fit_linear, select
 from springc.kws.train import feature_matrices, open_task_data, task_weights
-from springc.results import atomic_path
+from springc.sim.results import atomic_path
 
 REALISATIONS = ("digital", "mass-spring")
 RESAMPLES = 2000  # bootstrap draws: the standard error's own relative error ~1.6%

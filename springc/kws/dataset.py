@@ -29,7 +29,7 @@ import numpy as np
 import soundfile as sf
 from tqdm import tqdm
 
-from springc.audio import AUDIO_SUFFIXES, resample
+from springc.sim.audio import AUDIO_SUFFIXES, resample
 from springc.errors import DataError, UsageError
 from springc.kws.preprocess import preprocess as paper_preprocess
 

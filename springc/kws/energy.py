@@ -13,7 +13,7 @@ import re
 
 import numpy as np
 
-from springc.ir import FlatNetlist
+from springc.lang.ir import FlatNetlist
 
 # Stage of a mass element, by its flattened name (`springc.kws.massspring.front_end` and
 # `springc.kws.transfer.head_text` name them).
@@ -84,7 +84,7 @@ def run_budget(net: FlatNetlist, signals: np.ndarray, tstop: float, *,
     """Simulate `signals` (clips, samples) at the clips' 16 kHz through `net` (in float64)
     and return `budget`."""
     from springc.kws.massspring import INPUT_RATE
-    from springc.simulate import simulate
+    from springc.sim.simulate import simulate
 
     sig = np.atleast_2d(np.asarray(signals, dtype=np.float64))[:, None, :]
     res = simulate(net, sig, INPUT_RATE, probes=[], reductions=budget_reductions(net),

@@ -52,9 +52,9 @@ import numpy as np
 from springc.design.emit import SprWriter, num
 from springc.design.melbank import MelFilter
 from springc.errors import UsageError
-from springc.ir import FlatNetlist
+from springc.lang.ir import FlatNetlist
 from springc.kws.phi import group_index, n_features
-from springc.reductions import Reduction, gram_reduction
+from springc.sim.reductions import Reduction, gram_reduction
 
 INPUT_RATE = 16000.0  # Hz: the clips' rate, the `.tran` step of the networks
 # RK4 at 128 kHz: issue 7's measurements put RK4 at 32 kHz 48% off on the 4.9 kHz filter
@@ -301,7 +301,7 @@ def simulate_phi(signals: np.ndarray, s: MassSpringSettings, *, chunk: int | Non
                  progress: bool = False, substeps: int | None = None,
                  precision: str | None = None) -> np.ndarray:
     """Phi (clips, N) of `signals` (clips, samples) at 16 kHz, by simulating the network."""
-    from springc.simulate import simulate
+    from springc.sim.simulate import simulate
 
     net = feature_network(s)
     signals = np.atleast_2d(np.asarray(signals, dtype=np.float64))
@@ -317,7 +317,7 @@ def simulate_traces(signals: np.ndarray, s: MassSpringSettings,
     """(t, x) with x (clips, bins, T): the compressed features c{i} (the compressor outputs,
     which feed the delay lines) at `rate`, for plots and the comparison with the digital
     features."""
-    from springc.simulate import simulate
+    from springc.sim.simulate import simulate
 
     net = feature_network(s)
     signals = np.atleast_2d(np.asarray(signals, dtype=np.float64))
@@ -329,7 +329,7 @@ def simulate_traces(signals: np.ndarray, s: MassSpringSettings,
 
 def simulate_peaks(signals: np.ndarray, s: MassSpringSettings) -> np.ndarray:
     """Per clip, the largest |x| of any terminal node (recorded at 2 kHz)."""
-    from springc.simulate import simulate
+    from springc.sim.simulate import simulate
 
     net = feature_network(s)
     signals = np.atleast_2d(np.asarray(signals, dtype=np.float64))

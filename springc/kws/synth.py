@@ -27,7 +27,7 @@ from scipy.ndimage import uniform_filter1d
 from scipy.signal import fftconvolve
 from tqdm import tqdm
 
-from springc.audio import resample
+from springc.sim.audio import resample
 from springc.errors import DataError, UsageError
 from springc.kws.dataset import (
     CLIP_SAMPLES,

@@ -229,7 +229,7 @@ def model_heads(model) -> tuple[msp.MassSpringSettings, list[Head]]:
 
 def classifier_batch(signals: np.ndarray, net, specs: list[str], tstop: float) -> dict:
     """Readout reductions of one batch through the whole classifier (a Dask task)."""
-    from springc.simulate import simulate
+    from springc.sim.simulate import simulate
 
     sig = signals.astype(np.float64)[:, None, :]
     return msp.with_retries(lambda sub: simulate(

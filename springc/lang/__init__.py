@@ -24,7 +24,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from springc.errors import NetlistError
-from springc.ir import FlatNetlist
+from springc.lang.ir import FlatNetlist
 from springc.lang.elaborate import elaborate
 from springc.lang.files import STDLIB_DIR, search_dirs
 from springc.lang.parser import parse

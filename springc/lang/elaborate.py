@@ -5,7 +5,7 @@ port bindings, visible definitions) and a child scope per `.for` iteration. Incl
 spliced in first (`files.Includes`), so subcircuits may be used before they are defined. Local
 nodes and element names get the instance path as prefix (`X1.X2.a`); a port name resolves to
 the node the instance line bound it to. Probes and `.ac` outputs are resolved at the end, once
-every node exists. Physics (signs, masses, stability) is left to `springc.checks`.
+every node exists. Physics (signs, masses, stability) is left to `springc.check.checks`.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from springc.errors import NetlistError, SourceLoc
-from springc.ir import AcSpec, FlatNetlist, Instance, IRBuilder, Tran
+from springc.lang.ir import AcSpec, FlatNetlist, Instance, IRBuilder, Tran
 from springc.lang import ast, elements
 from springc.lang.elements import SPECS
 from springc.lang.expr import CONSTANTS, Env, closest, int_value, name_text, value

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from springc.errors import NetlistError, SourceLoc
-from springc.ir import Source
+from springc.lang.ir import Source
 from springc.lang import ast
 from springc.lang.expr import Env, closest, int_value, value
 from springc.lang.files import beside

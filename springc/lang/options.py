@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from springc.integrators import TABLEAUX
+from springc.kernels.integrators import TABLEAUX
 
 
 class OptionValueError(ValueError):
@@ -30,7 +30,7 @@ class OptionSpec:
 def known_methods() -> list[str]:
     """Every integrator name: the Runge-Kutta tableaux, then the splitting schemes."""
     # imported here: expint pulls in scipy.linalg, which parsing a netlist does not need
-    from springc.expint import SCHEMES
+    from springc.kernels.expint import SCHEMES
 
     return [*TABLEAUX, *SCHEMES]
 

@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from springc.audio import list_audio, load_audio
+from springc.sim.audio import list_audio, load_audio
 from springc.errors import DataError, UsageError
-from springc.integrators import Tableau
-from springc.ir import FlatNetlist, Source
+from springc.kernels.integrators import Tableau
+from springc.lang.ir import FlatNetlist, Source
 
 
 def analytic(src: Source, t: np.ndarray) -> np.ndarray:

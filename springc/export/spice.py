@@ -16,7 +16,7 @@ differentiates them symbolically for its Newton iterations.
 
 Signals: `sin` and `gauss` become B-sources in `time`; `step`, `pwl`, `in(k)` and `wav(...)`
 become PWL current sources (ngspice places a breakpoint at every PWL corner). Sampled signals
-follow the simulator's conventions (`springc.sources`): resampled to the input grid 1/tstep,
+follow the simulator's conventions (`springc.sim.sources`): resampled to the input grid 1/tstep,
 linear in between, zero after the end. They are written inline, one PWL point per sample,
 about 40 bytes each (1 s at 32 kHz: about 1.3 MB), which keeps the circuit one self-contained
 file; ngspice reads data files only through XSPICE's `filesource`, which sets no breakpoints
@@ -39,9 +39,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from springc.audio import load_audio, resample
+from springc.sim.audio import load_audio, resample
 from springc.errors import NetlistError, SourceLoc
-from springc.ir import GROUND, FlatNetlist, Source
+from springc.lang.ir import GROUND, FlatNetlist, Source
 
 # ngspice reads long PWL lists fine, but lines are folded for editors and diff tools.
 _POINTS_PER_LINE = 8

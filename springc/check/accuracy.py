@@ -14,7 +14,7 @@ physical decay weights the sum, so a mode counts over its decay time or the run,
 shorter. The sums are geometric and are evaluated in closed form (long double, so errors down
 to about 1e-9 are resolved).
 
-The splitting schemes of `springc.expint` propagate their blocks' modes exactly (error 0, up
+The splitting schemes of `springc.kernels.expint` propagate their blocks' modes exactly (error 0, up
 to the splitting error of the nonlinear coupling, which no linear estimate sees); their other
 modes have the error of the inner tableau. A "kicked" block, on whose nodes the rest puts a
 stiffness at rest (a Q element's g a), is not integrated exactly: its modes are given the
@@ -29,11 +29,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from springc import expint, linear
-from springc.checks import block_kicks, split_step_limit
+from springc.kernels import expint
+from springc.check import linear
+from springc.check.checks import block_kicks, split_step_limit
 from springc.errors import UsageError
-from springc.integrators import TABLEAUX, get_tableau, max_stable_step, stability_polynomial
-from springc.ir import FlatNetlist
+from springc.kernels.integrators import TABLEAUX, get_tableau, max_stable_step, stability_polynomial
+from springc.lang.ir import FlatNetlist
 
 SUBSTEPS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64)  # candidates of the choice
 # strang-rk4 is left out: the linear estimate cannot see its splitting error (it freezes the
@@ -180,7 +181,7 @@ class Choice:
     worst: ModeError | None
     band_hz: float
     modes_complete: bool
-    # set by `springc.stepcheck.verify` on a nonlinear netlist: the step-doubling error over
+    # set by `springc.sim.stepcheck.verify` on a nonlinear netlist: the step-doubling error over
     # the first run's first `pilot_s` seconds, and the substeps the linear estimate chose
     pilot_error: float | None = None
     pilot_s: float = 0.0

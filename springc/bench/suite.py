@@ -16,7 +16,7 @@ a long delay line, a stiff all-to-all block, a hard-driven Duffing resonator) `r
    error of run 0 against the reference, over the whole run and over the peers' stretch;
    then climbs the case's `ladder` of finer rows until one is as accurate on the stretch as
    the most accurate peer (or the floor), or a rung stops gaining;
-4. measures the machine's arithmetic ceiling (`springc.ceiling`) for the network's size and
+4. measures the machine's arithmetic ceiling (`springc.bench.ceiling`) for the network's size and
    batch in both precisions, so that throughput is also a fraction of it, and the machine's
    FMA peak for the batch (`ceiling.measure_peak`), the bound a register kernel, which the
    ceiling does not bound, is reported against.
@@ -41,12 +41,13 @@ from pathlib import Path
 
 import numpy as np
 
-from springc import bench_networks as bn
-from springc import ceiling, expint
+from springc.bench import networks as bn
+from springc.bench import ceiling
+from springc.kernels import expint
 from springc.design.emit import write_atomic
 from springc.errors import SimulationError
-from springc.ir import FlatNetlist, IRBuilder, Source, Tran
-from springc.simulate import method_order, record_shape, simulate
+from springc.lang.ir import FlatNetlist, IRBuilder, Source, Tran
+from springc.sim.simulate import method_order, record_shape, simulate
 
 REF_CHECK_RTOL = 1e-12  # the independent check of the reference: scipy DOP853 at this rtol
 REF_CHECK_MAX_STEP = 32  # ... with max_step tstep / 32 (kinks of the interpolated input)
@@ -55,7 +56,7 @@ PEER_RTOL = 1e-6
 # issue 7: x faster at equal or better error; "DOP853" is the issue's own configuration
 MUST_SPEEDUP = {"DOP853": 300.0, "DOP853 tstep/8": 300.0, "ngspice": 50.0}
 # scipy peers: name -> (method, max_step in input samples; None: scipy's free step size, as
-# issue 7 measured DOP853; 1/8: springc.reference's default, 8+ steps per sample)
+# issue 7 measured DOP853; 1/8: springc.bench.reference's default, 8+ steps per sample)
 SCIPY_PEERS = {"DOP853": ("DOP853", None), "DOP853 tstep/8": ("DOP853", 1 / 8),
                "RK45": ("RK45", 1 / 8)}
 LADDER_GAIN = 0.5  # a ladder rung must at least halve the error, else round-off has won
@@ -454,7 +455,7 @@ def reference(case: Case, first) -> Reference:
 def _check(case: Case, first, ref: Reference) -> tuple[dict[str, float], float]:
     """scipy DOP853 at REF_CHECK_RTOL (atol 1e-15 of the largest probe value, max_step
     tstep / REF_CHECK_MAX_STEP) against the reference on its check stretch, and its wall."""
-    from springc import reference as peers
+    from springc.bench import reference as peers
 
     scale = max(float(np.max(np.abs(y))) for y in ref.probes.values()) or 1.0
     start = time.perf_counter()
@@ -611,7 +612,7 @@ def _timed(call: Callable[[], object], wall_of: Callable[[object], float] | None
 
 
 def _peer_row(case: Case, ref: Reference, peer: str) -> Row | None:
-    from springc import reference
+    from springc.bench import reference
 
     first = None if case.inputs is None else case.inputs[:1]
     tstop = case.peer_tstop
@@ -652,8 +653,8 @@ def _ngspice(case: Case, first, tstop):
     """ngspice on the exported netlist of run 0 (None when ngspice is not installed)."""
     import shutil
 
-    from springc.export_spice import SpiceOptions
-    from springc.ngspice import simulate_ngspice
+    from springc.export.spice import SpiceOptions
+    from springc.export.ngspice import simulate_ngspice
 
     if shutil.which("ngspice") is None:
         return None
@@ -899,7 +900,7 @@ def markdown(results: list[CaseResult], found: dict, machine: dict) -> str:
          "zero fresh pages (what that costs is stated per case). Compile: the first "
          "call's time (a load from numba's cache when the kernel was built before). "
          "Throughput: run-seconds per wall-second (the batch of runs in lockstep; the peers "
-         "run one). Ceiling: the measured arithmetic ceiling (`springc.ceiling`) for the "
+         "run one). Ceiling: the measured arithmetic ceiling (`springc.bench.ceiling`) for the "
          "network's size and batch at the row's step, same precision, rated with the RK4 "
          "flop count, the best of its measurements (taken in alternation with the re-timed rows); "
          "the claim is about batched kernels (a case of one run is reported, not judged). "
@@ -911,7 +912,7 @@ def markdown(results: list[CaseResult], found: dict, machine: dict) -> str:
          "Rows marked 'no probes' run the same kernel recording nothing (timing only): what "
          "recording the probes costs, memory traffic the ceiling does not do. "
          "scipy DOP853 runs twice: as issue 7 measured it (rtol 1e-6, atol "
-         "1e-12, scipy's free step size) and held to max_step tstep/8 (`springc.reference`'s "
+         "1e-12, scipy's free step size) and held to max_step tstep/8 (`springc.bench.reference`'s "
          "default: the linearly interpolated input has a kink at every sample, which the "
          "step control alone steps over with a visible error); RK45 runs held to tstep/8. "
          "Ladder: the finer rows measured while a peer's error was within reach of the "

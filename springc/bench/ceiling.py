@@ -17,18 +17,18 @@ about `min_seconds`. From the wall time it reports flop/s and the equivalent thr
     run-seconds per wall-second = flop/s / (F * n_dof * rate)
 for the given flop count F per dof-step at the given sample rate (a "run" is one batch lane
 simulated for one second of signal). It is the ceiling of a kernel that moves its state and
-stage rows through memory at every stage, as the shared kernel does (`springc.codegen`): a
+stage rows through memory at every stage, as the shared kernel does (`springc.kernels.codegen`): a
 kernel with F flops per dof-step of that shape cannot beat it on this machine without doing
-less arithmetic. A register kernel (`springc.regkernel`) keeps its stage values in registers
+less arithmetic. A register kernel (`springc.kernels.regkernel`) keeps its stage values in registers
 and can: the feature extractor's, in float64, ran at 1.2-1.55x it. Hence `measure_peak`, the
 machine's FMA peak for the batch: chains of FMAs held in registers, which no kernel doing F
 flops per dof-step can beat at all.
 
-The loop reuses its memory and writes no output. A kernel that records its probes writes
-them too, as non-temporal lines (`springc.streamstore`), into fresh memory, which the OS hands
-out a page at a time on first write. `first_touch_seconds` measures the fresh pages alone for
-a record of a given size, and `store_seconds` the writing of the record's lines into memory
-already handed out, so that a report can tell each from the kernel's own arithmetic.
+The loop reuses its memory and writes no output. A kernel that records its probes writes them too,
+as non-temporal lines (`springc.kernels.streamstore`), into fresh memory, which the OS hands out a
+page at a time on first write. `first_touch_seconds` measures the fresh pages alone for a record of
+a given size, and `store_seconds` the writing of the record's lines into memory already handed out,
+so that a report can tell each from the kernel's own arithmetic.
 """
 
 from __future__ import annotations
@@ -43,8 +43,8 @@ from contextlib import contextmanager
 import numba
 import numpy as np
 
-from springc.ir import FlatNetlist
-from springc.streamstore import store_fence, stream_store
+from springc.lang.ir import FlatNetlist
+from springc.kernels.streamstore import store_fence, stream_store
 
 STAGES = 4
 # Flops of one (dof, lane) in one stage without padding, and per step outside the stages;

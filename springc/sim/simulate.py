@@ -1,7 +1,7 @@
 """The runtime: simulate a netlist for many input signals together, in lockstep.
 
 Time grid: the integration step is `h = tstep / substeps`; input signals are resampled to the
-input grid `1/tstep` and interpolated linearly at every stage time (see `springc.sources`).
+input grid `1/tstep` and interpolated linearly at every stage time (see `springc.sim.sources`).
 Outputs are recorded every `round(1 / (outrate h))` steps (default: every `tstep`), starting
 with the initial state at t = 0. Runs are simulated in batches of `batch` (one progress tick
 each, recording into one shared buffer); inside a batch, chunks of runs go to a thread pool
@@ -18,11 +18,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from springc import codegen, expint, loader, physics, reductions, regkernel, sources
-from springc.audio import resample
+from springc.kernels import codegen, expint, loader, regkernel
+from springc.lang import physics
+from springc.sim import reductions, sources
+from springc.sim.audio import resample
 from springc.errors import SimulationError, UsageError
-from springc.integrators import DEFAULT_METHOD, TABLEAUX, get_tableau, max_stable_step
-from springc.ir import FlatNetlist, Probe
+from springc.kernels.integrators import DEFAULT_METHOD, TABLEAUX, get_tableau, max_stable_step
+from springc.lang.ir import FlatNetlist, Probe
 
 DEFAULT_BATCH = 256  # runs per kernel call (one progress-bar tick)
 CHECK_EVERY = 256  # steps between divergence checks
@@ -177,7 +179,7 @@ def simulate(net: FlatNetlist, inputs=None, input_rate: float | None = None, *,
     `input_rate` (default 1/tstep), or a list of sound files / folders. Returns a `SimResult`
     with only the probed quantities and the requested reductions. `write_out`: whether the
     kernel's force code is written out, per node or as each run's step in registers where
-    `springc.regkernel` serves (None: for long simulations of small networks,
+    `springc.kernels.regkernel` serves (None: for long simulations of small networks,
     `WRITE_OUT_FROM`, and for single runs of up to `regkernel.REGISTER_ALWAYS` masses;
     `kernel_form`). `record_into`: the record buffer of an earlier call
     (its `info["records"]`) to record into instead of fresh memory, for a caller simulating
@@ -230,7 +232,7 @@ reductions_plan = reductions.plan
 
 def kernel_form(net: FlatNetlist, opts: codegen.KernelOptions, coeffs: dict, st: Settings,
                 runs: int, write_out: bool | None) -> codegen.KernelOptions:
-    """`opts` with the form of the force code: a register kernel (`springc.regkernel`) where
+    """`opts` with the form of the force code: a register kernel (`springc.kernels.regkernel`) where
     the force code would be written out (`written_out`), and for chunks of one run of a small
     network (`REGISTER_ALWAYS`) unless `write_out` is False; else the per-node terms of
     `written_out` (None: the shared kernel)."""
@@ -249,7 +251,7 @@ def written_out(net: FlatNetlist, coeffs: dict, st: Settings, runs: int,
     """The per-node force terms for a kernel with its force code written out
     (`codegen.node_terms`), or None for the shared kernel: as `write_out` says, and when it is
     None, for simulations of at least `WRITE_OUT_FROM` dof-steps. Networks too large to write out,
-    and splitting schemes (`springc.expint`: their exact block updates dominate; the feature
+    and splitting schemes (`springc.kernels.expint`: their exact block updates dominate; the feature
     extractor's exp-rk4 measured no faster written out), always get the shared kernel."""
     if expint.is_split(st.method):
         return None
@@ -267,8 +269,8 @@ def task_runs(runs: int, batch: int | None, chunk: int | None) -> int:
 
 
 def kernel_source(net: FlatNetlist, opts: codegen.KernelOptions) -> str:
-    """The kernel text for `opts.method`: a Runge-Kutta tableau (`springc.codegen`) or a
-    splitting scheme (`springc.expint`, generated for the Runge-Kutta part of the split)."""
+    """The kernel text for `opts.method`: a Runge-Kutta tableau (`springc.kernels.codegen`) or a
+    splitting scheme (`springc.kernels.expint`, generated for the Runge-Kutta part of the split)."""
     if expint.is_split(opts.method):
         return expint.kernel_source(net, opts)
     if opts.registers is not None:
@@ -511,7 +513,7 @@ def likely_cause(net: FlatNetlist, st: Settings) -> str:
     if net.n > 3000:
         return f"a step too large for the integrator, {others}"
     if expint.is_split(st.method):  # the blocks are exact: the split's own limit
-        from springc.checks import step_limit
+        from springc.check.checks import step_limit
 
         hmax = step_limit(net, st.method).dt
     else:

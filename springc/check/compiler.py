@@ -15,9 +15,10 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from springc import accuracy, checks, lang
+from springc.check import accuracy, checks
+from springc import lang
 from springc.errors import Diagnostic
-from springc.ir import FlatNetlist
+from springc.lang.ir import FlatNetlist
 
 
 @dataclass
@@ -173,8 +174,8 @@ def _mode_errors(net: FlatNetlist, result: checks.CheckResult) -> list[accuracy.
 def kernel_source(report: BuildReport) -> str:
     """The generated simulation kernel of a built netlist, for its configured method and
     precision (`springc build --emit-kernel`)."""
-    from springc import expint  # code generation only when asked
-    from springc.codegen import KernelOptions, generate
+    from springc.kernels import expint  # code generation only when asked
+    from springc.kernels.codegen import KernelOptions, generate
 
     precision = str(report.net.options.get("precision", "float64"))
     opts = KernelOptions(method=report.method, precision=precision)

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from springc.errors import UsageError
-from springc.simulate import SimResult
+from springc.sim.simulate import SimResult
 
 FORMATS = (".npz", ".csv")
 

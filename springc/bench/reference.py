@@ -1,6 +1,6 @@
-"""Peers of the generated kernels: plain numpy RK4 on `springc.physics`, and scipy `solve_ivp`.
+"""Peers of the generated kernels: plain numpy RK4 on `springc.lang.physics`, and scipy `solve_ivp`.
 
-Both use the runtime's forcing conventions (`springc.sources`): input signals sampled at
+Both use the runtime's forcing conventions (`springc.sim.sources`): input signals sampled at
 1/tstep, interpolated linearly in time and 0 after their end; analytic sources exact. They are
 slow and obviously correct; tests and `springc bench` compare the kernels against them.
 """
@@ -12,9 +12,10 @@ from collections.abc import Callable
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from springc import physics, sources
-from springc.integrators import get_tableau
-from springc.ir import FlatNetlist, Probe
+from springc.lang import physics
+from springc.sim import sources
+from springc.kernels.integrators import get_tableau
+from springc.lang.ir import FlatNetlist, Probe
 
 
 def forcing(net: FlatNetlist, inputs: np.ndarray | None,
@@ -62,7 +63,7 @@ def rk4_numpy(net: FlatNetlist, inputs: np.ndarray | None = None, *, tstep: floa
               probes: list[Probe] | None = None, rec_every: int | None = None):
     """Explicit Runge-Kutta (any tableau) in vectorised numpy over runs.
 
-    Returns (t, {label: (runs, T)}, (x_final, v_final)); recording as in `springc.simulate`."""
+    Returns (t, {label: (runs, T)}, (x_final, v_final)); recording as in `springc.sim.simulate`."""
     tab = get_tableau(method)
     h = tstep / substeps
     nsteps = int(round(tstop / h))

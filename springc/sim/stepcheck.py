@@ -1,6 +1,6 @@
 """Step doubling: the error a tolerance-driven choice makes on a netlist's nonlinear terms.
 
-`springc.accuracy.choose` estimates each mode's error from the linearisation. That is the
+`springc.check.accuracy.choose` estimates each mode's error from the linearisation. That is the
 whole error of a linear network, but not of a nonlinear one: a quadratic coupling squares a
 filter's output (frequencies the linear modes do not have), and a splitting scheme's blocks
 are exact only up to their coupling through such terms. On the feature extractor the linear
@@ -22,9 +22,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from springc import accuracy, simulate
+from springc.check import accuracy
+from springc.sim import simulate
 from springc.errors import UsageError
-from springc.ir import FlatNetlist
+from springc.lang.ir import FlatNetlist
 
 PILOT_S = 0.05  # seconds of the first run that step doubling integrates, at least,
 PILOT_SAMPLES = 1000  # and input samples (slow netlists: periods rather than milliseconds)

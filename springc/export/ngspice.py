@@ -17,16 +17,16 @@ from pathlib import Path
 
 import numpy as np
 
-from springc.audio import resample
+from springc.sim.audio import resample
 from springc.errors import SimulationError, UsageError
-from springc.export_spice import (
+from springc.export.spice import (
     SpiceOptions,
     control_block,
     export_spice,
     probe_vectors,
     transient,
 )
-from springc.ir import FlatNetlist
+from springc.lang.ir import FlatNetlist
 
 _DATA_FILE = "probes.txt"
 # Lines that end the circuit or run it; run_ngspice supplies its own.
@@ -101,7 +101,7 @@ class CrossCheck:
 def cross_check(net: FlatNetlist, options: SpiceOptions, substeps: int | None = None) -> CrossCheck:
     """Simulate `net` with springc (RK4 unless its options say otherwise, `substeps` per
     output step) and with ngspice, from the same inputs, and compare every probe."""
-    from springc.simulate import simulate  # the simulator is heavy: import on use
+    from springc.sim.simulate import simulate  # the simulator is heavy: import on use
 
     if not net.probes:
         raise UsageError("nothing to compare: the netlist has no .probe")
@@ -132,7 +132,7 @@ def plot_cross_check(check: CrossCheck, path: str | Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from springc.results import atomic_path
+    from springc.sim.results import atomic_path
 
     labels = list(check.errors)
     fig, axes = plt.subplots(

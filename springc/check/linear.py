@@ -18,13 +18,13 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 from scipy.sparse.csgraph import connected_components
 
-from springc.integrators import (
+from springc.kernels.integrators import (
     DEFAULT_METHOD,
     Tableau,
     amplification,
     get_tableau,
 )
-from springc.ir import GROUND, FlatNetlist
+from springc.lang.ir import GROUND, FlatNetlist
 
 DENSE_MAX = 300  # largest component solved with dense eigensolvers
 ZERO_TOL = 1e-6  # |lambda| below this fraction of a component's largest counts as zero

@@ -3,7 +3,7 @@
 Passes, in order: element signs, nodes without mass, the whole potential (only components
 with `P` elements can violate it: every other element is non-negative on its own), and the
 time step of the configured integrator against the linearisation at rest (for a splitting
-scheme of `springc.expint`: of what its Runge-Kutta part integrates). Each finding is a
+scheme of `springc.kernels.expint`: of what its Runge-Kutta part integrates). Each finding is a
 `Diagnostic` at the element's source location with a hint; later passes run only when the
 earlier ones found no error (they need positive masses and a sound potential).
 """
@@ -19,10 +19,11 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 from scipy.optimize import minimize
 
-from springc import expint, linear
+from springc.kernels import expint
+from springc.check import linear
 from springc.errors import CheckError, Diagnostic, SourceLoc
-from springc.integrators import DEFAULT_METHOD
-from springc.ir import FlatNetlist
+from springc.kernels.integrators import DEFAULT_METHOD
+from springc.lang.ir import FlatNetlist
 from springc.lang.options import OptionValueError, known_methods, method_name
 
 

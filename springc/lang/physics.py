@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from springc.ir import GROUND, FlatNetlist
+from springc.lang.ir import GROUND, FlatNetlist
 
 
 def potential(net: FlatNetlist, x: np.ndarray) -> np.ndarray:

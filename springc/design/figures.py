@@ -20,15 +20,15 @@ from pathlib import Path
 import numpy as np
 from scipy.linalg import subspace_angles
 
-from springc import physics
+from springc.lang import physics
 from springc.design import blocks
 from springc.design.emit import num
 from springc.design.filters import mel_triangles
 from springc.design.melbank import Melbank, design_melbank, fitting_grid
 from springc.design.mvm import MvmDesign, design_mvm, write_mvm
-from springc.ir import FlatNetlist
+from springc.lang.ir import FlatNetlist
 from springc.lang import load_text
-from springc.simulate import simulate
+from springc.sim.simulate import simulate
 
 # Delay line of the paper's Fig. 3d: m = 1e-3, kc = 10, kl = 1e-5, so td = 10 ms per site.
 TD, KC = 0.01, 10.0
@@ -118,7 +118,7 @@ class Dispersion:
 def experiment_dispersion(n: int = 40, td: float = TD, kc: float = KC) -> Dispersion:
     """The modes of a free chain are standing waves cos(q (i - 1/2)) with q = pi j / n, j = 0
     .. n-1 (free ends: zero slope), so its eigenfrequencies sample Eq. (dispersion_rel)."""
-    from springc.linear import modes
+    from springc.check.linear import modes
 
     net = load_text(DISPERSION_NET.format(n=n, td=td, kc=kc))
     p = blocks.delayline_params(td, kc)
@@ -187,7 +187,7 @@ def experiment_mvm(n: int = 24, seed: int = 0, f_hz: np.ndarray | None = None) -
 def _zero_modes(net: FlatNetlist, count: int) -> tuple[np.ndarray, np.ndarray]:
     """The `count` lowest undamped modes (shapes, eigenvalues of M^-1 K) of the compiler's
     linearisation; the linear analysis must report exactly `count` zero modes."""
-    from springc.linear import linearise, modes
+    from springc.check.linear import linearise, modes
 
     found = modes(net).zero_count
     if found != count:

@@ -11,7 +11,7 @@ The state is laid out `(n_dof, lanes)` per chunk of `lanes` runs (a compile-time
 last chunk is padded), the lanes innermost; `run` integrates a range of chunks of runs and
 releases the GIL, so the runtime runs chunks on several threads.
 
-Why the kernel looks the way it does (each measured against `springc.ceiling`, issue 7):
+Why the kernel looks the way it does (each measured against `springc.bench.ceiling`, issue 7):
 - per element, the lane arithmetic is written out as straight-line code (all loads, then the
   arithmetic, then the stores), so LLVM's SLP vectoriser turns it into a few vector
   instructions; a runtime-length lane loop cost more in alias checks and loop control than
@@ -36,7 +36,7 @@ Why the kernel looks the way it does (each measured against `springc.ceiling`, i
   so interpolation reads contiguous lanes instead of one cache line per lane;
 - probes are recorded run-major, (probe, run, record), each run's trajectory contiguous:
   a chunk stages `RB` records of its lanes (`emit_record`), then writes each run's line of
-  them as one aligned non-temporal store (`springc.streamstore`; a record at every step
+  them as one aligned non-temporal store (`springc.kernels.streamstore`; a record at every step
   outgrows the caches, and ordinary stores read each line before writing it: feature
   extractor, 262 MB per call, float64 23% faster). Each thread so writes only pages of its
   own runs (time-major, both threads first-touched every page: the feature extractor's
@@ -44,8 +44,8 @@ Why the kernel looks the way it does (each measured against `springc.ceiling`, i
   trajectory contiguous (a contiguous copy of the time-major views took five times the
   feature extractor's simulation).
 
-This module never imports numba: `springc.loader` compiles the text (the kernels call
-`springc.streamstore`'s intrinsics).
+This module never imports numba: `springc.kernels.loader` compiles the text (the kernels call
+`springc.kernels.streamstore`'s intrinsics).
 """
 
 from __future__ import annotations
@@ -61,8 +61,8 @@ from pathlib import Path
 
 import numpy as np
 
-from springc.integrators import Tableau, get_tableau
-from springc.ir import FlatNetlist
+from springc.kernels.integrators import Tableau, get_tableau
+from springc.lang.ir import FlatNetlist
 
 KERNEL_VERSION = 6  # bump when the generated text or its calling convention changes
 RECORD_ALIGN = 64  # bytes: the record's alignment and row padding (a cache line, and a
@@ -79,11 +79,11 @@ class KernelOptions:
 
     `record`: store probe trajectories; `work`: accumulate input work per force element;
     `dissipation`: accumulate energy dissipated in dampers; `msq`: windowed mean squares;
-    `gram`: leaky Gram sums of node-pair products (springc.reductions `gram`); `lanes`: runs
+    `gram`: leaky Gram sums of node-pair products (springc.sim.reductions `gram`); `lanes`: runs
     per chunk, a compile-time constant (`choose_lanes`); `nodes`: each node's force terms
     (`node_terms`) when the force code is written out per node, None for the shared kernel
     that loops over the runtime index arrays; `registers`: each node's terms
-    (`springc.regkernel.terms`) for a register kernel, each run's step in scalars."""
+    (`springc.kernels.regkernel.terms`) for a register kernel, each run's step in scalars."""
 
     method: str = "rk4"
     precision: str = "float64"
@@ -130,7 +130,7 @@ def features(net: FlatNetlist) -> Features:
     )
 
 
-# Runtime arguments of `accel`, per feature (coefficients prepared by springc.simulate, the
+# Runtime arguments of `accel`, per feature (coefficients prepared by springc.sim.simulate, the
 # inverse mass folded in: `bm` = b/m, `km` = springs/m per node, element coefficients per end).
 _ACCEL_ARGS = {
     "local_damping": ("bm",),
@@ -206,7 +206,7 @@ def options_header(options: KernelOptions) -> list[str]:
     written: they are in the body)."""
     # (vars, not asdict, which deep-copies: 60 us of a 1 ms call)
     shown = {k: v for k, v in vars(options).items() if k not in ("nodes", "registers")}
-    how = ("written out per node, the state in registers (springc.regkernel)"
+    how = ("written out per node, the state in registers (springc.kernels.regkernel)"
            if options.registers else "written out per node" if options.nodes
            else "loops over the runtime index arrays")
     return [f"# options: {shown}", f"# force code: {how}"]
@@ -266,10 +266,10 @@ class _Code:
 
 @functools.cache
 def _module_hash(module: str) -> str:
-    """A hash of an intrinsics module's source (`springc.streamstore`, `springc.stackalign`),
-    written into the kernels that import it: numba's cache of a kernel checks only the kernel's
-    own file, so a change there must change the kernel's text (and so its cache key). Read,
-    not imported: this module never imports numba."""
+    """A hash of an intrinsics module's source (`springc.kernels.streamstore`,
+    `springc.kernels.stackalign`), written into the kernels that import it: numba's cache of a
+    kernel checks only the kernel's own file, so a change there must change the kernel's text (and
+    so its cache key). Read, not imported: this module never imports numba."""
     origin = importlib.util.find_spec(module).origin
     return hashlib.sha256(Path(origin).read_bytes()).hexdigest()[:16]
 
@@ -286,10 +286,11 @@ def preamble(c: _Code, opts: KernelOptions, args: list[str], stages: int) -> Non
     c("import numpy as np")
     c("import numba as nb")
     if aligned_frame(opts):
-        c(f"from springc.stackalign import align_stack  # {_module_hash('springc.stackalign')}")
+        c("from springc.kernels.stackalign import align_stack  "
+          f"# {_module_hash('springc.kernels.stackalign')}")
     if opts.record:
-        c("from springc.streamstore import stream_store, store_fence  "
-          f"# {_module_hash('springc.streamstore')}")
+        c("from springc.kernels.streamstore import stream_store, store_fence  "
+          f"# {_module_hash('springc.kernels.streamstore')}")
     c("")
     c(f"FT = np.{opts.precision}")
     c(f"ARGS = {tuple(args)!r}")
@@ -303,7 +304,7 @@ def preamble(c: _Code, opts: KernelOptions, args: list[str], stages: int) -> Non
 
 def _body(feat: Features, opts: KernelOptions, tab: Tableau) -> str:
     c = _Code()
-    c('"""Generated by springc.codegen; see the header. Arrays are (n_dof, lanes)."""')
+    c('"""Generated by springc.kernels.codegen; see the header. Arrays are (n_dof, lanes)."""')
     preamble(c, opts, run_args(feat, opts), tab.stages)
     c("")
     _emit_run(c, feat, opts, tab)
@@ -633,8 +634,8 @@ def emit_run_head(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -
 
 
 def aligned_frame(opts: KernelOptions) -> bool:
-    """Whether the kernel aligns its stack frame (`springc.stackalign`): register kernels for
-    lanes, whose lane loop spills hundreds of vectors a step. The others spill few, and the
+    """Whether the kernel aligns its stack frame (`springc.kernels.stackalign`): register kernels
+    for lanes, whose lane loop spills hundreds of vectors a step. The others spill few, and the
     realignment costs them a register (the delay line's shared kernel, float64: 3-8% slower
     aligned)."""
     return bool(opts.registers) and opts.lanes > 1
@@ -783,8 +784,8 @@ def nystrom_stage_state(c: _Code, tab: Tableau, s: int, width: LaneLayout,
     the stage state from the force stages alone, so that the combine reads no stage
     velocities and one vs row serves every stage (8 state rows instead of 10 for RK4, three
     fewer reads per step). Rows flagged in `frz` (the exactly propagated blocks of
-    `springc.expint`) are left to the block code with `frozen` 'skip', and keep xs = x (their
-    velocity kicked) with 'hold'."""
+    `springc.kernels.expint`) are left to the block code with `frozen` 'skip', and keep xs = x
+    (their velocity kicked) with 'hold'."""
     _, aa, _, _ = nystrom_coefficients(tab)
     row = [j for j, a in enumerate(tab.a[s]) if a != 0.0]
     sq = [int(k) for k in np.flatnonzero(aa[s])]
@@ -896,7 +897,7 @@ def emit_record(c: _Code, r: str, width: LaneLayout, rb: int) -> None:
     """Probes of record `r` into the staging block `stg` (probe, RB, lane); a full block is
     written to rec (probe, run, record: each run's trajectory contiguous, rows padded to and
     aligned on RECORD_ALIGN bytes) as one non-temporal line per probe and run
-    (`springc.streamstore`), each chunk's runs from row `rec_col + lo_` on: every thread
+    (`springc.kernels.streamstore`), each chunk's runs from row `rec_col + lo_` on: every thread
     writes pages of its own runs only."""
     c(f"r_ = {r}")
     if width.width == 1:

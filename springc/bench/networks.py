@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from springc.design.filters import hz_to_mel, mel_to_hz
-from springc.ir import FlatNetlist, IRBuilder, Source, Tran
+from springc.lang.ir import FlatNetlist, IRBuilder, Source, Tran
 
 KWS_RATE = 32000.0  # Hz: the integration grid of the benchmark
 

@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from springc import codegen, loader
-from springc.bench_networks import KWS_RATE, kws_network
-from springc.reference import rk4_numpy, solve_ivp_reference
-from springc.simulate import simulate
+from springc.kernels import codegen, loader
+from springc.bench.networks import KWS_RATE, kws_network
+from springc.bench.reference import rk4_numpy, solve_ivp_reference
+from springc.sim.simulate import simulate
 
 
 @dataclass

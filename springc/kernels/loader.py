@@ -1,7 +1,7 @@
 """Loading generated kernels: the only module that imports numba (besides
-`springc.streamstore`, the intrinsics the generated kernels call).
+`springc.kernels.streamstore`, the intrinsics the generated kernels call).
 
-The source from `springc.codegen` is written to `<cache>/springc_kernel_<hash>.py` (a real
+The source from `springc.kernels.codegen` is written to `<cache>/springc_kernel_<hash>.py` (a real
 file, so that numba's `cache=True` can store the compiled machine code beside it and a second
 process reuses it) and imported by path. The cache folder is `$SPRINGC_CACHE` or
 `~/.cache/springc/kernels`. Processes share it safely (test workers, Dask workers): a kernel's
@@ -9,7 +9,7 @@ file appears once and whole, and each kernel is compiled under its own lock file
 process waits and then loads the machine code the first one cached.
 
 Kernels are compiled with LLVM's SLP (straight-line) vectoriser on: the generated lane code
-is written for it (see `springc.codegen`), and without it every lane stays scalar (measured
+is written for it (see `springc.kernels.codegen`), and without it every lane stays scalar (measured
 2x slower). numba leaves it off by default and reads the setting whenever it optimises a
 function, so it is switched on only while a kernel's own call (which compiles it) runs;
 other numba code in the process is compiled as before.
@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 
-from springc.codegen import kernel_hash, shared_text
+from springc.kernels.codegen import kernel_hash, shared_text
 
 _LOADED: dict[str, "Kernel"] = {}
 _SLP_LOCK = threading.Lock()

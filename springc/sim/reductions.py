@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from springc.errors import UsageError
-from springc.ir import GROUND, FlatNetlist
+from springc.lang.ir import GROUND, FlatNetlist
 
 _QTY = re.compile(r"^(x|v)\((.+)\)$")
 KINDS = ("final", "msq", "work", "dissipated", "energy", "loss", "gram")

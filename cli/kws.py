@@ -11,7 +11,8 @@ from springc_cli.common import run_user_errors
 from springc.kws.dataset import PROTOCOLS
 from springc.kws.digital import FILTERBANKS, FeatureSettings
 from springc.kws.report import counts_table, majority_rate
-from springc.kws.train import REALISATIONS, TASKS, TrainOptions
+from springc.kws.task import TASKS
+from springc.kws.train import REALISATIONS, TrainOptions
 
 _REALISATION = click.Choice(REALISATIONS)
 _SCHEDULER = click.option("--scheduler", default=None, metavar="ADDRESS",

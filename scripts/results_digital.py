@@ -24,12 +24,12 @@ import numpy as np
 
 from springc.kws.dataset import COMMANDS
 from springc.kws.digital import FeatureSettings
-from springc.kws.evaluate import evaluate_fits
 from springc.kws.model import write_model
 from springc.kws.phi import n_features
+from springc.kws.report import evaluate_fits
 from springc.kws.svm import LOGREG_GRID, SVM_GRID
-from springc.kws.train import (TrainOptions, fit_task, model_settings, open_task_data,
-                               split_features, targets)
+from springc.kws.task import open_task_data, targets
+from springc.kws.train import TrainOptions, fit_task, model_settings, split_features
 
 BINS = (4, 6, 8, 12, 16)
 DELAYS = (2, 3, 4)

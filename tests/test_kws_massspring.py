@@ -19,6 +19,7 @@ from springc.kws.digital import FeatureSettings, features
 from springc.kws.phi import group_index, n_features, readout_weights
 from springc.sim.reductions import gram_reduction
 from springc.sim.simulate import simulate
+from springc.check import check
 
 # Kernels are content-addressed: one shared cache keeps repeated test runs from recompiling.
 KERNELS = Path(tempfile.gettempdir()) / "springc-test-kernels"
@@ -69,7 +70,7 @@ def test_gram_reduction_equals_phi_on_recorded_trajectories():
     red = gram_reduction(net, 0.3, [nodes[i] for i in k], [nodes[j] for j in kk],
                          group_index(2, 2)[k, kk], np.where(k == kk, 1.0, 2.0), label="phi")
     u = np.random.default_rng(3).normal(size=(3, 1, 600))
-    res = simulate(net, u, substeps=2, outrate=2000.0, reductions=[red, "gram:0.3:a,c"],
+    res = simulate(check(net), u, substeps=2, outrate=2000.0, reductions=[red, "gram:0.3:a,c"],
                    probes=[f"x({n})" for n in nodes])
     x = np.stack([res.probes[f"x({n})"] for n in nodes], axis=1)
     want = phi_of_recorded(x, 5e-4, 0.3, 2, 2)
@@ -83,7 +84,7 @@ def test_gram_reduction_equals_phi_on_recorded_trajectories():
 @pytest.mark.parametrize("spec", ["gram:x:a", "gram:1:", "gram:1:zz", "gram:-1:a"])
 def test_bad_gram_specs_are_user_errors(spec):
     with pytest.raises(UsageError):
-        simulate(chain4(), None, reductions=[spec], tstop=0.01)
+        simulate(check(chain4()), None, reductions=[spec], tstop=0.01)
 
 
 def test_delay_lines_delay_by_multiples_of_td():
@@ -117,7 +118,7 @@ def test_simulated_phi_and_features_match_recorded_and_digital():
     sig = np.stack([word(), word(f0=2500.0, f1=300.0, amp=0.6)])
     probes = [f"x({t})" for t in msp.terminals(s)] + [f"x(c{i})" for i in range(s.bins)]
     rate = msp.INPUT_RATE * msp.SUBSTEPS  # record every integration step
-    res = simulate(net, sig[:, None, :], 16000.0, reductions=[msp.phi_reduction(net, s)],
+    res = simulate(check(net), sig[:, None, :], 16000.0, reductions=[msp.phi_reduction(net, s)],
                    probes=probes, outrate=rate, tstop=msp.horizon(s, 0.4))
     x = np.stack([res.probes[p] for p in probes[:4]], axis=1)
     want = phi_of_recorded(x, 1 / rate, s.tau, s.bins, s.delays)

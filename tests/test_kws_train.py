@@ -123,7 +123,7 @@ def test_kws12_defaults_to_balanced_splits_and_class_weights(corpus, tmp_path):
 
 def test_protocol_defaults_per_task(corpus, tmp_path):
     from springc.kws.dataset import balanced, open_dataset
-    from springc.kws.train import open_task_data, task_protocol, task_weights
+    from springc.kws.task import open_task_data, task_protocol, task_weights
 
     assert open_task_data(corpus, "kws12", 3).clips == balanced(open_dataset(corpus, seed=3),
                                                                 3).clips
@@ -151,7 +151,8 @@ def test_physical_readout_of_stored_weights_reproduces_the_decision(corpus, tmp_
     from springc.kws.evaluate import evaluate
     from springc.kws.model import load_model
     from springc.kws.phi import readout, spread
-    from springc.kws.train import feature_matrices, open_task_data
+    from springc.kws.task import open_task_data
+    from springc.kws.train import feature_matrices
 
     report = train(_opts(corpus, tmp_path / "m", bins=4, delays=3))
     model = load_model(tmp_path / "m")
@@ -169,7 +170,8 @@ def test_physical_readout_of_stored_weights_reproduces_the_decision(corpus, tmp_
 
 def test_parallel_and_cached_features_equal_serial_ones(corpus, tmp_path, monkeypatch):
     from springc.kws import cache
-    from springc.kws.train import feature_matrices, open_task_data
+    from springc.kws.task import open_task_data
+    from springc.kws.train import feature_matrices
 
     monkeypatch.setenv("SPRINGC_CACHE", str(tmp_path / "own-cache"))
     ds = open_task_data(corpus, "kws12")
@@ -190,7 +192,8 @@ def test_parallel_and_cached_features_equal_serial_ones(corpus, tmp_path, monkey
 
 
 def test_shared_pass_over_delays_matches_separate_runs(corpus):
-    from springc.kws.train import feature_matrices, open_task_data
+    from springc.kws.task import open_task_data
+    from springc.kws.train import feature_matrices
 
     ds = open_task_data(corpus, "kws12")
     clips = ds.split("test")[:4]

@@ -16,8 +16,9 @@ from springc.design.blocks import readout_params
 from springc.errors import UsageError
 from springc.kws import massspring as msp
 from springc.kws import transfer as tr
-from springc.kws.evaluate import score
+from springc.kws.evaluate import selection_models
 from springc.kws.phi import n_features, spread
+from springc.kws.report import score
 from springc.kws.svm import LinearModel
 from springc.lang import load_text
 
@@ -89,5 +90,5 @@ def test_readouts_equal_c_phi_and_score_like_the_digital_model():
     loss = tr.insertion_loss_db(reds, heads)
     assert np.all(np.isfinite(loss)) and np.all(loss > 0)
     y = np.array(["c0", "c1", "c2"])
-    got = score(tr.selection_models([(tuple(m.classes), m)]), d, y, "kws12")
+    got = score(selection_models([(tuple(m.classes), m)]), d, y, "kws12")
     assert got["accuracy"] == score([(tuple(m.classes), m)], phi, y, "kws12")["accuracy"]

@@ -29,7 +29,8 @@ from springc.errors import UsageError
 from springc.kws.dataset import SILENCE
 from springc.kws.digital import FeatureSettings
 from springc.kws.svm import SVM_GRID, fit_linear, select
-from springc.kws.train import feature_matrices, open_task_data, task_weights
+from springc.kws.task import open_task_data, task_weights
+from springc.kws.train import feature_matrices
 from springc.sim.results import atomic_path
 
 REALISATIONS = ("digital", "mass-spring")
@@ -131,7 +132,7 @@ def realisation_features(clips: list, realisation: str, opts: CVOptions) -> np.n
     """Feature matrix (clips, N) of every clip, unaugmented, from the cache where present."""
     settings = opts.settings
     if realisation == "mass-spring":
-        from springc.kws.transfer import physical_settings
+        from springc.kws.massspring import physical_settings
 
         settings = physical_settings(opts.settings, opts.massspring)
     else:

@@ -445,6 +445,11 @@ class NoiseBank:
         return np.clip(signal + gain * noise[start:start + len(signal)], -1.0, 1.0)
 
 
+def _clip_rng(seed: int, key: str) -> np.random.Generator:
+    """One generator per clip, so augmentation does not depend on scheduling."""
+    return np.random.default_rng([seed, zlib.crc32(key.encode())])
+
+
 def load_clip(clip: Clip, *, augment: bool = False, rng: np.random.Generator | None = None,
               noise: NoiseBank | None = None, preprocess: bool = True) -> np.ndarray:
     """One clip as float64 (CLIP_SAMPLES,) at SAMPLE_RATE: read and convert, pad or cut to

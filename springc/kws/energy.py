@@ -14,6 +14,7 @@ import re
 import numpy as np
 
 from springc.lang.ir import FlatNetlist
+from springc.check import check
 
 # Stage of a mass element, by its flattened name (`springc.kws.massspring.front_end` and
 # `springc.kws.transfer.head_text` name them).
@@ -87,7 +88,7 @@ def run_budget(net: FlatNetlist, signals: np.ndarray, tstop: float, *,
     from springc.sim.simulate import simulate
 
     sig = np.atleast_2d(np.asarray(signals, dtype=np.float64))[:, None, :]
-    res = simulate(net, sig, INPUT_RATE, probes=[], reductions=budget_reductions(net),
+    res = simulate(check(net), sig, INPUT_RATE, probes=[], reductions=budget_reductions(net),
                    tstop=tstop, batch=len(sig), substeps=substeps)
     return budget(net, res.reductions)
 
@@ -113,7 +114,7 @@ def test_split_budget(model_dir, data=None, clips: int = 8) -> dict[str, np.ndar
     from springc.kws import massspring as msp
     from springc.kws.evaluate import trained_data
     from springc.kws.model import load_model
-    from springc.kws.train import open_task_data
+    from springc.kws.task import open_task_data
 
     model = load_model(model_dir)
     if model.settings.get("realisation") != "mass-spring":

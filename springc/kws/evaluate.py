@@ -1,4 +1,5 @@
-"""Evaluating a trained keyword spotter on the test split (`testing_list.txt`)."""
+"""Evaluating a trained keyword spotter on the test split (`testing_list.txt`): its features
+through the SVM, or (mass-spring) the whole classifier network simulated."""
 
 from __future__ import annotations
 
@@ -7,51 +8,15 @@ from pathlib import Path
 import numpy as np
 
 from springc.errors import DataError, UsageError
-from springc.kws import report as rep
+from springc.kws import massspring as msp
 from springc.kws.digital import FeatureSettings
 from springc.kws.model import load_model
+from springc.kws.report import score
 from springc.kws.svm import LinearModel
-from springc.kws.train import (PAPER_PAIRS, check_realisation, feature_matrices,
-                               open_task_data, targets)
-
-
-def score(models: list[tuple[tuple[str, ...], LinearModel]], x: np.ndarray, y: np.ndarray,
-          task: str) -> dict:
-    """The report on features x with true classes y: accuracy, n, per-class true-positive
-    rate and confusion matrix; for digit pairs also the accuracy of each pair, where the
-    confusion matrix pools every pair's decisions on the clips of its two words."""
-    if task == "kws12":
-        classes, model = models[0]
-        unseen = sorted(set(y.tolist()) - set(classes))  # test labels the model never saw
-        return rep.summary(y, model.predict(x), list(classes) + unseen)
-    truth, guess, pairs = [], [], {}
-    for classes, model in models:
-        mask = np.isin(y, classes)
-        pred = model.predict(x[mask])
-        truth.append(y[mask])
-        guess.append(pred)
-        name = "-".join(classes)
-        pairs[name] = {"accuracy": float(np.mean(pred == y[mask])), "n": int(mask.sum()),
-                       "paper": PAPER_PAIRS.get(tuple(classes))}
-    words = sorted({c for cl, _ in models for c in cl}, key=_digit_order)
-    out = rep.summary(np.concatenate(truth), np.concatenate(guess), words)
-    out["pairs"] = pairs
-    return out
-
-
-def _digit_order(word: str) -> int:
-    from springc.kws.train import DIGITS
-
-    return DIGITS.index(word) if word in DIGITS else len(DIGITS)
-
-
-def evaluate_fits(fits: list, x: np.ndarray, y: np.ndarray, task: str) -> dict:
-    """`score` for freshly trained fits [(classes, model, C, validation scores)], with the
-    validation accuracy per C kept in the report."""
-    out = score([(f[0], f[1]) for f in fits], x, y, task)
-    out["validation"] = {"-".join(f[0]) if task != "kws12" else "all":
-                         {f"{c:g}": s for c, s in f[3].items()} for f in fits}
-    return out
+from springc.kws.task import open_task_data, targets
+from springc.kws.train import check_realisation, feature_matrices
+from springc.kws.transfer import (Head, classifier_batch, decisions, insertion_loss_db,
+                                  model_heads, readout_reductions)
 
 
 def evaluate(model_dir: Path, data: Path | None = None, realisation: str | None = None,
@@ -70,8 +35,6 @@ def evaluate(model_dir: Path, data: Path | None = None, realisation: str | None 
     ds = open_task_data(data, task, int(model.settings.get("seed", 0)),
                         model.settings.get("protocol"))
     if realisation == "mass-spring":  # simulate the whole classifier network
-        from springc.kws.transfer import evaluate_network
-
         return evaluate_network(model, ds, scheduler=scheduler, jobs=jobs, use_cache=use_cache)
     settings = _feature_settings(model)
     clips = ds.split("test")
@@ -98,3 +61,76 @@ def _feature_settings(model) -> FeatureSettings:
     except TypeError as exc:
         raise DataError(str(model.folder / "settings.json"),
                         f"unknown feature settings ({exc})") from None
+
+
+# -- the whole mass-spring network ---------------------------------------------------------------
+
+def selection_models(models) -> list:
+    """Models that read their own rows of the decision matrix (clips, all rows): so the
+    physical decisions are scored exactly like the digital ones."""
+    total = sum(len(m.coef) for _, m in models)
+    out, start = [], 0
+    for classes, m in models:
+        rows = len(m.coef)
+        pick = np.zeros((rows, total))
+        pick[:, start:start + rows] = np.eye(rows)
+        out.append((classes, LinearModel(pick, np.zeros(rows), m.classes)))
+        start += rows
+    return out
+
+
+def simulate_network(net, heads: list[Head], s: msp.MassSpringSettings,
+                     signals: np.ndarray, *, scheduler: str | None = None,
+                     jobs: int = 0) -> tuple[np.ndarray, np.ndarray, float]:
+    """Run clips (clips, samples) through a classifier network on Dask: (row decisions,
+    insertion loss in dB per clip, wall seconds)."""
+    import time
+    from functools import partial
+
+    from springc.kws.distributed import map_batches
+
+    parts = msp.batches(signals)
+    start = time.perf_counter()
+    fn = partial(classifier_batch, net=net, specs=readout_reductions(heads),
+                 tstop=msp.horizon(s, signals.shape[1] / msp.INPUT_RATE))
+    out = map_batches(fn, parts, scheduler, workers=jobs or None, desc="mass-spring classifier",
+                      sizes=[len(p) for p in parts])
+    seconds = time.perf_counter() - start
+    reds = {k: np.concatenate([o[k] for o in out]) for k in out[0]}
+    return decisions(reds, heads), insertion_loss_db(reds, heads), seconds
+
+
+def evaluate_network(model, ds, *, scheduler: str | None = None, jobs: int = 0,
+                     use_cache: bool = True, heads: list[Head] | None = None,
+                     net=None) -> dict:
+    """Simulate the model's classifier.spr (front end and every head in one network) on the
+    test split: accuracy, confusion, per-class TPR and insertion loss of the physical
+    decisions, next to the digital readout c . Phi of the same model on the same features.
+    `heads` and `net` replace the model folder's (the epsilon study)."""
+    from springc.kws.distributed import cores
+    from springc.lang import load_file
+
+    s, model_heads_ = model_heads(model)
+    heads = heads or model_heads_
+    net = net or load_file(model.folder / "classifier.spr")
+    clips = ds.split("test")
+    task = model.settings["task"]
+    signals = msp.load_signals(clips, False, 0, [])
+    d, loss, seconds = simulate_network(net, heads, s, signals, scheduler=scheduler, jobs=jobs)
+    y = targets(clips, task)
+    report = score(selection_models(model.models), d, y, task)
+    phi = feature_matrices(clips, "test", "mass-spring", [s], noise_files=[], jobs=jobs,
+                           use_cache=use_cache, scheduler=scheduler)[0]
+    digital = score(model.models, phi, y, task)
+    ideal = np.concatenate([m.decision(phi) for _, m in model.models], axis=1)
+    report.update(
+        realisation="mass-spring network",
+        digital_same_model={k: digital[k] for k in ("accuracy", "n", "per_class", "pairs")
+                            if k in digital},
+        readout_error=float(np.median(np.abs(d - ideal)) / np.median(np.abs(ideal))),
+        insertion_loss_db={"median": float(np.median(loss)), "mean": float(np.mean(loss))},
+        throughput={"clips": len(clips), "seconds": seconds,
+                    "clips_per_s": len(clips) / seconds,
+                    "cores": cores() if scheduler is None else None},
+        epsilon=float(model.settings["transfer"]["epsilon"]))
+    return report

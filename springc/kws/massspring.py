@@ -55,6 +55,7 @@ from springc.errors import UsageError
 from springc.lang.ir import FlatNetlist
 from springc.kws.phi import group_index, n_features
 from springc.sim.reductions import Reduction, gram_reduction
+from springc.check import check
 
 INPUT_RATE = 16000.0  # Hz: the clips' rate, the `.tran` step of the networks
 # RK4 at 128 kHz: issue 7's measurements put RK4 at 32 kHz 48% off on the 4.9 kHz filter
@@ -305,7 +306,7 @@ def simulate_phi(signals: np.ndarray, s: MassSpringSettings, *, chunk: int | Non
 
     net = feature_network(s)
     signals = np.atleast_2d(np.asarray(signals, dtype=np.float64))
-    res = simulate(net, signals[:, None, :], INPUT_RATE, reductions=[phi_reduction(net, s)],
+    res = simulate(check(net), signals[:, None, :], INPUT_RATE, reductions=[phi_reduction(net, s)],
                    tstop=horizon(s, signals.shape[1] / INPUT_RATE), probes=[], chunk=chunk,
                    batch=len(signals), progress=progress, substeps=substeps,
                    precision=precision)
@@ -322,7 +323,7 @@ def simulate_traces(signals: np.ndarray, s: MassSpringSettings,
     net = feature_network(s)
     signals = np.atleast_2d(np.asarray(signals, dtype=np.float64))
     labels = [f"x(c{i})" for i in range(s.bins)]
-    res = simulate(net, signals[:, None, :], INPUT_RATE, probes=labels, outrate=rate,
+    res = simulate(check(net), signals[:, None, :], INPUT_RATE, probes=labels, outrate=rate,
                    tstop=horizon(s, signals.shape[1] / INPUT_RATE))
     return res.t, np.stack([res.probes[k] for k in labels], axis=1)
 
@@ -334,8 +335,9 @@ def simulate_peaks(signals: np.ndarray, s: MassSpringSettings) -> np.ndarray:
     net = feature_network(s)
     signals = np.atleast_2d(np.asarray(signals, dtype=np.float64))
     labels = [f"x({node})" for node in terminals(s)]
-    res = with_retries(lambda sub: simulate(net, signals[:, None, :], INPUT_RATE, probes=labels,
-                                            outrate=2000.0, substeps=sub,
+    checked = check(net)
+    res = with_retries(lambda sub: simulate(checked, signals[:, None, :], INPUT_RATE,
+                                            probes=labels, outrate=2000.0, substeps=sub,
                                             tstop=horizon(s, signals.shape[1] / INPUT_RATE)))
     return np.max([np.abs(res.probes[k]).max(axis=1) for k in labels], axis=0)
 
@@ -352,11 +354,18 @@ def from_features(fs, **overrides) -> MassSpringSettings:
                               fmin=fs.fmin, fmax=fs.fmax, **overrides)
 
 
+def physical_settings(fs, given=None) -> MassSpringSettings:
+    """The mass-spring settings of a training run: `given`, or the digital settings' sizes
+    with the default physical parameters; validated."""
+    s = given if given is not None else from_features(fs)
+    s.validate()
+    return s
+
+
 def load_signals(clips: list, augment: bool, seed: int, noise_files: list) -> np.ndarray:
     """The clips as the network hears them, (clips, samples) float32 at 16 kHz: the same
     preprocessing and (for training) the same per-clip augmentation as the digital path."""
-    from springc.kws.dataset import NoiseBank, load_clip
-    from springc.kws.train import _clip_rng
+    from springc.kws.dataset import NoiseBank, _clip_rng, load_clip
 
     noise = NoiseBank(noise_files) if augment and noise_files else None
     return np.stack([load_clip(c, augment=augment, rng=_clip_rng(seed, c.key()), noise=noise)

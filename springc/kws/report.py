@@ -1,5 +1,6 @@
-"""Classification reports: accuracy beside the majority-class rate, confusion matrix (CSV and
-PNG), true-positive rate per class (the paper's Fig. 8c-d), clips per class and split."""
+"""Classification reports: a task's models scored on features (`score`), accuracy beside the
+majority-class rate, confusion matrix (CSV and PNG), true-positive rate per class (the paper's
+Fig. 8c-d), clips per class and split."""
 
 from __future__ import annotations
 
@@ -7,6 +8,9 @@ import csv
 from pathlib import Path
 
 import numpy as np
+
+from springc.kws.svm import LinearModel
+from springc.kws.task import DIGITS, PAPER_PAIRS
 
 
 def confusion(y_true: np.ndarray, y_pred: np.ndarray, classes: list[str]) -> np.ndarray:
@@ -44,6 +48,43 @@ def summary(y_true: np.ndarray, y_pred: np.ndarray, classes: list[str]) -> dict:
         "classes": list(classes),
         "confusion": conf.tolist(),
     }
+
+
+def score(models: list[tuple[tuple[str, ...], LinearModel]], x: np.ndarray, y: np.ndarray,
+          task: str) -> dict:
+    """The report on features x with true classes y: accuracy, n, per-class true-positive
+    rate and confusion matrix; for digit pairs also the accuracy of each pair, where the
+    confusion matrix pools every pair's decisions on the clips of its two words."""
+    if task == "kws12":
+        classes, model = models[0]
+        unseen = sorted(set(y.tolist()) - set(classes))  # test labels the model never saw
+        return summary(y, model.predict(x), list(classes) + unseen)
+    truth, guess, pairs = [], [], {}
+    for classes, model in models:
+        mask = np.isin(y, classes)
+        pred = model.predict(x[mask])
+        truth.append(y[mask])
+        guess.append(pred)
+        name = "-".join(classes)
+        pairs[name] = {"accuracy": float(np.mean(pred == y[mask])), "n": int(mask.sum()),
+                       "paper": PAPER_PAIRS.get(tuple(classes))}
+    words = sorted({c for cl, _ in models for c in cl}, key=_digit_order)
+    out = summary(np.concatenate(truth), np.concatenate(guess), words)
+    out["pairs"] = pairs
+    return out
+
+
+def _digit_order(word: str) -> int:
+    return DIGITS.index(word) if word in DIGITS else len(DIGITS)
+
+
+def evaluate_fits(fits: list, x: np.ndarray, y: np.ndarray, task: str) -> dict:
+    """`score` for freshly trained fits [(classes, model, C, validation scores)], with the
+    validation accuracy per C kept in the report."""
+    out = score([(f[0], f[1]) for f in fits], x, y, task)
+    out["validation"] = {"-".join(f[0]) if task != "kws12" else "all":
+                         {f"{c:g}": s for c, s in f[3].items()} for f in fits}
+    return out
 
 
 def counts_table(counts: dict[str, dict[str, int]]) -> str:

@@ -24,8 +24,9 @@ def epsilon_sweep(model_dir: Path, data: Path, epsilons, *, scheduler: str | Non
                   jobs: int = 0) -> list[dict]:
     """[{epsilon, accuracy, ideal_accuracy, insertion_loss_db, readout_error}] for a trained
     mass-spring model, one whole-network simulation of the test split per eps."""
+    from springc.kws.evaluate import evaluate_network
     from springc.kws.model import load_model
-    from springc.kws.train import open_task_data
+    from springc.kws.task import open_task_data
     from springc.lang import load_text
 
     model = load_model(model_dir)
@@ -37,8 +38,7 @@ def epsilon_sweep(model_dir: Path, data: Path, epsilons, *, scheduler: str | Non
     for eps in epsilons:
         heads = tr.heads_for(model.models, s, amp, float(eps))
         net = load_text(tr.classifier_text(heads, s, epsilon=eps), f"<classifier eps={eps:g}>")
-        rep = tr.evaluate_network(model, ds, scheduler=scheduler, jobs=jobs, heads=heads,
-                                  net=net)
+        rep = evaluate_network(model, ds, scheduler=scheduler, jobs=jobs, heads=heads, net=net)
         rows.append(_row(rep, epsilon=float(eps)))
     return rows
 

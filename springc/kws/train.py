@@ -1,14 +1,10 @@
 """Training the keyword spotter: features of every clip (in parallel, cached), a linear SVM
-per task with C chosen on the validation split, and a model folder with weights and report.
+per task (`springc.kws.task`) with C chosen on the validation split, and a model folder with
+weights and report.
 
 Realisations: "digital" (the paper's architecture evaluated numerically, `digital` + `phi`),
-"baseline" (log-Mel + logistic regression). "mass-spring" comes with the simulated classifier.
-Tasks: "kws12" (GSCD's 12 classes, one-versus-rest) and "digits-pairs" (binary SVMs for the
-six pairs among one/two/three/four, the task of the paper's Fig. 8b).
-
-kws12 defaults to the paper's class-balanced held-out splits (`dataset.balanced`) and class
-weights inversely proportional to the training counts, so that `_unknown_` (25 of the 35
-words) dominates neither the fit nor the score."""
+"baseline" (log-Mel + logistic regression), "mass-spring" (features simulated by
+`massspring`; the model folder also gets the classifier netlists of `transfer`)."""
 
 from __future__ import annotations
 
@@ -16,7 +12,6 @@ import itertools
 import multiprocessing
 import os
 import sys
-import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,12 +25,12 @@ from springc.kws import cache
 from springc.kws.baseline import baseline_features, baseline_settings
 from springc.kws.digital import FeatureSettings, features
 from springc.kws.phi import phi_vector
+from springc.kws.report import evaluate_fits
 from springc.kws.svm import LOGREG_GRID, SVM_GRID, LinearModel, select
+from springc.kws.task import (DIGITS, open_task_data, targets, task_counts, task_protocol,
+                              task_weights)
 
 REALISATIONS = ("digital", "baseline", "mass-spring")
-TASKS = ("kws12", "digits-pairs")
-DIGITS = ("one", "two", "three", "four")
-PAPER_PAIRS = {("two", "three"): 0.997}  # the only pair accuracy the paper states in its text
 CHUNK = 8  # clips per work item: big enough for batched FFTs, small enough for memory
 
 
@@ -93,14 +88,9 @@ def _init_pool_worker(*args) -> None:
     _init_worker(*args)
 
 
-def _clip_rng(seed: int, key: str) -> np.random.Generator:
-    """One generator per clip, so augmentation does not depend on scheduling."""
-    return np.random.default_rng([seed, zlib.crc32(key.encode())])
-
-
 def _work(span: tuple[int, int]) -> list[np.ndarray]:
     """Feature matrices (one per settings) for clips[span[0]:span[1]]."""
-    from springc.kws.dataset import SAMPLE_RATE, load_clip
+    from springc.kws.dataset import SAMPLE_RATE, _clip_rng, load_clip
 
     w = _WORKER
     clips = w["clips"][span[0]:span[1]]
@@ -184,50 +174,6 @@ def feature_matrices(clips: list, split: str, realisation: str,
 
 # -- training -----------------------------------------------------------------------------
 
-def targets(clips: list, task: str) -> np.ndarray:
-    """Class of each clip: the 12-class label, or the spoken word for digits-pairs."""
-    return np.array([c.label if task == "kws12" else c.word for c in clips])
-
-
-def task_protocol(task: str, protocol: str | None = None) -> str:
-    """The held-out protocol: `protocol`, or the task's default (kws12: "balanced", the
-    paper's; digits-pairs: "lists", its classes are single words of equal share)."""
-    if protocol is None:
-        return "balanced" if task == "kws12" else "lists"
-    if protocol == "balanced" and task != "kws12":
-        raise UsageError(f"the balanced protocol is for the kws12 task, not {task}",
-                         hint="use --protocol lists")
-    return protocol
-
-
-def task_weights(task: str, balance_weights: bool | None = None) -> str | None:
-    """The classifier's class weights: "balanced" or None (equal), by default "balanced"
-    for kws12 only."""
-    if balance_weights is None:
-        balance_weights = task == "kws12"
-    return "balanced" if balance_weights else None
-
-
-def open_task_data(data: Path, task: str, seed: int = 0, protocol: str | None = None):
-    """The data set restricted to what the task uses, under the held-out `protocol`
-    (default: the task's, see `task_protocol`)."""
-    from springc.kws.dataset import open_dataset, with_protocol
-
-    if not Path(data).is_dir():
-        raise DataError(str(data), "no such data folder",
-                        hint="make one with `springc data synth DIR` or point at GSCD")
-    if task not in TASKS:
-        raise UsageError(f"unknown task {task!r}; use one of {TASKS}")
-    protocol = task_protocol(task, protocol)
-    ds = open_dataset(data, seed=seed)
-    if task == "digits-pairs":
-        ds = ds.subset(words=DIGITS)
-    for split in ("train", "validation", "test"):
-        if not ds.split(split):
-            raise DataError(str(data), f"the {split} split of task {task} holds no clips")
-    return with_protocol(ds, protocol, seed)
-
-
 def split_features(ds, realisation: str, settings_list: list[FeatureSettings], *, seed: int,
                    jobs: int, use_cache: bool,
                    scheduler: str | None = None) -> dict[str, list[np.ndarray]]:
@@ -262,14 +208,13 @@ def fit_task(x: dict[str, np.ndarray], y: dict[str, np.ndarray], task: str, kind
 
 def train(opts: TrainOptions) -> dict:
     """Train, evaluate on the test split and write the model folder. Returns the report."""
-    from springc.kws.evaluate import evaluate_fits
     from springc.kws.model import write_model
 
     check_realisation(opts.realisation)
     if opts.realisation == "digital":
         opts.settings.validate(16000)
     if opts.realisation == "mass-spring":
-        from springc.kws.transfer import physical_settings
+        from springc.kws.massspring import physical_settings
 
         opts.massspring = physical_settings(opts.settings, opts.massspring)
     ds = open_task_data(opts.data, opts.task, opts.seed, opts.protocol)
@@ -300,14 +245,6 @@ def data_summary(opts: TrainOptions, ds) -> dict:
     return {"protocol": task_protocol(opts.task, opts.protocol),
             "class_weight": task_weights(opts.task, opts.balance_weights),
             "counts": task_counts(ds, opts.task)}
-
-
-def task_counts(ds, task: str) -> dict[str, dict[str, int]]:
-    """{split: {class: clips}}: the 12 classes (all listed), or the words of digits-pairs."""
-    if task == "kws12":
-        return ds.counts()
-    return {s: {w: sum(c.word == w for c in ds.split(s)) for w in DIGITS}
-            for s in ("train", "validation", "test")}
 
 
 def model_settings(opts: TrainOptions, ds) -> dict:

@@ -39,6 +39,7 @@ from springc.design.mvm import design_mvm, mvm_text
 from springc.errors import UsageError
 from springc.kws import massspring as msp
 from springc.kws.phi import spread
+from springc.check import check
 
 TAU_READOUT = 80.0  # s (paper)
 Q_READOUT = 0.01  # paper
@@ -172,6 +173,17 @@ def insertion_loss_db(reds: dict[str, np.ndarray], heads: list[Head]) -> np.ndar
         return -10 * np.log10(diss / reds["work:in"])
 
 
+def classifier_batch(signals: np.ndarray, net, specs: list[str], tstop: float) -> dict:
+    """Readout reductions of one batch through the whole classifier (a Dask task)."""
+    from springc.sim.simulate import simulate
+
+    sig = signals.astype(np.float64)[:, None, :]
+    checked = check(net)
+    return msp.with_retries(lambda sub: simulate(
+        checked, sig, msp.INPUT_RATE, probes=[], reductions=specs, tstop=tstop, chunk=len(signals),
+        batch=len(signals), substeps=sub, precision=msp.DATASET_PRECISION).reductions)
+
+
 def feature_amplitude(signals: np.ndarray, s: msp.MassSpringSettings) -> float:
     """A: the peak displacement of the terminal nodes, median over the clips `signals`
     (clips, samples) at 16 kHz (a sample of training clips)."""
@@ -179,18 +191,10 @@ def feature_amplitude(signals: np.ndarray, s: msp.MassSpringSettings) -> float:
     return float(np.median(peaks))
 
 
-# -- the model folder and the evaluation of the whole network --------------------------------
+# -- the model folder --------------------------------------------------------------------------
 
 DEFAULT_EPSILON = 1e-5  # squaring error: readouts within ~0.2% of c . Phi (measured)
 AMPLITUDE_CLIPS = 16  # training clips (unaugmented, first in order) that measure A
-
-
-def physical_settings(fs, given=None) -> msp.MassSpringSettings:
-    """The mass-spring settings of a training run: `given`, or the digital settings' sizes
-    with the default physical parameters; validated."""
-    s = given if given is not None else msp.from_features(fs)
-    s.validate()
-    return s
 
 
 def write_classifier(opts, ds, fits: list, settings: dict) -> dict[str, str]:
@@ -225,88 +229,3 @@ def model_heads(model) -> tuple[msp.MassSpringSettings, list[Head]]:
         raise DataError(str(model.folder / "settings.json"),
                         f"not a mass-spring model ({exc})") from None
     return s, heads
-
-
-def classifier_batch(signals: np.ndarray, net, specs: list[str], tstop: float) -> dict:
-    """Readout reductions of one batch through the whole classifier (a Dask task)."""
-    from springc.sim.simulate import simulate
-
-    sig = signals.astype(np.float64)[:, None, :]
-    return msp.with_retries(lambda sub: simulate(
-        net, sig, msp.INPUT_RATE, probes=[], reductions=specs, tstop=tstop, chunk=len(signals),
-        batch=len(signals), substeps=sub, precision=msp.DATASET_PRECISION).reductions)
-
-
-def selection_models(models) -> list:
-    """Models that read their own rows of the decision matrix (clips, all rows): so the
-    physical decisions are scored exactly like the digital ones."""
-    from springc.kws.svm import LinearModel
-
-    total = sum(len(m.coef) for _, m in models)
-    out, start = [], 0
-    for classes, m in models:
-        rows = len(m.coef)
-        pick = np.zeros((rows, total))
-        pick[:, start:start + rows] = np.eye(rows)
-        out.append((classes, LinearModel(pick, np.zeros(rows), m.classes)))
-        start += rows
-    return out
-
-
-def simulate_network(net, heads: list[Head], s: msp.MassSpringSettings,
-                     signals: np.ndarray, *, scheduler: str | None = None,
-                     jobs: int = 0) -> tuple[np.ndarray, np.ndarray, float]:
-    """Run clips (clips, samples) through a classifier network on Dask: (row decisions,
-    insertion loss in dB per clip, wall seconds)."""
-    import time
-    from functools import partial
-
-    from springc.kws.distributed import map_batches
-
-    parts = msp.batches(signals)
-    start = time.perf_counter()
-    fn = partial(classifier_batch, net=net, specs=readout_reductions(heads),
-                 tstop=msp.horizon(s, signals.shape[1] / msp.INPUT_RATE))
-    out = map_batches(fn, parts, scheduler, workers=jobs or None, desc="mass-spring classifier",
-                      sizes=[len(p) for p in parts])
-    seconds = time.perf_counter() - start
-    reds = {k: np.concatenate([o[k] for o in out]) for k in out[0]}
-    return decisions(reds, heads), insertion_loss_db(reds, heads), seconds
-
-
-def evaluate_network(model, ds, *, scheduler: str | None = None, jobs: int = 0,
-                     use_cache: bool = True, heads: list[Head] | None = None,
-                     net=None) -> dict:
-    """Simulate the model's classifier.spr (front end and every head in one network) on the
-    test split: accuracy, confusion, per-class TPR and insertion loss of the physical
-    decisions, next to the digital readout c . Phi of the same model on the same features.
-    `heads` and `net` replace the model folder's (the epsilon study)."""
-    from springc.kws.distributed import cores
-    from springc.kws.evaluate import score
-    from springc.kws.train import feature_matrices, targets
-    from springc.lang import load_file
-
-    s, model_heads_ = model_heads(model)
-    heads = heads or model_heads_
-    net = net or load_file(model.folder / "classifier.spr")
-    clips = ds.split("test")
-    task = model.settings["task"]
-    signals = msp.load_signals(clips, False, 0, [])
-    d, loss, seconds = simulate_network(net, heads, s, signals, scheduler=scheduler, jobs=jobs)
-    y = targets(clips, task)
-    report = score(selection_models(model.models), d, y, task)
-    phi = feature_matrices(clips, "test", "mass-spring", [s], noise_files=[], jobs=jobs,
-                           use_cache=use_cache, scheduler=scheduler)[0]
-    digital = score(model.models, phi, y, task)
-    ideal = np.concatenate([m.decision(phi) for _, m in model.models], axis=1)
-    report.update(
-        realisation="mass-spring network",
-        digital_same_model={k: digital[k] for k in ("accuracy", "n", "per_class", "pairs")
-                            if k in digital},
-        readout_error=float(np.median(np.abs(d - ideal)) / np.median(np.abs(ideal))),
-        insertion_loss_db={"median": float(np.median(loss)), "mean": float(np.mean(loss))},
-        throughput={"clips": len(clips), "seconds": seconds,
-                    "clips_per_s": len(clips) / seconds,
-                    "cores": cores() if scheduler is None else None},
-        epsilon=float(model.settings["transfer"]["epsilon"]))
-    return report

@@ -22,13 +22,13 @@ from springc_cli.common import plot_option, run_user_errors
 @run_user_errors
 def ac_cmd(netlist, node, channel, fmin, fmax, points, output, plot_path) -> None:
     """Frequency response H(f) = X(f)/U(f) of the linearisation at rest."""
-    from springc.check import checks
     from springc import lang
     from springc.analyses import ac
+    from springc.check import check
     from springc.errors import UsageError
 
     net = lang.load_file(netlist)
-    checks.check_static(net)
+    checked = check(net)
     spec = net.acs[0] if net.acs else None
     if node is None:
         if spec is None:
@@ -38,7 +38,7 @@ def ac_cmd(netlist, node, channel, fmin, fmax, points, output, plot_path) -> Non
         channel = spec.input if spec else 0
     base = ac.default_sweep(net)
     sweep = ac.Sweep(fmin or base.fmin, fmax or base.fmax, points or base.points)
-    result = ac.response(net, node, sweep.frequencies(), channel, progress=True)
+    result = ac.response(checked, node, sweep.frequencies(), channel, progress=True)
     ac.write_csv(result, output)
     if plot_path:
         ac.plot(result, plot_path)
@@ -54,13 +54,11 @@ def ac_cmd(netlist, node, channel, fmin, fmax, points, output, plot_path) -> Non
 @run_user_errors
 def modes_cmd(netlist: str, as_json: bool, count: int | None) -> None:
     """Eigenfrequencies, damping rates, Q factors, dominant nodes and zero modes."""
-    from springc.check import checks
     from springc import lang
     from springc.analyses.modes import mode_report, mode_text
+    from springc.check import check
 
-    net = lang.load_file(netlist)
-    checks.check_static(net)
-    report = mode_report(net, count)
+    report = mode_report(check(lang.load_file(netlist)), count)
     click.echo(json.dumps(report) if as_json else mode_text(report))
 
 

@@ -80,20 +80,21 @@ def export_cmd(
     nonlinear forces B-sources. Run it with `ngspice -b OUT`; probes go to springc_probes.txt."""
     if not spice:
         raise UsageError("choose the output format: --spice (ngspice) is the one available")
+    from springc.check import check
     from springc.lang import load_file
 
-    net = load_file(netlist)
+    checked = check(load_file(netlist))
     options = SpiceOptions(tstop=tstop, tstep=tstep, tmax=tmax, reltol=reltol)
-    options = _bind_inputs(net, options, input_path, channel)
-    write_atomic(output, export_spice(net, options))
+    options = _bind_inputs(checked.net, options, input_path, channel)
+    write_atomic(output, export_spice(checked, options))
     click.echo(f"wrote {output}", err=True)
     if plot_path and not compare:
         raise UsageError("--plot shows the comparison: add --compare")
     if compare:
-        check = cross_check(net, options, substeps)
-        click.echo(_summary(check))
+        compared = cross_check(checked, options, substeps)
+        click.echo(_summary(compared))
         if plot_path:
-            plot_cross_check(check, plot_path)
+            plot_cross_check(compared, plot_path)
             click.echo(f"wrote {plot_path}", err=True)
 
 

@@ -60,16 +60,18 @@ def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precisio
 
     Runs are integrated together in lockstep by a kernel generated for the netlist; inputs
     are resampled to 1/tstep and interpolated linearly at the integrator's stage times."""
-    from springc.sim import results
+    from springc.check import check
     from springc.lang import load_file
+    from springc.sim import results
     from springc.sim.simulate import simulate
 
     results.check_output_path(output)
     net = load_file(netlist)
     if tolerance is not None:
-        method, substeps = _choose(net, tolerance, method, substeps, tstep, tstop, inputs,
-                                   channel)
-    res = simulate(net, list(inputs) or None, tstep=tstep, tstop=tstop, substeps=substeps,
+        method, substeps = _choose(check(net, judge_step=False), tolerance, method, substeps,
+                                   tstep, tstop, inputs, channel)
+    checked = check(net, method, tstep=tstep, substeps=substeps)
+    res = simulate(checked, list(inputs) or None, tstep=tstep, tstop=tstop, substeps=substeps,
                    method=method, precision=precision, outrate=outrate,
                    reductions=list(reduce_), batch=batch, channel=channel, progress=True,
                    write_out=KERNEL_FORMS[kernel_form])
@@ -80,9 +82,10 @@ def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precisio
                f"-> {output}" + (f", plot {plot_path}" if plot_path else ""))
 
 
-def _choose(net, tolerance, method, substeps, tstep, tstop, inputs, channel
+def _choose(checked, tolerance, method, substeps, tstep, tstop, inputs, channel
             ) -> tuple[str, int]:
-    """(method, substeps) from `springc.check.accuracy.choose`, echoed for the user."""
+    """(method, substeps) from `springc.check.accuracy.choose`, echoed for the user; the
+    chosen step is judged by the check that follows."""
     from springc.check.accuracy import choose
     from springc.errors import UsageError
     from springc.sim.stepcheck import verify
@@ -90,11 +93,12 @@ def _choose(net, tolerance, method, substeps, tstep, tstop, inputs, channel
     if method or substeps:
         raise UsageError("--tolerance chooses the method and substeps itself",
                          hint="drop --method/--substeps, or drop --tolerance")
+    net = checked.net
     tstep = tstep or (net.tran.tstep if net.tran else None)
     if tstep is None:
         raise UsageError("no time step: the netlist has no .tran and no --tstep was given")
     duration = tstop or (net.tran.tstop if net.tran else 1.0)
-    choice = verify(net, choose(net, tstep, duration, tolerance), tstep, duration, tolerance,
+    choice = verify(checked, choose(net, tstep, duration, tolerance), tstep, duration, tolerance,
                     _first_run(inputs), channel)
     click.echo(choice.describe())
     return choice.method, choice.substeps

@@ -34,6 +34,7 @@ def golden_inputs(tstep: float, seconds: float) -> np.ndarray:
 def simulate_example(path: Path):
     """Simulate one example with the golden settings: its own .tran and .options, inputs from
     `golden_inputs` if it reads any, outputs thinned to at most MAX_SAMPLES samples."""
+    from springc.check import check
     from springc.lang import load_file
     from springc.sim.simulate import settings, simulate
     from springc.sim.sources import channels_used
@@ -43,7 +44,7 @@ def simulate_example(path: Path):
     inputs = golden_inputs(net.tran.tstep, tstop) if channels_used(net) else None
     st = settings(net, tstop=tstop)
     every = max(1, math.ceil(st.nsteps / MAX_SAMPLES))
-    return simulate(net, inputs, tstop=tstop, outrate=1.0 / (every * st.h))
+    return simulate(check(net), inputs, tstop=tstop, outrate=1.0 / (every * st.h))
 
 
 def main() -> None:

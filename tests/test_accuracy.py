@@ -15,6 +15,7 @@ from springc.bench import suite as benchsuite
 from springc.errors import UsageError
 from springc.lang.ir import IRBuilder, Tran
 from springc.sim.simulate import likely_cause, settings, simulate
+from springc.check import check
 
 TWOMODE = "netlists/examples/twomode_filter.spr"
 
@@ -44,7 +45,7 @@ def test_estimate_matches_the_measured_impulse_response_error(f0, rate):
     1e-4 to 0.9 (the issue's 0.48 at 4.9 kHz and 0.95 at 8 kHz for 32 kHz)."""
     alpha, seconds = 400.0, 0.05
     net = _oscillator(f0, alpha, rate, seconds)
-    res = simulate(net, method="rk4")
+    res = simulate(check(net), method="rk4")
     w0 = 2 * np.pi * f0
     wd = np.sqrt(w0**2 - alpha**2 / 4)
     exact = np.exp(-alpha / 2 * res.t) * np.sin(wd * res.t) / wd

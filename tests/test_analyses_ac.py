@@ -11,6 +11,7 @@ from springc.design.filters import two_mode_response
 from springc.errors import UsageError
 from springc.lang.ir import IRBuilder, Source
 from springc.lang import load_text
+from springc.check import check
 
 SPEC_FILTER = """\
 .title two-mode band-pass filter
@@ -39,7 +40,7 @@ def _oscillator(m=2.0, b=0.6, k=50.0, gain=3.0):
 def test_driven_damped_oscillator() -> None:
     m, b, k, g = 2.0, 0.6, 50.0, 3.0
     f = np.geomspace(0.01, 100, 500)
-    result = ac.response(_oscillator(m, b, k, g), "x", f)
+    result = ac.response(check(_oscillator(m, b, k, g)), "x", f)
     w = 2 * np.pi * f
     exact = g / (k - w**2 * m + 1j * w * b)
     np.testing.assert_allclose(result.mag, np.abs(exact), rtol=1e-9)
@@ -52,10 +53,11 @@ def test_driven_damped_oscillator() -> None:
 def test_input_channel_selects_forces() -> None:
     f = np.array([1.0, 2.0])
     net = _oscillator()
-    ratio = ac.response(net, "x", f, channel=1).h / ac.response(net, "x", f, channel=0).h
+    checked = check(net)
+    ratio = ac.response(checked, "x", f, channel=1).h / ac.response(checked, "x", f, channel=0).h
     np.testing.assert_allclose(ratio, 100.0 / 3.0, rtol=1e-12)
     with pytest.raises(UsageError, match=r"no F element is driven by in\(2\)"):
-        ac.response(net, "x", f, channel=2)
+        ac.response(check(net), "x", f, channel=2)
 
 
 def test_two_mode_filter_matches_the_paper() -> None:
@@ -65,7 +67,7 @@ def test_two_mode_filter_matches_the_paper() -> None:
     sweep = ac.default_sweep(net)
     assert (sweep.fmin, sweep.fmax, sweep.points) == (100, 10_000, 301)
     f = sweep.frequencies()
-    result = ac.response(net, "xb", f)
+    result = ac.response(check(net), "xb", f)
     expected = two_mode_response(f, 1000.0, 1.1, 400.0)
     np.testing.assert_allclose(result.h, expected, rtol=1e-6)
 
@@ -73,15 +75,15 @@ def test_two_mode_filter_matches_the_paper() -> None:
 def test_sparse_solver_agrees_with_dense(monkeypatch) -> None:
     net = load_text(SPEC_FILTER, "filter.spr")
     f = np.geomspace(200, 5000, 40)
-    dense = ac.response(net, "xa", f).h
+    dense = ac.response(check(net), "xa", f).h
     monkeypatch.setattr(ac, "DENSE_MAX", 0)
-    np.testing.assert_allclose(ac.response(net, "xa", f).h, dense, rtol=1e-10)
+    np.testing.assert_allclose(ac.response(check(net), "xa", f).h, dense, rtol=1e-10)
 
 
 def test_unknown_node_suggests_close_names() -> None:
     net = load_text(SPEC_FILTER, "filter.spr")
     with pytest.raises(UsageError) as info:
-        ac.response(net, "xc", np.array([1.0]))
+        ac.response(check(net), "xc", np.array([1.0]))
     assert "unknown node 'xc'" in info.value.format() and "did you mean" in info.value.format()
 
 
@@ -92,7 +94,7 @@ def test_bad_sweep_is_a_usage_error() -> None:
 
 def test_csv_and_plot_are_written_atomically(tmp_path) -> None:
     f = np.geomspace(1, 10, 5)
-    result = ac.response(_oscillator(), "x", f)
+    result = ac.response(check(_oscillator()), "x", f)
     ac.write_csv(result, tmp_path / "h.csv")
     ac.plot(result, tmp_path / "h.png")
     lines = (tmp_path / "h.csv").read_text().splitlines()

@@ -9,6 +9,7 @@ import pytest
 
 from springc.analyses.modes import mode_report, mode_text
 from springc.lang.ir import IRBuilder
+from springc.check import check
 
 
 def _filter_like():
@@ -25,7 +26,7 @@ def _filter_like():
 
 
 def test_report_numbers() -> None:
-    report = mode_report(_filter_like())
+    report = mode_report(check(_filter_like()))
     low, high = report["modes"]
     assert low["omega"] == pytest.approx(1e3, rel=1e-12)
     assert high["omega"] == pytest.approx(np.sqrt(1e6 + 2.1e5), rel=1e-12)
@@ -40,7 +41,7 @@ def test_report_numbers() -> None:
 
 
 def test_count_limits_rows_and_text_lists_zero_modes() -> None:
-    report = mode_report(_filter_like(), count=1)
+    report = mode_report(check(_filter_like()), count=1)
     assert len(report["modes"]) == 1 and report["total_modes"] == 2
     text = mode_text(report)
     assert "zero modes: 1 (free motion), dominant nodes free" in text
@@ -56,7 +57,7 @@ def test_all_to_all_block_with_designed_zero_modes() -> None:
         b.mass(f"M{i}", f"n{i}", m)
         for j in range(i):
             b.coupling(f"C{i}_{j}", f"n{i}", f"n{j}", k)
-    report = mode_report(b.finish())
+    report = mode_report(check(b.finish()))
     assert len(report["modes"]) == n - 1
     np.testing.assert_allclose([r["omega"] for r in report["modes"]], np.sqrt(n * k / m),
                                rtol=1e-10)

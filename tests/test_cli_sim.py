@@ -12,6 +12,7 @@ from click.testing import CliRunner
 from springc.lang import load_file
 from springc.sim.simulate import simulate
 from springc_cli.main import main
+from springc.check import check
 
 NETLIST = """\
 .title cli oscillator
@@ -50,7 +51,7 @@ def test_npz_holds_t_probes_and_reductions_as_the_library_computes(case):
     data = np.load(out)
     assert data["t"].shape == (501,) and data["x(a)"].shape == (2, 501)
     assert [p.rsplit("/", 1)[-1] for p in data["runs"]] == ["a.wav", "b.flac"]
-    lib = simulate(load_file(case / "osc.spr"), [case / "inputs"],
+    lib = simulate(check(load_file(case / "osc.spr")), [case / "inputs"],
                    reductions=["energy", "final:v(a)"])
     np.testing.assert_array_equal(data["v(a)"], lib.probes["v(a)"])
     np.testing.assert_array_equal(data["energy"], lib.reductions["energy"])
@@ -75,7 +76,7 @@ def test_kernel_form_reaches_simulate(case, monkeypatch, form, write_out):
                  "--kernel", form)
     assert res.exit_code == 0, res.output
     assert seen == [write_out]
-    lib = real(load_file(case / "osc.spr"), [case / "inputs"], write_out=write_out)
+    lib = real(check(load_file(case / "osc.spr")), [case / "inputs"], write_out=write_out)
     np.testing.assert_array_equal(np.load(case / f"{form}.npz")["x(a)"], lib.probes["x(a)"])
 
 
@@ -95,7 +96,7 @@ def test_csv_long_format_and_overrides(case):
     (["-i", "{d}/missing.wav", "-o", "{d}/x.npz"], "missing.wav: no such file"),
     (["-i", "{d}/stereo.wav", "-o", "{d}/x.npz"], "stereo.wav: has 2 channels"),
     (["-o", "{d}/x.npz", "--reduce", "msq:x(nowhere)"], "unknown node 'nowhere'"),
-    (["-o", "{d}/x.npz", "--tstep", "0.02", "--tstop", "20"], "unstable step"),
+    (["-o", "{d}/x.npz", "--tstep", "0.02", "--tstop", "20"], "is unstable for rk4"),
 ])
 def test_user_errors_exit_1_without_traceback_or_output(case, args, message):
     res = invoke(case / "osc.spr", *[a.format(d=case) for a in args])

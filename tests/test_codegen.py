@@ -12,6 +12,7 @@ import numpy as np
 from springc.kernels import codegen, loader
 from springc.kernels.codegen import KernelOptions, generate
 from springc.lang.ir import IRBuilder, Source, Tran
+from springc.check import check
 
 ROOT = str(Path(__file__).parents[1])
 
@@ -88,7 +89,8 @@ def test_loader_writes_real_file_and_numba_cache(tmp_path, monkeypatch):
 
     net = small_net()
     u = np.ones((1, 1, 101))
-    res = simulate(net, u, write_out=False)  # the shared kernel (not one run's register kernel)
+    # the shared kernel (not one run's register kernel)
+    res = simulate(check(net), u, write_out=False)
     one_run = KernelOptions(lanes=codegen.choose_lanes(1))  # what simulate picks for 1 run
     text = generate(net, one_run)
     path = loader.kernel_path(text)
@@ -104,8 +106,8 @@ def test_loader_writes_real_file_and_numba_cache(tmp_path, monkeypatch):
     assert abs(res.probes["x(a)"][0, 2] - (t**2 / 2 - 0.5 * t**3 / 6 - 105 * t**4 / 24)) < 2e-12
     # a second process loads the compiled code from the cache and gets the same numbers
     code = ("import numpy as np; from tests.test_codegen import small_net; "
-            "from springc.sim.simulate import simulate; "
-            "r = simulate(small_net(), np.ones((1, 1, 101))); "
+            "from springc.check import check; from springc.sim.simulate import simulate; "
+            "r = simulate(check(small_net()), np.ones((1, 1, 101))); "
             "print(repr(float(r.probes['x(a)'][0, -1])))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True, env={**os.environ, "SPRINGC_CACHE": str(tmp_path)},

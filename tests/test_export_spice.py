@@ -26,6 +26,7 @@ from springc.lang.ir import FlatNetlist, IRBuilder, Source, Tran
 from springc.lang import load_text
 from springc.export.ngspice import cross_check, plot_cross_check, run_ngspice, simulate_ngspice
 from springc.sim.sources import analytic
+from springc.check import check
 
 needs_ngspice = pytest.mark.skipif(
     shutil.which("ngspice") is None,
@@ -115,7 +116,7 @@ def test_driven_damped_oscillator_matches_the_analytic_solution():
     net, p = oscillator()
     errors = []
     for tmax in (5e-6, 2.5e-6):
-        t, got = simulate_ngspice(net, SpiceOptions(tmax=tmax))
+        t, got = simulate_ngspice(check(net), SpiceOptions(tmax=tmax))
         x, v = oscillator_exact(p, t)
         errors.append(rel_l2(got["x(a)"], x))
         assert rel_l2(got["v(a)"], v) < 1e-4  # measured 7.6e-5, 1.9e-5
@@ -148,7 +149,7 @@ def chain(n: int = 200, td: float = 1 / 4000, kc: float = 10.0) -> FlatNetlist:
 def test_chain_driven_by_a_gaussian_pulse_matches_dop853(capsys):
     net = chain()
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t, got = simulate_ngspice(net)
+    t, got = simulate_ngspice(check(net))
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     seconds = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
     ref = dop853(net, net.tran.tstop, analytic_forcing(net))(t)
@@ -219,7 +220,7 @@ def test_nonlinear_networks_match_dop853(build):
         b.probe("v", node)
     b.tran = Tran(1e-5, 0.06, LOC)
     net = b.finish()
-    t, got = simulate_ngspice(net, SpiceOptions(tmax=2.5e-6))
+    t, got = simulate_ngspice(check(net), SpiceOptions(tmax=2.5e-6))
     ref = dop853(net, net.tran.tstop, analytic_forcing(net))(t)
     for probe in net.probes:
         row = probe.node + (net.n if probe.quantity == "v" else 0)
@@ -250,7 +251,7 @@ def test_sampled_signals_drive_a_free_mass_exactly(tmp_path):
     b.probe("v", "b")
     b.tran = Tran(tstep, 0.03, LOC)
     net = b.finish()
-    t, got = simulate_ngspice(net, SpiceOptions(inputs={1: (signal_in, 1 / tstep)}))
+    t, got = simulate_ngspice(check(net), SpiceOptions(inputs={1: (signal_in, 1 / tstep)}))
     for label, samples, gain in (
         ("v(a)", signal_in, 3.0),
         ("v(b)", load_audio(wav, 1 / tstep, 0), -2.0),
@@ -282,7 +283,7 @@ def small() -> FlatNetlist:
 
 
 def test_export_maps_elements_through_the_force_current_analogy():
-    text = export_spice(small())
+    text = export_spice(check(small()))
     lines = set(text.splitlines())
     assert "Cm0 v0 0 2.0" in lines  # mass -> capacitor
     assert "Rm0 v0 0 0.25" in lines  # damper b=4 -> 1/4 ohm
@@ -302,7 +303,7 @@ def test_unbound_input_is_an_error_at_the_force():
     b.force("F1", "a", Source("in", channel=2), loc=SourceLoc("in.spr", 7, 1))
     b.tran = Tran(1e-3, 0.1, LOC)
     with pytest.raises(NetlistError) as err:
-        export_spice(b.finish())
+        export_spice(check(b.finish()))
     assert err.value.format().startswith("in.spr:7:1: error: this force reads input channel 2")
 
 
@@ -310,19 +311,19 @@ def test_missing_transient_is_an_error():
     b = IRBuilder("no tran", file="n.spr")
     b.mass("M1", "a", 1.0)
     with pytest.raises(NetlistError, match="no .tran"):
-        export_spice(b.finish())
-    assert ".tran 0.01 1.0 0 0.01 uic" in export_spice(b.finish(), SpiceOptions(1.0, 0.01))
+        export_spice(check(b.finish()))
+    assert ".tran 0.01 1.0 0 0.01 uic" in export_spice(check(b.finish()), SpiceOptions(1.0, 0.01))
 
 
 def test_missing_ngspice_is_a_clear_error(monkeypatch):
     monkeypatch.setattr(shutil, "which", lambda name: None)
     with pytest.raises(SimulationError, match="ngspice is not installed"):
-        run_ngspice(export_spice(small()), 0.1, 1e-3, probe_vectors(small()))
+        run_ngspice(export_spice(check(small())), 0.1, 1e-3, probe_vectors(small()))
 
 
 @needs_ngspice
 def test_ngspice_failure_quotes_its_log():
-    text = export_spice(small()).replace("Cm0 v0 0 2.0", "Cm0 v0 0 2.0 bogus=(")
+    text = export_spice(check(small())).replace("Cm0 v0 0 2.0", "Cm0 v0 0 2.0 bogus=(")
     with pytest.raises(SimulationError) as err:
         run_ngspice(text, 0.1, 1e-3, probe_vectors(small()))
     assert "ngspice" in err.value.message
@@ -421,13 +422,13 @@ def test_springc_simulator_agrees_with_ngspice_on_an_audio_driven_filter(tmp_pat
     net = load_text(SPR, "bp.spr")
     rate = 1 / net.tran.tstep
     signal = np.random.default_rng(0).normal(0, 0.1, int(0.02 * rate))
-    check = cross_check(net, SpiceOptions(inputs={0: (signal, rate)}), substeps=4)
-    assert check.t[-1] == pytest.approx(0.02) and len(check.t) == 641
+    compared = cross_check(check(net), SpiceOptions(inputs={0: (signal, rate)}), substeps=4)
+    assert compared.t[-1] == pytest.approx(0.02) and len(compared.t) == 641
     for label in ("x(xa)", "x(xb)"):
-        assert check.errors[label] == pytest.approx(
-            rel_l2(check.springc[label], check.ngspice[label])
+        assert compared.errors[label] == pytest.approx(
+            rel_l2(compared.springc[label], compared.ngspice[label])
         )
-        assert check.errors[label] < 1e-4, label  # measured 1.2e-5 and 2.5e-5
-    assert check.springc_seconds > 0 and check.ngspice_seconds > 0
-    plot_cross_check(check, tmp_path / "check.png")
+        assert compared.errors[label] < 1e-4, label  # measured 1.2e-5 and 2.5e-5
+    assert compared.springc_seconds > 0 and compared.ngspice_seconds > 0
+    plot_cross_check(compared, tmp_path / "check.png")
     assert (tmp_path / "check.png").read_bytes()[:4] == b"\x89PNG"

@@ -10,10 +10,11 @@ from springc.check import accuracy
 from springc.bench import suite as benchsuite
 from springc.lang import physics
 from springc.bench import networks as bn
-from springc.errors import SimulationError
+from springc.errors import CheckError, SimulationError
 from springc.lang.ir import IRBuilder, Source, Tran
 from springc.bench.reference import solve_ivp_reference
 from springc.sim.simulate import simulate
+from springc.check import check
 
 RATE = 32000.0
 
@@ -24,15 +25,20 @@ def _rel(got: np.ndarray, want: np.ndarray) -> float:
 
 def test_stiff_all_to_all_block_is_stopped_with_the_substeps_it_needs():
     """8 masses joined pairwise by 5e9 constraint springs: fastest mode 2e5 rad/s, h omega =
-    6.3 at 32 kHz (RK4 is stable to 2.8). The guard stops it and names the cure; with the
-    substeps it names, the run agrees with a 16x finer one."""
+    6.3 at 32 kHz (RK4 is stable to 2.8). The check refuses it before running and names the
+    cure; past the check on purpose, the guard stops it and names the same cure; with those
+    substeps, the run agrees with a 16x finer one."""
     net = benchsuite.stiff_block(nodes=8, k_constraint=5e9)
     u = benchsuite.speech_like(0.02, RATE, 1)
+    with pytest.raises(CheckError, match="is unstable for rk4") as refused:
+        check(net)
+    assert "substeps=3" in refused.value.format()
+    checked = check(net, judge_step=False)
     with pytest.raises(SimulationError, match="diverged") as info:
-        simulate(net, u, tstop=0.02)
+        simulate(checked, u, tstop=0.02, check_step=False)
     assert "raise --substeps to at least 3" in info.value.format()
-    got = simulate(net, u, tstop=0.02, substeps=3).probes
-    ref = simulate(net, u, tstop=0.02, substeps=48).probes
+    got = simulate(checked, u, tstop=0.02, substeps=3).probes
+    ref = simulate(checked, u, tstop=0.02, substeps=48).probes
     for label in ref:
         assert _rel(got[label][0], ref[label][0]) < 2e-3
 
@@ -46,8 +52,8 @@ def test_delay_line_with_near_zero_local_stiffness():
     rate = 1 / net.tran.tstep
     t = np.arange(round(net.tran.tstop * rate) + 1) / rate
     pulse = np.exp(-(((t - 10 * td) / (3 * td)) ** 2))[None, None, :]
-    got = simulate(net, pulse)
-    ref = simulate(net, pulse, substeps=16)
+    got = simulate(check(net), pulse)
+    ref = simulate(check(net), pulse, substeps=16)
     end = net.probes[1].label
     assert _rel(got.probes[end][0], ref.probes[end][0]) < 1e-3
     arrival = got.t[np.argmax(np.abs(got.probes[end][0]))] - 10 * td
@@ -65,7 +71,7 @@ def test_overdamped_readout_q_001_matches_the_analytic_step_response():
     b.force("F", "r", Source("step", (f, 0.0)))
     b.probe("x", "r")
     b.tran = Tran(1 / RATE, 0.2, None)
-    res = simulate(b.finish())
+    res = simulate(check(b.finish()))
     l1, l2 = np.roots([1.0, bb, k])
     exact = f / k * (1 - (l2 * np.exp(l1 * res.t) - l1 * np.exp(l2 * res.t)) / (l2 - l1))
     assert _rel(res.probes["x(r)"][0], exact) < 1e-7
@@ -73,7 +79,7 @@ def test_overdamped_readout_q_001_matches_the_analytic_step_response():
 
 def test_duffing_driven_to_tenfold_stiffness():
     net = bn.duffing_resonator(amp=benchsuite.DUFFING_HARD)
-    res = simulate(net)
+    res = simulate(check(net))
     x = res.probes["x(a)"][0]
     peak = np.abs(x).max()
     at_peak = physics.stiffness_matrix(net, np.array([peak]))[0, 0]
@@ -107,7 +113,7 @@ def test_quadratic_coupling_driven_to_tenfold_stiffness():
                                     rtol=1e-11, atol=1e-13)
     err = {}
     for sub in (2, 4, 8):
-        res = simulate(net, substeps=sub)
+        res = simulate(check(net), substeps=sub)
         err[sub] = max(_rel(res.probes[k][0], ref[k][0]) for k in ref)
     xa, xb = res.probes["x(a)"][0], res.probes["x(b)"][0]
     k = np.argmax(np.abs(xa))
@@ -136,12 +142,12 @@ def test_long_undamped_run_energy_drift():
     net = _undamped(1000.0, seconds, driven=True)
     zeros = np.zeros((1, 1, int(seconds * RATE) + 1))
     e0 = physics.energy(net, *net.initial_state())
-    rk4 = simulate(net, zeros, reductions=["energy"], probes=[]).reductions["energy"][0]
+    rk4 = simulate(check(net), zeros, reductions=["energy"], probes=[]).reductions["energy"][0]
     theta = 2 * np.pi * 1000.0 / RATE
     steps = round(seconds * RATE)
     predicted = np.exp(2 * steps * accuracy.log_ratio("rk4", [1j * theta])[0].real)
     assert rk4 / e0 == pytest.approx(predicted, rel=1e-6)
     assert 0.7 < rk4 / e0 < 0.8
-    exp = simulate(net, zeros, method="exp-rk4", reductions=["energy"],
+    exp = simulate(check(net), zeros, method="exp-rk4", reductions=["energy"],
                    probes=[]).reductions["energy"][0]
     assert abs(exp / e0 - 1) < 1e-9

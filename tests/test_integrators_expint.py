@@ -17,6 +17,7 @@ from springc.errors import UsageError
 from springc.lang.ir import IRBuilder, Tran
 from springc.bench.reference import solve_ivp_reference
 from springc.sim.simulate import simulate
+from springc.check import check
 
 RATE = 32000.0
 
@@ -97,18 +98,18 @@ def test_lawson_schemes_are_exact_for_a_driven_linear_filter(method):
     net, u = _filter_net(8000.0, lowpass=False)
     ref = _filter_reference(8000.0, False, 1e-11, 1e-13)
     label = net.probes[0].label
-    exp = simulate(net, u, method=method).probes[label]
-    rk4 = simulate(net, u, method="rk4").probes[label]
+    exp = simulate(check(net), u, method=method).probes[label]
+    rk4 = simulate(check(net), u, method="rk4").probes[label]
     assert _rel(exp[0], ref[label][0]) < 1e-8
     assert _rel(rk4[0], ref[label][0]) > 0.3
 
 
 def test_exp_rk4_with_quadratic_back_action_meets_1e3_where_rk4_fails():
     net, u = _filter_net(7500.0, lowpass=True)
-    ref = simulate(net, u[:1], method="rk4", substeps=32).probes
+    ref = simulate(check(net), u[:1], method="rk4", substeps=32).probes
     err = {}
     for method in ("rk4", "strang-rk4", "exp-rk4", "exp-heun3"):
-        got = simulate(net, u[:1], method=method).probes
+        got = simulate(check(net), u[:1], method=method).probes
         err[method] = max(_rel(got[k][0], ref[k][0]) for k in ref)
     assert err["exp-rk4"] < 1e-3 and err["exp-heun3"] < 1e-3
     assert err["rk4"] > 0.1
@@ -126,7 +127,7 @@ def test_exp_heun3_converges_at_third_order_or_better():
                                     atol=1e-14)
     err = []
     for sub in (1, 2, 4):
-        got = simulate(net, u[:1], method="exp-heun3", substeps=sub).probes
+        got = simulate(check(net), u[:1], method="exp-heun3", substeps=sub).probes
         err.append(max(_rel(got[k][0], ref[k][0]) for k in ref))
     assert err[0] < 1e-3
     assert np.log2(err[0] / err[1]) > 2.5 and np.log2(err[1] / err[2]) > 2.5
@@ -135,4 +136,4 @@ def test_exp_heun3_converges_at_third_order_or_better():
 def test_split_schemes_refuse_work_reductions():
     net, u = _filter_net(1000.0, lowpass=False)
     with pytest.raises(UsageError, match="work"):
-        simulate(net, u, method="exp-rk4", reductions=["work:in"])
+        simulate(check(net), u, method="exp-rk4", reductions=["work:in"])

@@ -8,6 +8,7 @@ import pytest
 from springc.kws.massspring import compressed
 from springc.lang import load_text
 from springc.sim.simulate import simulate
+from springc.check import check
 
 KQ, THRESHOLD = 10.0, 1e-4  # l = kq / threshold^2
 NETLIST = f""".include "compressor.spr"
@@ -34,7 +35,7 @@ def test_slow_drive_follows_the_static_cube_root_law():
     t = np.arange(int(1.0 * rate)) / rate
     u = THRESHOLD * np.geomspace(0.1, 1e4, len(t))  # ~ x_in (stiff follower)
     net = load_text(NETLIST)
-    res = simulate(net, u[None, None, :], rate, probes=["x(in)", "x(out)"], outrate=rate,
+    res = simulate(check(net), u[None, None, :], rate, probes=["x(in)", "x(out)"], outrate=rate,
                    tstop=t[-1], substeps=8)
     x_in, c = res.probes["x(in)"][0], res.probes["x(out)"][0]
     want = compressed(x_in, KQ, np.array(KQ / THRESHOLD**2))

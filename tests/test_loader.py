@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from springc import lang
+from springc.check import check
 from springc.kernels import loader
 from springc.sim.simulate import simulate
 
@@ -20,9 +21,10 @@ EXAMPLE = Path(__file__).resolve().parents[1] / "netlists" / "examples" / "duffi
 ONE_PROCESS = f"""
 import json, sys
 from springc import lang
+from springc.check import check
 from springc.sim.simulate import simulate
 sys.stdin.read()  # start together
-out = simulate(lang.load_file({str(EXAMPLE)!r}), tstop=0.5, method="heun3")
+out = simulate(check(lang.load_file({str(EXAMPLE)!r})), tstop=0.5, method="heun3")
 from springc.kernels import loader
 run = loader._LOADED.popitem()[1].module.run
 print(json.dumps({{"x": out.probes["x(x)"][0].tolist(), "hits": sum(run.stats.cache_hits.values()),
@@ -48,9 +50,9 @@ def test_two_processes_compile_a_kernel_once(tmp_path: Path) -> None:
 def test_a_kernel_compiles_only_the_signature_it_is_called_with(tmp_path, monkeypatch) -> None:
     monkeypatch.setenv("SPRINGC_CACHE", str(tmp_path))
     net = lang.load_file(EXAMPLE)
-    first = simulate(net, tstop=0.2, method="heun3")
+    first = simulate(check(net), tstop=0.2, method="heun3")
     kernel = loader._LOADED[Path(first.info["kernel"]).stem.removeprefix("springc_kernel_")]
-    again = simulate(net, tstop=0.2, method="heun3")
+    again = simulate(check(net), tstop=0.2, method="heun3")
     assert len(kernel.module.run.overloads) == 1
     np.testing.assert_array_equal(first.probes["x(x)"], again.probes["x(x)"])
 

@@ -14,6 +14,7 @@ from springc.sim import simulate as sm
 from springc.errors import SimulationError
 from springc.lang.ir import IRBuilder, Source, Tran
 from springc.bench.reference import solve_ivp_reference
+from springc.check import check
 
 FEW = 3  # runs: two threads of chunks of one run (lanes 1), one of them two chunks
 
@@ -27,8 +28,8 @@ def test_register_kernel_gives_the_shared_kernels_trajectories(method):
     """Every force kind, three runs: within a few round-offs of the shared kernel (the same
     sums in the same order; FMA contraction may pair them differently)."""
     net, u = every_kind(), inputs()[:FEW]
-    out = sm.simulate(net, u, method=method)
-    ref = sm.simulate(net, u, method=method, write_out=False)
+    out = sm.simulate(check(net), u, method=method)
+    ref = sm.simulate(check(net), u, method=method, write_out=False)
     assert "state in registers" in _kernel_text(out)
     assert "state in registers" not in _kernel_text(ref)
     for label, want in ref.probes.items():
@@ -40,15 +41,15 @@ def test_register_kernel_gives_the_shared_kernels_trajectories(method):
 
 def test_register_kernel_matches_scipy():
     net, u = every_kind(), inputs(seed=1)[:FEW]
-    res = sm.simulate(net, u, substeps=4)
+    res = sm.simulate(check(net), u, substeps=4)
     assert "state in registers" in _kernel_text(res)
     assert_matches_scipy(net, u, res)
 
 
 def test_register_kernel_float32_agrees_with_float64():
     net, u = every_kind(), inputs(seed=2)[:1]
-    lo = sm.simulate(net, u, precision="float32")
-    hi = sm.simulate(net, u, precision="float64")
+    lo = sm.simulate(check(net), u, precision="float32")
+    hi = sm.simulate(check(net), u, precision="float64")
     assert "state in registers" in _kernel_text(lo)
     for label, want in hi.probes.items():
         err = np.linalg.norm(lo.probes[label] - want) / np.linalg.norm(want)
@@ -60,7 +61,7 @@ def test_hard_driven_duffing_against_dop853():
     sample within 1e-6 of DOP853 at rtol 1e-11, velocities recorded at half the rate."""
     net = bn.duffing_resonator(amp=benchsuite.DUFFING_HARD)
     kw = dict(tstep=net.tran.tstep, tstop=0.1)
-    res = sm.simulate(net, None, substeps=2, probes=["x(a)", "v(a)"], outrate=5e3, **kw)
+    res = sm.simulate(check(net), None, substeps=2, probes=["x(a)", "v(a)"], outrate=5e3, **kw)
     assert "state in registers" in _kernel_text(res)
     probes = sm.resolve_probes(net, ["x(a)", "v(a)"])
     t, want, _ = solve_ivp_reference(net, None, probes=probes, method="DOP853",
@@ -89,10 +90,10 @@ def test_register_kernel_stops_a_diverging_run_like_the_shared_kernel(runs):
     msgs = []
     for write_out in (True, False):
         with pytest.raises(SimulationError) as err:
-            sm.simulate(net, u, write_out=write_out)
+            sm.simulate(check(net), u, write_out=write_out)
         msgs.append(err.value.message)
     assert "node b" in msgs[0] and msgs[0] == msgs[1]
-    res = sm.simulate(net, u, write_out=True, tstop=0.05)  # before the guard stops it
+    res = sm.simulate(check(net), u, write_out=True, tstop=0.05)  # before the guard stops it
     assert "state in registers" in _kernel_text(res)
 
 

@@ -15,11 +15,12 @@ from scipy.linalg import expm
 
 from springc.lang import physics
 from springc.kernels.codegen import nystrom_coefficients
-from springc.errors import SimulationError, UsageError
+from springc.errors import CheckError, SimulationError, UsageError
 from springc.kernels.integrators import TABLEAUX, amplification, get_tableau, stability_polynomial
 from springc.lang.ir import IRBuilder, Source, Tran
 from springc.bench.reference import rk4_numpy, solve_ivp_reference
 from springc.sim.simulate import linear_rows, simulate
+from springc.check import check
 
 W0 = 2 * np.pi * 10.0  # oscillator natural frequency (rad/s)
 WF = 2 * np.pi * 8.0  # drive frequency
@@ -43,7 +44,7 @@ def oscillator(tstep: float = 1e-3, tstop: float = 3.0) -> object:
 
 def sim_osc(tstep: float, tstop: float = 3.0, **kw):
     """Every oscillator run requests the same reductions, so they all share one kernel."""
-    return simulate(oscillator(tstep, tstop), reductions=ALL_REDUCTIONS, **kw)
+    return simulate(check(oscillator(tstep, tstop)), reductions=ALL_REDUCTIONS, **kw)
 
 
 def exact_oscillator(t: np.ndarray) -> np.ndarray:
@@ -125,7 +126,7 @@ def test_undamped_nodes_with_a_dashpot_and_work_reductions():
     b.probe("x", "c")
     b.tran = Tran(2.5e-4, 1.0, None)
     net = b.finish()
-    res = simulate(net)
+    res = simulate(check(net))
 
     def rhs(t, y):  # xa, va, xc, vc, xd, vd, input work, dissipated by the dashpot
         f, fd = AMP * np.sin(WF * t), bd * (y[1] - y[3])
@@ -138,7 +139,7 @@ def test_undamped_nodes_with_a_dashpot_and_work_reductions():
         got, want = res.probes[label][0], ref[k]
         assert np.abs(got - want).max() < 1e-8 * np.abs(want).max(), label  # RK4's error
     for reduction, want in (("work:in", ref[6, -1]), ("dissipated:B1", ref[7, -1])):
-        red = simulate(net, probes=[], reductions=[reduction]).reductions
+        red = simulate(check(net), probes=[], reductions=[reduction]).reductions
         assert red[reduction][0] == pytest.approx(want, rel=1e-8), reduction
 
 
@@ -165,9 +166,31 @@ def test_float32_agrees_with_float64_to_single_precision():
     assert np.abs(lo - hi).max() < 1e-5 * np.abs(hi).max()
 
 
+def test_an_unstable_step_is_refused_before_running_with_builds_message():
+    net = oscillator(0.05, tstop=100.0)
+    with pytest.raises(CheckError) as built:
+        check(net)
+    checked = check(net, judge_step=False)
+    with pytest.raises(CheckError) as simulated:
+        simulate(checked, reductions=ALL_REDUCTIONS)
+    assert simulated.value.format() == built.value.format()
+    assert "time step 0.05 s is unstable for rk4" in built.value.format()
+    with pytest.raises(CheckError, match="unstable for rk4"):
+        simulate(check(oscillator(0.04, tstop=100.0)), tstep=0.05)
+    simulate(checked, substeps=2, tstop=0.5)  # 0.025 s: stable
+
+
+def test_simulate_takes_only_a_checked_netlist():
+    with pytest.raises(TypeError, match="call springc.check.check"):
+        simulate(oscillator(1e-3))
+
+
 def test_divergence_names_time_node_and_unstable_step():
+    """Past the stability limit on purpose (`check_step=False`): the divergence guard stops
+    the run and names the step."""
     with pytest.raises(SimulationError) as info:
-        sim_osc(0.05, tstop=100.0)
+        simulate(check(oscillator(0.05, 100.0), judge_step=False), reductions=ALL_REDUCTIONS,
+                 check_step=False)
     err = info.value.format()
     assert "node a" in err and "diverged by t =" in err
     assert "unstable step" in err and "largest stable step" in err
@@ -236,7 +259,7 @@ def state_matrix(res, net) -> np.ndarray:
 
 def test_linear_network_matches_exact_discretisation_and_matrix_exponential():
     net = linear_net(damped=True)
-    res = simulate(net, reductions=["energy"])
+    res = simulate(check(net), reductions=["energy"])
     y = state_matrix(res, net)
     a = first_order_matrix(net)
     h = net.tran.tstep
@@ -259,7 +282,7 @@ def test_linear_network_matches_exact_discretisation_and_matrix_exponential():
 
 def test_undamped_chain_conserves_energy_to_rk4_drift():
     net = linear_net(damped=False)
-    res = simulate(net, reductions=["energy"])
+    res = simulate(check(net), reductions=["energy"])
     x0, v0 = net.initial_state()
     e0 = physics.energy(net, x0, v0)
     # modal energies: each mode loses |R(i w h)|^2 per step (RK4 is dissipative)
@@ -312,7 +335,7 @@ def smooth_inputs(runs: int, samples: int = 1001) -> np.ndarray:
 def test_nonlinear_network_matches_dop853():
     net = nonlinear_net()
     u = smooth_inputs(1)
-    res = simulate(net, u, substeps=16, tstop=0.5)
+    res = simulate(check(net), u, substeps=16, tstop=0.5)
     t, ref, _ = solve_ivp_reference(net, u, tstep=1e-3, tstop=0.5, rtol=1e-10, atol=1e-13)
     for label, want in ref.items():
         got = res.probes[label][0]
@@ -322,9 +345,9 @@ def test_nonlinear_network_matches_dop853():
 def test_batch_equals_runs_one_at_a_time():
     net = nonlinear_net()
     u = np.random.default_rng(5).standard_normal((5, 1, 1001))
-    together = simulate(net, u)
+    together = simulate(check(net), u)
     for r in range(5):
-        alone = simulate(net, u[r:r + 1])
+        alone = simulate(check(net), u[r:r + 1])
         for label, arr in together.probes.items():
             np.testing.assert_allclose(arr[r], alone.probes[label][0], rtol=0, atol=1e-12)
 
@@ -335,8 +358,8 @@ def test_runs_over_several_calls_equal_one_call(precision):
     one buffer from their own rows, equal the same runs in one call."""
     net = nonlinear_net()
     u = np.random.default_rng(6).standard_normal((40, 1, 501))
-    one = simulate(net, u, tstop=0.5, precision=precision, reductions=["msq:x(a)"])
-    calls = simulate(net, u, tstop=0.5, precision=precision, batch=10,
+    one = simulate(check(net), u, tstop=0.5, precision=precision, reductions=["msq:x(a)"])
+    calls = simulate(check(net), u, tstop=0.5, precision=precision, batch=10,
                      reductions=["msq:x(a)"])
     # the calls' kernels have other lane widths (4 and 16): float32 differs in round-off
     tol = 1e-12 if precision == "float64" else 1e-6
@@ -359,7 +382,7 @@ def test_records_on_any_output_grid_equal_plain_numpy_rk4(precision, every):
     net = nonlinear_net()
     u = np.random.default_rng(8).standard_normal((7, 1, 1001))
     t, want, _ = rk4_numpy(net, u, tstep=1e-3, tstop=1.0, rec_every=every)
-    got = simulate(net, u, precision=precision, outrate=1e3 / every)
+    got = simulate(check(net), u, precision=precision, outrate=1e3 / every)
     np.testing.assert_allclose(got.t, t, rtol=1e-12)
     tol = 1e-9 if precision == "float64" else 1e-4
     for label, arr in want.items():
@@ -374,34 +397,34 @@ def test_record_into_an_earlier_calls_buffer():
     a usage error naming both."""
     net = nonlinear_net()
     u = np.random.default_rng(9).standard_normal((40, 1, 501))
-    first = simulate(net, u, tstop=0.5)
+    first = simulate(check(net), u, tstop=0.5)
     buf = first.info["records"]
-    again = simulate(net, 0.5 * u, tstop=0.5, record_into=buf)
-    fresh = simulate(net, 0.5 * u, tstop=0.5)
+    again = simulate(check(net), 0.5 * u, tstop=0.5, record_into=buf)
+    fresh = simulate(check(net), 0.5 * u, tstop=0.5)
     assert again.info["records"] is buf
     for label, arr in fresh.probes.items():
         np.testing.assert_array_equal(again.probes[label], arr)
         np.testing.assert_array_equal(first.probes[label], arr)  # overwritten in place
     with pytest.raises(UsageError, match=r"float64 buffer of shape \(3, 40, 504\); this call "
                                          r"records into float64 \(3, 20, 504\)"):
-        simulate(net, u[:20], tstop=0.5, record_into=buf)
+        simulate(check(net), u[:20], tstop=0.5, record_into=buf)
     with pytest.raises(UsageError, match="records into float32"):
-        simulate(net, u, tstop=0.5, precision="float32", record_into=buf)
+        simulate(check(net), u, tstop=0.5, precision="float32", record_into=buf)
 
 
 def test_a_batch_of_no_runs_is_a_usage_error():
     with pytest.raises(UsageError, match="batch must be a positive number of runs, not 0"):
-        simulate(nonlinear_net(), np.zeros((3, 1, 11)), batch=0)
+        simulate(check(nonlinear_net()), np.zeros((3, 1, 11)), batch=0)
 
 
 def test_sound_file_input_equals_analytic_source(tmp_path):
     t = np.arange(1001) * 1e-3
     wav = tmp_path / "sine.wav"
     sf.write(wav, np.sin(2 * np.pi * 5.0 * t), 1000, subtype="DOUBLE")
-    from_file = simulate(nonlinear_net(in_gain=1.5, sin_gain=0.0), [wav])
-    from_array = simulate(nonlinear_net(in_gain=1.5, sin_gain=0.0), np.sin(2 * np.pi * 5 * t)
+    from_file = simulate(check(nonlinear_net(in_gain=1.5, sin_gain=0.0)), [wav])
+    from_array = simulate(check(nonlinear_net(in_gain=1.5, sin_gain=0.0)), np.sin(2 * np.pi * 5 * t)
                           [None, None, :])
-    analytic = simulate(nonlinear_net(in_gain=0.0, sin_gain=1.5))
+    analytic = simulate(check(nonlinear_net(in_gain=0.0, sin_gain=1.5)))
     assert from_file.runs == [str(wav)]
     for label, want in analytic.probes.items():
         np.testing.assert_allclose(from_file.probes[label], from_array.probes[label],
@@ -413,8 +436,8 @@ def test_sound_file_input_equals_analytic_source(tmp_path):
 def test_input_resampled_from_another_rate():
     t = np.arange(4001) / 4000
     u = np.sin(2 * np.pi * 3.0 * t)[None, None, :]
-    res = simulate(nonlinear_net(), u, input_rate=4000.0)
-    ref = simulate(nonlinear_net(), np.sin(2 * np.pi * 3.0 * t[::4])[None, None, :])
+    res = simulate(check(nonlinear_net()), u, input_rate=4000.0)
+    ref = simulate(check(nonlinear_net()), np.sin(2 * np.pi * 3.0 * t[::4])[None, None, :])
     for label, want in ref.probes.items():
         assert np.abs(res.probes[label][0, :900] - want[0, :900]).max() < 1e-4 * np.abs(
             want).max()
@@ -460,7 +483,7 @@ def test_nystrom_kernel_equals_the_textbook_tableau(method: str):
     b.tran = Tran(2e-3, 0.4, None)
     net = b.finish()
     u = np.random.default_rng(5).standard_normal((2, 1, 201))
-    res = simulate(net, u, tstep=2e-3, method=method)
+    res = simulate(check(net), u, tstep=2e-3, method=method)
     _, want, _ = rk4_numpy(net, u, tstep=2e-3, tstop=0.4, method=method)
     for label, got in res.probes.items():
         scale = np.abs(want[label]).max()

@@ -13,6 +13,7 @@ import pytest
 from springc.lang.ir import IRBuilder, Tran
 from springc.sim.simulate import simulate
 from springc.kernels.stackalign import align_stack
+from springc.check import check
 
 
 def _sum(a):
@@ -59,7 +60,7 @@ def test_register_kernels_for_lanes_align_their_frame_first(method, write_out, r
         b.probe("x", node)
     b.coupling("C1", "a", "c", 20.0)
     b.tran = Tran(1e-3, 0.01, None)
-    res = simulate(b.finish(), np.zeros((runs, 1, 11)), method=method, write_out=write_out)
+    res = simulate(check(b.finish()), np.zeros((runs, 1, 11)), method=method, write_out=write_out)
     assert np.isfinite(res.probes["x(c)"]).all() and res.probes["x(c)"].any()
     lines = Path(res.info["kernel"]).read_text().splitlines()
     assert ("LANES = 1 " in "\n".join(lines)) == (runs == 1)

@@ -15,6 +15,7 @@ from springc.errors import UsageError
 from springc.lang import load_file
 from springc.bench.reference import solve_ivp_reference
 from springc.sim.simulate import simulate
+from springc.check import check
 
 TOL = 1e-4
 
@@ -27,12 +28,12 @@ def test_step_doubling_raises_the_substeps_until_the_true_error_meets_the_tolera
     net, u = _filter_net(7500.0, lowpass=True)
     linear = accuracy.choose(net, 1 / RATE, 0.05, TOL)
     assert linear.substeps == 1 and linear.error < TOL
-    got = stepcheck.verify(net, linear, 1 / RATE, 0.05, TOL, u[:1])
+    got = stepcheck.verify(check(net), linear, 1 / RATE, 0.05, TOL, u[:1])
     _, ref, _ = solve_ivp_reference(net, u[:1], tstep=1 / RATE, tstop=0.05, rtol=1e-12,
                                     atol=1e-14)
 
     def true_error(sub: int) -> float:
-        out = simulate(net, u[:1], method=got.method, substeps=sub).probes
+        out = simulate(check(net), u[:1], method=got.method, substeps=sub).probes
         return max(_rel(out[k][0], ref[k][0]) for k in ref)
 
     assert true_error(linear.substeps) > TOL
@@ -46,10 +47,10 @@ def test_step_doubling_raises_the_substeps_until_the_true_error_meets_the_tolera
 def test_doubling_error_is_the_coarse_runs_error_for_a_known_order():
     """exp-rk4 (order 4): (y(s) - y(2s)) / (1 - 1/16) against the error of y(s) itself."""
     net, u = _filter_net(7500.0, lowpass=True)
-    ref = simulate(net, u[:1], method="exp-rk4", substeps=64).probes
-    coarse = simulate(net, u[:1], method="exp-rk4", substeps=2).probes
+    ref = simulate(check(net), u[:1], method="exp-rk4", substeps=64).probes
+    coarse = simulate(check(net), u[:1], method="exp-rk4", substeps=2).probes
     true = max(_rel(coarse[k][0], ref[k][0]) for k in ref)
-    est = stepcheck.doubling_error(net, "exp-rk4", 2, 1 / RATE, u[:1], 0.05)
+    est = stepcheck.doubling_error(check(net), "exp-rk4", 2, 1 / RATE, u[:1], 0.05)
     assert est == pytest.approx(true, rel=0.1)
 
 
@@ -57,14 +58,14 @@ def test_linear_netlists_keep_the_linear_choice():
     net = load_file(TWOMODE)
     choice = accuracy.choose(net, net.tran.tstep, 0.01, 1e-3)
     assert not stepcheck.nonlinear(net)
-    assert stepcheck.verify(net, choice, net.tran.tstep, 0.01, 1e-3) is choice
+    assert stepcheck.verify(check(net), choice, net.tran.tstep, 0.01, 1e-3) is choice
 
 
 def test_a_tolerance_below_round_off_is_a_user_error():
     net, u = _filter_net(7500.0, lowpass=True)
     linear = accuracy.choose(net, 1 / RATE, 0.05, 1e-9)
     with pytest.raises(UsageError, match="does not meet tolerance 1e-15"):
-        stepcheck.verify(net, linear, 1 / RATE, 0.05, 1e-15, u[:1])
+        stepcheck.verify(check(net), linear, 1 / RATE, 0.05, 1e-15, u[:1])
 
 
 def test_sim_tolerance_reports_the_step_doubling_check(tmp_path):

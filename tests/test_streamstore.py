@@ -9,6 +9,7 @@ import pytest
 from springc.kernels.codegen import RECORD_ALIGN
 from springc.sim.simulate import record_buffer
 from springc.kernels.streamstore import store_fence, stream_store
+from springc.check import check
 
 
 @nb.njit
@@ -73,4 +74,4 @@ def test_a_kernel_refuses_a_misaligned_record_buffer(monkeypatch):
     monkeypatch.setattr(sim, "record_buffer", shifted)
     with pytest.raises(ValueError, match="64-byte aligned"):
         # the shared kernel: a register kernel (one run, a few masses) stores ordinarily
-        sim.simulate(net, np.zeros((4, 1, 11)), write_out=False)
+        sim.simulate(check(net), np.zeros((4, 1, 11)), write_out=False)

@@ -13,6 +13,7 @@ from springc.kernels import codegen, regkernel
 from springc.sim import simulate as sm
 from springc.kernels.codegen import KernelOptions, generate
 from springc.lang.ir import IRBuilder, Source, Tran
+from springc.check import check
 
 W = 2 * np.pi * 40.0  # rad/s: every node's local frequency scale
 H = 1e-4  # s: tstep, about 40 steps per period of the fastest mode
@@ -108,8 +109,8 @@ def test_written_out_kernel_gives_the_shared_kernels_trajectories(method, form):
     them differently), only the indices constant."""
     net, u = every_kind(), inputs()
     kw = dict(method=method, precision="float64")
-    out = sm.simulate(net, u, write_out=True, **kw)
-    ref = sm.simulate(net, u, write_out=False, **kw)
+    out = sm.simulate(check(net), u, write_out=True, **kw)
+    ref = sm.simulate(check(net), u, write_out=False, **kw)
     assert _form_of(out) == form
     for label, want in ref.probes.items():
         scale = np.abs(want).max()
@@ -129,15 +130,15 @@ def assert_matches_scipy(net, u: np.ndarray, res, tol: float = 1e-6) -> None:
 
 def test_written_out_kernel_matches_scipy(form):
     net, u = every_kind(), inputs(seed=1)
-    res = sm.simulate(net, u, write_out=True, substeps=4)
+    res = sm.simulate(check(net), u, write_out=True, substeps=4)
     assert _form_of(res) == form
     assert_matches_scipy(net, u, res)
 
 
 def test_written_out_float32_agrees_with_float64(form):
     net, u = every_kind(), inputs(seed=2)
-    lo = sm.simulate(net, u, write_out=True, precision="float32")
-    hi = sm.simulate(net, u, write_out=True, precision="float64")
+    lo = sm.simulate(check(net), u, write_out=True, precision="float32")
+    hi = sm.simulate(check(net), u, write_out=True, precision="float64")
     assert _form_of(lo) == form
     for label, want in hi.probes.items():
         err = np.linalg.norm(lo.probes[label] - want) / np.linalg.norm(want)

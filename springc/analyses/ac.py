@@ -18,6 +18,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
 from springc.check import linear
+from springc.check.checks import CheckedNetlist, require_checked
 from springc.errors import UsageError
 from springc.lang.ir import FlatNetlist
 
@@ -71,10 +72,12 @@ def input_vector(net: FlatNetlist, channel: int) -> np.ndarray:
     return out
 
 
-def response(net: FlatNetlist, node: str, f_hz: np.ndarray, channel: int = 0,
+def response(checked: CheckedNetlist, node: str, f_hz: np.ndarray, channel: int = 0,
              progress: bool = False) -> AcResult:
-    """H(f) = X_node / U of the linearisation at rest, at frequencies `f_hz` (Hz); with
-    `progress`, large networks (one sparse factorisation per frequency) show a progress bar."""
+    """H(f) = X_node / U of the checked netlist's linearisation at rest, at frequencies `f_hz`
+    (Hz); with `progress`, large networks (one sparse factorisation per frequency) show a
+    progress bar."""
+    net = require_checked(checked, "ac.response").net
     if node not in net.nodes:
         raise UsageError(f"unknown node '{node}'", hint=_near(net, node))
     target = net.nodes.index(node)

@@ -6,12 +6,14 @@ from __future__ import annotations
 import math
 
 from springc.check import linear
-from springc.lang.ir import FlatNetlist
+from springc.check.checks import CheckedNetlist, require_checked
 
 
-def mode_report(net: FlatNetlist, count: int | None = None) -> dict:
-    """The `count` slowest modes (all if None) and the zero modes, as a JSON-ready dict."""
-    found = linear.modes(net)
+def mode_report(checked: CheckedNetlist, count: int | None = None) -> dict:
+    """The `count` slowest modes (all if None) and the zero modes of the checked netlist (the
+    modes its check computed), as a JSON-ready dict."""
+    net = require_checked(checked, "mode_report").net
+    found = checked.modes
     shown = range(len(found)) if count is None else range(min(count, len(found)))
     rows = [_row(found.mode(k)) for k in shown]
     return {

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from springc.check import CheckedNetlist, check
 from springc.kernels import codegen, loader
 from springc.bench.networks import KWS_RATE, kws_network
 from springc.bench.reference import rk4_numpy, solve_ivp_reference
@@ -64,18 +65,19 @@ def noise(runs: int, seconds: float, seed: int = 0) -> np.ndarray:
     return 0.1 * rng.standard_normal((runs, 1, int(seconds * KWS_RATE) + 1))
 
 
-def compile_times(net) -> dict[str, float]:
+def compile_times(checked: CheckedNetlist) -> dict[str, float]:
     """Cold compile (empty cache folder) and cached load (fresh import) of the kernel."""
     saved = os.environ.get("SPRINGC_CACHE")
     with tempfile.TemporaryDirectory() as folder:
         os.environ["SPRINGC_CACHE"] = folder
         try:
             # the options `_first_call` (one run) gets, so that forget() drops that kernel
-            source = codegen.generate(net, codegen.KernelOptions(lanes=codegen.choose_lanes(1)))
+            opts = codegen.KernelOptions(lanes=codegen.choose_lanes(1))
+            source = codegen.generate(checked.net, opts)
             loader.forget(codegen.kernel_hash(source))
-            cold = _first_call(net)
+            cold = _first_call(checked)
             loader.forget(codegen.kernel_hash(source))
-            cached = _first_call(net)
+            cached = _first_call(checked)
         finally:
             loader.forget(codegen.kernel_hash(source))
             if saved is None:
@@ -85,9 +87,9 @@ def compile_times(net) -> dict[str, float]:
     return {"compile_cold_s": cold, "compile_cached_s": cached}
 
 
-def _first_call(net) -> float:
+def _first_call(checked: CheckedNetlist) -> float:
     start = time.perf_counter()
-    simulate(net, noise(1, 0.001), tstop=0.001)
+    simulate(checked, noise(1, 0.001), tstop=0.001)
     return time.perf_counter() - start
 
 
@@ -95,20 +97,21 @@ def run_bench(seconds: float = 1.0, batch: int = 64, stretch: float = 0.02,
               progress=print) -> dict:
     """Measure everything; returns the table rows and compile times as a dict."""
     net = kws_network()
+    checked = check(net)
     steps = int(round(seconds * KWS_RATE))
     short = int(round(stretch * KWS_RATE))
     progress("compile times (cold, then cached) ...")
-    times = compile_times(net)
+    times = compile_times(checked)
     u = noise(batch, seconds)
     progress("tight reference: RK4 at an 8x smaller step ...")
-    ref = simulate(net, u[:1], tstop=stretch, substeps=8, outrate=KWS_RATE).probes
+    ref = simulate(checked, u[:1], tstop=stretch, substeps=8, outrate=KWS_RATE).probes
     rows = []
     for precision in ("float64", "float32"):
-        simulate(net, u[:1], tstop=0.001, precision=precision)  # compile outside the timing
+        simulate(checked, u[:1], tstop=0.001, precision=precision)  # compile outside the timing
         for runs in (1, batch):
             progress(f"kernel {precision}, batch {runs} ...")
             start = time.perf_counter()
-            res = simulate(net, u[:runs], tstop=seconds, precision=precision)
+            res = simulate(checked, u[:runs], tstop=seconds, precision=precision)
             wall = time.perf_counter() - start
             rows.append(Row(f"springc kernel rk4 {precision}", runs, seconds, wall,
                             rel_l2(res.probes, ref, short + 1), net.n, steps))

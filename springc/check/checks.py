@@ -11,7 +11,7 @@ earlier ones found no error (they need positive masses and a sound potential).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.linalg
@@ -48,33 +48,68 @@ class CheckResult:
         return [d for d in self.diagnostics if d.severity != "error"]
 
 
-def check(net: FlatNetlist, method: str | None = None) -> CheckResult:
-    """Run every check; raise `CheckError` with all error diagnostics if there is any.
-    `method` overrides `.options method=`."""
-    result = diagnose(net, method)
+_SEAL = object()  # only `check` makes a CheckedNetlist
+
+
+@dataclass
+class CheckedNetlist(CheckResult):
+    """A netlist that passed every check, with what the checks computed: the only input that
+    kernels, the simulator, the analyses and the exporter accept. Made by `check` alone."""
+
+    net: FlatNetlist | None = None
+    seal: object = field(default=None, repr=False, compare=False)
+    limits: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if self.seal is not _SEAL or self.net is None:
+            raise TypeError("a CheckedNetlist comes from springc.check.check(net) alone")
+
+    def step_limit(self, method: str) -> linear.StepLimit:
+        """Largest stable step of `method` (computed once per method)."""
+        if method == self.method and self.step is not None:
+            return self.step
+        if method not in self.limits:
+            self.limits[method] = step_limit(self.net, method, self.modes)
+        return self.limits[method]
+
+    def require_stable(self, method: str, h: float, substeps: int) -> None:
+        """Raise `CheckError` with `springc build`'s located message if the step `h` of
+        `method` is above its stability limit."""
+        limit = self.step_limit(method)
+        if not h <= limit.dt * (1 + 1e-9):
+            raise CheckError([_unstable(self.net, method, h, substeps, limit)])
+
+
+def check(net: FlatNetlist, method: str | None = None, *, tstep: float | None = None,
+          substeps: int | None = None, judge_step: bool = True) -> CheckedNetlist:
+    """Run every check; raise `CheckError` with all error diagnostics if there is any, else
+    return the checked netlist. `method`, `tstep` and `substeps` override `.options` and
+    `.tran` (the step a simulation will take is the step judged); `judge_step=False` leaves
+    the step unjudged (the bench's ladders run above the limit on purpose)."""
+    result = diagnose(net, method, tstep=tstep, substeps=substeps, judge_step=judge_step)
     if result.errors:
         raise CheckError(result.errors)
-    return result
+    return CheckedNetlist(**vars(result), net=net, seal=_SEAL)
 
 
-def check_static(net: FlatNetlist) -> None:
-    """The checks that do not involve the time step (for analyses of the linearisation):
-    raise `CheckError` if any fails."""
-    diags = element_signs(net) + massless_nodes(net)
-    diags = diags or whole_potential(net)
-    if diags:
-        raise CheckError(diags)
+def require_checked(value: object, who: str) -> CheckedNetlist:
+    """`value` if it is a checked netlist, else a TypeError telling the caller to check."""
+    if not isinstance(value, CheckedNetlist):
+        raise TypeError(f"{who} takes a CheckedNetlist, not {type(value).__name__}: "
+                        "call springc.check.check(net) first")
+    return value
 
 
-def diagnose(net: FlatNetlist, method: str | None = None) -> CheckResult:
-    """Run every check and return all diagnostics without raising."""
+def diagnose(net: FlatNetlist, method: str | None = None, *, tstep: float | None = None,
+             substeps: int | None = None, judge_step: bool = True) -> CheckResult:
+    """Run every check and return all diagnostics without raising (arguments as `check`)."""
     diags = element_signs(net) + massless_nodes(net)
     if diags:
         return CheckResult(diags)
     diags = whole_potential(net)
     if diags:
         return CheckResult(diags)
-    return time_step(net, method)
+    return time_step(net, method, tstep=tstep, substeps=substeps, judge=judge_step)
 
 
 # --- element signs ----------------------------------------------------------------------
@@ -473,18 +508,22 @@ def _substeps(net: FlatNetlist) -> tuple[int, list[Diagnostic]]:
     return 1, [Diagnostic("error", msg, loc, "the step is .tran tstep divided by substeps")]
 
 
-def time_step(net: FlatNetlist, method: str | None = None) -> CheckResult:
-    """Modes of the linearisation, zero modes as infos, and the configured step against the
-    integrator's stability limit."""
+def time_step(net: FlatNetlist, method: str | None = None, *, tstep: float | None = None,
+              substeps: int | None = None, judge: bool = True) -> CheckResult:
+    """Modes of the linearisation, zero modes as infos, and the configured step (`tstep` /
+    `substeps` where given, else `.tran` and `.options`) against the integrator's stability
+    limit (unless not `judge`)."""
     name, diags = _method(net, method)
-    substeps, more = _substeps(net)
+    configured, more = _substeps(net)
+    substeps = substeps or configured
     diags += more
     found = linear.modes(net)
     blocks = expint.find_blocks(net) if expint.is_split(name) else None
     step = step_limit(net, name, found, blocks)
     diags += [_zero_info(net, z) for z in found.zero_modes]
-    h = net.tran.tstep / substeps if net.tran else None
-    if h is not None and not h <= step.dt * (1 + 1e-9):
+    tstep = tstep or (net.tran.tstep if net.tran else None)
+    h = tstep / substeps if tstep else None
+    if judge and h is not None and not h <= step.dt * (1 + 1e-9):
         diags.append(_unstable(net, name, h, substeps, step))
     return CheckResult(diags, found, step, name, h, blocks)
 
@@ -671,4 +710,4 @@ def _unstable(net, method: str, h: float, substeps: int, step: linear.StepLimit)
                 f"substeps={need * substeps}")
     else:
         hint = f"{method} is unstable for this mode at any step; choose another method"
-    return Diagnostic("error", msg, net.tran.loc, hint)
+    return Diagnostic("error", msg, net.tran.loc if net.tran else None, hint)

@@ -27,6 +27,7 @@ from springc.design.filters import mel_triangles
 from springc.design.melbank import Melbank, design_melbank, fitting_grid
 from springc.design.mvm import MvmDesign, design_mvm, write_mvm
 from springc.lang.ir import FlatNetlist
+from springc.check import check
 from springc.lang import load_text
 from springc.sim.simulate import simulate
 
@@ -69,7 +70,7 @@ def experiment_pulse(n: int = 60, td: float = TD, kc: float = KC,
     tstop = t0 + n * td + 8 * sigma
     force = _gauss(np.arange(round(tstop / tstep) + 1) * tstep, t0, sigma)
     labels = [f"v({_site(i, n)})" for i in sites]
-    res = simulate(net, force[None, None, :], 1 / tstep, tstep=tstep, tstop=tstop,
+    res = simulate(check(net), force[None, None, :], 1 / tstep, tstep=tstep, tstop=tstop,
                    probes=labels, reductions=REDUCTIONS)
     v = np.stack([res.probes[label][0] for label in labels])
     arrival = (v**2 @ res.t) / (v**2).sum(axis=1)
@@ -259,7 +260,7 @@ def experiment_energetics(amplitudes: np.ndarray | None = None, n: int = 40, g: 
     specs = ("work:Fl", "work:Fq", "dissipated:Mln", "dissipated:Mqn")
     # the quartic stiffness of the quadratic coupling grows with amplitude: substeps keep the
     # largest pulses inside the integrator's stability region
-    res = simulate(net, inputs, 1 / tstep, tstep=tstep, tstop=tstop, substeps=4,
+    res = simulate(check(net), inputs, 1 / tstep, tstep=tstep, tstop=tstop, substeps=4,
                    probes=["x(l1)"], reductions=REDUCTIONS + specs)
     r = res.reductions
     e_in, e_out = r["work:Fq"], r["dissipated:Mqn"]
@@ -314,7 +315,7 @@ def experiment_readout(tau: float = 80.0, qr: float = blocks.READOUT_Q, n: int =
     t = np.arange(round(t_pulse / tstep) + 1) * tstep
     dgauss = -(t - 4 * sigma) / sigma**2 * _gauss(t, 4 * sigma, sigma)
     inputs = (amplitude * 2 * p.b_match * dgauss)[None, None, :]
-    res = simulate(net, inputs, 1 / tstep, tstep=tstep, tstop=tstop, outrate=100.0,
+    res = simulate(check(net), inputs, 1 / tstep, tstep=tstep, tstop=tstop, outrate=100.0,
                    probes=["x(xl)", "x(xr)"], reductions=REDUCTIONS)
     x_r = res.probes["x(xr)"][0]
     window = (t_pulse + 0.5 * tau, t_pulse + 3 * tau)
@@ -362,7 +363,7 @@ def experiment_features(bin_index: int = 3, nd: int = 2, td: float = 0.032,
     t = np.arange(round(tstop / tstep) + 1) * tstep
     tone = _gauss(t, t0, sigma) * np.sin(2 * np.pi * flt.centre * t)
     labels = ["x(Xc.f)", "x(lp)"] + [f"x(Xc.d{j})" for j in range(1, nd + 1)]
-    res = simulate(net, tone[None, None, :], 1 / tstep, tstep=tstep, tstop=tstop,
+    res = simulate(check(net), tone[None, None, :], 1 / tstep, tstep=tstep, tstop=tstop,
                    outrate=16000.0, probes=labels, reductions=REDUCTIONS)
     x = np.stack([res.probes[label][0] for label in labels])
     arrival = (x**2 @ res.t) / (x**2).sum(axis=1)

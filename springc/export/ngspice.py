@@ -26,7 +26,7 @@ from springc.export.spice import (
     probe_vectors,
     transient,
 )
-from springc.lang.ir import FlatNetlist
+from springc.check.checks import CheckedNetlist
 
 _DATA_FILE = "probes.txt"
 # Lines that end the circuit or run it; run_ngspice supplies its own.
@@ -72,12 +72,14 @@ def run_ngspice(
 
 
 def simulate_ngspice(
-    net: FlatNetlist, options: SpiceOptions | None = None
+    checked: CheckedNetlist, options: SpiceOptions | None = None
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Export `net` and run it in ngspice: time points and one trace per probe label."""
+    """Export the checked netlist and run it in ngspice: time points and one trace per probe
+    label."""
     options = options or SpiceOptions()
+    net = checked.net
     tstep, tstop, tmax = transient(net, options)
-    return run_ngspice(export_spice(net, options), tstop, tstep, probe_vectors(net), tmax)
+    return run_ngspice(export_spice(checked, options), tstop, tstep, probe_vectors(net), tmax)
 
 
 @dataclass
@@ -98,20 +100,22 @@ class CrossCheck:
     tstop: float
 
 
-def cross_check(net: FlatNetlist, options: SpiceOptions, substeps: int | None = None) -> CrossCheck:
-    """Simulate `net` with springc (RK4 unless its options say otherwise, `substeps` per
-    output step) and with ngspice, from the same inputs, and compare every probe."""
+def cross_check(checked: CheckedNetlist, options: SpiceOptions,
+                substeps: int | None = None) -> CrossCheck:
+    """Simulate the checked netlist with springc (RK4 unless its options say otherwise, `substeps`
+    per output step) and with ngspice, from the same inputs, and compare every probe."""
     from springc.sim.simulate import simulate  # the simulator is heavy: import on use
 
+    net = checked.net
     if not net.probes:
         raise UsageError("nothing to compare: the netlist has no .probe")
     tstep, tstop, _ = transient(net, options)
     start = time.perf_counter()
-    t_ng, traces = simulate_ngspice(net, options)
+    t_ng, traces = simulate_ngspice(checked, options)
     ngspice_seconds = time.perf_counter() - start
     start = time.perf_counter()
     res = simulate(
-        net,
+        checked,
         _input_array(options, 1 / tstep),
         1 / tstep,
         tstep=tstep,

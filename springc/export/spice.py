@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from springc.sim.audio import load_audio, resample
+from springc.check.checks import CheckedNetlist, require_checked
 from springc.errors import NetlistError, SourceLoc
 from springc.lang.ir import GROUND, FlatNetlist, Source
 
@@ -108,9 +109,10 @@ def reltol(net: FlatNetlist, options: SpiceOptions) -> float:
     return RELTOL_SAMPLED if sampled else RELTOL
 
 
-def export_spice(net: FlatNetlist, options: SpiceOptions | None = None) -> str:
-    """The ngspice netlist of `net` (text). Raises NetlistError, located at the element, for
-    what cannot be exported (an `in(k)` channel without a signal bound to it)."""
+def export_spice(checked: CheckedNetlist, options: SpiceOptions | None = None) -> str:
+    """The ngspice netlist of the checked netlist (text). Raises NetlistError, located at the
+    element, for what cannot be exported (an `in(k)` channel without a signal bound to it)."""
+    net = require_checked(checked, "export_spice").net
     options = options or SpiceOptions()
     tstep, tstop, tmax = transient(net, options)
     pos = _position_nodes(net)

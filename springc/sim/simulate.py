@@ -24,6 +24,7 @@ from springc.sim import reductions, sources
 from springc.sim.audio import resample
 from springc.errors import SimulationError, UsageError
 from springc.kernels.integrators import DEFAULT_METHOD, TABLEAUX, get_tableau, max_stable_step
+from springc.check.checks import CheckedNetlist, require_checked
 from springc.lang.ir import FlatNetlist, Probe
 
 DEFAULT_BATCH = 256  # runs per kernel call (one progress-bar tick)
@@ -167,13 +168,13 @@ def resolve_probes(net: FlatNetlist, probes) -> list[Probe]:
     return out
 
 
-def simulate(net: FlatNetlist, inputs=None, input_rate: float | None = None, *,
+def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = None, *,
              tstep=None, tstop=None, substeps=None, method=None, precision=None, outrate=None,
              probes=None, reductions: tuple[str, ...] | list[str] = (), batch: int | None = None,
              channel: int | None = None, progress: bool = False,
              chunk: int | None = None, write_out: bool | None = None,
-             record_into: np.ndarray | None = None) -> SimResult:
-    """Simulate `net` for every input signal.
+             record_into: np.ndarray | None = None, check_step: bool = True) -> SimResult:
+    """Simulate the checked netlist for every input signal (`springc.check.check(net)`).
 
     `inputs`: None (one run, no input), an array (runs, channels, samples) sampled at
     `input_rate` (default 1/tstep), or a list of sound files / folders. Returns a `SimResult`
@@ -185,12 +186,20 @@ def simulate(net: FlatNetlist, inputs=None, input_rate: float | None = None, *,
     (its `info["records"]`) to record into instead of fresh memory, for a caller simulating
     batch after batch: the OS zeroes every fresh page before the kernel writes it (the feature
     extractor's 131 MB a call in float32: 7 ms, 16% of the call). The earlier result's probes,
-    views of it, are overwritten."""
+    views of it, are overwritten. A step above the stability limit of the method is refused
+    before anything runs (`CheckError`, as `springc build` words it) unless `check_step` is
+    False (experiments that confirm a limit: the divergence guard then stops the run), and so
+    are records that would not fit in memory."""
+    net = require_checked(checked, "simulate").net
     tstep0 = tstep or (net.tran.tstep if net.tran else None)
     signals, names, seconds = _gather_inputs(net, inputs, input_rate, tstep0, channel)
     st = settings(net, tstep, tstop, substeps, method, precision, outrate, seconds)
+    if check_step:
+        checked.require_stable(st.method, st.h, st.substeps)
     plist = resolve_probes(net, probes)
     rplan = reductions_plan(list(reductions), net)
+    require_memory(len(plist), st.nsteps // st.rec_every + 1, len(names), st.precision,
+                   record_into)
     batch = batch_size(batch)
     task = task_runs(len(names), batch, chunk)
     coeffs = kernel_arrays(net, st, np.dtype(st.precision))
@@ -414,6 +423,38 @@ def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rec, col, r
     work[sources.input_forces(net)] = args["work_in"]
     work[sources.common_forces(net)] = args["work_c"]
     return _finish_reductions(net, rplan, args, work, wins, st)
+
+
+def available_memory() -> int:
+    """Bytes of memory available to a new allocation (Linux: MemAvailable)."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES")
+
+
+MEMORY_SHARE = 0.8  # of the available memory that the records may take
+
+
+def require_memory(probes: int, records: int, runs: int, precision: str,
+                   reuse: np.ndarray | None) -> None:
+    """Refuse, before anything runs, records that would not fit in memory, naming their size
+    and what reduces it."""
+    if reuse is not None or not probes:
+        return
+    need = math.prod(record_shape(probes, records, runs, np.dtype(precision))) \
+        * np.dtype(precision).itemsize
+    have = available_memory()
+    if need > MEMORY_SHARE * have:
+        raise UsageError(
+            f"the records would take {need / 2**30:.3g} GiB ({probes} probe(s) x {runs} run(s)"
+            f" x {records} samples), more than the {have / 2**30:.3g} GiB of memory available",
+            hint="record fewer samples (--outrate), fewer probes, shorter runs (--tstop), or "
+                 "stream what you need with --reduce and no probes")
 
 
 def record_buffer(probes: int, records: int, runs: int, dtype) -> np.ndarray:

@@ -22,7 +22,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from springc.check import accuracy
+from springc.check import CheckedNetlist, accuracy
 from springc.sim import simulate
 from springc.errors import UsageError
 from springc.lang.ir import FlatNetlist
@@ -38,7 +38,7 @@ def nonlinear(net: FlatNetlist) -> bool:
     return bool(len(net.duffings) or len(net.quads) or len(net.monomials))
 
 
-def doubling_error(net: FlatNetlist, method: str, substeps: int, tstep: float, inputs,
+def doubling_error(checked: CheckedNetlist, method: str, substeps: int, tstep: float, inputs,
                    duration: float, channel: int | None = None,
                    runs: dict[int, dict] | None = None) -> float:
     """Worst probe's relative L2 error of `method` at `substeps` over the first `duration`
@@ -46,11 +46,12 @@ def doubling_error(net: FlatNetlist, method: str, substeps: int, tstep: float, i
     probes already simulated, by substeps (filled in; a retry at twice the substeps reuses
     the finer run)."""
     runs = {} if runs is None else runs
+    net = checked.net
     probes = None if net.probes else [f"x({n})" for n in net.nodes]
     kw = dict(tstep=tstep, tstop=duration, method=method, probes=probes, channel=channel)
     for sub in (substeps, 2 * substeps):
         if sub not in runs:
-            runs[sub] = simulate.simulate(net, inputs, substeps=sub, **kw).probes
+            runs[sub] = simulate.simulate(checked, inputs, substeps=sub, **kw).probes
     coarse, fine = runs[substeps], runs[2 * substeps]
     shrink = 1.0 - 2.0 ** -simulate.method_order(method)
     worst = 0.0
@@ -62,12 +63,13 @@ def doubling_error(net: FlatNetlist, method: str, substeps: int, tstep: float, i
     return worst
 
 
-def verify(net: FlatNetlist, choice: accuracy.Choice, tstep: float, duration: float,
+def verify(checked: CheckedNetlist, choice: accuracy.Choice, tstep: float, duration: float,
            tol: float, inputs=None, channel: int | None = None) -> accuracy.Choice:
     """`choice` checked by step doubling when `net` is nonlinear (module docstring): the same
     method at the fewest substeps whose doubling error meets `tol` over the start of a run of
     `duration` seconds, with that error in `choice.pilot_error`. `inputs`, `channel`: the
     first run's input as `simulate` takes it (None: a run without input)."""
+    net = checked.net
     if not nonlinear(net):
         return choice
     pilot = min(duration, max(PILOT_S, PILOT_SAMPLES * tstep))
@@ -75,7 +77,7 @@ def verify(net: FlatNetlist, choice: accuracy.Choice, tstep: float, duration: fl
     sub = choice.substeps
     runs: dict[int, dict] = {}
     for _ in range(MAX_TRIES):
-        err = doubling_error(net, choice.method, sub, tstep, inputs, pilot, channel, runs)
+        err = doubling_error(checked, choice.method, sub, tstep, inputs, pilot, channel, runs)
         if err <= tol:
             return replace(choice, substeps=sub, h=tstep / sub,
                            cost=accuracy.cost(net, choice.method, sub), pilot_error=err,

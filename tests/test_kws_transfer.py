@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.signal import chirp
 
+from springc.check import check
 from springc.check.compiler import build
 from springc.design.blocks import readout_params
 from springc.errors import UsageError
@@ -83,7 +84,8 @@ def test_readouts_equal_c_phi_and_score_like_the_digital_model():
     m.coef /= phi.std(axis=0)  # comparable terms, as a trained model on standardised Phi
     heads = tr.heads_for([(tuple(m.classes), m)], S, amp, 1e-6)
     net = load_text(tr.classifier_text(heads, S), "<classifier>")
-    reds = tr.classifier_batch(sig, net, tr.readout_reductions(heads), msp.horizon(S, 0.4))
+    reds = tr.classifier_batch(sig, check(net), tr.readout_reductions(heads),
+                               msp.horizon(S, 0.4))
     d = tr.decisions(reds, heads)
     want = m.decision(phi)
     assert np.abs(d - want).max() < 0.02 * np.abs(want - m.intercept).max()

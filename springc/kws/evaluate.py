@@ -15,6 +15,7 @@ from springc.kws.report import score
 from springc.kws.svm import LinearModel
 from springc.kws.task import open_task_data, targets
 from springc.kws.train import check_realisation, feature_matrices
+from springc.check import check
 from springc.kws.transfer import (Head, classifier_batch, decisions, insertion_loss_db,
                                   model_heads, readout_reductions)
 
@@ -91,7 +92,7 @@ def simulate_network(net, heads: list[Head], s: msp.MassSpringSettings,
 
     parts = msp.batches(signals)
     start = time.perf_counter()
-    fn = partial(classifier_batch, net=net, specs=readout_reductions(heads),
+    fn = partial(classifier_batch, checked=check(net), specs=readout_reductions(heads),
                  tstop=msp.horizon(s, signals.shape[1] / msp.INPUT_RATE))
     out = map_batches(fn, parts, scheduler, workers=jobs or None, desc="mass-spring classifier",
                       sizes=[len(p) for p in parts])

@@ -39,7 +39,7 @@ from springc.design.mvm import design_mvm, mvm_text
 from springc.errors import UsageError
 from springc.kws import massspring as msp
 from springc.kws.phi import spread
-from springc.check import check
+from springc.check import CheckedNetlist
 
 TAU_READOUT = 80.0  # s (paper)
 Q_READOUT = 0.01  # paper
@@ -173,12 +173,12 @@ def insertion_loss_db(reds: dict[str, np.ndarray], heads: list[Head]) -> np.ndar
         return -10 * np.log10(diss / reds["work:in"])
 
 
-def classifier_batch(signals: np.ndarray, net, specs: list[str], tstop: float) -> dict:
-    """Readout reductions of one batch through the whole classifier (a Dask task)."""
+def classifier_batch(signals: np.ndarray, checked: CheckedNetlist, specs: list[str],
+                     tstop: float) -> dict:
+    """Readout reductions of one batch through the whole checked classifier (a Dask task)."""
     from springc.sim.simulate import simulate
 
     sig = signals.astype(np.float64)[:, None, :]
-    checked = check(net)
     return msp.with_retries(lambda sub: simulate(
         checked, sig, msp.INPUT_RATE, probes=[], reductions=specs, tstop=tstop, chunk=len(signals),
         batch=len(signals), substeps=sub, precision=msp.DATASET_PRECISION).reductions)

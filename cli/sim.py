@@ -67,10 +67,12 @@ def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precisio
 
     results.check_output_path(output)
     net = load_file(netlist)
-    if tolerance is not None:
-        method, substeps = _choose(check(net, judge_step=False), tolerance, method, substeps,
-                                   tstep, tstop, inputs, channel)
-    checked = check(net, method, tstep=tstep, substeps=substeps)
+    if tolerance is None:
+        checked = check(net, method, tstep=tstep, substeps=substeps)
+    else:  # simulate judges the chosen step against the limits this check computed
+        checked = check(net, judge_step=False)
+        method, substeps = _choose(checked, tolerance, method, substeps, tstep, tstop, inputs,
+                                   channel)
     res = simulate(checked, list(inputs) or None, tstep=tstep, tstop=tstop, substeps=substeps,
                    method=method, precision=precision, outrate=outrate,
                    reductions=list(reduce_), batch=batch, channel=channel, progress=True,

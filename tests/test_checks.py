@@ -7,6 +7,7 @@ cases in `tests/cases/check/*.spr` (header `* expect:` and `* line:`) go through
 from __future__ import annotations
 
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -59,6 +60,19 @@ def test_sign_rules(build, message) -> None:
     result = checks.diagnose(_two(build))
     assert [d.message for d in result.errors] == [message]
     assert result.errors[0].hint
+
+
+@pytest.mark.parametrize("build,message", [
+    (lambda b: b.mass("M3", "x1", 1e-300), "M3: m=1e-300 is outside the range"),
+    (lambda b: b.spring("K1", "x1", 1e151), "K1: k=1e+151 is outside the range"),
+    (lambda b: b.quad("Q1", "x1", "x2", -1.0, -1e-200), "Q1: a=-1e-200 is outside the range"),
+])
+def test_coefficients_whose_products_leave_the_doubles(build, message) -> None:
+    # k/m of such values overflows: refused, and no numpy warning is printed on the way
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        errors = _errors(_two(build))
+    assert len(errors) == 1 and errors[0].startswith(message), errors
 
 
 def test_negative_leverage_with_negative_k_is_legal() -> None:

@@ -77,6 +77,8 @@ def test_names_and_arrays() -> None:
         ("max(1)", "max() takes 2 or more arguments, got 1", 12),
         ("sqr(2)", "unknown function 'sqr'", 12),
         ("exp(1000)", "overflow in exp(1000)", 12),
+        ("1e200 * 1e200", "overflow in '*': the result is inf", 18),
+        ("-1e308 - 1e308", "overflow in '-': the result is -inf", 19),
         ("alpah * 2", "undefined parameter 'alpah'", 12),
         ("V[3]", "index 3 out of range for axis 0 of 'V' (size 3, indices 0..2)", 12),
         ("V[0.5]", "index 0.5 out of range", 12),
@@ -90,6 +92,14 @@ def test_errors(src: str, message: str, col: int) -> None:
         _eval(src, alpha=1.0, V=np.array([1.0, 2.0, 3.0]))
     assert message in info.value.message
     assert (info.value.loc.line, info.value.loc.col) == (1, col)
+
+
+def test_a_literal_beyond_double_range_is_a_located_error() -> None:
+    assert read_number("1e308") == 1e308 and read_number("1e400") is None
+    with pytest.raises(NetlistError) as info:
+        parse("M1 a m=1e400\n", "net.spr")
+    assert info.value.message == "number '1e400' is beyond the range of a double"
+    assert (info.value.loc.line, info.value.loc.col) == (1, 8)
 
 
 def test_undefined_suggests_closest_name() -> None:

@@ -150,7 +150,27 @@ def element_signs(net: FlatNetlist) -> list[Diagnostic]:
             table = tables[letter]
             msg = f"{table.names[e]}: {template.format(values[e])}"
             out.append(Diagnostic("error", msg, table.locs[e], hint))
-    out += _exponents(net)
+    return out + _magnitudes(net) + _exponents(net)
+
+
+SCALE_LIMIT = 1e150  # the checks multiply two coefficients (k/m, b^2): both must stay finite
+
+
+def _magnitudes(net: FlatNetlist) -> list[Diagnostic]:
+    """Coefficients so large or so small (but not 0) that their products leave the doubles."""
+    tables = net.tables()
+    columns = [("M", "m"), ("M", "b"), ("K", "k"), ("D", "l"), ("C", "k"), ("C", "a"),
+               ("Q", "g"), ("Q", "a"), ("B", "b"), ("P", "c")]
+    out = []
+    for letter, key in columns:
+        values = getattr(tables[letter], key)
+        size = np.abs(values)
+        bad = (size > SCALE_LIMIT) | ((size > 0) & (size < 1 / SCALE_LIMIT))
+        for e in np.nonzero(bad)[0]:
+            msg = (f"{tables[letter].names[e]}: {key}={values[e]:g} is outside the range "
+                   f"1e-150..1e150 that the checks can square")
+            out.append(Diagnostic("error", msg, tables[letter].locs[e],
+                                  "rescale the units (for example um and us instead of m and s)"))
     return out
 
 

@@ -29,7 +29,12 @@ CONSTANTS = {"pi": math.pi, "e": math.e}
 def read_number(text: str) -> float | None:
     """The value of a number literal with an optional scale suffix and unit letters
     (`1k` = 1000, `1M` = 1e-3, `1meg` = 1e6, `50Hz` = 50, `10ms` = 0.01); None if malformed
-    (`1k5`: a digit after the suffix)."""
+    (`1k5`: a digit after the suffix) or beyond the range of a double (`1e400`)."""
+    value = _literal(text)
+    return value if value is not None and math.isfinite(value) else None
+
+
+def _literal(text: str) -> float | None:
     match = _NUMBER.fullmatch(text)
     if match is None:
         return None
@@ -43,6 +48,9 @@ def read_number(text: str) -> float | None:
 
 def bad_number(text: str, loc: SourceLoc) -> tuple[str, SourceLoc, str]:
     """(message, loc, hint) for a number literal `read_number` rejects."""
+    if _literal(text) is not None:
+        return (f"number '{text}' is beyond the range of a double", loc,
+                "the largest finite value is about 1.8e308")
     hint = ("a number may end in one scale suffix (t g meg k m u n p f) and unit letters, "
             "not digits: write 1.5k for 1500")
     return f"malformed number '{text}'", loc, hint
@@ -106,16 +114,24 @@ def evaluate(expr: ast.Expr, env: Env) -> float | np.ndarray:
                 raise undefined(name, loc, env)
             return value
         case ast.Binary(op=op, left=left, right=right, loc=loc):
-            return _binary(op, scalar(left, env), scalar(right, env), loc)
+            return _finite(_binary(op, scalar(left, env), scalar(right, env), loc), op, loc)
         case ast.Unary(op=op, operand=operand):
             value = scalar(operand, env)
             return -value if op == "-" else value
         case ast.Call(func=func, args=args, loc=loc):
-            return _call(func, [scalar(a, env) for a in args], loc)
+            return _finite(_call(func, [scalar(a, env) for a in args], loc), f"{func}()", loc)
         case ast.Index(name=name, indices=indices, loc=loc):
             return _index(name, [scalar(i, env) for i in indices], env, loc)
         case _:
             raise TypeError(f"not an expression node: {expr!r}")
+
+
+def _finite(value: float, what: str, loc: SourceLoc) -> float:
+    # float arithmetic overflows to inf silently (1e200*1e200); inf would reach the kernels
+    if not math.isfinite(value):
+        raise NetlistError(f"overflow in '{what}': the result is {value}", loc,
+                           "the largest finite value is about 1.8e308")
+    return value
 
 
 def scalar(expr: ast.Expr, env: Env) -> float:

@@ -71,7 +71,7 @@ class Includes:
         if len(stmt.args) != 1 or not isinstance(stmt.args[0], ast.Str):
             raise NetlistError(".include takes one quoted file name", stmt.loc,
                                'write .include "file.spr"')
-        path = self._find(stmt.args[0])
+        path = self._find(stmt.args[0], chain[-1])
         key = str(path)
         if key in chain:
             names = " -> ".join(Path(k).name for k in chain[chain.index(key):] + (key,))
@@ -83,11 +83,13 @@ class Includes:
         tree = self._parse(path, stmt.args[0])
         return self._expand(tree.statements, chain + (key,), seen)
 
-    def _find(self, name: ast.Str) -> Path:
+    def _find(self, name: ast.Str, including: str) -> Path:
+        # a file never includes itself: `.include "readout.spr"` written in a user's own
+        # readout.spr means the library block of that name, so the search goes on past it
         candidates = [Path(name.loc.file).parent] + self.dirs
         for folder in candidates:
             path = folder / name.text
-            if path.is_file():
+            if path.is_file() and str(path.resolve()) != including:
                 return path.resolve()
         looked = ", ".join(str(d) for d in candidates)
         raise NetlistError(f"cannot find include file '{name.text}'", name.loc,
@@ -125,4 +127,11 @@ def read_array(path: Path, loc: SourceLoc) -> np.ndarray:
     if array.dtype.kind not in "biuf" or array.ndim == 0 or array.size == 0:
         raise NetlistError(f"data file '{path}' does not hold a non-empty numeric array "
                            f"(dtype {array.dtype}, shape {array.shape})", loc)
-    return np.ascontiguousarray(array, dtype=np.float64)
+    array = np.ascontiguousarray(array, dtype=np.float64)
+    bad = np.flatnonzero(~np.isfinite(array))
+    if bad.size:
+        where = np.unravel_index(bad[0], array.shape)
+        raise NetlistError(f"data file '{path}' holds {bad.size} non-finite value(s), the first "
+                           f"{array[where]} at index {list(map(int, where))}", loc,
+                           "every value must be a finite number")
+    return array

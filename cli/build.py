@@ -9,6 +9,7 @@ import click
 from springc_cli.common import run_user_errors
 
 from springc.design.emit import write_atomic
+from springc.errors import NetlistError
 from springc.lang.options import known_methods
 
 
@@ -28,6 +29,9 @@ def build_cmd(netlist: str, as_json: bool, emit_kernel: str | None, method: str 
     from springc.check import compiler
 
     report = compiler.build(netlist, method=method)
+    if emit_kernel and isinstance(report, compiler.LibraryReport):
+        raise NetlistError(f"{netlist}: a library of subcircuits has no kernel",
+                           hint="instantiate a subcircuit in a netlist and build that")
     if emit_kernel:
         write_atomic(Path(emit_kernel), compiler.kernel_source(report))
     click.echo(json.dumps(report.to_json()) if as_json else report.summary())

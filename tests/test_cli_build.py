@@ -59,6 +59,35 @@ def test_build_text_and_kernel(netlist, tmp_path) -> None:
     assert "def " in text and "rk38" in text
 
 
+def test_a_library_file_is_summarised_by_its_subcircuits(tmp_path) -> None:
+    bank = tmp_path / "bank.spr"
+    res = _run("design", "melbank", "--bins", 3, "-o", bank)
+    assert res.exit_code == 0, res.output
+    data = json.loads(_run("build", bank, "--json").output)
+    by_name = {s["name"]: s for s in data["subckts"]}
+    melbank = by_name["melbank"]
+    assert data["dofs"] == 0 and melbank["ports"] == ["out0", "out1", "out2"]
+    # two masses per two-mode filter, one drive per mass
+    assert melbank["dofs"] == 6 and melbank["elements"]["M"] == 6
+    assert melbank["elements"]["F"] == 6 and melbank["params"] == {"ch": "0"}
+    text = _run("build", bank).output
+    assert "a library of 3 subcircuit(s), no top-level network" in text
+    assert "melbank out0 out1 out2  ch=0" in text and "dofs 6" in text
+    res = CliRunner().invoke(main, ["build", str(bank), "--emit-kernel", str(tmp_path / "k.py")])
+    assert res.exit_code == 1 and "has no kernel" in res.output
+    assert not (tmp_path / "k.py").exists()
+
+
+def test_a_library_summary_shows_defaults_as_written(tmp_path) -> None:
+    lib = tmp_path / "lib.spr"
+    lib.write_text(".subckt osc a f0=1k q={2 * 5}\nMa a m=1 b={1/q}\n"
+                   "Ka a k={(2*pi*f0)**2}\n.ends\n")
+    data = json.loads(_run("build", lib, "--json").output)
+    assert data["subckts"] == [{"name": "osc", "ports": ["a"],
+                                "params": {"f0": "1k", "q": "{2 * 5}"}, "dofs": 1,
+                                "elements": {"M": 1, "K": 1}, "loc": f"{lib}:1:1"}]
+
+
 def test_build_error_exits_1_with_location_and_caret(tmp_path) -> None:
     bad = tmp_path / "bad.spr"
     bad.write_text(FILTER.replace("64000", "1000"))

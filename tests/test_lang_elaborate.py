@@ -227,6 +227,22 @@ def test_include_cycle_names_the_chain(tmp_path: Path) -> None:
     assert err.loc.line == 2 and Path(err.loc.file).name == "b.spr"
 
 
+def test_a_file_never_includes_itself_it_means_the_library_block(tmp_path: Path) -> None:
+    own = tmp_path / "readout.spr"  # the user's file has the library block's name
+    own.write_text('.include "readout.spr"\nXr a readout tau=40\n')
+    net = load_file(own)
+    assert net.nodes == ["a"] and net.masses.names == ["Xr.Mr"]
+
+
+def test_data_arrays_must_be_finite(tmp_path: Path) -> None:
+    np.save(tmp_path / "w.npy", np.array([[1.0, 2.0], [np.inf, 4.0]]))
+    (tmp_path / "m.spr").write_text('.data W "w.npy"\nM1 a m={W[0, 0]}\n')
+    with pytest.raises(NetlistError) as info:
+        load_file(tmp_path / "m.spr")
+    assert "holds 1 non-finite value(s), the first inf at index [1, 0]" in info.value.message
+    assert (info.value.loc.line, info.value.loc.col) == (1, 9)
+
+
 def test_a_file_included_twice_in_one_scope_is_read_once(tmp_path: Path) -> None:
     (tmp_path / "d.spr").write_text(".subckt d a\nM a m=1\n.ends\n")
     (tmp_path / "e.spr").write_text('.include "d.spr"\n')

@@ -500,3 +500,13 @@ def test_nystrom_coefficients_of_classic_rk4():
     want = np.zeros((4, 4))
     want[2, 0], want[3, 1] = 0.25, 0.5
     assert np.array_equal(aa, want)
+
+
+def test_records_that_cannot_fit_are_refused_before_running() -> None:
+    # 3e11 steps: 2 probes x 8 bytes plus the 8-byte time axis per sample, about 7e3 GiB
+    net = check(oscillator(tstep=1e-3, tstop=3e8))
+    with pytest.raises(UsageError, match=r"the records would take 6\.7\de\+03 GiB \(2 probe"):
+        simulate(net)
+    # with no probe the time axis alone still needs 2.2e3 GiB
+    with pytest.raises(UsageError, match=r"would take 2\.2\de\+03 GiB \(0 probe"):
+        simulate(net, probes=[], reductions=["energy"])

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from springc.check import accuracy, checks
 from springc import lang
+from springc.lang import library
 from springc.errors import Diagnostic
 from springc.lang.ir import FlatNetlist
 
@@ -122,11 +123,39 @@ def _step(report: BuildReport) -> str:
     return f"{report.tstep:.6g} s{sub}, stable"
 
 
+@dataclass
+class LibraryReport:
+    """Summary of a file that defines subcircuits and no top-level network."""
+
+    file: str
+    title: str
+    subckts: list[library.SubcktSummary]
+
+    def to_json(self) -> dict:
+        """`dofs` 0 and no elements at top level, and one object per subcircuit."""
+        return {"file": self.file, "title": self.title, "dofs": 0, "elements": {},
+                "subckts": [s.to_json() for s in self.subckts]}
+
+    def summary(self) -> str:
+        """Human-readable text: one header and one instance per subcircuit."""
+        title = f" ({self.title})" if self.title else ""
+        head = (f"{self.file}{title}: a library of {len(self.subckts)} subcircuit(s), "
+                "no top-level network")
+        return "\n".join([head] + [s.describe() for s in self.subckts])
+
+
 def build(path: str | Path, *, lib_dirs: list[Path] | None = None,
-          method: str | None = None) -> BuildReport:
+          method: str | None = None) -> BuildReport | LibraryReport:
     """Load, check and summarise the netlist at `path`; `method` overrides `.options
-    method=`. Raises `NetlistError` (syntax, semantics) or `CheckError` (all failed checks)."""
-    net = lang.load_file(path, lib_dirs)
+    method=`. A file of subcircuit definitions alone gets a `LibraryReport`. Raises
+    `NetlistError` (syntax, semantics) or `CheckError` (all failed checks)."""
+    text = lang.read_source(path)
+    tree = lang.parse(text, str(path))
+    net = lang.elaborate(tree, lib_dirs)
+    if net.n == 0:
+        found = library.subckts(tree, text, lib_dirs)
+        if found:
+            return LibraryReport(net.file, net.title, found)
     return report_for(net, method)
 
 

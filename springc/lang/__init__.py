@@ -29,7 +29,8 @@ from springc.lang.elaborate import elaborate
 from springc.lang.files import STDLIB_DIR, search_dirs
 from springc.lang.parser import parse
 
-__all__ = ["STDLIB_DIR", "elaborate", "load_file", "load_text", "parse", "search_dirs"]
+__all__ = ["STDLIB_DIR", "elaborate", "load_file", "load_text", "parse", "read_source",
+           "search_dirs"]
 
 
 def load_text(text: str, filename: str = "<text>",
@@ -39,13 +40,17 @@ def load_text(text: str, filename: str = "<text>",
     return elaborate(parse(text, filename), lib_dirs)
 
 
-def load_file(path: str | Path, lib_dirs: list[Path] | None = None) -> FlatNetlist:
-    """Parse and elaborate the netlist file `path`."""
+def read_source(path: str | Path) -> str:
+    """The text of the netlist file `path`; a `NetlistError` naming the file and reason."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        return path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise NetlistError(f"{path}: no such netlist file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise NetlistError(f"{path}: cannot read the netlist ({exc})") from None
-    return load_text(text, str(path), lib_dirs)
+
+
+def load_file(path: str | Path, lib_dirs: list[Path] | None = None) -> FlatNetlist:
+    """Parse and elaborate the netlist file `path`."""
+    return load_text(read_source(path), str(path), lib_dirs)

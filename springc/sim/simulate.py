@@ -443,16 +443,17 @@ MEMORY_SHARE = 0.8  # of the available memory that the records may take
 def require_memory(probes: int, records: int, runs: int, precision: str,
                    reuse: np.ndarray | None) -> None:
     """Refuse, before anything runs, records that would not fit in memory, naming their size
-    and what reduces it."""
-    if reuse is not None or not probes:
-        return
-    need = math.prod(record_shape(probes, records, runs, np.dtype(precision))) \
-        * np.dtype(precision).itemsize
+    and what reduces it (the time axis counts too: it is there with no probe)."""
+    dtype = np.dtype(precision)
+    need = records * np.dtype(np.float64).itemsize
+    if reuse is None and probes:
+        need += math.prod(record_shape(probes, records, runs, dtype)) * dtype.itemsize
     have = available_memory()
     if need > MEMORY_SHARE * have:
         raise UsageError(
             f"the records would take {need / 2**30:.3g} GiB ({probes} probe(s) x {runs} run(s)"
-            f" x {records} samples), more than the {have / 2**30:.3g} GiB of memory available",
+            f" x {records} samples, and the time axis), more than the {have / 2**30:.3g} GiB "
+            "of memory available",
             hint="record fewer samples (--outrate), fewer probes, shorter runs (--tstop), or "
                  "stream what you need with --reduce and no probes")
 

@@ -1,51 +1,13 @@
-"""Code generation: from a flat netlist to the Python source of a Numba kernel, as plain text.
+"""Code generation: a flat netlist and `KernelOptions` in, the Python source of a Numba kernel
+out, as plain text (this module never imports numba; `springc.kernels.loader` compiles it).
 
-The kernel is specialised to the element kinds the netlist uses (a netlist without `Q` gets no
-`Q` loop), to the integrator (stages unrolled from the Butcher tableau), the precision and the
-recorded quantities. Node indices and coefficients are *runtime arguments*, so changing a
-parameter value reuses the compiled kernel, and netlists of the same element kinds share one.
-For long simulations of small networks (`simulate.WRITE_OUT_FROM`, `NODES_MAX`) the linear,
-input and quadratic-coupling forces are instead written out node by node with constant
-indices (`emit_nodes`): one kernel per netlist structure, coefficients still arguments.
-The state is laid out `(n_dof, lanes)` per chunk of `lanes` runs (a compile-time constant: the
-last chunk is padded), the lanes innermost; `run` integrates a range of chunks of runs and
-releases the GIL, so the runtime runs chunks on several threads.
-
-Why the kernel looks the way it does (each measured against `springc.bench.ceiling`, issue 7):
-- per element, the lane arithmetic is written out as straight-line code (all loads, then the
-  arithmetic, then the stores), so LLVM's SLP vectoriser turns it into a few vector
-  instructions; a runtime-length lane loop cost more in alias checks and loop control than
-  the arithmetic of a short lane row;
-- the linear terms (springs, couplings) and the input forces are gathered per node: each
-  node's stiffness row (`simulate.linear_rows`) and inputs are summed in registers for all
-  lanes and the node's force row stored once (`emit_linear`); pushing each coupling into
-  both ends' rows cost a load and a store per end, and the kernel was bound by that memory
-  traffic (the 564-dof network: 1.6x faster); only the nonlinear elements are pushed;
-- the inverse mass is folded into the coefficients (`simulate.coefficient_arrays`), so no
-  extra pass scales the force rows;
-- the stages are in Runge-Kutta-Nystrom form (`nystrom_coefficients`): stage positions from
-  x, v and the force stages, so one velocity row serves every stage and the step's combine
-  reads no stage velocities (8 state rows instead of 10 for RK4: 564-dof network 12%
-  faster in float64, where the 10 rows overflowed the 1 MB L2);
-- node indices are unsigned (uint64), so numba indexes without its negative-index
-  wrap-around, four instructions per gathered row (float32 gathers 25% faster);
-- a stage velocity is computed only where something reads it (`velocity_needed`): most
-  nodes of delay lines and of the keyword-spotting network are undamped (10-17% faster);
-- FMA contraction (fastmath "contract" only: no reassociation, results within round-off);
-- the input samples are staged every `STAGE_BLOCK` steps into a (time, channel, lane) buffer,
-  so interpolation reads contiguous lanes instead of one cache line per lane;
-- probes are recorded run-major, (probe, run, record), each run's trajectory contiguous:
-  a chunk stages `RB` records of its lanes (`emit_record`), then writes each run's line of
-  them as one aligned non-temporal store (`springc.kernels.streamstore`; a record at every step
-  outgrows the caches, and ordinary stores read each line before writing it: feature
-  extractor, 262 MB per call, float64 23% faster). Each thread so writes only pages of its
-  own runs (time-major, both threads first-touched every page: the feature extractor's
-  calls were about 6% (float64) and 7% (float32) slower), and callers get each run's
-  trajectory contiguous (a contiguous copy of the time-major views took five times the
-  feature extractor's simulation).
-
-This module never imports numba: `springc.kernels.loader` compiles the text (the kernels call
-`springc.kernels.streamstore`'s intrinsics).
+The kernel is specialised to the element kinds the netlist uses, the integrator (stages
+unrolled from its Butcher tableau), the precision and the recorded quantities; node indices
+and coefficients are runtime arguments, so netlists of the same element kinds share one
+compiled kernel. For long runs of small networks the linear, input and quadratic forces are
+written out per node instead (`emit_nodes`: one kernel per structure). The state is laid out
+`(n_dof, lanes)` per chunk of runs; `run` integrates a range of chunks without the GIL.
+Why the loops look as they do: docs/performance.md#the-shared-kernels-shape.
 """
 
 from __future__ import annotations
@@ -68,7 +30,7 @@ KERNEL_VERSION = 6  # bump when the generated text or its calling convention cha
 RECORD_ALIGN = 64  # bytes: the record's alignment and row padding (a cache line, and a
 # multiple of every streaming store's size), which `emit_record`'s aligned stores rely on
 LANE_CHOICES = (32, 16, 4, 1)  # compile-time lane widths a kernel is generated for (32: the
-# per-element index and loop work spread over more lanes, measured 24% faster in float32)
+# per-element index and loop work spread over more lanes)
 STAGE_BLOCK = 32  # steps of input samples staged at a time
 FASTMATH = '{"contract"}'  # FMA contraction only
 
@@ -204,7 +166,7 @@ def with_header(net: FlatNetlist, options: KernelOptions, body: str, digest: str
 def options_header(options: KernelOptions) -> list[str]:
     """Header lines naming the options (the per-node terms only by how the force code is
     written: they are in the body)."""
-    # (vars, not asdict, which deep-copies: 60 us of a 1 ms call)
+    # vars, not asdict, which deep-copies (a noticeable share of a short call)
     shown = {k: v for k, v in vars(options).items() if k not in ("nodes", "registers")}
     how = ("written out per node, the state in registers (springc.kernels.regkernel)"
            if options.registers else "written out per node" if options.nodes
@@ -215,8 +177,8 @@ def options_header(options: KernelOptions) -> list[str]:
 @functools.lru_cache(maxsize=64)
 def hashed_body(feat: Features, options: KernelOptions) -> tuple[str, str]:
     """The kernel body and its hash: text that depends on the element kinds and the options
-    only, so it is kept per process (writing it out took 0.7 ms of a 2.5 ms simulation of a
-    one-mass network)."""
+    only, so it is kept per process (writing it out was a large share of a short
+    simulation of a small network)."""
     body = _body(feat, options, get_tableau(options.method))
     return body, source_hash(body)
 
@@ -359,9 +321,9 @@ def emit_stage_loop(c: _Code, feat: Features, tab: Tableau, width: LaneLayout,
                     prelude: Callable[[int], None],
                     after: Callable[[int], None] | None = None,
                     nodes: tuple | None = None) -> None:
-    """The stages of one step as a loop whose body holds the force code once (a function
-    call per stage, with its ~20 array arguments, measured 35% of a float32 step; writing the
-    force code out per stage quadrupled the compile time). `prelude(s)` writes stage s's own
+    """The stages of one step as a loop whose body holds the force code once (a call per
+    stage passes ~20 array arguments; the force code written out per stage compiles far
+    slower: docs/performance.md#the-shared-kernels-shape). `prelude(s)` writes stage s's own
     code (its state xs, vs, its input); the force code then reads xa, va and writes ka;
     `after(s)`, when given, writes what follows stage s's forces; `nodes` (`node_terms`), when
     given, has the linear, input and quadratic-coupling forces written out per node."""
@@ -419,9 +381,9 @@ def emit_accel_body(c: _Code, feat: Features, width: LaneLayout,
 
 
 # Writing the force code out per node (`emit_nodes`): at most this many nodes (numba's
-# compile time grows with the text; at 201 nodes its SSA pass overflowed the recursion limit)
-# and this many terms on any node besides its own (a 24-node all-to-all block, 23 terms a
-# node, measured 10% slower than the shared kernel's loops).
+# compile time grows with the text, and very long texts overflow its recursion limit) and
+# this many terms on any node besides its own (denser nodes run faster in the shared loops;
+# docs/performance.md#kernel-forms-shared-written-out-register).
 NODES_MAX = 48
 NODE_TERMS_MAX = 8
 
@@ -457,8 +419,8 @@ def node_terms(co: dict, n: int) -> tuple | None:
 def emit_nodes(c: _Code, nodes: tuple, width: LaneLayout) -> None:
     """The force code written out node by node (`node_terms`): the node's coefficients read
     into scalars, then one lane loop ka[i] = -(bm v + km x) + stiffness row + inputs +
-    quadratic couplings, with every row index a constant. Against the shared kernel's loops
-    over index arrays: feature extractor 15-25% faster, both precisions. The scalars are read
+    quadratic couplings, with every row index a constant (faster than the shared kernel's
+    loops over index arrays for small networks). The scalars are read
     before the loop so that the loop reads no coefficient array (LLVM cannot prove they do not
     alias ka, and each one added a runtime alias check). A node without any force keeps its
     rows of zeros."""
@@ -495,8 +457,8 @@ def emit_linear(c: _Code, feat: Features, width: LaneLayout) -> None:
     """Per node, all lanes in registers and one store: ka = -(bm v + km x), plus (with
     couplings) the node's off-diagonal stiffness row (`simulate.linear_rows`) and (with
     inputs) its input forces (`fi_ptr`: the node's range of the node-ordered inputs). Pushing
-    each element into both ends' rows cost a load and a store per end, and the kernel was
-    bound by that memory traffic (issue 7). All lanes at once (no group loop): the FMAs into
+    each element into both ends' rows costs a load and a store per end, and the kernel is
+    bound by that memory traffic. All lanes at once (no group loop): the FMAs into
     one accumulator are a chain, and only the lanes' independent chains keep the FMA units
     busy."""
     full = LaneLayout(width.width, width.width)
@@ -636,16 +598,16 @@ def emit_run_head(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -
 def aligned_frame(opts: KernelOptions) -> bool:
     """Whether the kernel aligns its stack frame (`springc.kernels.stackalign`): register kernels
     for lanes, whose lane loop spills hundreds of vectors a step. The others spill few, and the
-    realignment costs them a register (the delay line's shared kernel, float64: 3-8% slower
-    aligned)."""
+    realignment costs them a register (see
+    docs/performance.md#the-float32-row-and-the-stack-frame)."""
     return bool(opts.registers) and opts.lanes > 1
 
 
 def emit_def(c: _Code, args: list[str], steps: str, align: bool = False) -> None:
     """The kernel function's decorator, signature and docstring (integrating for `steps`),
     and with `align`, the alignment of its frame."""
-    # Serial and nogil: the runtime runs chunks on threads. numba's parallel=True (prange)
-    # measured as fast but compiled 3-4x slower (22 s against 6 s of CPU for one oscillator).
+    # Serial and nogil: the runtime runs chunks on threads (numba's parallel=True was no
+    # faster and compiles several times slower: docs/performance.md#measured-and-not-taken).
     c(decorator())
     c(f"def run({', '.join(args)}):")
     c.indent()
@@ -819,7 +781,7 @@ def velocity_needed(c: _Code, feat: Features, opts: KernelOptions) -> None:
     on it, or (with the work reduction) a force on it. (The dissipation reduction reads the
     dampers' nodes, already among these.) Most nodes of a delay line or the keyword-spotting
     network are undamped: their stage velocity rows, a read and a write per stage, are
-    skipped (delay line and 564-dof network 10-17% faster)."""
+    skipped."""
     c("vneed = np.zeros(x0.shape[0], np.bool_)")
     c("for i in range(x0.shape[0]):")
     c("    vneed[i] = bm[i] != 0.0")
@@ -902,7 +864,7 @@ def emit_record(c: _Code, r: str, width: LaneLayout, rb: int) -> None:
     c(f"r_ = {r}")
     if width.width == 1:
         # one run per chunk: its records are consecutive already, and stay in the caches
-        # when the run is short (streaming them out measured 9% slower on one oscillator)
+        # when the run is short (streaming them out was slower)
         c("for p in range(rec_node.shape[0]):")
         c("    q = rec_node[p]")
         c("    rec[p, rec_col + lo_, r_] = v[q, 0] if rec_isv[p] else x[q, 0]")

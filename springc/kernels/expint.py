@@ -1,30 +1,17 @@
-"""Exponential splitting: small input-driven linear blocks exactly, the rest with Runge-Kutta.
+"""Exponential kernels: the input-driven linear blocks of a netlist exactly, the rest with
+Runge-Kutta (for high-Q filters that RK4 at the input rate damps and detunes).
 
-The problem it solves (issue 7): the Mel filter pairs are linear, high-Q and fast (up to ~8 kHz
-against a 32 kHz step, omega h ~ 1.6); classic RK4 damps and detunes them badly there, while the
-rest of a keyword spotter (low-pass, delay lines, mvm block, readout) is slow. Scheme
-`strang-rk4`, per step h (Strang splitting, second order in the coupling, exact in the blocks):
-
-    blocks: z <- E(h/2) z + P0 u(t) + P1 u(t + h/2)              (exact, piecewise-linear input)
-    rest:   one RK4 step of everything else, block positions frozen (their back-action moves
-            their velocities; the rest sees them at mid-step)
-    blocks: z <- E(h/2) z + P0 u(t + h/2) + P1 u(t + h)
-
-A *block* is a connected component of the linear graph (couplings and node-to-node dashpots)
-with at most `MAX_BLOCK` nodes, at least one `in(k)` force and no Duffing or `P` term on its
-nodes: the driven linear filters. Its springs, couplings, dashpots, local damping and input
-forces move into the exact propagator, for which the inputs' linear interpolation between
-samples is exact (phi functions, computed with Van Loan's augmented matrix exponential).
-Everything else, including quadratic couplings that touch a block, stays in the RK4 part. A
-netlist without blocks gets plain RK4.
-
-Schemes `exp-rk4` and `exp-heun3` are of Lawson type instead (the comment above
-`lawson_fractions`): every stage sees the blocks' exact driven flow to its own time. Heun's
-third-order tableau takes three stages instead of four; on the feature extractor at one step
-per sample its worst probe is within 3.9e-4 (exp-rk4: 3.3e-4) at about 0.85x exp-rk4's wall.
-
-Schemes are data (`SplitScheme`); `generate` writes the kernel text (it reuses the force code
-of `springc.kernels.codegen`), `split_netlist` and `block_arrays` prepare its arguments.
+A *block* is a connected component of the linear graph (couplings, node-to-node dashpots) of
+at most `MAX_BLOCK` nodes with an `in(k)` force and no Duffing or `P` term: a driven linear
+filter. Its linear terms and inputs move into an exact propagator (phi functions by Van
+Loan's augmented exponential, exact for the linearly interpolated input); everything else,
+quadratic couplings into a block included, stays in the Runge-Kutta part. Schemes are data
+(`SplitScheme`, `SCHEMES`): `strang-rk4` (Strang splitting: half a block step, an RK4 step of
+the rest with block positions frozen, half a block step) and the Lawson schemes `exp-rk4`,
+`exp-heun3` (every stage sees the blocks' exact flow to its own time, `lawson_fractions`).
+`generate` writes the kernel text, reusing `springc.kernels.codegen`'s force code;
+`split_netlist` and `block_arrays` prepare its arguments. A netlist without blocks gets plain
+RK4. Why exp-heun3: docs/performance.md#why-exp-heun3.
 """
 
 from __future__ import annotations
@@ -199,8 +186,8 @@ def propagator(a: np.ndarray, b: np.ndarray,
 def expm_small(m: np.ndarray) -> np.ndarray:
     """exp(m) for a small dense matrix: scaling and squaring of a degree-20 Taylor series
     (after scaling the 1-norm is at most 1/2, where the series' truncation is below 1e-25).
-    Used instead of scipy's Pade code, whose LAPACK calls cost ~10 ms each on a busy
-    machine for these 6x6 to 12x12 matrices."""
+    Used instead of scipy's Pade code, whose LAPACK calls are slow for these 6x6 to 12x12
+    matrices on a busy machine."""
     # balance first (diagonal similarity): the filters' omega^2 against 1 in [x; v] would
     # otherwise cost ~16 squarings and 1e-12 per step; balanced, omega h needs one or two
     _, (scale, _) = scipy.linalg.matrix_balance(m, permute=False, separate=True)

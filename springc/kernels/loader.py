@@ -1,18 +1,12 @@
 """Loading generated kernels: the only module that imports numba (besides
 `springc.kernels.streamstore`, the intrinsics the generated kernels call).
 
-The source from `springc.kernels.codegen` is written to `<cache>/springc_kernel_<hash>.py` (a real
-file, so that numba's `cache=True` can store the compiled machine code beside it and a second
-process reuses it) and imported by path. The cache folder is `$SPRINGC_CACHE` or
-`~/.cache/springc/kernels`. Processes share it safely (test workers, Dask workers): a kernel's
-file appears once and whole, and each kernel is compiled under its own lock file, so a second
-process waits and then loads the machine code the first one cached.
-
-Kernels are compiled with LLVM's SLP (straight-line) vectoriser on: the generated lane code
-is written for it (see `springc.kernels.codegen`), and without it every lane stays scalar (measured
-2x slower). numba leaves it off by default and reads the setting whenever it optimises a
-function, so it is switched on only while a kernel's own call (which compiles it) runs;
-other numba code in the process is compiled as before.
+The source from `springc.kernels.codegen` is written to `<cache>/springc_kernel_<hash>.py` (a
+real file, so numba's `cache=True` stores the machine code beside it for the next process)
+and imported by path. The cache is `$SPRINGC_CACHE` or `~/.cache/springc/kernels`; processes
+share it safely: a kernel file appears once and whole, and each kernel compiles under its own
+lock file. LLVM's SLP vectoriser, which the generated lane code is written for (numba leaves
+it off), is switched on only while a kernel's own first call compiles it.
 """
 
 from __future__ import annotations

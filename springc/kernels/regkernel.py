@@ -1,29 +1,17 @@
-"""Register kernels: each run's step with its whole state in local scalars.
+"""Register kernels: each run's whole step written out with its state in local scalars.
 
-The shared kernel (`springc.kernels.codegen`) keeps the state in `(n_dof, lanes)` rows and runs each
-stage as passes over rows (`xa`, `va`, `ka`, picked at run time). Here the whole step is
-written out, every node's position, velocity and stage force a named scalar, so no stage row
-goes through memory:
-- chunks of one run keep the state in scalars from step to step. The hard-driven Duffing
-  resonator (one mass) took 80 ns a step in the shared kernel, 23-25 ns here (10,000 steps
-  in 0.23-0.25 ms against 0.81 ms); one run of the 6-mass two-band feature extractor
-  2.6-3.6x faster (1.0-1.4 against 3.5 ms for 0.5 s);
-- chunks of many runs loop over the lanes inside each step, the loop body the whole step
-  (LLVM vectorises it across lanes); the state rows are read and written once a step. The
-  feature extractor, 64 runs of 1 s recording nothing: float32 32.0 -> 25.5 ms, float64
-  62.6 -> 45.1 ms against the kernel with its force code written out per node
-  (`codegen.emit_nodes`). The loop spills hundreds of vectors a step, so these kernels align
-  their stack frame (`springc.kernels.stackalign`: recording 16 probes, float32 42.8 -> 36.2 ms,
-  float64 91.4 -> 56.0 ms).
-Within round-off of the shared kernel. Such a kernel is compiled per netlist structure, as a
-written-out kernel (`codegen.node_terms`); the coefficients stay runtime arguments, read once
-per call.
+Where the shared kernel (`springc.kernels.codegen`) passes every stage through `(n_dof,
+lanes)` rows, here every node's position, velocity and stage force is a named scalar: chunks
+of one run keep them from step to step, chunks of many runs loop over the lanes inside the
+step (LLVM vectorises the loop; these kernels align their stack frame,
+`springc.kernels.stackalign`). Results agree with the shared kernel within round-off.
 
-Used where the force code would be written out (`simulate.written_out`: long simulations of
-networks of at most `codegen.NODES_MAX` masses) and, for chunks of one run, always up to
-`REGISTER_ALWAYS` masses, with only the term kinds written here (`eligible`: no reductions,
-no monomials); everything else keeps the shared or the written-out kernel. Records and the
-divergence guard read the state rows (a one-run kernel writes its scalars back first).
+Used where the force code would be written out (`simulate.written_out`: long runs of at most
+`codegen.NODES_MAX` masses) and for chunks of one run up to `REGISTER_ALWAYS` masses, for the
+term kinds written here (`eligible`: no reductions, no monomials); compiled per netlist
+structure, coefficients runtime arguments. Records and the divergence guard read the state
+rows (a one-run kernel writes its scalars back first). Measurements:
+docs/performance.md#kernel-forms-shared-written-out-register.
 """
 
 from __future__ import annotations
@@ -41,10 +29,10 @@ from springc.kernels.codegen import (Features, KernelOptions, LaneLayout, _Code,
 from springc.kernels.integrators import TABLEAUX, Tableau, get_tableau
 from springc.lang.ir import FlatNetlist
 
-# Masses up to which one run always gets a register kernel: compiled in about the time of the
-# shared kernel (1-3 s). Larger networks, up to `codegen.NODES_MAX`, get one where a kernel
-# with its force code written out would be chosen (`simulate.written_out`: long simulations):
-# a single run of the 24-mass feature extractor compiled in 7 s and then ran 2.6x faster.
+# Masses up to which one run always gets a register kernel: it compiles in about the time of
+# the shared kernel. Larger networks, up to `codegen.NODES_MAX`, get one where a kernel with its
+# force code written out would be chosen (`simulate.written_out`: long simulations), which
+# pays for the longer compile.
 REGISTER_ALWAYS = 8
 
 

@@ -1,14 +1,10 @@
 """Aligning a generated kernel's stack frame to 64 bytes.
 
-A register kernel's lane loop holds the whole step of 16 or 32 runs in vector registers and
-spills hundreds of 64-byte values a step to its stack frame. numba's functions keep the
-ABI's 16-byte stack alignment, so LLVM places those spills at whatever 16-byte offset the
-frame gives them: unaligned vector moves, many of which split across two cache lines, and
-which ones depended on the caller's stack depth and the frame's size. The feature extractor,
-64 runs of 1 s recording 16 probes (A/B in one process, least of 9-11): float32 42.8 -> 36.2
-ms, float64 91.4 -> 56.0 ms; recording nothing, float64 63.6 -> 49.2 ms. LLVM realigns a
-frame when a function asks for it (`alignstack`); numba has no spelling for that, hence this
-intrinsic, called first in those kernels (`codegen.aligned_frame`).
+A register kernel's lane loop spills hundreds of vector registers a step; numba keeps the
+ABI's 16-byte stack alignment, so many spills split cache lines, and which ones depends on
+the frame's size. LLVM realigns a frame a function asks for (`alignstack`), which numba
+cannot spell, hence this intrinsic, called first in those kernels (`codegen.aligned_frame`).
+The measurements: docs/performance.md#the-float32-row-and-the-stack-frame.
 """
 
 from __future__ import annotations

@@ -1,13 +1,11 @@
 """Non-temporal (streaming) vector stores for generated kernels.
 
-A kernel that records probes at every step writes far more than the caches hold (the feature
-extractor: 262 MB per call in float64). An ordinary store first reads each cache line it
-writes into the cache (read for ownership), then writes it back: twice the memory traffic of
-the data. A non-temporal store writes whole lines straight to memory; measured on this
-machine, 262 MB in the recording's pattern took 41 ms with ordinary stores and 10 ms with
-these (page faults of fresh memory aside). LLVM emits them for a store with `!nontemporal`
-metadata; numba has no spelling for that, hence these intrinsics. Non-temporal stores are
-weakly ordered: a kernel ends with `store_fence()` before its caller reads what it wrote.
+A kernel recording probes at every step writes far more than the caches hold; an ordinary
+store reads each line into the cache before writing it, a non-temporal one writes whole lines
+straight to memory (half the traffic; docs/performance.md#the-shared-kernels-shape). LLVM
+emits them for a store with `!nontemporal` metadata, which numba cannot spell, hence these
+intrinsics. They are weakly ordered: a kernel ends with `store_fence()` before its caller
+reads what it wrote.
 """
 
 from __future__ import annotations

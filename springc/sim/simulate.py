@@ -1,4 +1,4 @@
-"""The runtime: simulate a netlist for many input signals together, in lockstep.
+"""The runtime: a checked netlist and input signals in, a `SimResult` out, all runs in lockstep.
 
 Time grid: the integration step is `h = tstep / substeps`; input signals are resampled to the
 input grid `1/tstep` and interpolated linearly at every stage time (see `springc.sim.sources`).
@@ -31,9 +31,9 @@ DEFAULT_BATCH = 256  # runs per kernel call (one progress-bar tick)
 CHECK_EVERY = 256  # steps between divergence checks
 # dof-steps (dofs x steps x runs) from which a simulation gets a kernel with its force code
 # written out per node (`codegen.node_terms`): such a kernel is compiled once per netlist
-# structure (about 10 s, then cached) instead of being shared by every netlist of the same
-# element kinds, so short simulations (tests, one-off runs) keep the shared kernel. About
-# 10 ms of kernel time, where a 15-25% gain begins to be worth a compile per structure.
+# structure instead of being shared by every netlist of the same element kinds, so short
+# simulations (tests, one-off runs) keep the shared kernel; long ones repay the compile
+# (docs/performance.md#kernel-forms-shared-written-out-register).
 WRITE_OUT_FROM = 10_000_000
 LIMITS = {"float64": 1e30, "float32": 1e15}  # |x| or |v| beyond this counts as divergence
 
@@ -135,14 +135,14 @@ def linear_rows(net: FlatNetlist, minv: np.ndarray) -> tuple[np.ndarray, ...]:
     diagonal (`km`, with the sign of a stiffness) and the off-diagonal rows in CSR form
     (`ptr`, `col`, `val`: acceleration of node i per unit x_col). The kernel gathers each
     node's row into registers and stores its acceleration once: a coupling pushed to both
-    ends cost two loads and a store of the force rows per end (issue 7: memory-bound).
+    ends costs two loads and a store of the force rows per end (the kernel is memory-bound).
     A coupling k/(2a) (x_i - a x_j)^2 puts k/a on i's diagonal, k a on j's and -k off it."""
     s, c, n = net.springs, net.couplings, net.n
     rows = np.concatenate([s.node, c.i, c.j, c.i, c.j])
     cols = np.concatenate([s.node, c.i, c.j, c.j, c.i])
     vals = np.concatenate([s.k, c.k / c.a, c.k * c.a, -c.k, -c.k]) * minv[rows]
-    # sum duplicate (row, col) entries in row-major order (numpy: scipy.sparse's set-up cost
-    # 0.1 ms, a tenth of a one-mass simulation call)
+    # sum duplicate (row, col) entries in row-major order (numpy: scipy.sparse's set-up is a
+    # noticeable share of a small network's simulation call)
     order = np.argsort(rows * n + cols, kind="stable")
     keys, start = np.unique((rows * n + cols)[order], return_index=True)
     summed = np.add.reduceat(vals[order], start) if len(vals) else vals
@@ -184,8 +184,8 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
     `WRITE_OUT_FROM`, and for single runs of up to `regkernel.REGISTER_ALWAYS` masses;
     `kernel_form`). `record_into`: the record buffer of an earlier call
     (its `info["records"]`) to record into instead of fresh memory, for a caller simulating
-    batch after batch: the OS zeroes every fresh page before the kernel writes it (the feature
-    extractor's 131 MB a call in float32: 7 ms, 16% of the call). The earlier result's probes,
+    batch after batch: the OS zeroes every fresh page before the kernel writes it
+    (docs/performance.md#what-recording-costs). The earlier result's probes,
     views of it, are overwritten. A step above the stability limit of the method is refused
     before anything runs (`CheckError`, as `springc build` words it) unless `check_step` is
     False (experiments that confirm a limit: the divergence guard then stops the run), and so
@@ -260,8 +260,8 @@ def written_out(net: FlatNetlist, coeffs: dict, st: Settings, runs: int,
     """The per-node force terms for a kernel with its force code written out
     (`codegen.node_terms`), or None for the shared kernel: as `write_out` says, and when it is
     None, for simulations of at least `WRITE_OUT_FROM` dof-steps. Networks too large to write out,
-    and splitting schemes (`springc.kernels.expint`: their exact block updates dominate; the feature
-    extractor's exp-rk4 measured no faster written out), always get the shared kernel."""
+    and splitting schemes (`springc.kernels.expint`: their exact block updates dominate, so
+    writing out gains nothing), always get the shared kernel."""
     if expint.is_split(st.method):
         return None
     if write_out is None:

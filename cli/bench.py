@@ -1,5 +1,5 @@
-"""`springc bench`: speed against error on the reference networks (issue 7), or the kernel
-throughput table of issue 3 (`--issue3`)."""
+"""`springc bench`: speed against error on the reference networks (`springc.bench.suite`), or
+the single-network kernel throughput table (`--issue3`, `springc.bench.throughput`)."""
 
 from __future__ import annotations
 

@@ -20,7 +20,7 @@ simulated for one second of signal). It is the ceiling of a kernel that moves it
 stage rows through memory at every stage, as the shared kernel does (`springc.kernels.codegen`): a
 kernel with F flops per dof-step of that shape cannot beat it on this machine without doing
 less arithmetic. A register kernel (`springc.kernels.regkernel`) keeps its stage values in registers
-and can: the feature extractor's, in float64, ran at 1.2-1.55x it. Hence `measure_peak`, the
+and can (docs/performance.md#the-ceiling-and-the-fma-peak). Hence `measure_peak`, the
 machine's FMA peak for the batch: chains of FMAs held in registers, which no kernel doing F
 flops per dof-step can beat at all.
 
@@ -207,9 +207,9 @@ def make_state(n_dof: int, batch: int, dtype: type, threads: int) -> tuple[np.nd
 
     The six arrays start at offsets spread evenly over a 4 KiB page (`staggered`): large
     allocations land at equal page offsets, where each load falsely waits on an earlier store
-    to another array at the same offset (4K aliasing); measured here, that halved the loop's
-    speed at random between measurements (feature extractor float32: 1,320 against 2,500
-    run-s/s), and the ceiling is the machine's best."""
+    to another array at the same offset (4K aliasing), which can halve the loop's speed at
+    random between measurements, and the ceiling is the machine's best
+    (docs/performance.md#the-ceiling-and-the-fma-peak)."""
     chunks, width = chunking(batch, threads)
     cells = n_dof * width
     x = np.linspace(0.1, 1.0, chunks * cells).reshape(chunks, cells).astype(dtype)

@@ -1,6 +1,6 @@
 """Reference networks built in code (`IRBuilder`) for benchmarks and tests.
 
-`kws_network()` is sized like the paper's keyword spotter (issue 3): 8 two-mode Mel filter
+`kws_network()` is sized like the paper's keyword spotter: 8 two-mode Mel filter
 pairs driven from `in(0)`, 8 low-pass (envelope) masses fed by quadratic couplings, 24 delay
 lines, a 48-mass all-to-all block and a quadratically coupled readout: 564 degrees of freedom.
 """

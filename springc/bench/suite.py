@@ -1,31 +1,13 @@
-"""The issue-7 benchmark suite: speed against error, every integrator and the peers, one run.
+"""The benchmark suite: speed against error of every integrator and the peers on the reference
+networks, in one run.
 
-For each reference network (`CASES`: the feature extractor, the 8x3 keyword-spotting network,
-a long delay line, a stiff all-to-all block, a hard-driven Duffing resonator) `run_case`:
-1. computes a tight reference for run 0 (`reference`): the case's `ref_method` at
-   `ref_substeps` and half as many substeps per input sample, Richardson-extrapolated, with
-   its own error estimate (the fine run's error, |fine - coarse| / (2^p - 1) for a method of
-   order p, 15 for the fourth-order references, an upper bound for the extrapolated values)
-   and an independent check by scipy DOP853 at rtol 1e-12 on the peers' stretch; their
-   larger is the case's *floor*, the least error it can resolve;
-2. runs the peers on a shorter stretch of run 0 (scipy RK45 and DOP853 at rtol 1e-6, plain
-   numpy RK4, ngspice on the exported netlist when installed), with their errors against the
-   reference on that stretch and their wall time per simulated second;
-3. times every (method, substeps, precision) of the case on a batch of runs (compilation
-   timed separately, by a first call on a few steps) and measures each probe's relative L2
-   error of run 0 against the reference, over the whole run and over the peers' stretch;
-   then climbs the case's `ladder` of finer rows until one is as accurate on the stretch as
-   the most accurate peer (or the floor), or a rung stops gaining;
-4. measures the machine's arithmetic ceiling (`springc.bench.ceiling`) for the network's size and
-   batch in both precisions, so that throughput is also a fraction of it, and the machine's
-   FMA peak for the batch (`ceiling.measure_peak`), the bound a register kernel, which the
-   ceiling does not bound, is reported against.
-`write_report` writes `bench.json`, `bench.md` (the issue's must-show figures, met or missed,
-first) and one speed-versus-error PNG per network.
-
-Throughput is run-seconds per wall-second: runs in the batch times simulated seconds, divided
-by the wall time of the kernel call. Speed-ups against a peer compare wall time per simulated
-run-second at equal or better error, both errors measured on the same (the peers') stretch.
+`cases()` lists the networks and their workloads (`Case`); `run_case` measures one: a tight
+reference for run 0 (Richardson-extrapolated, checked by scipy DOP853), the peers on a stretch
+of it, every (method, substeps, precision) row timed on a batch with its error, finer rows
+(`ladder`) until one matches the best peer, and the machine's ceiling and FMA peak for the
+network's size. `write_report` writes bench.json, bench.md and one speed-versus-error PNG per
+network. Throughput is run-seconds per wall-second; the procedure in full:
+docs/performance.md#how-the-bench-measures.
 """
 
 from __future__ import annotations
@@ -55,10 +37,10 @@ REF_CHECK_RTOL = 1e-12  # the independent check of the reference: scipy DOP853 a
 REF_CHECK_MAX_STEP = 32  # ... with max_step tstep / 32 (kinks of the interpolated input)
 DUFFING_HARD = 1.2e5  # sine amplitude driving the Duffing case to ~0.55: stiffness up 10x
 PEER_RTOL = 1e-6
-# issue 7: x faster at equal or better error; "DOP853" is the issue's own configuration
+# the targets: x faster at equal or better error; "DOP853" is the targets' own configuration
 MUST_SPEEDUP = {"DOP853": 300.0, "DOP853 tstep/8": 300.0, "ngspice": 50.0}
 # scipy peers: name -> (method, max_step in input samples; None: scipy's free step size, as
-# issue 7 measured DOP853; 1/8: springc.bench.reference's default, 8+ steps per sample)
+# the targets were set against; 1/8: springc.bench.reference's default, 8+ steps per sample)
 SCIPY_PEERS = {"DOP853": ("DOP853", None), "DOP853 tstep/8": ("DOP853", 1 / 8),
                "RK45": ("RK45", 1 / 8)}
 LADDER_GAIN = 0.5  # a ladder rung must at least halve the error, else round-off has won
@@ -265,7 +247,7 @@ def cases(quick: bool = False) -> list[Case]:
         ("exp-rk4", 2, "float64"), ("exp-heun3", 2, "float64")]
     line = bn.long_delay_line()
     # 0.25 s of input, like the 564-dof network and the stiff block, rather than the line's
-    # own 0.04 s .tran: about 1.5 ms of a call is start-up, 15% of a 0.04 s batch
+    # own 0.04 s .tran: a call's start-up is a large share of a batch that short
     line_t = 0.25 * scale
     duff = bn.duffing_resonator(amp=DUFFING_HARD)
     out = [

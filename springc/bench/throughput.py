@@ -1,6 +1,6 @@
 """`springc bench`: throughput and accuracy of the generated kernels against their peers.
 
-On the 564-dof keyword-spotting-sized network (`bench_networks.kws_network`) driven by noise
+On the 564-dof keyword-spotting-sized network (`networks.kws_network`) driven by noise
 at 32 kHz: the kernel in float64 and float32 at batch sizes 1 and 64 (1 s of input per run),
 its compile time cold (empty cache) and cached (a fresh import loading numba's cache), and on a
 short stretch (scaled to per-second figures) plain numpy RK4 and scipy RK45 and DOP853 at

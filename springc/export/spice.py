@@ -18,15 +18,13 @@ Signals: `sin` and `gauss` become B-sources in `time`; `step`, `pwl`, `in(k)` an
 become PWL current sources (ngspice places a breakpoint at every PWL corner). Sampled signals
 follow the simulator's conventions (`springc.sim.sources`): resampled to the input grid 1/tstep,
 linear in between, zero after the end. They are written inline, one PWL point per sample,
-about 40 bytes each (1 s at 32 kHz: about 1.3 MB), which keeps the circuit one self-contained
-file; ngspice reads data files only through XSPICE's `filesource`, which sets no breakpoints
-(about 3e-4 relative error on an audio-driven filter at reltol 1e-6) and was not faster.
+which keeps the circuit one self-contained file (XSPICE's `filesource` sets no breakpoints,
+so it is less accurate, and was no faster: docs/performance.md#ngspice-as-a-peer).
 `in(k)` signals are not part of a netlist: they must be bound at export (`SpiceOptions.inputs`).
 
 Limitation: ngspice finds the current PWL segment by a linear scan at every time step, and
 restarts its integrator at every breakpoint (one per sample), so its run time grows faster than
-the signal's length: an audio-driven two-mode filter at 32 kHz took 78 s per simulated second
-for a 0.02 s clip and 130 for 0.08 s (reltol 1e-9). Cross-check on short clips.
+the signal's length. Cross-check on short clips.
 
 Initial conditions x0, v0 go into `.ic` (node voltages) and the inductors' `ic=` currents; the
 transient runs with `uic` so ngspice starts from them instead of an operating point.

@@ -164,6 +164,43 @@ def test_vanishing_top_form_needs_the_sphere_search() -> None:
     assert _errors(_poly([(1, [("x2", 2)])], quad)) == []
 
 
+def _squarer_with_negative_spring(c: float):
+    """x1 squared onto x2 by Q (g=2, a=1: V_Q = (x1^2 - x2)^2, stiffness 2 on x2 at rest), a
+    soft local spring 0.01 on x2 and a quadratic P term c x2^2."""
+    def build(b):
+        b.spring("K1", "x1", 1.0)
+        b.spring("K2", "x2", 0.01)
+        b.quad("Q1", "x1", "x2", 2.0, 1.0)
+        b.monomial("P1", c, [("x2", 2)])
+    return _two(build)
+
+
+def test_sum_of_nonnegative_parts_is_bounded_without_a_search() -> None:
+    # K without the Q's share is diag(1, 0.01 + 2c): PSD for c = -0.004, so V >= 0 visibly
+    net = _squarer_with_negative_spring(-0.004)
+    lin = _hessian_at_rest(net)
+    labels = np.zeros(net.n, np.int64)
+    assert checks._visibly_bounded(net, lin, labels, 0, np.arange(net.n))
+    assert _errors(net) == []
+
+
+def test_a_negative_spring_hidden_by_a_squarer_is_found_by_the_search() -> None:
+    # V = x1^2/2 - 0.495 x2^2 + (x1^2 - x2)^2 is PSD at rest (x2: 0.01 - 0.99 + 2) but falls
+    # along x2 = x1^2: the shortcut must not accept it, the search must find the descent
+    net = _squarer_with_negative_spring(-0.5)
+    lin = _hessian_at_rest(net)
+    labels = np.zeros(net.n, np.int64)
+    assert not checks._visibly_bounded(net, lin, labels, 0, np.arange(net.n))
+    assert [e.split(":")[0] for e in _errors(net)] == ["P1"]
+    assert "not bounded below" in _errors(net)[0]
+
+
+def _hessian_at_rest(net):
+    """The Hessian of V at rest, as the checks build it."""
+    from springc.check import linear
+    return linear.linearise(net).K.tocsr()
+
+
 def test_designed_zero_modes_pass_the_psd_check() -> None:
     """K = I - U U^T written as P elements (like a matrix-vector multiplier): PSD with
     exactly rank(U) zero modes, reported as one info."""

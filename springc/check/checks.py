@@ -253,6 +253,8 @@ def _component_potential(net, lin, labels: np.ndarray, comp: int) -> tuple[str, 
         msg = (f"the stiffness matrix at rest is not positive semidefinite: curvature "
                f"{vals[0]:.6g} along {_direction(net, nodes, vecs[:, 0])}")
         return msg, "the rest state would be unstable; check the signs of the P coefficients"
+    if _visibly_bounded(net, hess, labels, comp, nodes):
+        return None
     direction = _escape(net, hess, labels, comp)
     if direction is None:
         return None
@@ -260,6 +262,25 @@ def _component_potential(net, lin, labels: np.ndarray, comp: int) -> tuple[str, 
            f"{_direction(net, nodes, direction, signed=True)}")
     return msg, ("add a higher even-order term (e.g. a D element) or fix the signs and "
                  "exponents of the P elements so that V stays bounded below")
+
+
+def _visibly_bounded(net, hess, labels: np.ndarray, comp: int, nodes: np.ndarray) -> bool:
+    """True when V >= 0 is evident, so no search is needed: every P term of the component is
+    quadratic, and the Hessian without the Q elements' share (g a on x_j) is PSD. Then
+    V = 1/2 x.K'x + the Q and D potentials, each >= 0 by the sign rules (g/(2a)(x_i^2 -
+    a x_j)^2, l/4 x^4); a network of designed zero modes, such as the classifier's
+    multipliers, passes here instead of in a search over its hundreds of variables."""
+    p, q = net.monomials, net.quads
+    for lo, hi in zip(p.ptr[:-1], p.ptr[1:]):
+        if hi > lo and labels[p.var[lo]] == comp and p.exp[lo:hi].sum() != 2:
+            return False
+    local = np.full(net.n, -1, np.int64)
+    local[nodes] = np.arange(len(nodes))
+    mine = labels[q.j] == comp
+    share = np.zeros(len(nodes))
+    np.add.at(share, local[q.j[mine]], q.g[mine] * q.a[mine])
+    vals, _ = _lowest_stiffness((hess - sp.diags(share)).tocsr())
+    return bool(vals[0] >= -1e-9 * max(abs(vals).max(), 1e-300))
 
 
 def _escape(net, hess, labels: np.ndarray, comp: int) -> np.ndarray | None:

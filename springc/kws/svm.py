@@ -120,7 +120,7 @@ def select(x_train: np.ndarray, y_train: np.ndarray, x_val: np.ndarray, y_val: n
         raise ValueError("empty regularisation grid")
     fit = lambda c: fit_linear(x_train, y_train, c, kind, class_weight)  # noqa: E731
     # one BLAS thread per fit: the grid is the parallelism, and BLAS threads spinning on a
-    # busy machine cost 30x the CPU time (measured: lbfgs 11 s -> 0.3 s)
+    # busy machine cost many times the CPU time (docs/performance.md#training)
     # warning filters are process-wide: set here too, as fit_linear's own catch_warnings
     # is not thread-safe
     with warnings.catch_warnings(), threadpool_limits(1), \

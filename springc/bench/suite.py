@@ -728,7 +728,8 @@ def _needed_substeps(row: Row, target: float) -> int:
 
 
 def claims(results: list[CaseResult]) -> dict:
-    """The issue's three must-show figures, from the measured rows."""
+    """The must-show figures (the feature extractor within 1e-3, throughput against the
+    ceiling, speed-ups against the peers), from the measured rows."""
     out: dict = {}
     fe = next((r for r in results if r.name == "feature"), None)
     if fe is not None:
@@ -786,7 +787,7 @@ def _first_touch_shares(r: CaseResult) -> dict[str, dict[str, float]]:
 
 
 def verdicts(found: dict, results: list[CaseResult]) -> list[dict]:
-    """Each must-show of issue 7, met or missed, with the numbers that decide it."""
+    """Each must-show figure, met or missed, with the numbers that decide it."""
     out = []
     for precision in ("float64", "float32"):
         fe = found.get(f"feature_1e-3_{precision}")

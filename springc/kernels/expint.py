@@ -9,9 +9,10 @@ quadratic couplings into a block included, stays in the Runge-Kutta part. Scheme
 (`SplitScheme`, `SCHEMES`): `strang-rk4` (Strang splitting: half a block step, an RK4 step of
 the rest with block positions frozen, half a block step) and the Lawson schemes `exp-rk4`,
 `exp-heun3` (every stage sees the blocks' exact flow to its own time, `lawson_fractions`).
-`generate` writes the kernel text, reusing `springc.kernels.codegen`'s force code;
-`split_netlist` and `block_arrays` prepare its arguments. A netlist without blocks gets plain
-RK4. Why exp-heun3: docs/performance.md#why-exp-heun3.
+`kernel_source` writes the kernel text (`generate`, `generate_lawson`), reusing
+`springc.kernels.codegen`'s force code; `split_netlist` and `scheme_arrays` prepare its
+arguments. A netlist without blocks gets plain RK4. Why exp-heun3:
+docs/performance.md#why-exp-heun3.
 """
 
 from __future__ import annotations

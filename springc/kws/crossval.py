@@ -51,6 +51,8 @@ class CVOptions:
     grid: tuple[float, ...] = SVM_GRID
     massspring: object = None  # MassSpringSettings (default: from `settings`)
     scheduler: str | None = None
+    tolerance: float | None = 1e-3  # chooses the integrator (None: the paper's RK4 x8)
+    integration: object = None  # what `tolerance` chose, for the report
 
 
 def speaker_groups(clips: list) -> np.ndarray:
@@ -134,12 +136,29 @@ def realisation_features(clips: list, realisation: str, opts: CVOptions) -> np.n
     if realisation == "mass-spring":
         from springc.kws.massspring import physical_settings
 
-        settings = physical_settings(opts.settings, opts.massspring)
+        settings = chosen_integration(clips, physical_settings(opts.settings, opts.massspring),
+                                      opts)
     else:
         settings.validate(16000)
     return feature_matrices(clips, "cv", realisation, [settings], noise_files=[],
                             seed=opts.seed, jobs=opts.jobs, use_cache=opts.use_cache,
                             scheduler=opts.scheduler)[0]
+
+
+def chosen_integration(clips: list, s, opts: CVOptions):
+    """Mass-spring settings `s` integrated as `opts.tolerance` chooses on the first clips."""
+    from dataclasses import replace
+
+    from springc.kws.integration import PAPER
+    from springc.kws.massspring import choose_integration, load_signals
+    from springc.kws.train import INTEGRATION_CLIPS
+
+    if opts.tolerance is None:
+        opts.integration = PAPER
+    else:
+        sample = load_signals(clips[:INTEGRATION_CLIPS], False, 0, [])
+        opts.integration = choose_integration(s, sample, opts.tolerance)
+    return replace(s, method=opts.integration.method, substeps=opts.integration.substeps)
 
 
 def cross_validate(opts: CVOptions, progress=None) -> dict:
@@ -178,6 +197,8 @@ def cv_report(y, groups, fold, correct: dict, chosen: dict, opts: CVOptions) -> 
               "folds": opts.folds, "fold_sizes": np.bincount(fold).tolist(),
               "bins": opts.settings.bins, "delays": opts.settings.delays,
               "majority": float(1 / len(classes)), "realisations": {}}
+    if opts.integration is not None:
+        report["integration"] = opts.integration.to_dict()
     for r, ok in correct.items():
         report["realisations"][r] = {
             "balanced_accuracy": balanced_accuracy(y, ok), "se": float(boot[r].std(ddof=1)),

@@ -10,6 +10,7 @@ import numpy as np
 from springc.errors import DataError, UsageError
 from springc.kws import massspring as msp
 from springc.kws.digital import FeatureSettings
+from springc.kws.integration import PAPER, Integration, from_dict
 from springc.kws.model import load_model
 from springc.kws.report import score
 from springc.kws.svm import LinearModel
@@ -81,10 +82,10 @@ def selection_models(models) -> list:
 
 
 def simulate_network(net, heads: list[Head], s: msp.MassSpringSettings,
-                     signals: np.ndarray, *, scheduler: str | None = None,
-                     jobs: int = 0) -> tuple[np.ndarray, np.ndarray, float]:
-    """Run clips (clips, samples) through a classifier network on Dask: (row decisions,
-    insertion loss in dB per clip, wall seconds)."""
+                     signals: np.ndarray, *, scheduler: str | None = None, jobs: int = 0,
+                     plan: Integration = PAPER) -> tuple[np.ndarray, np.ndarray, float]:
+    """Run clips (clips, samples) through a classifier network on Dask, integrated as `plan`
+    says: (row decisions, insertion loss in dB per clip, wall seconds)."""
     import time
     from functools import partial
 
@@ -93,7 +94,7 @@ def simulate_network(net, heads: list[Head], s: msp.MassSpringSettings,
     parts = msp.batches(signals)
     start = time.perf_counter()
     fn = partial(classifier_batch, checked=check(net), specs=readout_reductions(heads),
-                 tstop=msp.horizon(s, signals.shape[1] / msp.INPUT_RATE))
+                 tstop=msp.horizon(s, signals.shape[1] / msp.INPUT_RATE), plan=plan)
     out = map_batches(fn, parts, scheduler, workers=jobs or None, desc="mass-spring classifier",
                       sizes=[len(p) for p in parts])
     seconds = time.perf_counter() - start
@@ -117,7 +118,9 @@ def evaluate_network(model, ds, *, scheduler: str | None = None, jobs: int = 0,
     clips = ds.split("test")
     task = model.settings["task"]
     signals = msp.load_signals(clips, False, 0, [])
-    d, loss, seconds = simulate_network(net, heads, s, signals, scheduler=scheduler, jobs=jobs)
+    plan = from_dict(model.settings["transfer"].get("integration"))
+    d, loss, seconds = simulate_network(net, heads, s, signals, scheduler=scheduler, jobs=jobs,
+                                        plan=plan)
     y = targets(clips, task)
     report = score(selection_models(model.models), d, y, task)
     phi = feature_matrices(clips, "test", "mass-spring", [s], noise_files=[], jobs=jobs,
@@ -133,5 +136,6 @@ def evaluate_network(model, ds, *, scheduler: str | None = None, jobs: int = 0,
         throughput={"clips": len(clips), "seconds": seconds,
                     "clips_per_s": len(clips) / seconds,
                     "cores": cores() if scheduler is None else None},
-        epsilon=float(model.settings["transfer"]["epsilon"]))
+        epsilon=float(model.settings["transfer"]["epsilon"]),
+        integration=plan.to_dict())
     return report

@@ -34,7 +34,7 @@ low-pass acts on the slow envelope, where the stiffening does no harm. The compr
 stiffness still grows with amplitude (kq + 3 l c^2, ~2e4 kq at full scale), so its mass is
 the larger of kq / (2 pi fq)^2 and what keeps sqrt(k_max / m) h <= STABLE_WH at the step h
 (`compressor_mass`); louder clips than FULL_SCALE plans for are simulated again with smaller
-steps (RETRY_SUBSTEPS).
+steps (`springc.kws.integration.Integration.retries`).
 
 Phi: the `gram` reduction over the terminal nodes, pairs (k <= l) weighted 1 (k = l) or 2 and
 summed into the groups of `springc.kws.phi.group_index`: exactly `phi_vector` of the recorded
@@ -53,6 +53,7 @@ from springc.design.emit import SprWriter, num
 from springc.design.melbank import MelFilter
 from springc.errors import UsageError
 from springc.lang.ir import FlatNetlist
+from springc.kws import integration
 from springc.kws.phi import group_index, n_features
 from springc.sim.reductions import Reduction, gram_reduction
 from springc.check import check
@@ -64,10 +65,9 @@ SUBSTEPS = 8
 # Largest filter amplitude planned for (sizes the compressor mass). Measured on the
 # preprocessed demo corpus: the filter outputs' clip peaks reach 0.63 (lowest bin; 99th
 # percentile 0.52, top bins 0.15-0.3). A clip louder than planned stiffens its compressors
-# beyond the step and is simulated again with RETRY_SUBSTEPS.
+# beyond the step and is simulated again with finer steps.
 FULL_SCALE = 0.7
 STABLE_WH = 2.0  # w h kept below this (RK4's limit on the imaginary axis is 2.83)
-RETRY_SUBSTEPS = (16, 32)  # a batch that still diverges is simulated again with smaller steps
 # The squarer's own compression amplitude (m of filter output): 14x FULL_SCALE, so its cubic
 # stiffness 6 (g/a) y^2 stays below 0.5% of the filter's (no detuning).
 SQUARER_RANGE = 10.0
@@ -107,6 +107,8 @@ class MassSpringSettings:
     fmin: float = 20.0
     fmax: float = 8000.0
     network: int = NETWORK_VERSION  # in the feature-cache key: bump when the netlist changes
+    method: str = "rk4"  # how the network is integrated (`springc.kws.integration`)
+    substeps: int = SUBSTEPS
 
     def validate(self) -> None:
         """UsageError for settings the network cannot realise."""
@@ -299,18 +301,39 @@ def phi_reduction(net: FlatNetlist, s: MassSpringSettings, label: str = "phi") -
 
 
 def simulate_phi(signals: np.ndarray, s: MassSpringSettings, *, chunk: int | None = None,
-                 progress: bool = False, substeps: int | None = None,
-                 precision: str | None = None) -> np.ndarray:
-    """Phi (clips, N) of `signals` (clips, samples) at 16 kHz, by simulating the network."""
+                 progress: bool = False, method: str | None = None,
+                 substeps: int | None = None, precision: str | None = None) -> np.ndarray:
+    """Phi (clips, N) of `signals` (clips, samples) at 16 kHz, by simulating the network
+    (with `s.method` and `s.substeps` unless `method`, `substeps` say otherwise)."""
     from springc.sim.simulate import simulate
 
     net = feature_network(s)
     signals = np.atleast_2d(np.asarray(signals, dtype=np.float64))
-    res = simulate(check(net), signals[:, None, :], INPUT_RATE, reductions=[phi_reduction(net, s)],
+    res = simulate(checked_features(s), signals[:, None, :], INPUT_RATE,
+                   reductions=[phi_reduction(net, s)],
                    tstop=horizon(s, signals.shape[1] / INPUT_RATE), probes=[], chunk=chunk,
-                   batch=len(signals), progress=progress, substeps=substeps,
-                   precision=precision)
+                   batch=len(signals), progress=progress, method=method or s.method,
+                   substeps=substeps or s.substeps, precision=precision)
     return res.reductions["phi"]
+
+
+@functools.lru_cache(maxsize=8)
+def checked_features(s: MassSpringSettings):
+    """The checked feature network (cached per settings: a data set's batches share it)."""
+    return check(feature_network(s))
+
+
+def choose_integration(s: MassSpringSettings, signals: np.ndarray,
+                       tol: float = integration.TOLERANCE) -> integration.Integration:
+    """The cheapest integration of the feature network with Phi within `tol` of the tight
+    reference on `signals` (a sample of clips, (clips, samples) at 16 kHz)."""
+    def outputs(sig, method, substeps, precision):
+        return simulate_phi(sig, s, chunk=len(sig), method=method, substeps=substeps,
+                            precision=precision)
+
+    duration = horizon(s, signals.shape[1] / INPUT_RATE)
+    return integration.choose(checked_features(s), signals, outputs, duration, tol,
+                              DATASET_PRECISION)
 
 
 def simulate_traces(signals: np.ndarray, s: MassSpringSettings,
@@ -332,13 +355,14 @@ def simulate_peaks(signals: np.ndarray, s: MassSpringSettings) -> np.ndarray:
     """Per clip, the largest |x| of any terminal node (recorded at 2 kHz)."""
     from springc.sim.simulate import simulate
 
-    net = feature_network(s)
     signals = np.atleast_2d(np.asarray(signals, dtype=np.float64))
     labels = [f"x({node})" for node in terminals(s)]
-    checked = check(net)
-    res = with_retries(lambda sub: simulate(checked, signals[:, None, :], INPUT_RATE,
-                                            probes=labels, outrate=2000.0, substeps=sub,
-                                            tstop=horizon(s, signals.shape[1] / INPUT_RATE)))
+    res = integration.run_with_retries(
+        integration.Integration(s.method, s.substeps),
+        lambda method, sub: simulate(checked_features(s), signals[:, None, :], INPUT_RATE,
+                                     probes=labels, outrate=2000.0, method=method,
+                                     substeps=sub,
+                                     tstop=horizon(s, signals.shape[1] / INPUT_RATE)))
     return np.max([np.abs(res.probes[k]).max(axis=1) for k in labels], axis=0)
 
 
@@ -365,34 +389,40 @@ def physical_settings(fs, given=None) -> MassSpringSettings:
 def load_signals(clips: list, augment: bool, seed: int, noise_files: list) -> np.ndarray:
     """The clips as the network hears them, (clips, samples) float32 at 16 kHz: the same
     preprocessing and (for training) the same per-clip augmentation as the digital path."""
-    from springc.kws.dataset import NoiseBank, _clip_rng, load_clip
+    from springc.kws.dataset import _clip_rng, load_clip
 
-    noise = NoiseBank(noise_files) if augment and noise_files else None
+    noise = noise_bank(tuple(noise_files)) if augment and noise_files else None
     return np.stack([load_clip(c, augment=augment, rng=_clip_rng(seed, c.key()), noise=noise)
                      for c in clips]).astype(np.float32)
 
 
+@functools.lru_cache(maxsize=2)
+def noise_bank(files: tuple):
+    """The background noise of augmentation, read once per process."""
+    from springc.kws.dataset import NoiseBank
+
+    return NoiseBank(list(files))
+
+
+def clips_phi(clips: list, s: MassSpringSettings, augment: bool, seed: int,
+              noise_files: tuple) -> np.ndarray:
+    """Phi of one batch of clips, read, augmented and simulated by one core (a Dask task:
+    reading the audio on the workers keeps every core busy)."""
+    return phi_batch(load_signals(clips, augment, seed, list(noise_files)), s)
+
+
 def phi_batch(signals: np.ndarray, s: MassSpringSettings) -> np.ndarray:
-    """Phi of one batch, simulated by one core (a Dask task)."""
-    return with_retries(lambda sub: simulate_phi(signals.astype(np.float64), s,
-                                                 chunk=len(signals), substeps=sub,
-                                                 precision=DATASET_PRECISION))
+    """Phi of one batch, simulated by one core (a Dask task); a batch too loud for the step
+    is simulated again with finer steps (`Integration.retries`)."""
+    plan = integration.Integration(s.method, s.substeps, DATASET_PRECISION)
+    return integration.run_with_retries(
+        plan, lambda method, sub: simulate_phi(signals.astype(np.float64), s,
+                                               chunk=len(signals), method=method,
+                                               substeps=sub, precision=plan.precision))
 
 
-def with_retries(run):
-    """run(substeps): at SUBSTEPS, then (a clip too loud for the step) at RETRY_SUBSTEPS."""
-    from springc.errors import SimulationError
-
-    for sub in (SUBSTEPS, *RETRY_SUBSTEPS):
-        try:
-            return run(sub)
-        except SimulationError:
-            if sub == RETRY_SUBSTEPS[-1]:
-                raise
-
-
-def batches(signals: np.ndarray, size: int = BATCH) -> list[np.ndarray]:
-    """Consecutive batches of at most `size` clips."""
+def batches(signals, size: int = BATCH) -> list:
+    """Consecutive batches of at most `size` clips (an array of signals or a list)."""
     return [signals[k:k + size] for k in range(0, len(signals), size)]
 
 
@@ -404,10 +434,11 @@ def dataset_phi(clips: list, split: str, s: MassSpringSettings, *, noise_files: 
 
     from springc.kws.distributed import map_batches
 
-    signals = load_signals(clips, split == "train", seed, noise_files)
-    parts = batches(signals)
-    out = map_batches(partial(phi_batch, s=s), parts, scheduler, workers=workers,
-                      desc=f"mass-spring {split}", sizes=[len(p) for p in parts])
+    parts = batches(clips)
+    work = partial(clips_phi, s=s, augment=split == "train", seed=seed,
+                   noise_files=tuple(noise_files))
+    out = map_batches(work, parts, scheduler, workers=workers, desc=f"mass-spring {split}",
+                      sizes=[len(p) for p in parts])
     return np.concatenate(out)
 
 

@@ -52,8 +52,12 @@ class TrainOptions:
     # mass-spring only: physical settings (default: from `settings`), the squaring error of
     # the classifier heads, and a Dask scheduler address (default: a local cluster)
     massspring: object = None
+    integration: object = None  # set by `integrate_as_chosen`
     epsilon: float | None = None
     scheduler: str | None = None
+    # the error allowed on Phi and the readouts, which chooses the integrator
+    # (`springc.kws.integration`); None: the paper's RK4 with 8 substeps
+    tolerance: float | None = 1e-3
 
 
 def check_realisation(realisation: str) -> None:
@@ -218,6 +222,8 @@ def train(opts: TrainOptions) -> dict:
 
         opts.massspring = physical_settings(opts.settings, opts.massspring)
     ds = open_task_data(opts.data, opts.task, opts.seed, opts.protocol)
+    if opts.realisation == "mass-spring":
+        opts.massspring = integrate_as_chosen(opts, ds)
     feature_settings = opts.massspring if opts.realisation == "mass-spring" else opts.settings
     feats = split_features(ds, opts.realisation, [feature_settings], seed=opts.seed,
                            jobs=opts.jobs, use_cache=opts.use_cache, scheduler=opts.scheduler)
@@ -230,6 +236,9 @@ def train(opts: TrainOptions) -> dict:
     report = evaluate_fits(fits, x["test"], y["test"], opts.task)
     report.update(data_summary(opts, ds))
     settings = model_settings(opts, ds)
+    if opts.integration is not None:
+        settings["integration"] = report["integration"] = {"features":
+                                                           opts.integration.to_dict()}
     if opts.realisation == "mass-spring":  # the classifier netlists beside the weights
         from springc.kws.transfer import write_classifier
 
@@ -238,6 +247,26 @@ def train(opts: TrainOptions) -> dict:
     else:
         write_model(opts.out, settings, fits, report)
     return report
+
+
+INTEGRATION_CLIPS = 16  # training clips (unaugmented, first in order) the choice is measured on
+
+
+def integrate_as_chosen(opts: TrainOptions, ds):
+    """The mass-spring settings with the integration `opts.tolerance` chooses for the
+    feature network (recorded in `opts.integration` for the report)."""
+    from dataclasses import replace
+
+    from springc.kws import integration
+    from springc.kws.massspring import choose_integration, load_signals
+
+    s = opts.massspring
+    if opts.tolerance is None:
+        opts.integration = integration.PAPER
+        return replace(s, method=integration.PAPER.method, substeps=integration.PAPER.substeps)
+    sample = load_signals(ds.split("train")[:INTEGRATION_CLIPS], False, 0, [])
+    opts.integration = choose_integration(s, sample, opts.tolerance)
+    return replace(s, method=opts.integration.method, substeps=opts.integration.substeps)
 
 
 def data_summary(opts: TrainOptions, ds) -> dict:

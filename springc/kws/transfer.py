@@ -37,9 +37,10 @@ from springc.design.blocks import readout_params
 from springc.design.emit import SprWriter, num
 from springc.design.mvm import design_mvm, mvm_text
 from springc.errors import UsageError
+from springc.kws import integration
 from springc.kws import massspring as msp
 from springc.kws.phi import spread
-from springc.check import CheckedNetlist
+from springc.check import CheckedNetlist, check
 
 TAU_READOUT = 80.0  # s (paper)
 Q_READOUT = 0.01  # paper
@@ -174,14 +175,36 @@ def insertion_loss_db(reds: dict[str, np.ndarray], heads: list[Head]) -> np.ndar
 
 
 def classifier_batch(signals: np.ndarray, checked: CheckedNetlist, specs: list[str],
-                     tstop: float) -> dict:
-    """Readout reductions of one batch through the whole checked classifier (a Dask task)."""
+                     tstop: float, plan: integration.Integration = integration.PAPER) -> dict:
+    """Readout reductions of one batch through the whole checked classifier (a Dask task),
+    integrated as `plan` says (finer steps for a batch too loud for it)."""
     from springc.sim.simulate import simulate
 
     sig = signals.astype(np.float64)[:, None, :]
-    return msp.with_retries(lambda sub: simulate(
-        checked, sig, msp.INPUT_RATE, probes=[], reductions=specs, tstop=tstop, chunk=len(signals),
-        batch=len(signals), substeps=sub, precision=msp.DATASET_PRECISION).reductions)
+    return integration.run_with_retries(plan, lambda method, sub: simulate(
+        checked, sig, msp.INPUT_RATE, probes=[], reductions=specs, tstop=tstop,
+        chunk=len(signals), batch=len(signals), method=method, substeps=sub,
+        precision=plan.precision).reductions)
+
+
+def choose_classifier_integration(checked: CheckedNetlist, heads: list[Head],
+                                  s: msp.MassSpringSettings,
+                                  signals: np.ndarray) -> integration.Integration:
+    """The cheapest integration of the whole classifier whose readouts x(r_k) are within
+    `integration.TOLERANCE` of the tight reference on `signals` (a sample of clips). Double
+    precision: the multipliers cancel stiffness to make their zero modes, and in single
+    precision the round-off of that cancellation moves the readouts by 2e-2 (measured, 4x2).
+    Runge-Kutta methods only: the insertion loss needs the work and dissipation sums."""
+    specs = readout_reductions(heads)
+    tstop = msp.horizon(s, signals.shape[1] / msp.INPUT_RATE)
+
+    def outputs(sig, method, substeps, precision):
+        reds = classifier_batch(sig, checked, specs, tstop,
+                                integration.Integration(method, substeps, precision))
+        return np.stack([reds[f"final:x(r{k})"] for k in range(len(heads))], axis=1)
+
+    return integration.choose(checked, signals, outputs, tstop, precision="float64",
+                              methods=CLASSIFIER_METHODS)
 
 
 def feature_amplitude(signals: np.ndarray, s: msp.MassSpringSettings) -> float:
@@ -195,6 +218,8 @@ def feature_amplitude(signals: np.ndarray, s: msp.MassSpringSettings) -> float:
 
 DEFAULT_EPSILON = 1e-5  # squaring error: readouts within ~0.2% of c . Phi (measured)
 AMPLITUDE_CLIPS = 16  # training clips (unaugmented, first in order) that measure A
+CLASSIFIER_METHODS = ("heun3", "rk4")
+CLASSIFIER_SAMPLE = 4  # of those, the clips the classifier's integration is measured on
 
 
 def write_classifier(opts, ds, fits: list, settings: dict) -> dict[str, str]:
@@ -209,6 +234,14 @@ def write_classifier(opts, ds, fits: list, settings: dict) -> dict[str, str]:
                             "heads": [h.name for h in heads],
                             "scales": [h.scale for h in heads],
                             "stiffness_scale": stiffness_scale(s)}
+    plan = integration.PAPER
+    if getattr(opts, "tolerance", None) is not None:
+        from springc.lang import load_text
+
+        net = load_text(classifier_text(heads, s, epsilon=eps), "<classifier>")
+        plan = choose_classifier_integration(check(net), heads, s,
+                                             sample[:CLASSIFIER_SAMPLE])
+    settings["transfer"]["integration"] = plan.to_dict()
     files = {"features.spr": msp.feature_text(s),
              "classifier.spr": classifier_text(heads, s, include_heads=False, epsilon=eps)}
     for k, h in enumerate(heads):

@@ -1,0 +1,136 @@
+"""The integrator of the keyword-spotting networks, chosen by measurement at a stated tolerance.
+
+    choose(checked, signals, outputs, tol) -> Integration
+
+Candidates come from the per-mode error estimates (`springc.check.accuracy`: the fewest
+substeps per method whose linear modes meet `tol`), cheapest first. Each is then run on a
+sample of clips and compared with a tight reference (RK4, 16 substeps, float64) on exactly
+what the classifier consumes (`outputs`: the Phi reduction, or the heads' readouts); the first
+whose error is at most `tol` on every clip, and that does not diverge, is taken. The nonlinear
+terms (squaring, compression) are what the linear estimates cannot see: a candidate that fails
+is tried again at twice the substeps. RK4 at 8 substeps, the paper's setting, is `PAPER`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from springc.check import CheckedNetlist
+from springc.check.accuracy import choose as estimate
+from springc.errors import SimulationError, UsageError
+
+TOLERANCE = 1e-3  # on Phi and the readouts, relative to each clip's largest value
+REFERENCE = ("rk4", 16, "float64")
+METHODS = ("exp-heun3", "exp-rk4", "rk4")
+MAX_SUBSTEPS = 32
+
+
+@dataclass(frozen=True)
+class Integration:
+    """How a network is integrated, and what that was measured to cost in error."""
+
+    method: str = "rk4"
+    substeps: int = 8
+    precision: str = "float32"
+    tolerance: float | None = None  # None: set by hand (the paper's setting), not chosen
+    error: float | None = None  # measured: max over the sample of the relative error
+    clips: int = 0  # clips of the sample the error was measured on
+    reference: str = "rk4 x16 float64"
+    seconds: float | None = None  # the chosen candidate's wall time on the sample
+
+    def to_dict(self) -> dict:
+        """Plain dict (settings.json, reports)."""
+        return asdict(self)
+
+    def retries(self) -> list[tuple[str, int]]:
+        """(method, substeps) tried in turn on a batch: this one, then finer steps (a clip
+        louder than the sample stiffens the compressors), then RK4 down to 1/32 sample."""
+        finer = [(self.method, self.substeps * k) for k in (1, 2, 4)
+                 if self.substeps * k <= MAX_SUBSTEPS]
+        return finer + [("rk4", s) for s in (16, 32) if ("rk4", s) not in finer]
+
+    def describe(self) -> str:
+        """One line for people."""
+        name = f"{self.method} x{self.substeps} {self.precision}"
+        if self.error is None:
+            return f"{name} (set, not measured)"
+        return (f"{name}: error {self.error:.2g} against "
+                f"{self.reference} on {self.clips} clip(s) (tolerance {self.tolerance:g})")
+
+
+PAPER = Integration()
+
+
+def from_dict(data: dict | None) -> Integration:
+    """The integration recorded in a model's settings (the paper's setting if none is)."""
+    return Integration(**data) if data else PAPER
+
+
+Outputs = Callable[[np.ndarray, str, int, str], np.ndarray]
+
+
+def choose(checked: CheckedNetlist, signals: np.ndarray, outputs: Outputs, duration: float,
+           tol: float = TOLERANCE, precision: str = "float32",
+           methods: tuple[str, ...] = METHODS) -> Integration:
+    """The cheapest integration of `checked` by one of `methods` in `precision` whose
+    `outputs(signals, method, substeps, precision)` (clips, values) are within `tol` of the
+    reference on every clip of `signals`. The error is relative to each clip's largest
+    reference value."""
+    if not tol > 0:
+        raise UsageError(f"tolerance must be positive, got {tol}")
+    method, substeps, prec = REFERENCE
+    reference = outputs(signals, method, substeps, prec)
+    for method, substeps in candidates(checked, 1.0 / 16000.0, duration, tol, methods):
+        start = time.perf_counter()
+        try:
+            got = outputs(signals, method, substeps, precision)
+        except SimulationError:
+            continue
+        seconds = time.perf_counter() - start
+        error = relative_error(got, reference)
+        if error <= tol:
+            return Integration(method, substeps, precision, tol, error, len(signals),
+                               f"{REFERENCE[0]} x{REFERENCE[1]} {REFERENCE[2]}", seconds)
+    raise UsageError(f"no integrator up to {MAX_SUBSTEPS} substeps meets tolerance {tol:g} "
+                     "on the sample clips", hint="raise the tolerance")
+
+
+def candidates(checked: CheckedNetlist, tstep: float, duration: float, tol: float,
+               methods: tuple[str, ...] = METHODS) -> list[tuple[str, int]]:
+    """(method, substeps), cheapest first: per method the fewest substeps the per-mode
+    estimates allow, then twice and four times as many (for the nonlinear terms)."""
+    from springc.check.accuracy import cost
+
+    net = checked.net
+    out = []
+    for method in methods:
+        try:
+            first = estimate(net, tstep, duration, tol, methods=(method,)).substeps
+        except UsageError:
+            continue
+        out += [(method, first * k) for k in (1, 2, 4) if first * k <= MAX_SUBSTEPS]
+    return sorted(set(out), key=lambda c: (cost(net, *c), c))
+
+
+def relative_error(got: np.ndarray, reference: np.ndarray) -> float:
+    """max over clips of max |got - reference| / max |reference| (per clip)."""
+    got, reference = np.atleast_2d(got), np.atleast_2d(reference)
+    scale = np.abs(reference).max(axis=1)
+    scale = np.where(scale > 0, scale, 1.0)
+    return float((np.abs(got - reference).max(axis=1) / scale).max())
+
+
+def run_with_retries(integration: Integration, run: Callable[[str, int], object]):
+    """run(method, substeps) at each of `integration.retries()` until one does not diverge
+    (`run` integrates in `integration.precision`)."""
+    tries = integration.retries()
+    for k, (method, substeps) in enumerate(tries):
+        try:
+            return run(method, substeps)
+        except SimulationError:
+            if k == len(tries) - 1:
+                raise

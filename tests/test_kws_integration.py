@@ -1,0 +1,86 @@
+"""The integrator choice of the keyword-spotting networks (springc/kws/integration.py): the
+cheapest candidate within the tolerance of the reference, measured, never assumed."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from springc.check import check
+from springc.errors import SimulationError, UsageError
+from springc.kws import integration
+from springc.kws import massspring as msp
+from springc.check.accuracy import cost
+
+SMALL = msp.MassSpringSettings(bins=2, delays=1)
+
+
+def _fake(errors: dict, diverge: set, calls: list):
+    """outputs(...) that returns the reference plus a known relative error per candidate."""
+    base = np.array([[1.0, -2.0, 0.5], [4.0, 0.0, 1.0]])
+
+    def outputs(signals, method, substeps, precision):
+        calls.append((method, substeps, precision))
+        if (method, substeps) in diverge:
+            raise SimulationError("diverged")
+        scale = np.abs(base).max(axis=1, keepdims=True)
+        return base + errors.get((method, substeps), 0.0) * scale
+    return outputs
+
+
+def test_the_cheapest_candidate_within_tolerance_is_chosen() -> None:
+    checked = check(msp.feature_network(SMALL))
+    found = integration.candidates(checked, 1 / 16000, 0.5, 1e-3)
+    net = checked.net
+    assert [cost(net, *c) for c in found] == sorted(cost(net, *c) for c in found)
+    assert integration.REFERENCE[:2] not in found or found[-1] == integration.REFERENCE[:2]
+    # the cheapest fails the tolerance, the second diverges, the third is taken
+    errors = {found[0]: 5e-3, found[2]: 4e-4}
+    calls: list = []
+    chosen = integration.choose(checked, np.zeros((2, 100)), _fake(errors, {found[1]}, calls),
+                                0.5, 1e-3)
+    assert (chosen.method, chosen.substeps) == found[2]
+    assert chosen.error == pytest.approx(4e-4) and chosen.clips == 2
+    assert calls[0] == ("rk4", 16, "float64")  # the reference first, in double precision
+    assert [c[:2] for c in calls[1:]] == found[:3]
+
+
+def test_no_candidate_is_a_user_error() -> None:
+    checked = check(msp.feature_network(SMALL))
+    found = integration.candidates(checked, 1 / 16000, 0.5, 1e-3)
+    with pytest.raises(UsageError, match="no integrator up to 32 substeps meets"):
+        integration.choose(checked, np.zeros((2, 100)),
+                           _fake({c: 1e-2 for c in found}, set(), []), 0.5, 1e-3)
+
+
+def test_relative_error_is_per_clip() -> None:
+    ref = np.array([[1.0, 2.0], [100.0, 0.0]])
+    got = ref + np.array([[0.0, 0.002], [0.1, 0.0]])
+    assert integration.relative_error(got, ref) == pytest.approx(1e-3)
+
+
+def test_retries_refine_then_fall_back_to_rk4() -> None:
+    plan = integration.Integration("exp-rk4", 2)
+    assert plan.retries() == [("exp-rk4", 2), ("exp-rk4", 4), ("exp-rk4", 8), ("rk4", 16),
+                              ("rk4", 32)]
+    tried = []
+
+    def run(method, substeps):
+        tried.append((method, substeps))
+        if len(tried) < 3:
+            raise SimulationError("too loud")
+        return method, substeps
+    assert integration.run_with_retries(plan, run) == ("exp-rk4", 8)
+
+
+def test_feature_network_choice_meets_its_tolerance() -> None:
+    # two short tone bursts through the 2x1 network: the chosen integration is measured
+    t = np.arange(3200) / 16000
+    sig = np.stack([0.2 * np.sin(2 * np.pi * f * t) * np.exp(-((t - 0.1) / 0.04) ** 2)
+                    for f in (300.0, 2000.0)])
+    chosen = msp.choose_integration(SMALL, sig, 1e-3)
+    assert chosen.error <= 1e-3 and chosen.clips == 2
+    s = msp.MassSpringSettings(bins=2, delays=1, method=chosen.method, substeps=chosen.substeps)
+    got = msp.simulate_phi(sig, s, precision="float32")
+    ref = msp.simulate_phi(sig, SMALL, method="rk4", substeps=16, precision="float64")
+    assert integration.relative_error(got, ref) <= 1e-3

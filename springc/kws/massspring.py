@@ -59,8 +59,9 @@ from springc.sim.reductions import Reduction, gram_reduction
 from springc.check import check
 
 INPUT_RATE = 16000.0  # Hz: the clips' rate, the `.tran` step of the networks
-# RK4 at 128 kHz: issue 7's measurements put RK4 at 32 kHz 48% off on the 4.9 kHz filter
-# band and at 128 kHz within 1.5%; the compressor's stiffening also needs the small step.
+# RK4 at 128 kHz: at 32 kHz RK4 detunes and damps the top filter bands badly (the per-mode
+# estimates of `springc.check.accuracy`; docs/performance.md#how---tolerance-chooses), and
+# the compressor's stiffening also needs the small step.
 SUBSTEPS = 8
 # Largest filter amplitude planned for (sizes the compressor mass). Measured on the
 # preprocessed demo corpus: the filter outputs' clip peaks reach 0.63 (lowest bin; 99th
@@ -72,8 +73,8 @@ STABLE_WH = 2.0  # w h kept below this (RK4's limit on the imaginary axis is 2.8
 # stiffness 6 (g/a) y^2 stays below 0.5% of the filter's (no detuning).
 SQUARER_RANGE = 10.0
 NETWORK_VERSION = 5
-# Data-set runs integrate in single precision: 1.4x faster (SIMD width), Phi within 6e-7 of
-# float64 on 8x3 speech (measured); the Gram sums accumulate in float64 either way.
+# Data-set runs integrate in single precision: twice the SIMD width, and Phi stays within
+# round-off of float64 (docs/performance.md#training); the Gram sums accumulate in float64.
 DATASET_PRECISION = "float32"
 
 

@@ -3,8 +3,8 @@
 `springc.check.accuracy.choose` estimates each mode's error from the linearisation. That is the
 whole error of a linear network, but not of a nonlinear one: a quadratic coupling squares a
 filter's output (frequencies the linear modes do not have), and a splitting scheme's blocks
-are exact only up to their coupling through such terms. On the feature extractor the linear
-estimate of exp-heun3 at 32 kHz is 9e-9 while its worst probe is 3.9e-4 off.
+are exact only up to their coupling through such terms (on the feature extractor the linear
+estimate is orders of magnitude too small: docs/performance.md#how---tolerance-chooses).
 
 So for a netlist with nonlinear terms, `verify` simulates the start of the first run
 (`PILOT_S` seconds or `PILOT_SAMPLES` input samples, the longer, within the run) at the

@@ -330,12 +330,17 @@ def _schur(hess, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return kss - kys.T @ solved, lift
 
 
+# Components up to this size get every eigenvalue (dense, about 1 s at 2000): shift-invert
+# Lanczos does not converge on the many zero modes of the keyword-spotting classifier
+PSD_DENSE_MAX = 2500
+
+
 def _lowest_stiffness(hess) -> tuple[np.ndarray, np.ndarray]:
     """Eigenpairs of the Hessian at rest, ascending: all of them for a small component, the
     lowest few for a large one (shift-invert Lanczos below the Gershgorin lower bound, so the
     nearest eigenvalues are the lowest ones), then the largest for the tolerance scale."""
     n = hess.shape[0]
-    if n <= linear.DENSE_MAX:
+    if n <= PSD_DENSE_MAX:
         return np.linalg.eigh(hess.toarray())
     hess = hess.tocsc()
     diag = hess.diagonal()

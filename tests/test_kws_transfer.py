@@ -76,6 +76,20 @@ def test_classifier_netlist_passes_the_compiler(tmp_path):
     assert report.dofs == msp.feature_network(S).n + 3 * (4 + 1)  # outputs and a readout
 
 
+def test_the_8x3_classifier_passes_the_checks():
+    # twelve heads of designed zero modes on one 8x3 front end: one component of
+    # 788 nodes (dense PSD check), whose stiffness at rest has many zero eigenvalues
+    s = msp.MassSpringSettings(bins=8, delays=3)
+    rng = np.random.default_rng(3)
+    n = n_features(8, 3)
+    fit = LinearModel(rng.normal(size=(12, n)), rng.normal(size=12),
+                      np.array([f"c{k}" for k in range(12)]))
+    heads = tr.heads_for([(tuple(fit.classes), fit)], s, 1e-3, 1e-5)
+    net = load_text(tr.classifier_text(heads, s), "<classifier>")
+    assert net.n == msp.feature_network(s).n + 12 * (24 + 1)  # outputs and a readout each
+    assert check(net).errors == []  # raised ArpackNoConvergence before the dense PSD check
+
+
 def test_readouts_equal_c_phi_and_score_like_the_digital_model():
     sig = words()
     phi = msp.phi_batch(sig, S)  # the data-set path (single precision), as evaluation runs it

@@ -60,6 +60,7 @@ class Stages:
 def run_demo(opts: DemoOptions, echo=click.echo) -> dict:
     """All stages; returns the summary (also written to OUT/summary.json)."""
     from springc.kws.digital import FeatureSettings
+    from springc.kws.distributed import session
     from springc.kws.evaluate import evaluate
     from springc.kws.train import TrainOptions, train
 
@@ -70,12 +71,17 @@ def run_demo(opts: DemoOptions, echo=click.echo) -> dict:
     data = opts.data or _corpus(st, out / "corpus", opts)
     settings = FeatureSettings(bins=opts.bins, delays=opts.delays)
     reports = {}
-    for real in ("digital", "mass-spring"):
-        reports[real] = st.run(f"train {real} {opts.bins}x{opts.delays}", train, TrainOptions(
-            data=data, out=out / f"model-{real}", settings=settings, realisation=real,
-            jobs=opts.jobs, seed=opts.seed, scheduler=opts.scheduler))
-    network = st.run("simulate the mass-spring classifier on the test split", evaluate,
-                     out / "model-mass-spring", jobs=opts.jobs, scheduler=opts.scheduler)
+    reports["digital"] = st.run(f"train digital {opts.bins}x{opts.delays}", train, TrainOptions(
+        data=data, out=out / "model-digital", settings=settings, realisation="digital",
+        jobs=opts.jobs, seed=opts.seed))
+    with session(opts.scheduler, opts.jobs or None):  # one Dask cluster for both stages
+        reports["mass-spring"] = st.run(
+            f"train mass-spring {opts.bins}x{opts.delays}", train, TrainOptions(
+                data=data, out=out / "model-mass-spring", settings=settings,
+                realisation="mass-spring", jobs=opts.jobs, seed=opts.seed,
+                scheduler=opts.scheduler))
+        network = st.run("simulate the mass-spring classifier on the test split", evaluate,
+                         out / "model-mass-spring", jobs=opts.jobs, scheduler=opts.scheduler)
     st.run("plots", _plots, out, reports, network, data, opts)
     return _summary(out, opts, reports, network, st)
 
@@ -110,6 +116,7 @@ def _summary(out: Path, opts: DemoOptions, reports: dict, network: dict, st: Sta
                  f"{100 * counts.max() / max(counts.sum(), 1):6.2f}%")
     lines.append(f"  insertion loss {network['insertion_loss_db']['median']:.1f} dB (median); "
                  f"simulation {t['clips_per_s']:.2f} clips/s on {t['cores'] or '?'} cores")
+    lines += _integration_lines(reports, network)
     lines.append("time per stage:")
     lines += [f"  {name:56s} {sec:7.1f} s" for name, sec in st.times.items()]
     lines.append(f"  {'total':56s} {st.total():7.1f} s")
@@ -118,6 +125,18 @@ def _summary(out: Path, opts: DemoOptions, reports: dict, network: dict, st: Sta
                "bins": opts.bins, "delays": opts.delays, "table": "\n".join(lines)}
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
+
+
+def _integration_lines(reports: dict, network: dict) -> list[str]:
+    """How the mass-spring networks were integrated, and the error that was measured."""
+    from springc.kws.integration import from_dict
+
+    found = reports.get("mass-spring", {}).get("integration", {}).get("features")
+    lines = ["integration (chosen at tolerance, error against the reference on a sample):"]
+    if found:
+        lines.append(f"  features    {from_dict(found).describe()}")
+    lines.append(f"  classifier  {from_dict(network.get('integration')).describe()}")
+    return lines
 
 
 def _plots(out: Path, reports: dict, network: dict, data: Path, opts: DemoOptions) -> None:

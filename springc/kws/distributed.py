@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 from tqdm import tqdm
@@ -41,6 +42,8 @@ def map_batches(fn: Callable[[Any], Any], batches: Sequence[Any], scheduler: str
                smoothing=0.1)
     step = (lambda k: sizes[k]) if sizes is not None else (lambda k: 1)
     with bar:
+        if _OPEN:
+            return _gather(_OPEN[-1], fn, batches, bar, step)
         if scheduler is None and (workers == 1 or len(batches) <= 1):
             out = []
             for k, b in enumerate(batches):
@@ -49,6 +52,26 @@ def map_batches(fn: Callable[[Any], Any], batches: Sequence[Any], scheduler: str
             return out
         with _client(scheduler, workers) as client:
             return _gather(client, fn, batches, bar, step)
+
+
+_OPEN: list = []  # the client of the `session` in progress, which `map_batches` uses
+
+
+@contextmanager
+def session(scheduler: str | None = None, workers: int | None = None) -> Iterator[None]:
+    """One Dask client for every `map_batches` call inside: a local cluster starts (and its
+    workers import springc and load their kernels) once per command, not once per split. No
+    cluster for one local worker; a session inside a session is the outer one."""
+    workers = workers or cores()
+    if _OPEN or (scheduler is None and workers == 1):
+        yield
+        return
+    with _client(scheduler, workers) as client:
+        _OPEN.append(client)
+        try:
+            yield
+        finally:
+            _OPEN.pop()
 
 
 def _client(scheduler: str | None, workers: int):

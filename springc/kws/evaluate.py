@@ -109,7 +109,7 @@ def evaluate_network(model, ds, *, scheduler: str | None = None, jobs: int = 0,
     test split: accuracy, confusion, per-class TPR and insertion loss of the physical
     decisions, next to the digital readout c . Phi of the same model on the same features.
     `heads` and `net` replace the model folder's (the epsilon study)."""
-    from springc.kws.distributed import cores
+    from springc.kws.distributed import cores, session
     from springc.lang import load_file
 
     s, model_heads_ = model_heads(model)
@@ -119,12 +119,13 @@ def evaluate_network(model, ds, *, scheduler: str | None = None, jobs: int = 0,
     task = model.settings["task"]
     signals = msp.load_signals(clips, False, 0, [])
     plan = from_dict(model.settings["transfer"].get("integration"))
-    d, loss, seconds = simulate_network(net, heads, s, signals, scheduler=scheduler, jobs=jobs,
-                                        plan=plan)
+    with session(scheduler, jobs or None):
+        d, loss, seconds = simulate_network(net, heads, s, signals, scheduler=scheduler,
+                                            jobs=jobs, plan=plan)
+        phi = feature_matrices(clips, "test", "mass-spring", [s], noise_files=[], jobs=jobs,
+                               use_cache=use_cache, scheduler=scheduler)[0]
     y = targets(clips, task)
     report = score(selection_models(model.models), d, y, task)
-    phi = feature_matrices(clips, "test", "mass-spring", [s], noise_files=[], jobs=jobs,
-                           use_cache=use_cache, scheduler=scheduler)[0]
     digital = score(model.models, phi, y, task)
     ideal = np.concatenate([m.decision(phi) for _, m in model.models], axis=1)
     report.update(

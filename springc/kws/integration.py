@@ -13,6 +13,7 @@ is tried again at twice the substeps. RK4 at 8 substeps, the paper's setting, is
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -83,15 +84,19 @@ def choose(checked: CheckedNetlist, signals: np.ndarray, outputs: Outputs, durat
     if not tol > 0:
         raise UsageError(f"tolerance must be positive, got {tol}")
     method, substeps, prec = REFERENCE
-    reference = outputs(signals, method, substeps, prec)
+    _say(f"integration: reference {method} x{substeps} {prec} on {len(signals)} clip(s)")
+    reference, seconds = _timed(outputs, signals, method, substeps, prec)
+    known = {REFERENCE: (reference, seconds)}  # a candidate may be the reference itself
     for method, substeps in candidates(checked, 1.0 / 16000.0, duration, tol, methods):
-        start = time.perf_counter()
+        config = (method, substeps, precision)
         try:
-            got = outputs(signals, method, substeps, precision)
+            got, seconds = known.get(config) or _timed(outputs, signals, *config)
         except SimulationError:
+            _say(f"integration: {method} x{substeps} {precision} diverged")
             continue
-        seconds = time.perf_counter() - start
         error = relative_error(got, reference)
+        _say(f"integration: {method} x{substeps} {precision} error {error:.2g} "
+             f"({'within' if error <= tol else 'above'} {tol:g}), {seconds:.2f} s")
         if error <= tol:
             return Integration(method, substeps, precision, tol, error, len(signals),
                                f"{REFERENCE[0]} x{REFERENCE[1]} {REFERENCE[2]}", seconds)
@@ -99,10 +104,23 @@ def choose(checked: CheckedNetlist, signals: np.ndarray, outputs: Outputs, durat
                      "on the sample clips", hint="raise the tolerance")
 
 
+def _timed(outputs: Outputs, *args) -> tuple[np.ndarray, float]:
+    start = time.perf_counter()
+    got = outputs(*args)
+    return got, time.perf_counter() - start
+
+
+def _say(message: str) -> None:
+    # the choice takes tens of seconds: say what is being measured
+    print(message, file=sys.stderr, flush=True)
+
+
 def candidates(checked: CheckedNetlist, tstep: float, duration: float, tol: float,
                methods: tuple[str, ...] = METHODS) -> list[tuple[str, int]]:
-    """(method, substeps), cheapest first: per method the fewest substeps the per-mode
-    estimates allow, then twice and four times as many (for the nonlinear terms)."""
+    """(method, substeps), cheapest first: per method around the fewest substeps the per-mode
+    estimates allow, from a quarter (the estimates count every mode of the input band at
+    full weight, which the outputs may not feel) to four times as many (the nonlinear terms,
+    which they do not see)."""
     from springc.check.accuracy import cost
 
     net = checked.net
@@ -112,7 +130,8 @@ def candidates(checked: CheckedNetlist, tstep: float, duration: float, tol: floa
             first = estimate(net, tstep, duration, tol, methods=(method,)).substeps
         except UsageError:
             continue
-        out += [(method, first * k) for k in (1, 2, 4) if first * k <= MAX_SUBSTEPS]
+        out += [(method, max(1, round(first * k))) for k in (0.25, 0.5, 1, 2, 4)
+                if first * k <= MAX_SUBSTEPS]
     return sorted(set(out), key=lambda c: (cost(net, *c), c))
 
 

@@ -76,6 +76,9 @@ NETWORK_VERSION = 5
 # Data-set runs integrate in single precision: twice the SIMD width, and Phi stays within
 # round-off of float64 (docs/performance.md#training); the Gram sums accumulate in float64.
 DATASET_PRECISION = "float32"
+# The exponential schemes integrate the Mel filters exactly, which RK4 resolves only at 8
+# substeps; a candidate costs a kernel compile, so hopeless ones are not tried
+FEATURE_METHODS = ("exp-heun3", "exp-rk4")
 
 
 @dataclass(frozen=True)
@@ -329,12 +332,12 @@ def choose_integration(s: MassSpringSettings, signals: np.ndarray,
     """The cheapest integration of the feature network with Phi within `tol` of the tight
     reference on `signals` (a sample of clips, (clips, samples) at 16 kHz)."""
     def outputs(sig, method, substeps, precision):
-        return simulate_phi(sig, s, chunk=len(sig), method=method, substeps=substeps,
+        return simulate_phi(sig, s, chunk=BATCH, method=method, substeps=substeps,
                             precision=precision)
 
     duration = horizon(s, signals.shape[1] / INPUT_RATE)
     return integration.choose(checked_features(s), signals, outputs, duration, tol,
-                              DATASET_PRECISION)
+                              DATASET_PRECISION, FEATURE_METHODS)
 
 
 def simulate_traces(signals: np.ndarray, s: MassSpringSettings,
@@ -418,7 +421,7 @@ def phi_batch(signals: np.ndarray, s: MassSpringSettings) -> np.ndarray:
     plan = integration.Integration(s.method, s.substeps, DATASET_PRECISION)
     return integration.run_with_retries(
         plan, lambda method, sub: simulate_phi(signals.astype(np.float64), s,
-                                               chunk=len(signals), method=method,
+                                               chunk=BATCH, method=method,
                                                substeps=sub, precision=plan.precision))
 
 

@@ -225,8 +225,10 @@ def train(opts: TrainOptions) -> dict:
     if opts.realisation == "mass-spring":
         opts.massspring = integrate_as_chosen(opts, ds)
     feature_settings = opts.massspring if opts.realisation == "mass-spring" else opts.settings
-    feats = split_features(ds, opts.realisation, [feature_settings], seed=opts.seed,
-                           jobs=opts.jobs, use_cache=opts.use_cache, scheduler=opts.scheduler)
+    with _session(opts):
+        feats = split_features(ds, opts.realisation, [feature_settings], seed=opts.seed,
+                               jobs=opts.jobs, use_cache=opts.use_cache,
+                               scheduler=opts.scheduler)
     x = {s: f[0] for s, f in feats.items()}
     y = {s: targets(ds.split(s), opts.task) for s in x}
     kind = "logreg" if opts.realisation == "baseline" else "svm"
@@ -247,6 +249,17 @@ def train(opts: TrainOptions) -> dict:
     else:
         write_model(opts.out, settings, fits, report)
     return report
+
+
+def _session(opts: TrainOptions):
+    """One Dask cluster for the three splits of a mass-spring run (none for the others)."""
+    from contextlib import nullcontext
+
+    from springc.kws.distributed import session
+
+    if opts.realisation != "mass-spring":
+        return nullcontext()
+    return session(opts.scheduler, opts.jobs or None)
 
 
 INTEGRATION_CLIPS = 16  # training clips (unaugmented, first in order) the choice is measured on

@@ -264,8 +264,9 @@ def _error(done: subprocess.CompletedProcess) -> tuple[str, str]:
     if not done.returncode:
         return "ok", "ran"
     lines = [ln for ln in done.stderr.strip().splitlines() if ln.strip()]
+    raised = [ln for ln in lines if re.match(r"\w+(Error|Exception)\b", ln)]  # a traceback's
     located = [ln for ln in lines if "error:" in ln]  # a user error: its located message
-    last = (located or lines or [f"exit {done.returncode}"])[-1 if not located else 0]
+    last = (raised[-1:] or located[:1] or lines[-1:] or [f"exit {done.returncode}"])[0]
     kind = re.match(r"(\w+(Error|Exception))|(.*error:)", last)
     short = re.sub(r"\s+", " ", last)[:110]
     return (kind.group(0) if kind else "error"), short

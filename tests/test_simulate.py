@@ -510,3 +510,14 @@ def test_records_that_cannot_fit_are_refused_before_running() -> None:
     # with no probe the time axis alone still needs 2.2e3 GiB
     with pytest.raises(UsageError, match=r"would take 2\.2\de\+03 GiB \(0 probe"):
         simulate(net, probes=[], reductions=["energy"])
+
+
+def test_dissipation_in_a_network_without_dampers_is_zero() -> None:
+    # raised KeyError before: a conservative oscillator dissipates nothing, exactly
+    b = IRBuilder("undamped")
+    b.mass("M1", "a", 1.0, x0=1.0)
+    b.spring("K1", "a", W0**2)
+    b.tran = Tran(1e-3, 0.1, None)
+    res = simulate(check(b.finish()), reductions=["dissipated:all", "energy"], probes=[])
+    assert res.reductions["dissipated:all"].tolist() == [0.0]
+    np.testing.assert_allclose(res.reductions["energy"], W0**2 / 2, rtol=1e-3)

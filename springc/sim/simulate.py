@@ -517,9 +517,9 @@ def _finish_reductions(net, rplan, args, work, wins, st) -> dict[str, np.ndarray
             case "work":
                 out[r.spec] = work[list(r.forces)].sum(axis=0)
             case "dissipated":
-                out[r.spec] = args["diss"][rplan.damper_slices[r.spec]].sum(axis=0)
+                out[r.spec] = _dissipated(args, rplan, r.spec, xf.shape[-1])
             case "loss":
-                diss = args["diss"][rplan.damper_slices[r.spec]].sum(axis=0)
+                diss = _dissipated(args, rplan, r.spec, xf.shape[-1])
                 with np.errstate(divide="ignore", invalid="ignore"):
                     out[r.spec] = -10.0 * np.log10(diss / work.sum(axis=0))
             case "energy":
@@ -531,6 +531,12 @@ def _finish_reductions(net, rplan, args, work, wins, st) -> dict[str, np.ndarray
             case _:
                 raise TypeError(f"unhandled reduction kind {r.kind!r}")
     return out
+
+
+def _dissipated(args, rplan, spec: str, runs: int) -> np.ndarray:
+    """Energy dissipated per run in the dampers of `spec` (none in the network: nothing)."""
+    rows = rplan.damper_slices.get(spec)
+    return np.zeros(runs) if rows is None else args["diss"][rows].sum(axis=0)
 
 
 def _check_divergence(net, st: Settings, args, names) -> None:

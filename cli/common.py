@@ -3,20 +3,23 @@
 from __future__ import annotations
 
 import functools
+import os
 import sys
 import traceback
 from collections.abc import Callable
+from pathlib import Path
 
 import click
 
-from springc.errors import SpringcError
+from springc.errors import DataError, SpringcError
 
 REPORT_URL = "the springc issue tracker"
 
 
 def run_user_errors(fn: Callable) -> Callable:
-    """Wrap a command: user errors print `file:line:col: error: ...` and exit 1; anything else
-    is an internal error that says so, asks for a report and exits 2. Never a bare traceback."""
+    """Wrap a command: user errors print `file:line:col: error: ...` and exit 1, and so does a
+    file the system refuses (`error: PATH: ...`); anything else is an internal error that says
+    so, asks for a report and exits 2. Never a bare traceback."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
@@ -27,20 +30,54 @@ def run_user_errors(fn: Callable) -> Callable:
             sys.exit(1)
         except (click.exceptions.Exit, click.exceptions.Abort, click.ClickException):
             raise
+        except OSError as exc:
+            if exc.filename is None:  # no file to name: not the user's input or output
+                _internal(exc)
+            click.echo(_os_message(exc), err=True)
+            sys.exit(1)
         except KeyboardInterrupt:
             click.echo("interrupted", err=True)
             sys.exit(130)
         except Exception as exc:  # noqa: BLE001 - the last line of defence
-            click.echo(
-                f"INTERNAL ERROR: springc failed unexpectedly ({type(exc).__name__}: {exc}).\n"
-                f"This is a bug in springc, not in your input; please report it to "
-                f"{REPORT_URL} with the command line and input files.\n"
-                + "".join(traceback.format_exception(exc)),
-                err=True,
-            )
-            sys.exit(2)
+            _internal(exc)
 
     return wrapper
+
+
+def _internal(exc: BaseException) -> None:
+    """Report a bug in springc with its traceback and exit 2."""
+    click.echo(
+        f"INTERNAL ERROR: springc failed unexpectedly ({type(exc).__name__}: {exc}).\n"
+        f"This is a bug in springc, not in your input; please report it to "
+        f"{REPORT_URL} with the command line and input files.\n"
+        + "".join(traceback.format_exception(exc)),
+        err=True,
+    )
+    sys.exit(2)
+
+
+def _os_message(exc: OSError) -> str:
+    """`error: PATH: reason` for a file the system refused to read or write (a folder in
+    the way, no permission, disk full): the user's environment, not a bug."""
+    where = str(exc.filename)
+    if exc.filename2 is not None:
+        where += f" -> {exc.filename2}"
+    return f"error: {where}: cannot read or write it ({exc.strerror or exc})"
+
+
+def check_output_file(path: str | Path) -> None:
+    """Fail before any work on an output file that cannot be written: a folder by that name,
+    or a parent that is a file or missing."""
+    path = Path(path)
+    parent = path.parent
+    if path.is_dir():
+        raise DataError(str(path), "is a folder; give an output file name")
+    if parent.exists() and not parent.is_dir():
+        raise DataError(str(path), f"cannot be written: {parent} is a file, not a folder")
+    if not parent.exists():
+        raise DataError(str(path), f"cannot be written: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise DataError(str(path), f"cannot be written: no permission to write in {parent}")
 
 
 def precision_option(fn: Callable) -> Callable:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 import numpy as np
-from springc_cli.common import plot_option, run_user_errors
+from springc_cli.common import check_output_file, plot_option, run_user_errors
 
 from springc.design import blocks, melbank, mvm
 from springc.design.emit import params_text, write_atomic
@@ -34,6 +34,9 @@ def melbank_cmd(bins: int, fmin: float, fmax: float, kind: str, name: str, outpu
                 plot_path: str | None) -> None:
     """Fit BINS mechanical filters to triangular Mel filters and write `.subckt NAME out0 ..
     out{BINS-1} ch=0`; prints the misfit per bin for the two-mode and single-mode fits."""
+    check_output_file(output)
+    if plot_path:
+        check_output_file(plot_path)
     bank = melbank.design_melbank(bins, fmin, fmax)
     melbank.write_melbank(bank, output, kind=kind, name=name)
     click.echo(melbank.misfit_table(bank))
@@ -63,6 +66,7 @@ def mvm_cmd(matrix: str, m: float, kc: float, b: float | None, stiffness: float 
             output: str) -> None:
     """Write `.subckt mvm in0 .. out{N-1}`: a matrix-vector multiplier whose zero modes are
     exactly [I; Q] (zero-mode engineering)."""
+    check_output_file(output)
     q = mvm.load_matrix(matrix)
     d = mvm.design_mvm(q, m=m, b=b, kc=kc, stiffness=stiffness)
     mvm.write_mvm(d, output, source=matrix)
@@ -83,6 +87,7 @@ def mvm_cmd(matrix: str, m: float, kc: float, b: float | None, stiffness: float 
 def delayline_cmd(td: float, kc: float, prefix: str, output: str) -> None:
     """Delay-line parameters for delay TD per site: m = td^2 kc, kl = 1e-6 kc, matched
     damping sqrt(m kc); written as `.param` lines."""
+    check_output_file(output)
     p = blocks.delayline_params(td, kc)
     values = {"m": p.m, "kc": p.kc, "kl": p.kl, "b": p.b_match, "td": p.td}
     text = params_text(
@@ -106,6 +111,7 @@ def delayline_cmd(td: float, kc: float, prefix: str, output: str) -> None:
 def readout_cmd(tau: float, qr: float, m: float, kext: float, prefix: str, output: str) -> None:
     """Leaky-integrator readout with time constant TAU: tau = 2Q / (w (1 - sqrt(1 - 4Q^2)));
     written as `.param` lines."""
+    check_output_file(output)
     p = blocks.readout_params(tau, qr, m, kext)
     values = {"m": p.m, "k": p.k_local, "ktotal": p.k_total, "b": p.b, "omega": p.omega,
               "tau": p.tau}
@@ -127,6 +133,7 @@ def readout_cmd(tau: float, qr: float, m: float, kext: float, prefix: str, outpu
 def lowpass_cmd(fc: float, k: float, bext: float, prefix: str, output: str) -> None:
     """Critically damped low-pass with cutoff FC: m = k / (2 pi fc)^2, b = 2 k / (2 pi fc);
     written as `.param` lines."""
+    check_output_file(output)
     p = blocks.lowpass_params(fc, k, bext)
     values = {"m": p.m, "k": p.k, "b": p.b, "btotal": p.b_total, "fc": p.fc}
     text = params_text(

@@ -7,7 +7,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import click
-from springc_cli.common import plot_option, run_user_errors
+from springc_cli.common import check_output_file, plot_option, run_user_errors
 
 from springc.sim import sources
 from springc.design.emit import write_atomic
@@ -83,13 +83,16 @@ def export_cmd(
     from springc.check import check
     from springc.lang import load_file
 
+    for path in (output, plot_path):
+        if path:
+            check_output_file(path)
+    if plot_path and not compare:  # before any work, so nothing is written
+        raise UsageError("--plot shows the comparison: add --compare")
     checked = check(load_file(netlist))
     options = SpiceOptions(tstop=tstop, tstep=tstep, tmax=tmax, reltol=reltol)
     options = _bind_inputs(checked.net, options, input_path, channel)
     write_atomic(output, export_spice(checked, options))
     click.echo(f"wrote {output}", err=True)
-    if plot_path and not compare:
-        raise UsageError("--plot shows the comparison: add --compare")
     if compare:
         compared = cross_check(checked, options, substeps)
         click.echo(_summary(compared))

@@ -75,7 +75,10 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
               feature_rate, protocol, class_weights, jobs, seed, no_cache, out, epsilon,
               threshold, scheduler) -> None:
     """Train the keyword spotter and write a model folder with weights and a test report."""
+    from springc.kws.model import check_out_folder
     from springc.kws.train import train
+
+    check_out_folder(out)  # before the minutes of training
 
     settings = FeatureSettings(bins=bins, delays=delays, filterbank=filterbank, td=td, tau=tau,
                                fc=fc, feature_rate=feature_rate)

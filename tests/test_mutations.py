@@ -3,7 +3,11 @@
 Each operator below turns one statement of a valid example netlist into one that is certainly
 invalid (deleted required token, bad suffix, wrong sign, truncated line, undefined name, ...).
 For every variant `springc build` must exit 1 with a `file:line:col: error:` message whose line
-is a real line of the file, and must not print a traceback. Over 200 variants are derived.
+is a real line of the mutated file, and must not print a traceback. The sources are the example
+netlists, the ok cases and the library files of `netlists/lib` (each mutated in a copy of the
+library and instantiated from a small top file, `LIB_TOPS`, so that every statement of it is
+elaborated). Over 500 variants are derived; `tests/test_robustness.py` runs them through every
+netlist-reading command.
 """
 
 from __future__ import annotations
@@ -20,7 +24,21 @@ from springc_cli.main import main
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "netlists" / "examples"
 OK_CASES = ROOT / "tests" / "cases" / "ok"
-SOURCES = sorted(EXAMPLES.glob("*.spr")) + sorted(OK_CASES.glob("*.spr"))
+LIB = ROOT / "netlists" / "lib"
+SOURCES = [*sorted(EXAMPLES.glob("*.spr")), *sorted(OK_CASES.glob("*.spr")),
+           *sorted(LIB.glob("*.spr"))]
+# A top file per library file that instantiates each of its subcircuits so that every statement
+# runs (the delay line twice: its .for bodies run for n = 2 or for n = 10, never both).
+_TAIL = ".tran 0.1ms 10ms\n.probe x(a)\n"
+LIB_TOPS = {
+    "compressor": "M1 a m=1 b=1\nK1 a k=1\nX1 a b compressor\n",
+    "delayline": "X1 a b delayline n=10 term=1 term_in=1\nX2 c d delayline n=2 term=1 term_in=1\n",
+    "featurechain": "X1 a featurechain\n",
+    "lowpass": "X1 a lowpass\n",
+    "melfilter": "X1 a melfilter\nX2 b melfilter1\n",
+    "readout": "X1 a readout\n",
+    "squarer": "M1 a m=1 b=1\nK1 a k=1\nX1 a b squarer\nM2 b m=1 b=1\nK2 b k=1\n",
+}
 LOCATED = re.compile(r"^(?P<file>[^\s:]+\.spr):(?P<line>\d+):(?P<col>\d+): error: ", re.M)
 KEY_NUMBER = re.compile(r"\b(m|k|l|g|b)=(\d+(\.\d+)?)\b")
 
@@ -112,8 +130,47 @@ def _directive(line: str) -> str | None:
     return ".frobnicate " + line
 
 
+def _extra_param(line: str) -> str | None:
+    """A parameter the element (or subcircuit) does not have (before a `;` comment)."""
+    code, sep, comment = line.partition(";")
+    return code.rstrip() + " zzparam=1" + (" " + sep + comment if sep else "")
+
+
+def _duplicate(line: str) -> str | None:
+    """The statement written twice: a duplicate element name."""
+    return line + "\n" + line
+
+
+def _overflow(line: str) -> str | None:
+    """A value beyond the range of a double, as a literal or computed."""
+    m = re.search(r"\b(m|k|l|g|b|gain)=(\S+)", line)
+    if not m:
+        return None
+    value = "1e400" if len(line) % 2 else "{1e300*1e300}"  # both kinds over the variants
+    return line[: m.start(2)] + value + line[m.end(2):]
+
+
+def _unterminated_quote(line: str) -> str | None:
+    """A stray quote where a value starts."""
+    m = re.search(r"\b\w+=", line)
+    return None if not m else line[: m.end()] + '"' + line[m.end():]
+
+
+def _control_char(line: str) -> str | None:
+    """A control character (as from a corrupted file) after the element name."""
+    parts = line.split(" ", 1)
+    return None if len(parts) < 2 else parts[0] + " \x01" + parts[1]
+
+
+def _dangling_operator(line: str) -> str | None:
+    """An expression that ends in an operator."""
+    m = re.search(r"\b(m|k|l|g|b|gain)=(\S+)", line)
+    return None if not m else line[: m.start(2)] + "{2 *}" + line[m.end(2):]
+
+
 OPERATORS = [_directive, _neg_value, _bad_suffix, _truncate_value, _delete_key, _unknown_letter,
-             _undefined_name, _divide_by_zero, _massless_node, _unclosed]
+             _undefined_name, _divide_by_zero, _massless_node, _unclosed, _extra_param,
+             _duplicate, _overflow, _unterminated_quote, _control_char, _dangling_operator]
 
 
 def _variants() -> list[tuple[str, Path, str]]:
@@ -133,21 +190,53 @@ def _variants() -> list[tuple[str, Path, str]]:
 VARIANTS = _variants()
 
 
+def materialise(folder: Path, name: str, original: Path, text: str) -> Path:
+    """Write a variant into `folder` (a copy of the original's folder, so that relative
+    .include and .data paths still resolve, made here if missing) and return the netlist to
+    run: the variant itself, or for a library file the top file that instantiates it."""
+    if not folder.exists():
+        shutil.copytree(original.parent, folder)
+    if original.parent != LIB:
+        path = folder / f"{name}.spr"
+        path.write_text(text)
+        return path
+    (folder / original.name).write_text(text)
+    top = folder / f"top_{original.stem}.spr"
+    top.write_text(f'.include "{original.name}"\n{LIB_TOPS[original.stem]}{_TAIL}')
+    return top
+
+
 def test_enough_variants():
-    assert len(VARIANTS) >= 200, len(VARIANTS)
+    assert len(VARIANTS) >= 500, len(VARIANTS)
+    assert sum(v[1].parent == LIB for v in VARIANTS) >= 100
+
+
+@pytest.mark.parametrize("stem", sorted(LIB_TOPS))
+def test_library_tops_build(tmp_path, stem):
+    """The unmutated library files build from their top files (so a variant's error is its own)."""
+    original = LIB / f"{stem}.spr"
+    top = materialise(tmp_path / "lib", "orig", original, original.read_text())
+    result = CliRunner().invoke(main, ["build", str(top)])
+    assert result.exit_code == 0, result.output
+
+
+def located_error(output: str, mutated: Path) -> re.Match:
+    """The first `file:line:col: error:` of `output`, asserted to name a real line of the file
+    it points at (the mutated file, or one it includes)."""
+    hit = LOCATED.search(output)
+    assert hit, output
+    where = Path(hit["file"])
+    assert where.is_file(), output
+    assert 1 <= int(hit["line"]) <= len(where.read_text().splitlines()), output
+    assert where.resolve().parent == mutated.resolve().parent, output
+    return hit
 
 
 @pytest.mark.parametrize("name,original,text", VARIANTS, ids=[v[0] for v in VARIANTS])
 def test_broken_variant_is_a_located_user_error(tmp_path, name, original, text):
-    # A copy of the original's folder, so relative .include and .data paths still resolve.
-    folder = tmp_path / "src"
-    shutil.copytree(original.parent, folder)
-    path = folder / f"{name}.spr"
-    path.write_text(text)
+    path = materialise(tmp_path / "src", name, original, text)
     result = CliRunner().invoke(main, ["build", str(path)])
     output = result.output + (result.stderr if result.stderr_bytes is not None else "")
     assert result.exit_code == 1, output
     assert "Traceback" not in output and "INTERNAL ERROR" not in output, output
-    hit = LOCATED.search(output)
-    assert hit, output
-    assert 1 <= int(hit["line"]) <= len(text.splitlines())
+    located_error(output, path)

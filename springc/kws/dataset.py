@@ -12,8 +12,10 @@ paper's Sec. 4, TensorFlow's speech_commands recipe) holds the same number of cl
 in validation and test: every command clip, `_unknown_` subsampled to the mean command count,
 as many `_silence_` clips. Training keeps every clip in both.
 
-Bad files are never dropped silently: unreadable or empty ones are skipped, resampled or
-multi-channel ones converted, and each is named in `Dataset.problems` and logged as a warning.
+Bad files are never dropped silently: unreadable, truncated or empty ones, those holding NaN or
+infinite samples and those sampled below MIN_RATE are skipped, resampled or multi-channel ones
+converted, and each is named in `Dataset.problems` and logged as a warning. A data set left
+with no usable word clip is a DataError.
 """
 
 from __future__ import annotations
@@ -29,7 +31,8 @@ import numpy as np
 import soundfile as sf
 from tqdm import tqdm
 
-from springc.sim.audio import AUDIO_SUFFIXES, resample
+from springc.sim.audio import (AUDIO_SUFFIXES, non_finite, read_checked, resample,
+                               wav_truncation)
 from springc.errors import DataError, UsageError
 from springc.kws.preprocess import preprocess as paper_preprocess
 
@@ -44,6 +47,10 @@ CLASSES: tuple[str, ...] = COMMANDS + (UNKNOWN, SILENCE)
 SPLITS: tuple[str, ...] = ("train", "validation", "test")
 SAMPLE_RATE = 16000
 CLIP_SAMPLES = 16000
+# Below this rate a file cannot hold speech (telephone band, 8 kHz, keeps the formants): a
+# 1 Hz "recording" is a broken header, not a clip to resample 16000-fold.
+MIN_RATE = 8000
+FLOAT_SUBTYPES = {"FLOAT", "DOUBLE"}  # the only WAV/FLAC sample formats that hold NaN or inf
 NOISE_FOLDER = "_background_noise_"
 DOCUMENTS = {"README", "LICENSE"}  # GSCD ships _background_noise_/README.md
 LIST_FILES = {"validation": "validation_list.txt", "test": "testing_list.txt"}
@@ -136,6 +143,9 @@ def inspect_audio(path: Path) -> tuple[str | None, str | None]:
         return f"cannot read as audio ({exc})", None
     if info.frames == 0:
         return "the file holds no samples", None
+    bad = wav_truncation(path) or too_slow(info.samplerate) or _float_samples(path, info)
+    if bad:
+        return bad, None
     notes = []
     if info.channels != 1:
         notes.append(f"has {info.channels} channels; the first is used")
@@ -144,18 +154,35 @@ def inspect_audio(path: Path) -> tuple[str | None, str | None]:
     return None, "; ".join(notes) or None
 
 
+def too_slow(rate: int) -> str | None:
+    """Why a sample rate cannot carry speech, or None."""
+    if rate < MIN_RATE:
+        return f"sample rate {rate} Hz is below {MIN_RATE} Hz, too low for speech"
+    return None
+
+
+def _float_samples(path: Path, info) -> str | None:
+    """Where a float-format file holds its first NaN or infinite sample, or None (integer
+    formats cannot hold one, so GSCD's PCM files are not read twice)."""
+    if info.subtype not in FLOAT_SUBTYPES:
+        return None
+    try:
+        data, rate = sf.read(str(path), dtype="float64", always_2d=True)
+    except Exception as exc:  # soundfile raises several types for corrupt files
+        return f"cannot read as audio ({exc})"
+    return non_finite(data, rate)
+
+
 _WARNED: set[str] = set()
 
 
 def read_converted(path: Path) -> np.ndarray:
     """A sound file as float64 mono at SAMPLE_RATE: the first channel of a multi-channel file,
     resampled if needed, each conversion warned once per file and process."""
-    try:
-        data, rate = sf.read(str(path), dtype="float64", always_2d=True)
-    except Exception as exc:
-        raise DataError(str(path), f"cannot read as audio ({exc})") from None
-    if data.shape[0] == 0:
-        raise DataError(str(path), "the file holds no samples")
+    data, rate = read_checked(path)
+    slow = too_slow(rate)
+    if slow:
+        raise DataError(str(path), slow)
     notes = []
     if data.shape[1] != 1:
         notes.append(f"has {data.shape[1]} channels; the first is used")
@@ -269,6 +296,10 @@ def word_clips(root: Path, problems: list[str]) -> list[Clip]:
             split = where.get(f"{folder.name}/{path.name}", "train")
             clips.append(Clip(path, folder.name, label_of(folder.name), split,
                               speaker_of(path.name)))
+    if not clips:
+        shown = "; ".join(problems[:3]) + ("; ..." if len(problems) > 3 else "")
+        raise DataError(str(root), "no usable sound file in the word folders"
+                        + (f" ({shown})" if shown else ""))
     return clips
 
 
@@ -284,7 +315,10 @@ def noise_lengths(root: Path, problems: list[str]) -> dict[Path, int]:
 
 def noise_length(path: Path) -> int:
     """The length of a noise file in samples at SAMPLE_RATE, from its header."""
-    info = sf.info(str(path))
+    try:
+        info = sf.info(str(path))
+    except Exception as exc:  # the file changed since the data set was opened
+        raise DataError(str(path), f"cannot read as audio ({exc})") from None
     return int(info.frames * SAMPLE_RATE // info.samplerate)
 
 
@@ -310,8 +344,9 @@ def open_dataset(root, *, silence_per_split: float = 0.1, seed: int = 0) -> Data
     """Read a GSCD-layout data set: word clips with their splits, noise files, and
     `silence_per_split` times as many `_silence_` clips as each split has word clips.
 
-    Raises DataError for a missing folder, no word folders, or an unreadable split list; bad
-    sound files are skipped or converted and listed in `problems` (and warned)."""
+    Raises DataError for a missing folder, no word folders, no usable word clip, or an
+    unreadable split list; bad sound files are skipped or converted and listed in `problems`
+    (and warned)."""
     root = Path(root)
     problems: list[str] = []
     clips = word_clips(root, problems)
@@ -398,11 +433,19 @@ def with_protocol(ds: Dataset, protocol: str, seed: int = 0) -> Dataset:
 
 def read_window(path: Path, offset: int, n: int = CLIP_SAMPLES) -> np.ndarray:
     """`n` samples from `offset` (at SAMPLE_RATE) of a sound file."""
-    info = sf.info(str(path))
-    if info.samplerate == SAMPLE_RATE and info.channels == 1:
+    try:
+        info = sf.info(str(path))
+        if info.samplerate != SAMPLE_RATE or info.channels != 1:
+            return fit_length(read_converted(path)[offset:offset + n], n)
         data, _ = sf.read(str(path), start=offset, frames=n, dtype="float64")
-        return fit_length(data, n)
-    return fit_length(read_converted(path)[offset:offset + n], n)
+    except DataError:
+        raise
+    except Exception as exc:  # the file changed since the data set was opened
+        raise DataError(str(path), f"cannot read as audio ({exc})") from None
+    bad = non_finite(data[:, None], SAMPLE_RATE)
+    if bad:
+        raise DataError(str(path), bad)
+    return fit_length(data, n)
 
 
 class NoiseBank:

@@ -6,6 +6,7 @@ failed run never leaves a half-written model."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import tempfile
 from dataclasses import dataclass
@@ -13,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from springc import __version__
 from springc.errors import DataError
 from springc.kws import report as rep
 from springc.kws.phi import group_index, n_features
@@ -44,11 +46,29 @@ def _weights(settings: dict, fits: list) -> dict:
     return out
 
 
+def check_out_folder(folder: Path) -> None:
+    """DataError unless `folder` can take a model: new, empty, or an earlier model folder
+    (replaced only when complete). Any other folder is the user's, never deleted."""
+    folder = Path(folder)
+    parent = folder.parent.absolute()
+    if folder.exists() and not folder.is_dir():
+        raise DataError(str(folder), "is a file, not a model folder")
+    if folder.is_dir() and any(folder.iterdir()) and not (folder / "settings.json").is_file():
+        raise DataError(str(folder), "is a folder that holds no model (no settings.json); "
+                        "refusing to replace it", hint="give a new folder name")
+    existing = next((p for p in (parent, *parent.parents) if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise DataError(str(folder), f"cannot be written: {existing} is a file, not a folder")
+    if existing is not None and not os.access(existing, os.W_OK | os.X_OK):
+        raise DataError(str(folder), f"cannot be written: no permission to write in {existing}")
+
+
 def write_model(folder: Path, settings: dict, fits: list, report: dict,
                 extra: dict[str, str] | None = None) -> None:
     """Write the model folder atomically (replacing an existing one only when complete);
     `extra` maps further file names to their text (the mass-spring classifier netlists)."""
     folder = Path(folder)
+    check_out_folder(folder)
     settings = {**settings, "C": _chosen_c(fits)}
     folder.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(dir=folder.parent, prefix=f".{folder.name}.tmp"))
@@ -97,11 +117,7 @@ def load_model(folder: Path) -> TrainedModel:
             raise DataError(str(folder / name), "missing from the model folder",
                             hint="train again with `springc train ... -o MODEL_DIR`")
     settings = _read_settings(folder / "settings.json")
-    try:
-        with np.load(folder / "weights.npz") as w:
-            arrays = {k: w[k] for k in ("coef_raw", "intercept", "rows", "classes")}
-    except (OSError, KeyError, ValueError) as exc:
-        raise DataError(str(folder / "weights.npz"), f"unreadable weights ({exc})") from None
+    arrays = _read_weights(folder / "weights.npz")
     _check_shapes(folder / "weights.npz", settings, arrays)
     return TrainedModel(folder, settings, _split_models(arrays))
 
@@ -109,12 +125,66 @@ def load_model(folder: Path) -> TrainedModel:
 def _read_settings(path: Path) -> dict:
     try:
         settings = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError) as exc:  # UnicodeDecodeError is a ValueError
         raise DataError(str(path), f"not valid JSON ({exc})") from None
+    if not isinstance(settings, dict):
+        raise DataError(str(path), f"holds a JSON {type(settings).__name__}, not an object")
     for key in ("realisation", "task", "features"):
         if key not in settings:
             raise DataError(str(path), f"has no {key!r} entry")
+    for key in ("realisation", "task"):
+        if not isinstance(settings[key], str):
+            raise DataError(str(path), f"{key!r} must be a string, not {settings[key]!r}")
+    from springc.kws.train import REALISATIONS  # train imports this module
+
+    if settings["realisation"] not in REALISATIONS:
+        raise DataError(str(path), f"unknown realisation {settings['realisation']!r}; "
+                        f"known: {', '.join(REALISATIONS)}")
+    if not isinstance(settings["features"], dict):
+        raise DataError(str(path), "'features' must be a JSON object")
+    _check_version(path, settings.get("springc_version", __version__))
     return settings
+
+
+def _version(text: str) -> tuple[int, ...] | None:
+    """(major, minor, patch) of a version string like 0.1.0, or None if it is not one."""
+    parts = text.split(".") if isinstance(text, str) else []
+    if len(parts) != 3 or not all(p.isdigit() for p in parts):
+        return None
+    return tuple(int(p) for p in parts)
+
+
+def _check_version(path: Path, written_by) -> None:
+    """A model from a newer springc (or a garbled version) may hold what this one cannot
+    read; one from an older springc has a subset of today's settings."""
+    theirs, ours = _version(written_by), _version(__version__)
+    if theirs is None:
+        raise DataError(str(path), f"'springc_version' is {written_by!r}, not a version")
+    if ours is not None and theirs > ours:
+        raise DataError(str(path), f"written by springc {written_by}, newer than this springc "
+                        f"{__version__}", hint="evaluate it with the springc that trained it")
+
+
+def _read_weights(path: Path) -> dict:
+    """The weight arrays of weights.npz; DataError naming it if unreadable or incomplete."""
+    try:
+        with np.load(path, allow_pickle=False) as w:
+            arrays = {k: w[k] for k in ("coef_raw", "intercept", "rows", "classes")}
+    except KeyError as exc:
+        raise DataError(str(path), f"has no array {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - zipfile, pickle and numpy raise many types
+        raise DataError(str(path), f"unreadable weights ({type(exc).__name__}: {exc})") from None
+    kinds = {"coef_raw": (2, "fc"), "intercept": (1, "fc"), "rows": (1, "iu"), "classes": (1, "U")}
+    for key, (ndim, kinds_ok) in kinds.items():
+        a = arrays[key]
+        if a.ndim != ndim or a.dtype.kind not in kinds_ok:
+            raise DataError(str(path), f"array {key!r} has shape {a.shape} and type {a.dtype}; "
+                            f"expected {ndim} dimension(s) of kind {kinds_ok!r}")
+    if (arrays["rows"] < 1).any() or len(arrays["rows"]) != len(arrays["classes"]):
+        raise DataError(str(path), "the 'rows' and 'classes' tables disagree")
+    if not np.isfinite(arrays["coef_raw"]).all() or not np.isfinite(arrays["intercept"]).all():
+        raise DataError(str(path), "holds NaN or infinite weights")
+    return arrays
 
 
 def _check_shapes(path: Path, settings: dict, a: dict) -> None:
@@ -122,6 +192,10 @@ def _check_shapes(path: Path, settings: dict, a: dict) -> None:
     rows = int(a["rows"].sum())
     if a["coef_raw"].shape[0] != rows or a["intercept"].shape != (rows,):
         raise DataError(str(path), "coefficient, intercept and class tables disagree")
+    for names, n in zip(a["classes"], a["rows"]):
+        k = len(str(names).split(","))
+        if not (n == k > 2 or n == 1 and k == 2):  # one row per class, or one for a pair
+            raise DataError(str(path), f"classes {str(names)!r} do not match their {n} row(s)")
     if feats.get("realisation") == "digital":
         try:
             expect = n_features(int(feats["bins"]), int(feats["delays"]))

@@ -1,13 +1,15 @@
 """Reading and resampling sound files: the one place that turns audio on disk into arrays.
 
 Every failure is a `DataError` naming the file and the reason (missing, unreadable, empty,
-wrong channel), never a traceback from soundfile.
+truncated, non-finite samples, wrong channel), never a traceback from soundfile.
 """
 
 from __future__ import annotations
 
 from fractions import Fraction
 from pathlib import Path
+
+import struct
 
 import numpy as np
 import soundfile as sf
@@ -26,12 +28,7 @@ def read_audio(path: str | Path, channel: int | None = None) -> tuple[np.ndarray
     path = Path(path)
     if not path.is_file():
         raise DataError(str(path), "no such file")
-    try:
-        data, rate = sf.read(str(path), dtype="float64", always_2d=True)
-    except Exception as exc:  # soundfile raises several types for corrupt files
-        raise DataError(str(path), f"cannot read as audio ({exc})") from None
-    if data.shape[0] == 0:
-        raise DataError(str(path), "the file holds no samples")
+    data, rate = read_checked(path)
     nch = data.shape[1]
     if channel is None:
         if nch != 1:
@@ -40,6 +37,62 @@ def read_audio(path: str | Path, channel: int | None = None) -> tuple[np.ndarray
     if not 0 <= channel < nch:
         raise DataError(str(path), f"has {nch} channel(s); channel {channel} does not exist")
     return data[:, channel].copy(), int(rate)
+
+
+def read_checked(path: Path) -> tuple[np.ndarray, int]:
+    """All channels (float64, shape (frames, channels)) and the rate of a sound file; DataError
+    for an unreadable, truncated or empty file or one holding NaN or infinite samples."""
+    try:
+        data, rate = sf.read(str(path), dtype="float64", always_2d=True)
+    except Exception as exc:  # soundfile raises several types for corrupt files
+        raise DataError(str(path), f"cannot read as audio ({exc})") from None
+    short = wav_truncation(path)
+    if short:
+        raise DataError(str(path), short)
+    if data.shape[0] == 0:
+        raise DataError(str(path), "the file holds no samples")
+    bad = non_finite(data, rate)
+    if bad:
+        raise DataError(str(path), bad)
+    return data, int(rate)
+
+
+def non_finite(data: np.ndarray, rate: float) -> str | None:
+    """Where the first NaN or infinite sample of `data` (frames, channels) is, or None."""
+    finite = np.isfinite(data)
+    if finite.all():
+        return None
+    frame, ch = np.argwhere(~finite)[0]
+    value = data[frame, ch]
+    return (f"sample {frame} of channel {ch} (t = {frame / rate:g} s) is {value} "
+            f"({(~finite).sum()} non-finite sample(s) in all)")
+
+
+def wav_truncation(path: Path) -> str | None:
+    """Why a RIFF/WAVE file is cut short (its data chunk announces more bytes than the file
+    holds), or None. libsndfile reads what is there without a word, so a recording cut off
+    by a full disk or an interrupted copy would pass as a shorter sound."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(12)
+            if len(head) < 12 or head[:4] != b"RIFF" or head[8:12] != b"WAVE":
+                return None
+            size = path.stat().st_size
+            while True:
+                chunk = fh.read(8)
+                if len(chunk) < 8:
+                    return None
+                name, length = chunk[:4], struct.unpack("<I", chunk[4:])[0]
+                if name == b"data":
+                    held = size - fh.tell()
+                    # 0 and 0xFFFFFFFF: a streaming writer that never filled the size in
+                    if length in (0, 0xFFFFFFFF) or held >= length:
+                        return None
+                    return (f"truncated: the data chunk announces {length} bytes but the file "
+                            f"holds {held}")
+                fh.seek(length + (length & 1), 1)  # chunks are padded to even sizes
+    except OSError:
+        return None
 
 
 def resample(signal: np.ndarray, rate_in: float, rate_out: float) -> np.ndarray:

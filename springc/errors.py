@@ -127,5 +127,16 @@ class SimulationError(SpringcError):
     """A run that diverged or could not be carried out."""
 
 
+class DivergedRuns(SimulationError):
+    """Some runs of a kernel call diverged: `diverged` (their indices in the call) and the
+    call's `reductions`, valid for every other run, so that only these need simulating
+    again."""
+
+    def __init__(self, message: str, diverged, reductions: dict, hint: str | None = None):
+        super().__init__(message, hint=hint)
+        self.diverged = diverged
+        self.reductions = reductions
+
+
 class UsageError(SpringcError):
     """A bad option or combination of options."""

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from springc.check import check
-from springc.errors import SimulationError, UsageError
+from springc.errors import DivergedRuns, SimulationError, UsageError
 from springc.kws import integration
 from springc.kws import massspring as msp
 from springc.check.accuracy import cost
@@ -63,14 +63,30 @@ def test_retries_refine_then_fall_back_to_rk4() -> None:
     plan = integration.Integration("exp-rk4", 2)
     assert plan.retries() == [("exp-rk4", 2), ("exp-rk4", 4), ("exp-rk4", 8), ("rk4", 16),
                               ("rk4", 32)]
-    tried = []
 
-    def run(method, substeps):
-        tried.append((method, substeps))
-        if len(tried) < 3:
-            raise SimulationError("too loud")
-        return method, substeps
-    assert integration.run_with_retries(plan, run) == ("exp-rk4", 8)
+
+def test_only_the_runs_that_diverged_are_simulated_again() -> None:
+    # four runs: 1 and 3 are too loud for x2, 3 also for x4; each value records its try
+    loud = {2: {1, 3}, 4: {3}, 8: set()}
+    calls = []
+
+    def run(method, substeps, idx):
+        calls.append((substeps, idx.tolist()))
+        got = {"phi": np.stack([np.full(2, 10.0 * substeps + r) for r in idx])}
+        bad = [k for k, r in enumerate(idx) if r in loud[substeps]]
+        if bad:
+            raise DivergedRuns("diverged", np.array(bad), got)
+        return got
+    out = integration.run_with_retries(integration.Integration("exp-rk4", 2), run, 4)
+    assert calls == [(2, [0, 1, 2, 3]), (4, [1, 3]), (8, [3])]
+    assert out["phi"][:, 0].tolist() == [20.0, 41.0, 22.0, 83.0]
+
+
+def test_the_last_try_raises() -> None:
+    def run(method, substeps, idx):
+        raise DivergedRuns("diverged", np.arange(len(idx)), {"phi": np.zeros((len(idx), 1))})
+    with pytest.raises(DivergedRuns):
+        integration.run_with_retries(integration.Integration("rk4", 16), run, 3)
 
 
 def test_feature_network_choice_meets_its_tolerance() -> None:

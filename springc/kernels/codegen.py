@@ -26,7 +26,7 @@ import numpy as np
 from springc.kernels.integrators import Tableau, get_tableau
 from springc.lang.ir import FlatNetlist
 
-KERNEL_VERSION = 6  # bump when the generated text or its calling convention changes
+KERNEL_VERSION = 7  # bump when the generated text or its calling convention changes
 RECORD_ALIGN = 64  # bytes: the record's alignment and row padding (a cache line, and a
 # multiple of every streaming store's size), which `emit_record`'s aligned stores rely on
 LANE_CHOICES = (32, 16, 4, 1)  # compile-time lane widths a kernel is generated for (32: the
@@ -924,17 +924,20 @@ def emit_step_end(c: _Code, opts: KernelOptions, width: LaneLayout,
             before()
         emit_record(c, "rn_", width, record_block(opts.precision))
         c.dedent()
-    # Divergence guard every `check_every` steps and at the last: NaN/Inf or a state beyond
-    # `limit` stops the chunk, and the caller raises.
+    # Divergence guard every `check_every` steps and at the last: a lane with NaN/Inf or a
+    # state beyond `limit` is marked (step and node, once); the chunk stops when every lane
+    # is marked, so the caller can keep the other runs and simulate the marked ones again.
     c("cc_ += 1")
     c("if cc_ == check_every or k1 == nsteps:")
     c.indent()
     c("cc_ = 0")
     if before is not None:
         before()
-    c("bad = False")
+    c("alive = 0")
     c("for b in range(nv_):")
     c.indent()
+    c("if status[lo_ + b] != 0:")
+    c("    continue")
     c("worst = 0.0")
     c("wi = -1")
     c("for i in range(n):")
@@ -947,9 +950,10 @@ def emit_step_end(c: _Code, opts: KernelOptions, width: LaneLayout,
     c("if not worst <= limit:")
     c("    status[lo_ + b] = k1")
     c("    bad_node[lo_ + b] = wi")
-    c("    bad = True")
+    c("else:")
+    c("    alive += 1")
     c.dedent()
-    c("if bad:")
+    c("if alive == 0:")
     c("    break")
     c.dedent()
 

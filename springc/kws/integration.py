@@ -22,7 +22,7 @@ import numpy as np
 
 from springc.check import CheckedNetlist
 from springc.check.accuracy import choose as estimate
-from springc.errors import SimulationError, UsageError
+from springc.errors import DivergedRuns, SimulationError, UsageError
 
 TOLERANCE = 1e-3  # on Phi and the readouts, relative to each clip's largest value
 REFERENCE = ("rk4", 16, "float64")
@@ -143,13 +143,26 @@ def relative_error(got: np.ndarray, reference: np.ndarray) -> float:
     return float((np.abs(got - reference).max(axis=1) / scale).max())
 
 
-def run_with_retries(integration: Integration, run: Callable[[str, int], object]):
-    """run(method, substeps) at each of `integration.retries()` until one does not diverge
-    (`run` integrates in `integration.precision`)."""
+def run_with_retries(integration: Integration, run: Callable[[str, int, np.ndarray], dict],
+                     runs: int) -> dict[str, np.ndarray]:
+    """The reductions of `runs` runs: run(method, substeps, idx) simulates the runs `idx` (in
+    `integration.precision`) at each of `integration.retries()` in turn, each time only those
+    that diverged before, so one loud clip does not send its whole batch to finer steps."""
+    todo = np.arange(runs)
+    out: dict[str, np.ndarray] = {}
     tries = integration.retries()
     for k, (method, substeps) in enumerate(tries):
         try:
-            return run(method, substeps)
-        except SimulationError:
+            got, bad = run(method, substeps, todo), np.zeros(0, np.int64)
+        except DivergedRuns as err:
             if k == len(tries) - 1:
                 raise
+            got, bad = err.reductions, np.asarray(err.diverged)
+        keep = np.setdiff1d(np.arange(len(todo)), bad)
+        for key, value in got.items():
+            out.setdefault(key, np.full((runs,) + value.shape[1:], np.nan))[todo[keep]] = \
+                value[keep]
+        if not len(bad):
+            return out
+        todo = todo[bad]
+    raise AssertionError("unreachable: the last try returns or raises")

@@ -365,12 +365,9 @@ def simulate_peaks(signals: np.ndarray, s: MassSpringSettings) -> np.ndarray:
     signals = np.atleast_2d(np.asarray(signals, dtype=np.float64))
     labels = [f"x({node})" for node in terminals(s)]
     method, substeps, precision = integration.REFERENCE
-    res = integration.run_with_retries(
-        integration.Integration(method, substeps, precision),
-        lambda method, sub: simulate(checked_features(s), signals[:, None, :], INPUT_RATE,
-                                     probes=labels, outrate=2000.0, method=method,
-                                     substeps=sub, precision=precision, chunk=BATCH,
-                                     tstop=horizon(s, signals.shape[1] / INPUT_RATE)))
+    res = simulate(checked_features(s), signals[:, None, :], INPUT_RATE, probes=labels,
+                   outrate=2000.0, method=method, substeps=substeps, precision=precision,
+                   chunk=BATCH, tstop=horizon(s, signals.shape[1] / INPUT_RATE))
     return np.max([np.abs(res.probes[k]).max(axis=1) for k in labels], axis=0)
 
 
@@ -420,13 +417,14 @@ def clips_phi(clips: list, s: MassSpringSettings, augment: bool, seed: int,
 
 
 def phi_batch(signals: np.ndarray, s: MassSpringSettings) -> np.ndarray:
-    """Phi of one batch, simulated by one core (a Dask task); a batch too loud for the step
-    is simulated again with finer steps (`Integration.retries`)."""
+    """Phi of one batch, simulated by one core (a Dask task); clips too loud for the step are
+    simulated again with finer steps (`Integration.retries`)."""
     plan = integration.Integration(s.method, s.substeps, DATASET_PRECISION)
+    signals = np.asarray(signals, dtype=np.float64)
     return integration.run_with_retries(
-        plan, lambda method, sub: simulate_phi(signals.astype(np.float64), s,
-                                               chunk=BATCH, method=method,
-                                               substeps=sub, precision=plan.precision))
+        plan, lambda method, sub, idx: {"phi": simulate_phi(
+            signals[idx], s, chunk=BATCH, method=method, substeps=sub,
+            precision=plan.precision)}, len(signals))["phi"]
 
 
 def batches(signals, size: int = BATCH) -> list:

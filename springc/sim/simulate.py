@@ -22,7 +22,7 @@ from springc.kernels import codegen, expint, loader, regkernel
 from springc.lang import physics
 from springc.sim import reductions, sources
 from springc.sim.audio import resample
-from springc.errors import SimulationError, UsageError
+from springc.errors import DivergedRuns, UsageError
 from springc.kernels.integrators import DEFAULT_METHOD, TABLEAUX, get_tableau, max_stable_step
 from springc.check.checks import CheckedNetlist, require_checked
 from springc.lang.ir import FlatNetlist, Probe
@@ -418,11 +418,13 @@ def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rec, col, r
     ngram = sum(r.gram.groups for r in rplan.gram)
     args.update(reductions.gram_arrays(rplan, st.h, dtype), gram=np.zeros((ngram, runs)))
     _run_chunks(kernel, args, runs, task)
-    _check_divergence(net, st, args, names)
     work = np.zeros((nf, runs))
     work[sources.input_forces(net)] = args["work_in"]
     work[sources.common_forces(net)] = args["work_c"]
-    return _finish_reductions(net, rplan, args, work, wins, st)
+    with np.errstate(all="ignore"):  # a diverged run's sums are NaN; the others are kept
+        out = _finish_reductions(net, rplan, args, work, wins, st)
+    _check_divergence(net, st, args, names, out)
+    return out
 
 
 def available_memory() -> int:
@@ -539,18 +541,18 @@ def _dissipated(args, rplan, spec: str, runs: int) -> np.ndarray:
     return np.zeros(runs) if rows is None else args["diss"][rows].sum(axis=0)
 
 
-def _check_divergence(net, st: Settings, args, names) -> None:
+def _check_divergence(net, st: Settings, args, names, reductions: dict) -> None:
     status = args["status"]
     if not status.any():
         return
-    r = int(np.flatnonzero(status)[0])
+    bad = np.flatnonzero(status)
+    r = int(bad[0])
     when = status[r] * st.h
     node = net.nodes[int(args["bad_node"][r])]
-    raise SimulationError(
+    more = f" (and {len(bad) - 1} more run(s))" if len(bad) > 1 else ""
+    raise DivergedRuns(
         f"run {names[r]} diverged by t = {when:.6g} s: node {node} is NaN, infinite or beyond "
-        f"{LIMITS[st.precision]:g}",
-        hint=likely_cause(net, st),
-    )
+        f"{LIMITS[st.precision]:g}{more}", bad, reductions, hint=likely_cause(net, st))
 
 
 def likely_cause(net: FlatNetlist, st: Settings) -> str:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 import click
-from springc_cli.common import plot_option, run_user_errors
+from springc_cli.common import check_output_file, plot_option, run_user_errors
 
 
 @click.command("ac")
@@ -27,6 +27,9 @@ def ac_cmd(netlist, node, channel, fmin, fmax, points, output, plot_path) -> Non
     from springc.check import check
     from springc.errors import UsageError
 
+    for path in (output, plot_path):  # a failed command leaves no output: check both first
+        if path:
+            check_output_file(path, make_parents=True)
     net = lang.load_file(netlist)
     checked = check(net)
     spec = net.acs[0] if net.acs else None

@@ -65,13 +65,17 @@ def _os_message(exc: OSError) -> str:
     return f"error: {where}: cannot read or write it ({exc.strerror or exc})"
 
 
-def check_output_file(path: str | Path) -> None:
+def check_output_file(path: str | Path, make_parents: bool = False) -> None:
     """Fail before any work on an output file that cannot be written: a folder by that name,
-    or a parent that is a file or missing."""
+    or a parent that is a file or missing (`make_parents`: missing folders will be made, so
+    the nearest existing one must be a writable folder)."""
     path = Path(path)
     parent = path.parent
     if path.is_dir():
         raise DataError(str(path), "is a folder; give an output file name")
+    if make_parents:
+        while not parent.exists() and parent != parent.parent:
+            parent = parent.parent
     if parent.exists() and not parent.is_dir():
         raise DataError(str(path), f"cannot be written: {parent} is a file, not a folder")
     if not parent.exists():

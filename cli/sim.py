@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import click
-from springc_cli.common import plot_option, precision_option, run_user_errors
+from springc_cli.common import check_output_file, plot_option, precision_option, run_user_errors
 
 from springc.kernels.expint import SCHEMES
 from springc.kernels.integrators import TABLEAUX
@@ -66,6 +66,9 @@ def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precisio
     from springc.sim.simulate import simulate
 
     results.check_output_path(output)
+    for path in (output, plot_path):  # a failed command leaves no output: check both first
+        if path:
+            check_output_file(path, make_parents=True)
     net = load_file(netlist)
     if tolerance is None:
         checked = check(net, method, tstep=tstep, substeps=substeps)

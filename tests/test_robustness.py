@@ -513,12 +513,7 @@ def test_enough_broken_inputs():
 
 
 # Failures in files outside this test's fixes (see /tmp/robustness-findings.md).
-KNOWN = {
-    "design-mvm-empty.npy": "springc/design/mvm.py load_matrix: EOFError from np.load",
-    "design-mvm-npz.npy": "springc/design/mvm.py load_matrix: an .npz gives NpzFile, no ndim",
-    "plot-under-file-sim": "cli/sim.py writes -o before the plot fails: o.npz left on exit 1",
-    "plot-under-file-ac": "cli/analyses.py writes -o before the plot fails: o.csv left on exit 1",
-}
+KNOWN: dict[str, str] = {}  # case -> why it fails today (an xfail that must stay strict)
 
 
 @pytest.mark.parametrize("case", [

@@ -144,8 +144,10 @@ def load_matrix(path: str | Path) -> np.ndarray:
     path = Path(path)
     try:
         q = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
+    except Exception as exc:  # noqa: BLE001 - numpy raises many types for a bad file
         raise DataError(str(path), f"cannot read a .npy array ({exc})") from None
+    if not isinstance(q, np.ndarray):  # an .npz archive under a .npy name
+        raise DataError(str(path), "holds an .npz archive, not one .npy array")
     if q.ndim != 2 or q.shape[0] != q.shape[1] or q.shape[0] == 0 or q.dtype.kind not in "fiu":
         raise DataError(str(path), f"expected a square real matrix, got shape {q.shape} "
                         f"of {q.dtype}")

@@ -12,7 +12,8 @@ from springc.kws.dataset import PROTOCOLS
 from springc.kws.digital import FILTERBANKS, FeatureSettings
 from springc.kws.report import counts_table, majority_rate
 from springc.kws.task import TASKS
-from springc.kws.train import REALISATIONS, TrainOptions
+from springc.kws.task import REALISATIONS
+from springc.kws.train import TrainOptions
 
 _REALISATION = click.Choice(REALISATIONS)
 _SCHEDULER = click.option("--scheduler", default=None, metavar="ADDRESS",
@@ -29,6 +30,21 @@ _THRESHOLD = click.option("--threshold", type=float, default=None,
                           help="Mass-spring: compression threshold A_c (m of filter output) "
                                "of the feature compressors [default: 0.001]; smaller "
                                "compresses more.")
+
+
+_TOLERANCE = click.option(
+    "--tolerance", type=click.FloatRange(min=0.0, min_open=True), default=1e-3,
+    show_default=True, help="Mass-spring: error allowed on Phi and the readouts (relative to "
+    "each clip's largest value, against RK4 x16 float64 on 16 training clips); it chooses "
+    "the integrator and substeps of the networks.")
+_PAPER_STEPS = click.option(
+    "--paper-steps", is_flag=True,
+    help="Mass-spring: integrate as the paper does (RK4, 8 substeps, float32), no choice.")
+
+
+def _tolerance(tolerance: float, paper_steps: bool) -> float | None:
+    """TrainOptions/CVOptions.tolerance: None for the paper's setting."""
+    return None if paper_steps else tolerance
 
 
 def _massspring(settings: FeatureSettings, threshold: float | None):
@@ -69,11 +85,13 @@ def _massspring(settings: FeatureSettings, threshold: float | None):
 @click.option("--epsilon", type=float, default=None,
               help="Mass-spring: squaring error of the classifier heads [default: 1e-5].")
 @_THRESHOLD
+@_TOLERANCE
+@_PAPER_STEPS
 @_SCHEDULER
 @run_user_errors
 def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, tau, fc,
               feature_rate, protocol, class_weights, jobs, seed, no_cache, out, epsilon,
-              threshold, scheduler) -> None:
+              threshold, tolerance, paper_steps, scheduler) -> None:
     """Train the keyword spotter and write a model folder with weights and a test report."""
     from springc.kws.model import check_out_folder
     from springc.kws.train import train
@@ -88,9 +106,15 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
                         scheduler=scheduler, protocol=protocol,
                         balance_weights=None if class_weights is None
                         else class_weights == "balanced",
-                        massspring=_massspring(settings, threshold))
+                        massspring=_massspring(settings, threshold),
+                        tolerance=_tolerance(tolerance, paper_steps))
     report = train(opts)
     click.echo(_summary(report))
+    if "integration" in report:
+        from springc.kws.integration import from_dict
+
+        click.echo(f"integration of the features: "
+                   f"{from_dict(report['integration']['features']).describe()}")
     click.echo(f"model written to {out}")
 
 
@@ -180,10 +204,12 @@ def _majority(report: dict) -> float:
 @_NO_CACHE
 @click.option("-o", "--out", required=True, type=click.Path(path_type=Path),
               help="Folder for cv.json and cv.png.")
+@_TOLERANCE
+@_PAPER_STEPS
 @_SCHEDULER
 @run_user_errors
 def cv_cmd(data, bins, delays, realisations, folds, threshold, jobs, seed, no_cache, out,
-           scheduler) -> None:
+           tolerance, paper_steps, scheduler) -> None:
     """Speaker-grouped cross-validation (12 classes) on every clip of a data set: the
     class-balanced accuracy of each realisation and their paired difference, with bootstrap
     standard errors over speakers."""
@@ -193,7 +219,8 @@ def cv_cmd(data, bins, delays, realisations, folds, threshold, jobs, seed, no_ca
     opts = crossval.CVOptions(data=data, settings=settings,
                               realisations=realisations or crossval.REALISATIONS, folds=folds,
                               seed=seed, jobs=jobs, use_cache=not no_cache, scheduler=scheduler,
-                              massspring=_massspring(settings, threshold))
+                              massspring=_massspring(settings, threshold),
+                              tolerance=_tolerance(tolerance, paper_steps))
     report = crossval.cross_validate(opts, progress=lambda s: click.echo(s, err=True))
     click.echo("\n".join(crossval.summary_lines(report)))
     paths = crossval.write(report, out)

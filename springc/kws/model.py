@@ -19,6 +19,7 @@ from springc.errors import DataError
 from springc.kws import report as rep
 from springc.kws.phi import group_index, n_features
 from springc.kws.svm import LinearModel
+from springc.kws.task import REALISATIONS
 
 FILES = ("settings.json", "weights.npz", "report.json")
 
@@ -135,8 +136,6 @@ def _read_settings(path: Path) -> dict:
     for key in ("realisation", "task"):
         if not isinstance(settings[key], str):
             raise DataError(str(path), f"{key!r} must be a string, not {settings[key]!r}")
-    from springc.kws.train import REALISATIONS  # train imports this module
-
     if settings["realisation"] not in REALISATIONS:
         raise DataError(str(path), f"unknown realisation {settings['realisation']!r}; "
                         f"known: {', '.join(REALISATIONS)}")

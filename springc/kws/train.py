@@ -27,10 +27,9 @@ from springc.kws.digital import FeatureSettings, features
 from springc.kws.phi import phi_vector
 from springc.kws.report import evaluate_fits
 from springc.kws.svm import LOGREG_GRID, SVM_GRID, LinearModel, select
-from springc.kws.task import (DIGITS, open_task_data, targets, task_counts, task_protocol,
-                              task_weights)
+from springc.kws.task import (DIGITS, REALISATIONS, open_task_data, targets, task_counts,
+                              task_protocol, task_weights)
 
-REALISATIONS = ("digital", "baseline", "mass-spring")
 CHUNK = 8  # clips per work item: big enough for batched FFTs, small enough for memory
 
 

@@ -82,6 +82,16 @@ def test_only_the_runs_that_diverged_are_simulated_again() -> None:
     assert out["phi"][:, 0].tolist() == [20.0, 41.0, 22.0, 83.0]
 
 
+def test_a_first_pass_leaves_the_loud_runs_for_later() -> None:
+    # tries=slice(0, 1): the diverged runs come back as NaN rows, for a later pooled pass
+    def run(method, substeps, idx):
+        got = {"phi": np.ones((len(idx), 2))}
+        raise DivergedRuns("diverged", np.array([1]), got)
+    out = integration.run_with_retries(integration.Integration("exp-rk4", 2), run, 3,
+                                       slice(0, 1))
+    assert np.isnan(out["phi"][1]).all() and (out["phi"][[0, 2]] == 1).all()
+
+
 def test_the_last_try_raises() -> None:
     def run(method, substeps, idx):
         raise DivergedRuns("diverged", np.arange(len(idx)), {"phi": np.zeros((len(idx), 1))})

@@ -144,18 +144,22 @@ def relative_error(got: np.ndarray, reference: np.ndarray) -> float:
 
 
 def run_with_retries(integration: Integration, run: Callable[[str, int, np.ndarray], dict],
-                     runs: int) -> dict[str, np.ndarray]:
+                     runs: int, tries: slice = slice(None)) -> dict[str, np.ndarray]:
     """The reductions of `runs` runs: run(method, substeps, idx) simulates the runs `idx` (in
-    `integration.precision`) at each of `integration.retries()` in turn, each time only those
-    that diverged before, so one loud clip does not send its whole batch to finer steps."""
+    `integration.precision`) at each of `integration.retries()[tries]` in turn, each time only
+    those that diverged before, so one loud clip does not send its whole batch to finer steps.
+    Runs that diverge at the last try raise, unless `tries` stops short of the last retry:
+    then their rows are NaN (for a caller that pools them with others' for the next tries)."""
     todo = np.arange(runs)
     out: dict[str, np.ndarray] = {}
-    tries = integration.retries()
-    for k, (method, substeps) in enumerate(tries):
+    plan = integration.retries()
+    chosen = plan[tries]
+    final = tries.stop is None or tries.stop >= len(plan)
+    for k, (method, substeps) in enumerate(chosen):
         try:
             got, bad = run(method, substeps, todo), np.zeros(0, np.int64)
         except DivergedRuns as err:
-            if k == len(tries) - 1:
+            if k == len(chosen) - 1 and final:
                 raise
             got, bad = err.reductions, np.asarray(err.diverged)
         keep = np.setdiff1d(np.arange(len(todo)), bad)
@@ -163,6 +167,6 @@ def run_with_retries(integration: Integration, run: Callable[[str, int, np.ndarr
             out.setdefault(key, np.full((runs,) + value.shape[1:], np.nan))[todo[keep]] = \
                 value[keep]
         if not len(bad):
-            return out
+            break
         todo = todo[bad]
-    raise AssertionError("unreachable: the last try returns or raises")
+    return out

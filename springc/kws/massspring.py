@@ -410,21 +410,23 @@ def noise_bank(files: tuple):
 
 
 def clips_phi(clips: list, s: MassSpringSettings, augment: bool, seed: int,
-              noise_files: tuple) -> np.ndarray:
+              noise_files: tuple, tries: slice = slice(None)) -> np.ndarray:
     """Phi of one batch of clips, read, augmented and simulated by one core (a Dask task:
-    reading the audio on the workers keeps every core busy)."""
-    return phi_batch(load_signals(clips, augment, seed, list(noise_files)), s)
+    reading the audio on the workers keeps every core busy); `tries` as in `phi_batch`."""
+    return phi_batch(load_signals(clips, augment, seed, list(noise_files)), s, tries)
 
 
-def phi_batch(signals: np.ndarray, s: MassSpringSettings) -> np.ndarray:
+def phi_batch(signals: np.ndarray, s: MassSpringSettings,
+              tries: slice = slice(None)) -> np.ndarray:
     """Phi of one batch, simulated by one core (a Dask task); clips too loud for the step are
-    simulated again with finer steps (`Integration.retries`)."""
+    simulated again with finer steps (`Integration.retries`, the part `tries` of them; a clip
+    that diverges at the last of a part that is not the whole gets a row of NaN)."""
     plan = integration.Integration(s.method, s.substeps, DATASET_PRECISION)
     signals = np.asarray(signals, dtype=np.float64)
     return integration.run_with_retries(
         plan, lambda method, sub, idx: {"phi": simulate_phi(
             signals[idx], s, chunk=BATCH, method=method, substeps=sub,
-            precision=plan.precision)}, len(signals))["phi"]
+            precision=plan.precision)}, len(signals), tries)["phi"]
 
 
 def batches(signals, size: int = BATCH) -> list:
@@ -440,12 +442,22 @@ def dataset_phi(clips: list, split: str, s: MassSpringSettings, *, noise_files: 
 
     from springc.kws.distributed import map_batches
 
-    parts = batches(clips)
     work = partial(clips_phi, s=s, augment=split == "train", seed=seed,
                    noise_files=tuple(noise_files))
-    out = map_batches(work, parts, scheduler, workers=workers, desc=f"mass-spring {split}",
-                      sizes=[len(p) for p in parts])
-    return np.concatenate(out)
+    # every clip at the chosen step first; the few too loud for it then go together, in full
+    # batches, to finer steps (one loud clip would otherwise cost its whole batch a rerun)
+    parts = batches(clips)
+    out = np.concatenate(map_batches(partial(work, tries=slice(0, 1)), parts, scheduler,
+                                     workers=workers, desc=f"mass-spring {split}",
+                                     sizes=[len(p) for p in parts]))
+    loud = np.flatnonzero(np.isnan(out).any(axis=1))
+    if len(loud):
+        parts = batches([clips[k] for k in loud])
+        out[loud] = np.concatenate(map_batches(
+            partial(work, tries=slice(1, None)), parts, scheduler, workers=workers,
+            desc=f"mass-spring {split}, {len(loud)} loud clip(s) at finer steps",
+            sizes=[len(p) for p in parts]))
+    return out
 
 
 def feature_correlation(signals: np.ndarray, s: MassSpringSettings) -> np.ndarray:

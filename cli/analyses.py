@@ -16,7 +16,7 @@ from springc_cli.common import check_output_file, plot_option, run_user_errors
 @click.option("--fmin", type=float, default=None, help="Lowest frequency, Hz.")
 @click.option("--fmax", type=float, default=None, help="Highest frequency, Hz.")
 @click.option("--points", type=int, default=None, help="Number of log-spaced frequencies.")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--output", required=True, type=click.Path(),
               help="CSV file: f_hz,mag,phase_rad.")
 @plot_option
 @run_user_errors

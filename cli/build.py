@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 import click
-from springc_cli.common import run_user_errors
+from springc_cli.common import check_output_file, run_user_errors
 
 from springc.design.emit import write_atomic
 from springc.errors import NetlistError
@@ -16,7 +16,7 @@ from springc.lang.options import known_methods
 @click.command("build")
 @click.argument("netlist", type=click.Path(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
-@click.option("--emit-kernel", type=click.Path(dir_okay=False), default=None,
+@click.option("--emit-kernel", type=click.Path(), default=None,
               help="Also write the generated kernel source to this file.")
 @click.option("--method", default=None,
               help="Integrator (overrides .options method=): "
@@ -28,6 +28,8 @@ def build_cmd(netlist: str, as_json: bool, emit_kernel: str | None, method: str 
     """Parse, elaborate and check NETLIST; print dofs, elements, fastest mode and dt_max."""
     from springc.check import compiler
 
+    if emit_kernel:
+        check_output_file(emit_kernel, make_parents=True)
     report = compiler.build(netlist, method=method)
     if emit_kernel and isinstance(report, compiler.LibraryReport):
         raise NetlistError(f"{netlist}: a library of subcircuits has no kernel",

@@ -97,6 +97,6 @@ def precision_option(fn: Callable) -> Callable:
 def plot_option(fn: Callable) -> Callable:
     """--plot FILE.png."""
     return click.option(
-        "--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
+        "--plot", "plot_path", type=click.Path(), default=None,
         help="Also write a plot (PNG) of the result.",
     )(fn)

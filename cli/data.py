@@ -7,7 +7,7 @@ import os
 from pathlib import Path
 
 import click
-from springc_cli.common import plot_option, run_user_errors
+from springc_cli.common import check_output_file, plot_option, run_user_errors
 
 from springc.kws.dataset import CLASSES, PROTOCOLS, SPLITS, WORDS
 
@@ -34,6 +34,8 @@ def synth_cmd(out: Path, clips: int, seed: int, jobs: int, words: str | None, en
     engines (espeak-ng, flite, festival), with speaker-disjoint splits and background noise."""
     from springc.kws.synth import synthesise
 
+    if plot_path:  # before the minutes of synthesis
+        check_output_file(plot_path, make_parents=True)
     chosen = split_list(words) if words else WORDS
     report = synthesise(out, clips=clips, seed=seed, jobs=jobs or os.cpu_count() or 1,
                         words=chosen, engines=split_list(engines))
@@ -71,6 +73,8 @@ def info_cmd(folder: Path, silence: float, protocol: str, seed: int,
     from springc.kws.dataset import open_dataset, with_protocol
     from springc.kws.report import counts_table
 
+    if plot_path:
+        check_output_file(plot_path, make_parents=True)
     ds = with_protocol(open_dataset(folder, silence_per_split=silence, seed=seed), protocol,
                        seed)
     click.echo(f"protocol: {protocol}")

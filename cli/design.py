@@ -10,7 +10,7 @@ from springc.design import blocks, melbank, mvm
 from springc.design.emit import params_text, write_atomic
 from springc.design.filters import DEFAULT_FMAX, DEFAULT_FMIN
 
-OUT = click.option("-o", "--output", "output", type=click.Path(dir_okay=False), required=True,
+OUT = click.option("-o", "--output", "output", type=click.Path(), required=True,
                    help="The .spr file to write.")
 
 

@@ -23,7 +23,7 @@ from springc.export.ngspice import CrossCheck, cross_check, plot_cross_check
 @click.option(
     "-o",
     "--output",
-    type=click.Path(dir_okay=False),
+    type=click.Path(),
     required=True,
     help="Circuit file to write (e.g. out.cir); written atomically.",
 )
@@ -45,7 +45,7 @@ from springc.export.ngspice import CrossCheck, cross_check, plot_cross_check
 @click.option(
     "--input",
     "input_path",
-    type=click.Path(dir_okay=False),
+    type=click.Path(),
     default=None,
     help="Sound file whose channel k feeds in(k) (resampled to 1/tstep, inlined).",
 )

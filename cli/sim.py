@@ -22,7 +22,7 @@ REDUCE_HELP = (
 @click.option("--input", "-i", "inputs", multiple=True, metavar="FILE-OR-DIR",
               help="Sound file (wav, flac, ogg; any rate) for in(k); a folder adds its sound "
                    "files in sorted order. Repeatable; each file is one run.")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--output", required=True, type=click.Path(),
               help="out.npz (t, one (runs, T) array per probe, reductions, runs) or out.csv "
                    "(long format: run,quantity,t,value).")
 @plot_option

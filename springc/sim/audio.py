@@ -27,7 +27,8 @@ def read_audio(path: str | Path, channel: int | None = None) -> tuple[np.ndarray
     that stereo input is never mixed or truncated silently."""
     path = Path(path)
     if not path.is_file():
-        raise DataError(str(path), "no such file")
+        raise DataError(str(path), "is a folder, not a sound file" if path.is_dir()
+                        else "no such file")
     data, rate = read_checked(path)
     nch = data.shape[1]
     if channel is None:

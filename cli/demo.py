@@ -16,7 +16,7 @@ import numpy as np
 
 from springc_cli.common import run_user_errors
 
-DEFAULT_CLIPS = 1200  # measured: the whole demo in 3.1 min on 2 idle cores, cold compile included
+DEFAULT_CLIPS = 1200  # a few minutes on 2 cores with a cold kernel cache (README)
 # The demo corpus speaks the 10 commands and two other words ("unknown"), each equally often.
 # With GSCD's own mix (25 of 35 words unknown) and only ~30 clips per command, the SVM learns
 # to answer "unknown" for everything and the demo would show nothing; the paper's held-out

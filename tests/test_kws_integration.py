@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from springc.check import check
-from springc.errors import DivergedRuns, SimulationError, UsageError
+from springc.errors import DataError, DivergedRuns, SimulationError, UsageError
 from springc.kws import integration
 from springc.kws import massspring as msp
 from springc.check.accuracy import cost
@@ -110,3 +110,10 @@ def test_feature_network_choice_meets_its_tolerance() -> None:
     got = msp.simulate_phi(sig, s, precision="float32")
     ref = msp.simulate_phi(sig, SMALL, method="rk4", substeps=16, precision="float64")
     assert integration.relative_error(got, ref) <= 1e-3
+
+
+def test_a_garbled_integration_entry_is_a_named_data_error() -> None:
+    assert integration.from_dict(None) == integration.PAPER
+    assert integration.from_dict({"method": "exp-rk4", "substeps": 2}).substeps == 2
+    with pytest.raises(DataError, match="m/settings.json.*unreadable integration entry"):
+        integration.from_dict({"method": "rk4", "steps": 3}, "m/settings.json")

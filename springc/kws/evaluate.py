@@ -118,7 +118,8 @@ def evaluate_network(model, ds, *, scheduler: str | None = None, jobs: int = 0,
     clips = ds.split("test")
     task = model.settings["task"]
     signals = msp.load_signals(clips, False, 0, [])
-    plan = from_dict(model.settings["transfer"].get("integration"))
+    plan = from_dict(model.settings["transfer"].get("integration"),
+                     str(model.folder / "settings.json"))
     with session(scheduler, jobs or None):
         d, loss, seconds = simulate_network(net, heads, s, signals, scheduler=scheduler,
                                             jobs=jobs, plan=plan)

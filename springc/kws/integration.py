@@ -6,9 +6,10 @@ Candidates come from the per-mode error estimates (`springc.check.accuracy`: the
 substeps per method whose linear modes meet `tol`), cheapest first. Each is then run on a
 sample of clips and compared with a tight reference (RK4, 16 substeps, float64) on exactly
 what the classifier consumes (`outputs`: the Phi reduction, or the heads' readouts); the first
-whose error is at most `tol` on every clip, and that does not diverge, is taken. The nonlinear
-terms (squaring, compression) are what the linear estimates cannot see: a candidate that fails
-is tried again at twice the substeps. RK4 at 8 substeps, the paper's setting, is `PAPER`.
+whose error is at most `tol` on every clip, and that does not diverge, is taken. Per method the
+candidates run from a quarter to four times the estimated substeps: the estimates weigh every
+mode of the input band, which the outputs may not feel, and cannot see the nonlinear terms
+(squaring, compression). RK4 at 8 substeps, the paper's setting, is `PAPER`.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import numpy as np
 
 from springc.check import CheckedNetlist
 from springc.check.accuracy import choose as estimate
-from springc.errors import DivergedRuns, SimulationError, UsageError
+from springc.errors import DataError, DivergedRuns, SimulationError, UsageError
 
 TOLERANCE = 1e-3  # on Phi and the readouts, relative to each clip's largest value
 REFERENCE = ("rk4", 16, "float64")
@@ -66,9 +67,15 @@ class Integration:
 PAPER = Integration()
 
 
-def from_dict(data: dict | None) -> Integration:
-    """The integration recorded in a model's settings (the paper's setting if none is)."""
-    return Integration(**data) if data else PAPER
+def from_dict(data: dict | None, where: str = "settings.json") -> Integration:
+    """The integration recorded in a model's settings (the paper's setting if none is); a
+    DataError naming `where` if the entry is not one."""
+    if not data:
+        return PAPER
+    try:
+        return Integration(**data)
+    except TypeError as exc:
+        raise DataError(where, f"holds an unreadable integration entry ({exc})") from None
 
 
 Outputs = Callable[[np.ndarray, str, int, str], np.ndarray]

@@ -134,31 +134,15 @@ def realisation_features(clips: list, realisation: str, opts: CVOptions) -> np.n
     """Feature matrix (clips, N) of every clip, unaugmented, from the cache where present."""
     settings = opts.settings
     if realisation == "mass-spring":
-        from springc.kws.massspring import physical_settings
+        from springc.kws.massspring import integrated, physical_settings
 
-        settings = chosen_integration(clips, physical_settings(opts.settings, opts.massspring),
-                                      opts)
+        settings, opts.integration = integrated(
+            physical_settings(opts.settings, opts.massspring), clips, opts.tolerance)
     else:
         settings.validate(16000)
     return feature_matrices(clips, "cv", realisation, [settings], noise_files=[],
                             seed=opts.seed, jobs=opts.jobs, use_cache=opts.use_cache,
                             scheduler=opts.scheduler)[0]
-
-
-def chosen_integration(clips: list, s, opts: CVOptions):
-    """Mass-spring settings `s` integrated as `opts.tolerance` chooses on the first clips."""
-    from dataclasses import replace
-
-    from springc.kws.integration import PAPER
-    from springc.kws.massspring import choose_integration, load_signals
-    from springc.kws.train import INTEGRATION_CLIPS
-
-    if opts.tolerance is None:
-        opts.integration = PAPER
-    else:
-        sample = load_signals(clips[:INTEGRATION_CLIPS], False, 0, [])
-        opts.integration = choose_integration(s, sample, opts.tolerance)
-    return replace(s, method=opts.integration.method, substeps=opts.integration.substeps)
 
 
 def cross_validate(opts: CVOptions, progress=None) -> dict:

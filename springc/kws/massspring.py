@@ -329,6 +329,23 @@ def checked_features(s: MassSpringSettings):
     return check(feature_network(s))
 
 
+INTEGRATION_CLIPS = 16  # clips (unaugmented, first in order) the choice is measured on
+
+
+def integrated(s: MassSpringSettings, clips: list,
+               tol: float | None) -> tuple[MassSpringSettings, integration.Integration]:
+    """`s` with the integration `tol` chooses on the first INTEGRATION_CLIPS of `clips`
+    (None: the paper's RK4 x8), and that choice."""
+    from dataclasses import replace
+
+    if tol is None:
+        chosen = integration.PAPER
+    else:
+        sample = load_signals(clips[:INTEGRATION_CLIPS], False, 0, [])
+        chosen = choose_integration(s, sample, tol)
+    return replace(s, method=chosen.method, substeps=chosen.substeps), chosen
+
+
 def choose_integration(s: MassSpringSettings, signals: np.ndarray,
                        tol: float = integration.TOLERANCE) -> integration.Integration:
     """The cheapest integration of the feature network with Phi within `tol` of the tight

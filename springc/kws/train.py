@@ -51,7 +51,7 @@ class TrainOptions:
     # mass-spring only: physical settings (default: from `settings`), the squaring error of
     # the classifier heads, and a Dask scheduler address (default: a local cluster)
     massspring: object = None
-    integration: object = None  # set by `integrate_as_chosen`
+    integration: object = None  # what `tolerance` chose (`massspring.integrated`)
     epsilon: float | None = None
     scheduler: str | None = None
     # the error allowed on Phi and the readouts, which chooses the integrator
@@ -222,7 +222,10 @@ def train(opts: TrainOptions) -> dict:
         opts.massspring = physical_settings(opts.settings, opts.massspring)
     ds = open_task_data(opts.data, opts.task, opts.seed, opts.protocol)
     if opts.realisation == "mass-spring":
-        opts.massspring = integrate_as_chosen(opts, ds)
+        from springc.kws.massspring import integrated
+
+        opts.massspring, opts.integration = integrated(opts.massspring, ds.split("train"),
+                                                       opts.tolerance)
     feature_settings = opts.massspring if opts.realisation == "mass-spring" else opts.settings
     with _session(opts):
         feats = split_features(ds, opts.realisation, [feature_settings], seed=opts.seed,
@@ -259,26 +262,6 @@ def _session(opts: TrainOptions):
     if opts.realisation != "mass-spring":
         return nullcontext()
     return session(opts.scheduler, opts.jobs or None)
-
-
-INTEGRATION_CLIPS = 16  # training clips (unaugmented, first in order) the choice is measured on
-
-
-def integrate_as_chosen(opts: TrainOptions, ds):
-    """The mass-spring settings with the integration `opts.tolerance` chooses for the
-    feature network (recorded in `opts.integration` for the report)."""
-    from dataclasses import replace
-
-    from springc.kws import integration
-    from springc.kws.massspring import choose_integration, load_signals
-
-    s = opts.massspring
-    if opts.tolerance is None:
-        opts.integration = integration.PAPER
-        return replace(s, method=integration.PAPER.method, substeps=integration.PAPER.substeps)
-    sample = load_signals(ds.split("train")[:INTEGRATION_CLIPS], False, 0, [])
-    opts.integration = choose_integration(s, sample, opts.tolerance)
-    return replace(s, method=opts.integration.method, substeps=opts.integration.substeps)
 
 
 def data_summary(opts: TrainOptions, ds) -> dict:

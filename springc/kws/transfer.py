@@ -220,8 +220,9 @@ def feature_amplitude(signals: np.ndarray, s: msp.MassSpringSettings) -> float:
 DEFAULT_EPSILON = 1e-5  # squaring error: readouts within ~0.2% of c . Phi (measured)
 AMPLITUDE_CLIPS = 16  # training clips (unaugmented, first in order) that measure A
 CLASSIFIER_METHODS = ("rk4",)
-CLASSIFIER_SAMPLE = 16  # of those, the clips the classifier's integration is measured on (a whole
-# batch: a kernel call costs the same for 4 clips as for 16, its lanes)
+# of those, the clips the classifier's integration is measured on: a whole batch (a kernel
+# call costs the same for 4 clips as for 16, its lanes)
+CLASSIFIER_SAMPLE = 16
 
 
 def write_classifier(opts, ds, fits: list, settings: dict) -> dict[str, str]:
@@ -237,7 +238,7 @@ def write_classifier(opts, ds, fits: list, settings: dict) -> dict[str, str]:
                             "scales": [h.scale for h in heads],
                             "stiffness_scale": stiffness_scale(s)}
     plan = integration.PAPER
-    if getattr(opts, "tolerance", None) is not None:
+    if opts.tolerance is not None:
         from springc.lang import load_text
 
         net = load_text(classifier_text(heads, s, epsilon=eps), "<classifier>")

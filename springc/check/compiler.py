@@ -206,8 +206,11 @@ def kernel_source(report: BuildReport) -> str:
     from springc.kernels import expint  # code generation only when asked
     from springc.kernels.codegen import KernelOptions, generate
 
+    from springc.kernels.lower import kernel_netlist
+
     precision = str(report.net.options.get("precision", "float64"))
     opts = KernelOptions(method=report.method, precision=precision)
+    net = kernel_netlist(report.net)
     if expint.is_split(report.method):
-        return expint.kernel_source(report.net, opts)
-    return generate(report.net, opts)
+        return expint.kernel_source(net, opts)
+    return generate(net, opts)

@@ -28,6 +28,7 @@ from springc.kernels import codegen
 from springc.kernels.codegen import KernelOptions, _Code
 from springc.errors import UsageError
 from springc.kernels.integrators import Tableau, get_tableau
+from springc.kernels.lower import kernel_netlist
 from springc.lang.ir import GROUND, FlatNetlist
 
 MAX_BLOCK = 4  # nodes: filter pairs are 2; larger components are chains or blocks, not filters
@@ -99,7 +100,9 @@ class Blocks:
 
 
 def find_blocks(net: FlatNetlist, max_size: int = MAX_BLOCK) -> Blocks:
-    """The driven linear blocks of `net` (see the module docstring)."""
+    """The driven linear blocks of `net` (see the module docstring), of its kernel netlist
+    (`springc.kernels.lower`: a node whose only nonlinearity is a P x^2 is linear)."""
+    net = kernel_netlist(net)
     labels = _linear_components(net)
     nonlinear = np.zeros(net.n, bool)
     nonlinear[net.duffings.node] = True
@@ -285,7 +288,8 @@ def run_args(feat: codegen.Features, opts: KernelOptions) -> list[str]:
 def _refuse_work(scheme: SplitScheme, options: KernelOptions) -> None:
     if options.work or options.dissipation:
         raise UsageError(f"{scheme.name} does not accumulate input work or dissipation; "
-                         "use a Runge-Kutta method for work:/dissipated:/loss: reductions")
+                         "use a Runge-Kutta method or a Lawson scheme (exp-rk4, exp-heun3) "
+                         "for work:/dissipated:/loss: reductions")
 
 
 def _header(rest: FlatNetlist, options: KernelOptions, scheme: SplitScheme, tab: Tableau,
@@ -461,6 +465,7 @@ def lawson_args(feat: codegen.Features, opts: KernelOptions, sizes: list[int]) -
     names = codegen.run_args(feat, opts)
     at = names.index("xf")
     extra = ["frz"] + [f"lw{m}_{k}" for m in sizes for k in ("node", "e", "p0", "p1")]
+    extra += ["fi_w"] if opts.work and feat.in_forces else []
     return names[:at] + extra + names[at:]
 
 
@@ -469,7 +474,6 @@ def generate_lawson(rest: FlatNetlist, options: KernelOptions, sizes: list[int],
     """Kernel source of a 'lawson' scheme for the Runge-Kutta part `rest` and blocks of the
     given sizes driven by `nch` input channels."""
     scheme = SCHEMES[options.method]
-    _refuse_work(scheme, options)
     feat = codegen.features(rest)
     tab = scheme.tableau
     fracs, ufracs = lawson_fractions(tab)
@@ -581,18 +585,24 @@ def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab:
     codegen.emit_step_start(c, True)
     for k, frac in enumerate(lw.ufracs):
         codegen.emit_interp(c, f"ut{k}", f"(sub + {frac!r}) / substeps", lw.ln)
+    power = opts.work or opts.dissipation
     def prelude(s: int) -> None:
         if s > 0:
             codegen.nystrom_stage_state(c, tab, s, lw.ln, frozen="skip")
-            # the blocks' stage positions only: nothing in the rest reads a block node's
-            # velocity (`split_netlist` moves their damping and dashpots into the blocks, and
-            # the rest's zero damping on them multiplies the untouched zero rows of vs)
-            lw.emit_inline(c, s, "xs", None)
+            # the blocks' stage positions: nothing in the rest reads a block node's velocity
+            # (`split_netlist` moves their damping and dashpots into the blocks, and the rest's
+            # zero damping on them multiplies their rows of vs); the work and dissipation
+            # sums read the velocities of the input and damper nodes, in blocks too
+            lw.emit_inline(c, s, "xs", "vs" if power else None)
         if feat.in_forces:
             # the input at the stage time: one of the interpolated ut rows
             c(f"uc = ut{lw.ufracs.index(tab.c[s])}")
 
-    codegen.emit_stage_loop(c, feat, tab, lw.ln, prelude)
+    def after(s: int) -> None:
+        if tab.b[s] != 0.0:
+            codegen.emit_stage_reductions(c, feat, opts, s, gains="fi_w")
+
+    codegen.emit_stage_loop(c, feat, tab, lw.ln, prelude, after if power else None)
     lw.emit_inline(c, None, "xn", "vn")
     codegen.nystrom_combine(c, tab, lw.ln, frozen="exact")
     codegen.emit_step_end(c, opts, lw.ln)

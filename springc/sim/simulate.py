@@ -19,6 +19,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from springc.kernels import codegen, expint, loader, regkernel
+from springc.kernels.lower import kernel_netlist
 from springc.lang import physics
 from springc.sim import reductions, sources
 from springc.sim.audio import resample
@@ -202,14 +203,15 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
                    record_into)
     batch = batch_size(batch)
     task = task_runs(len(names), batch, chunk)
-    coeffs = kernel_arrays(net, st, np.dtype(st.precision))
+    knet = kernel_netlist(net)  # the same forces, cheaper terms
+    coeffs = kernel_arrays(knet, st, np.dtype(st.precision))
     opts = codegen.KernelOptions(st.method, st.precision, codegen.choose_lanes(task),
                                  record=bool(plist), work=rplan.work,
                                  dissipation=bool(rplan.damper_rows), msq=bool(rplan.msq),
                                  gram=bool(rplan.gram))
-    opts = kernel_form(net, opts, coeffs, st, len(names), write_out)
+    opts = kernel_form(knet, opts, coeffs, st, len(names), write_out)
     start = time.perf_counter()
-    kernel = loader.load(kernel_source(net, opts))
+    kernel = loader.load(kernel_source(knet, opts))
     rec = _records(len(plist), st.nsteps // st.rec_every + 1, len(names),
                    np.dtype(st.precision), record_into)
     out = _run_batches(net, kernel, st, coeffs, signals, names, plist, rplan, batch, task,
@@ -295,6 +297,8 @@ def kernel_arrays(net: FlatNetlist, st: Settings, dtype) -> dict[str, np.ndarray
     blocks = expint.find_blocks(net)
     out = coefficient_arrays(expint.split_netlist(net, blocks), dtype)
     out.update(expint.scheme_arrays(net, blocks, st.h, st.method, dtype))
+    # the input work of a Lawson kernel: the inputs' own gains (the split zeroes the blocks')
+    out["fi_w"] = np.ascontiguousarray(net.forces.gain[sources.input_forces(net)], np.float64)
     return out
 
 

@@ -576,7 +576,7 @@ def _emit_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> No
 
     def after(s: int) -> None:
         if tab.b[s] != 0.0:
-            _emit_stage_reductions(c, feat, opts, s)
+            emit_stage_reductions(c, feat, opts, s)
 
     emit_stage_loop(c, feat, tab, ln, prelude, after if opts.work or opts.dissipation else None,
                     opts.nodes)
@@ -826,13 +826,17 @@ def nystrom_combine(c: _Code, tab: Tableau, width: LaneLayout, frozen: str | Non
     c.dedent()
 
 
-def _emit_stage_reductions(c: _Code, feat: Features, opts: KernelOptions, s: int) -> None:
+def emit_stage_reductions(c: _Code, feat: Features, opts: KernelOptions, s: int,
+                          gains: str | None = None) -> None:
     """Quadrature of power over the step with the tableau weights (consistent with RK). The
-    force on a node is its acceleration times its mass: `fi_gm` holds gain / mass."""
+    force on a node is its acceleration times its mass: `fi_gm` holds gain / mass. `gains`:
+    an array of the input forces' own gains to use instead (a split kernel's Runge-Kutta part
+    has its blocks' inputs at gain 0)."""
     vs = nystrom_velocity(s)
     if opts.work and feat.in_forces:
+        gain = f"{gains}[e]" if gains else "fi_gm[e] / minv[fi_node[e]]"
         c("for e in range(fi_node.shape[0]):")
-        c("    fw = hbd" + str(s) + " * fi_gm[e] / minv[fi_node[e]]")
+        c(f"    fw = hbd{s} * {gain}")
         c("    for b in range(nb_):")
         c(f"        w_in[e, b] += fw * uc[fi_chan[e], b] * {vs}[fi_node[e], b]")
     if opts.work and feat.common_forces:

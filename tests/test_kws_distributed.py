@@ -4,6 +4,7 @@ single-process run, in order, and worker failures reach the caller as the user e
 from __future__ import annotations
 
 import tempfile
+import time
 from functools import partial
 from pathlib import Path
 
@@ -71,3 +72,25 @@ def test_an_unreachable_scheduler_is_a_user_error():
 
     with pytest.raises(UsageError, match="cannot reach the Dask scheduler"):
         map_batches(_fail, [1, 2], scheduler="not-an-address::")
+
+
+def _touch(path: str) -> None:
+    Path(path).write_text("done")
+
+
+def test_work_ahead_runs_on_a_session_worker_and_drops_its_errors(tmp_path):
+    """`ahead` outside a session does nothing; inside, the task runs on a worker (its file
+    appears), and a failing one neither raises here nor stops the session's batches."""
+    from springc.kws.distributed import ahead, session
+
+    ahead(_touch, str(tmp_path / "outside"))
+    with session(None, 2):
+        ahead(_fail, None)
+        ahead(_touch, str(tmp_path / "inside"))
+        assert map_batches(abs, [-1, -2]) == [1, 2]
+        for _ in range(200):
+            if (tmp_path / "inside").exists():
+                break
+            time.sleep(0.05)
+    assert (tmp_path / "inside").read_text() == "done"
+    assert not (tmp_path / "outside").exists()

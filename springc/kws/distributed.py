@@ -55,6 +55,23 @@ def map_batches(fn: Callable[[Any], Any], batches: Sequence[Any], scheduler: str
 
 
 _OPEN: list = []  # the client of the `session` in progress, which `map_batches` uses
+_AHEAD: list = []  # futures of `ahead` (Dask cancels a task whose future is dropped)
+
+
+def ahead(fn: Callable[..., Any], *args: Any) -> None:
+    """Start fn(*args) on a worker of the session in progress, if there is one, and never
+    read its result: work done ahead for its side effects, such as compiling a kernel into
+    the shared cache while this process does something else. Its errors are dropped (the
+    same work done for real reports them)."""
+    if _OPEN:
+        _AHEAD.append(_OPEN[-1].submit(_quietly, fn, *args, pure=False))
+
+
+def _quietly(fn: Callable[..., Any], *args: Any) -> None:
+    try:
+        fn(*args)
+    except Exception:  # noqa: BLE001  (see `ahead`)
+        pass
 
 
 @contextmanager
@@ -72,6 +89,7 @@ def session(scheduler: str | None = None, workers: int | None = None) -> Iterato
             yield
         finally:
             _OPEN.pop()
+            _AHEAD.clear()
 
 
 def _client(scheduler: str | None, workers: int):

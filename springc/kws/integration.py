@@ -90,11 +90,13 @@ def choose(checked: CheckedNetlist, signals: np.ndarray, outputs: Outputs, durat
     reference value."""
     if not tol > 0:
         raise UsageError(f"tolerance must be positive, got {tol}")
+    todo = candidates(checked, 1.0 / 16000.0, duration, tol, methods)
+    _compile_ahead(outputs, signals, todo, precision)
     method, substeps, prec = REFERENCE
     _say(f"integration: reference {method} x{substeps} {prec} on {len(signals)} clip(s)")
     reference, seconds = _timed(outputs, signals, method, substeps, prec)
     known = {REFERENCE: (reference, seconds)}  # a candidate may be the reference itself
-    for method, substeps in candidates(checked, 1.0 / 16000.0, duration, tol, methods):
+    for method, substeps in todo:
         config = (method, substeps, precision)
         try:
             got, seconds = known.get(config) or _timed(outputs, signals, *config)
@@ -109,6 +111,21 @@ def choose(checked: CheckedNetlist, signals: np.ndarray, outputs: Outputs, durat
                                f"{REFERENCE[0]} x{REFERENCE[1]} {REFERENCE[2]}", seconds)
     raise UsageError(f"no integrator up to {MAX_SUBSTEPS} substeps meets tolerance {tol:g} "
                      "on the sample clips", hint="raise the tolerance")
+
+
+def _compile_ahead(outputs: Outputs, signals: np.ndarray, todo: list[tuple[str, int]],
+                   precision: str) -> None:
+    """Each candidate method's kernel compiled on an idle Dask worker (one clip run there)
+    while the reference runs here: a kernel compile takes 10-25 s, and the choice would
+    otherwise compile one after the other on one core (`distributed.ahead`)."""
+    from springc.kws.distributed import ahead
+
+    firsts = {}
+    for method, substeps in todo:
+        firsts.setdefault(method, substeps)
+    for method, substeps in firsts.items():
+        if (method, precision) != (REFERENCE[0], REFERENCE[2]):  # that one compiles here
+            ahead(outputs, signals[:1], method, substeps, precision)
 
 
 def _timed(outputs: Outputs, *args) -> tuple[np.ndarray, float]:

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 from springc_cli.common import run_user_errors
 
-CASE_NAMES = ("feature", "kws", "delay", "stiff", "duffing")
+CASE_NAMES = ("feature", "kws", "delay", "stiff", "duffing", "kws-features", "kws-classifier")
 
 
 @click.command("bench")

@@ -116,3 +116,42 @@ def long_delay_line(sites: int = 200, td: float = 1e-4, kc: float = 1e4) -> Flat
     b.probe("x", end)
     b.tran = Tran(td / 2, sites * td * 2, None)
     return b.finish()
+
+
+# -- the keyword-spotting pipeline's own networks --------------------------------------------
+
+def pipeline_features(bins: int = 8, delays: int = 3) -> FlatNetlist:
+    """The feature network `springc train --realisation mass-spring` simulates
+    (`springc.kws.massspring.feature_text`: 488 masses at 8x3), probed on its first, middle
+    and last terminal nodes (what Phi is made of)."""
+    from springc.kws import massspring as msp
+    from springc.lang import load_text
+
+    s = msp.MassSpringSettings(bins=bins, delays=delays)
+    ends = msp.terminals(s)
+    probes = [ends[0], ends[len(ends) // 2], ends[-1]]
+    text = msp.feature_text(s) + "".join(f".probe x({p})\n" for p in probes)
+    return load_text(text, "<bench_networks.pipeline_features>")
+
+
+def pipeline_classifier(bins: int = 8, delays: int = 3, heads: int = 12,
+                        seed: int = 0) -> FlatNetlist:
+    """The whole classifier `springc eval` simulates for a mass-spring model
+    (`springc.kws.transfer.classifier_text`: front end and `heads` heads, 788 masses at 8x3),
+    its heads designed from random classifier rows (a trained model's weights change the
+    coefficients, not the work), probed on three readouts."""
+    from springc.kws import massspring as msp
+    from springc.kws.phi import n_features
+    from springc.kws.svm import LinearModel
+    from springc.kws.transfer import DEFAULT_EPSILON, classifier_text, heads_for
+    from springc.lang import load_text
+
+    s = msp.MassSpringSettings(bins=bins, delays=delays)
+    rng = np.random.default_rng(seed)
+    rows = LinearModel(rng.standard_normal((heads, n_features(bins, delays))),
+                       rng.standard_normal(heads), np.array([f"c{k}" for k in range(heads)]))
+    amplitude = 1e-3  # m: a typical peak terminal displacement of the built-in corpus
+    hs = heads_for([(list(rows.classes), rows)], s, amplitude, DEFAULT_EPSILON)
+    probes = [0, heads // 2, heads - 1]
+    text = classifier_text(hs, s) + "".join(f".probe x(r{k})\n" for k in probes)
+    return load_text(text, "<bench_networks.pipeline_classifier>")

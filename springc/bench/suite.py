@@ -287,11 +287,43 @@ def cases(quick: bool = False) -> list[Case]:
              None, duff.tran.tstep, duff.tran.tstop * scale, _rk_configs((1, 2, 4)),
              0.05 * scale, ladder=tuple(_rk_configs((8, 16, 32, 64, 128, 256))),
              ref_substeps=512),
-    ]
+    ] + _pipeline_cases(scale, runs)
     if quick:
         for case in out:
             case.rounds = 2
     return out
+
+
+SPEECH_LEVEL = 0.3  # the speech-like inputs scaled to the level of the corpus's clips
+
+
+def _pipeline_cases(scale: float, runs: int) -> list[Case]:
+    """The keyword-spotting pipeline's own networks at 8x3 on its 16 kHz grid: the feature
+    network `train` simulates and the whole classifier `eval` simulates (float64 only: its
+    multipliers' cancellation moves float32 readouts by 2e-2)."""
+    rate, t = 16000.0, 0.25 * scale
+    features = bn.pipeline_features()
+    classifier = bn.pipeline_classifier()
+    no_ngspice = {"ngspice": "not run on the pipeline's networks (see the 564-dof case)"}
+    return [
+        Case("kws-features", f"keyword-spotting feature network, 8x3 ({features.n} masses)",
+             features, SPEECH_LEVEL * speech_like(t, rate, runs, seed=4), 1 / rate, t,
+             _rk_configs((1, 2, 4, 8)) + [("rk4", 8, "float32")]
+             + _rk_configs((1, 2, 4), ("float64", "float32"), method="exp-rk4"),
+             0.01 * scale, peers=("DOP853", "DOP853 tstep/8", "RK45", "numpy-rk4"),
+             paired=(("rk4", 8, "float32"), ("exp-rk4", 2, "float32")), skipped=no_ngspice,
+             ladder=tuple(_rk_configs((8, 16), method="exp-rk4")),
+             ref_method="exp-rk4", ref_substeps=32, check_tstop=0.005 * scale),
+        Case("kws-classifier", f"keyword-spotting classifier, 8x3, 12 heads "
+             f"({classifier.n} masses)", classifier,
+             SPEECH_LEVEL * speech_like(t, rate, runs, seed=5), 1 / rate, t,
+             _rk_configs((4, 8)) + [("rk4", 8, "float32")]
+             + _rk_configs((1, 2, 4), method="exp-rk4"),
+             0.005 * scale, peers=("DOP853",),
+             paired=(("rk4", 8, "float64"), ("exp-rk4", 2, "float64")), skipped=no_ngspice,
+             ladder=tuple(_rk_configs((8,), method="exp-rk4")), rounds=5,
+             ref_method="exp-rk4", ref_substeps=32, check_tstop=0.0025 * scale),
+    ]
 
 
 def run_case(case: Case, progress: Callable[[str], None] = print) -> CaseResult:

@@ -12,6 +12,7 @@ import itertools
 import multiprocessing
 import os
 import sys
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -210,9 +211,8 @@ def fit_task(x: dict[str, np.ndarray], y: dict[str, np.ndarray], task: str, kind
 
 
 def train(opts: TrainOptions) -> dict:
-    """Train, evaluate on the test split and write the model folder. Returns the report."""
-    from springc.kws.model import write_model
-
+    """Train, evaluate on the test split and write the model folder. Returns the report,
+    with the wall time of each phase ("seconds")."""
     check_realisation(opts.realisation)
     if opts.realisation == "digital":
         opts.settings.validate(16000)
@@ -221,16 +221,37 @@ def train(opts: TrainOptions) -> dict:
 
         opts.massspring = physical_settings(opts.settings, opts.massspring)
     ds = open_task_data(opts.data, opts.task, opts.seed, opts.protocol)
+    with _session(opts):  # the workers compile ahead during the choices (`integration`)
+        return _train(opts, ds, Phases())
+
+
+class Phases:
+    """Wall seconds per named phase, in order."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+        self.start = time.perf_counter()
+
+    def done(self, name: str) -> None:
+        """The phase `name` ends now (it began where the previous one ended)."""
+        now = time.perf_counter()
+        self.seconds[name] = now - self.start
+        self.start = now
+
+
+def _train(opts: TrainOptions, ds, phases: Phases) -> dict:
+    from springc.kws.model import write_model
+
     if opts.realisation == "mass-spring":
         from springc.kws.massspring import integrated
 
         opts.massspring, opts.integration = integrated(opts.massspring, ds.split("train"),
                                                        opts.tolerance)
+        phases.done("integration of the features")
     feature_settings = opts.massspring if opts.realisation == "mass-spring" else opts.settings
-    with _session(opts):
-        feats = split_features(ds, opts.realisation, [feature_settings], seed=opts.seed,
-                               jobs=opts.jobs, use_cache=opts.use_cache,
-                               scheduler=opts.scheduler)
+    feats = split_features(ds, opts.realisation, [feature_settings], seed=opts.seed,
+                           jobs=opts.jobs, use_cache=opts.use_cache, scheduler=opts.scheduler)
+    phases.done("features")
     x = {s: f[0] for s, f in feats.items()}
     y = {s: targets(ds.split(s), opts.task) for s in x}
     kind = "logreg" if opts.realisation == "baseline" else "svm"
@@ -238,18 +259,20 @@ def train(opts: TrainOptions) -> dict:
     fits = fit_task(x, y, opts.task, kind, grid, opts.jobs or os.cpu_count() or 1,
                     opts.balance_weights)
     report = evaluate_fits(fits, x["test"], y["test"], opts.task)
+    phases.done("classifier fit")
     report.update(data_summary(opts, ds))
     settings = model_settings(opts, ds)
     if opts.integration is not None:
         settings["integration"] = report["integration"] = {"features":
                                                            opts.integration.to_dict()}
+    extra = {}
     if opts.realisation == "mass-spring":  # the classifier netlists beside the weights
         from springc.kws.transfer import write_classifier
 
-        write_model(opts.out, settings, fits, report,
-                    extra=write_classifier(opts, ds, fits, settings))
-    else:
-        write_model(opts.out, settings, fits, report)
+        extra = write_classifier(opts, ds, fits, settings)
+        phases.done("classifier network")
+    report["seconds"] = phases.seconds
+    write_model(opts.out, settings, fits, report, extra=extra)
     return report
 
 

@@ -1,0 +1,432 @@
+"""The discrete adjoint of the explicit Runge-Kutta step, in Numba, a chunk of runs per call.
+
+`forward` integrates a chunk of runs in lockstep (state (dofs, lanes), one lane per run)
+with the simulator's arithmetic: the same tableau and step h, inputs interpolated linearly at
+the stage times, shared sources from the same table. It accumulates the streaming
+reductions as the generated kernels do, keeps the state every `every` steps, and leaves the
+last segment's stage states in the buffers. `reverse` walks the steps backwards: segment by
+segment it recomputes the stage states from the segment's checkpoint (not the last one,
+which the forward sweep left), then propagates the adjoint through each step's stages, the
+transposed Jacobian of the forces at each stage (`forces_vjp`) and the reductions' seeds.
+Memory is O((nsteps / every + every) * stages * dofs * lanes): `every` ~ sqrt(nsteps) keeps it
+O(sqrt(nsteps)); `every` = nsteps stores one segment and recomputes nothing.
+
+The forces are plain loops over each term kind's arrays (`springc.grad.model.Model`) with
+the lanes innermost; accelerations are forces times the inverse mass. Gradients go to the
+blocks of `model.BLOCKS` (raw coefficients, not over mass), one column per lane.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from springc.grad.model import B, BB, CA, CK, FC, FI, K, L, M, PC, QA, QG, V0, X0
+
+JIT = dict(cache=True, nogil=True)
+
+
+@njit(**JIT)
+def forces(md, x, v, uc, gs, f):
+    """Forces (not over mass) on every node at positions x, velocities v (dofs, lanes),
+    inputs uc (channel, lane) and shared source values gs (per shared force)."""
+    nl = x.shape[1]
+    for i in range(x.shape[0]):
+        for b in range(nl):
+            f[i, b] = -md.bn[i] * v[i, b]
+    for e in range(md.k_node.shape[0]):
+        i, k = md.k_node[e], md.k_k[e]
+        for b in range(nl):
+            f[i, b] -= k * x[i, b]
+    for e in range(md.d_node.shape[0]):
+        i, c = md.d_node[e], md.d_l[e]
+        for b in range(nl):
+            f[i, b] -= c * x[i, b] * x[i, b] * x[i, b]
+    for e in range(md.c_i.shape[0]):
+        i, j, a, k = md.c_i[e], md.c_j[e], md.c_a[e], md.c_k[e]
+        ka = k / a
+        for b in range(nl):
+            r = x[i, b] - a * x[j, b]
+            f[i, b] -= ka * r
+            f[j, b] += k * r
+    for e in range(md.q_i.shape[0]):
+        i, j, a, g = md.q_i[e], md.q_j[e], md.q_a[e], md.q_g[e]
+        ga = 2.0 * g / a
+        for b in range(nl):
+            s = x[i, b] * x[i, b] - a * x[j, b]
+            f[i, b] -= ga * x[i, b] * s
+            f[j, b] += g * s
+    for e in range(md.b_i.shape[0]):
+        i, j, c = md.b_i[e], md.b_j[e], md.b_b[e]
+        for b in range(nl):
+            dv = v[i, b] - (v[j, b] if j >= 0 else 0.0)
+            f[i, b] -= c * dv
+            if j >= 0:
+                f[j, b] += c * dv
+    for e in range(md.p_c.shape[0]):
+        for k in range(md.p_ptr[e], md.p_ptr[e + 1]):
+            for b in range(nl):
+                f[md.p_var[k], b] -= md.p_c[e] * _dmono(md.p_ptr, md.p_var, md.p_exp, x, e, k, b)
+    for e in range(md.fi_node.shape[0]):
+        i, c, ch = md.fi_node[e], md.fi_gain[e], md.fi_chan[e]
+        for b in range(nl):
+            f[i, b] += c * uc[ch, b]
+    for e in range(md.fc_node.shape[0]):
+        i, c = md.fc_node[e], md.fc_gain[e] * gs[e]
+        for b in range(nl):
+            f[i, b] += c
+
+
+@njit(**JIT)
+def _dmono(ptr, var, exp, x, e, k, b):
+    """d/dz_k of the product of monomial e's factors z_l^e_l (coefficient left out) in lane
+    b; each factor counts as its own variable, so a node named twice sums its factors."""
+    ek = exp[k]
+    if ek == 0:
+        return 0.0
+    out = ek * x[var[k], b] ** (ek - 1)
+    for m in range(ptr[e], ptr[e + 1]):
+        if m != k:
+            out *= x[var[m], b] ** exp[m]
+    return out
+
+
+@njit(**JIT)
+def _ddmono(ptr, var, exp, x, e, k, m, b):
+    """d^2/dz_k dz_m of monomial e's factor product (coefficient left out) in lane b."""
+    ek, em = exp[k], exp[m]
+    if k == m:
+        if ek < 2:
+            return 0.0
+        out = ek * (ek - 1) * x[var[k], b] ** (ek - 2)
+    else:
+        if ek == 0 or em == 0:
+            return 0.0
+        out = ek * em * x[var[k], b] ** (ek - 1) * x[var[m], b] ** (em - 1)
+    for q in range(ptr[e], ptr[e + 1]):
+        if q != k and q != m:
+            out *= x[var[q], b] ** exp[q]
+    return out
+
+
+@njit(**JIT)
+def forces_vjp(md, x, v, uc, gs, fb, xb, vb, gr):
+    """Given fb, the adjoint of `forces`' output, add its transpose into xb, vb (adjoints of
+    x and v) and into the coefficient gradient gr (coefficient, lane)."""
+    off, nl = md.off, x.shape[1]
+    for i in range(x.shape[0]):
+        c = md.bn[i]
+        for b in range(nl):
+            vb[i, b] -= c * fb[i, b]
+            gr[off[B] + i, b] -= v[i, b] * fb[i, b]
+    for e in range(md.k_node.shape[0]):
+        i, k = md.k_node[e], md.k_k[e]
+        for b in range(nl):
+            xb[i, b] -= k * fb[i, b]
+            gr[off[K] + e, b] -= x[i, b] * fb[i, b]
+    for e in range(md.d_node.shape[0]):
+        i, c = md.d_node[e], md.d_l[e]
+        for b in range(nl):
+            xx = x[i, b] * x[i, b]
+            xb[i, b] -= 3.0 * c * xx * fb[i, b]
+            gr[off[L] + e, b] -= xx * x[i, b] * fb[i, b]
+    # the helpers take arrays, not md: a tuple of arrays passed per element is copied
+    for e in range(md.c_i.shape[0]):
+        _coupling_vjp(md.c_i[e], md.c_j[e], md.c_a[e], md.c_k[e], off[CK] + e, off[CA] + e,
+                      x, fb, xb, gr)
+    for e in range(md.q_i.shape[0]):
+        _quad_vjp(md.q_i[e], md.q_j[e], md.q_a[e], md.q_g[e], off[QG] + e, off[QA] + e,
+                  x, fb, xb, gr)
+    for e in range(md.b_i.shape[0]):
+        i, j, c = md.b_i[e], md.b_j[e], md.b_b[e]
+        for b in range(nl):
+            dv = v[i, b] - (v[j, b] if j >= 0 else 0.0)
+            fj = fb[j, b] if j >= 0 else 0.0
+            dvb = c * (fj - fb[i, b])
+            vb[i, b] += dvb
+            if j >= 0:
+                vb[j, b] -= dvb
+            gr[off[BB] + e, b] += dv * (fj - fb[i, b])
+    for e in range(md.p_c.shape[0]):
+        _monomial_vjp(md.p_c[e], md.p_ptr, md.p_var, md.p_exp, md.off[PC] + e, x, e, fb, xb,
+                      gr)
+    for e in range(md.fi_node.shape[0]):
+        i, ch = md.fi_node[e], md.fi_chan[e]
+        for b in range(nl):
+            gr[off[FI] + e, b] += uc[ch, b] * fb[i, b]
+    for e in range(md.fc_node.shape[0]):
+        i, g = md.fc_node[e], gs[e]
+        for b in range(nl):
+            gr[off[FC] + e, b] += g * fb[i, b]
+
+
+@njit(**JIT)
+def _coupling_vjp(i, j, a, k, ck, ca, x, fb, xb, gr):
+    """C: r = x_i - a x_j, f_i = -(k/a) r, f_j = k r (gradient rows ck, ca)."""
+    ka, ia, kaa = k / a, 1.0 / a, k / (a * a)  # out of the lane loop: divisions are slow
+    for b in range(x.shape[1]):
+        r = x[i, b] - a * x[j, b]
+        rb = k * fb[j, b] - ka * fb[i, b]
+        xb[i, b] += rb
+        xb[j, b] -= a * rb
+        gr[ck, b] += r * (fb[j, b] - ia * fb[i, b])
+        gr[ca, b] += kaa * r * fb[i, b] - x[j, b] * rb
+
+
+@njit(**JIT)
+def _quad_vjp(i, j, a, g, qg, qa, x, fb, xb, gr):
+    """Q: s = x_i^2 - a x_j, f_i = -(2g/a) x_i s, f_j = g s (gradient rows qg, qa)."""
+    ga, ia, gaa = 2.0 * g / a, 2.0 / a, 2.0 * g / (a * a)
+    for b in range(x.shape[1]):
+        xi = x[i, b]
+        s = xi * xi - a * x[j, b]
+        sb = g * fb[j, b] - ga * xi * fb[i, b]
+        xb[i, b] += 2.0 * xi * sb - ga * s * fb[i, b]
+        xb[j, b] -= a * sb
+        gr[qg, b] += s * (fb[j, b] - ia * xi * fb[i, b])
+        gr[qa, b] += gaa * xi * s * fb[i, b] - x[j, b] * sb
+
+
+@njit(**JIT)
+def _monomial_vjp(c, ptr, var, exp, row, x, e, fb, xb, gr):
+    """P: the force on each factor's node is -c d/dz_k; its transpose needs the Hessian."""
+    for k in range(ptr[e], ptr[e + 1]):
+        for b in range(x.shape[1]):
+            gk = -fb[var[k], b]
+            gr[row, b] += gk * _dmono(ptr, var, exp, x, e, k, b)
+            for m in range(ptr[e], ptr[e + 1]):
+                xb[var[m], b] += gk * c * _ddmono(ptr, var, exp, x, e, k, m, b)
+
+
+@njit(**JIT)
+def _interp(u, step, substeps, c, out):
+    """Inputs (channel, sample, lane) at stage time (step + c) h into out (channel, lane):
+    linear between input-grid samples, as the kernels interpolate (`codegen.emit_interp`)."""
+    k0 = step // substeps
+    pos = (step - k0 * substeps + c) / substeps
+    ip = int(pos)
+    fr = pos - ip
+    for ch in range(u.shape[0]):
+        for b in range(u.shape[2]):
+            out[ch, b] = (1.0 - fr) * u[ch, k0 + ip, b] + fr * u[ch, k0 + ip + 1, b]
+
+
+@njit(**JIT)
+def _stages(md, ta, tc, h, x, v, u, gtab, step, substeps, X, V, KV, UC, f):
+    """Stage states X, V, accelerations KV and inputs UC (stage, ...) of one step from x, v."""
+    n, nl = x.shape
+    for s in range(tc.shape[0]):
+        for i in range(n):
+            for b in range(nl):
+                X[s, i, b] = x[i, b]
+                V[s, i, b] = v[i, b]
+        for j in range(s):
+            ha = h * ta[s, j]
+            if ha != 0.0:
+                for i in range(n):
+                    for b in range(nl):
+                        X[s, i, b] += ha * V[j, i, b]
+                        V[s, i, b] += ha * KV[j, i, b]
+        _interp(u, step, substeps, tc[s], UC[s])
+        forces(md, X[s], V[s], UC[s], gtab[step, s], f)
+        for i in range(n):
+            for b in range(nl):
+                KV[s, i, b] = f[i, b] * md.minv[i]
+
+
+@njit(**JIT)
+def _combine(tb, h, x, v, V, KV):
+    """x += h sum_s b_s V_s, v += h sum_s b_s KV_s (in place)."""
+    n, nl = x.shape
+    for i in range(n):
+        for b in range(nl):
+            dx, dv = 0.0, 0.0
+            for s in range(tb.shape[0]):
+                dx += h * tb[s] * V[s, i, b]
+                dv += h * tb[s] * KV[s, i, b]
+            x[i, b] += dx
+            v[i, b] += dv
+
+
+@njit(**JIT)
+def _stage_sums(md, tb, h, step, gtab, V, UC, ds, work, diss):
+    """One step's work per force and dissipation per damper row (the tableau's quadrature
+    of power, as `codegen.emit_stage_reductions`)."""
+    nfi, nl = md.fi_node.shape[0], V.shape[2]
+    for s in range(tb.shape[0]):
+        w = h * tb[s]
+        for e in range(nfi):
+            i, c = md.fi_node[e], w * md.fi_gain[e]
+            for b in range(nl):
+                work[e, b] += c * UC[s, md.fi_chan[e], b] * V[s, i, b]
+        for e in range(md.fc_node.shape[0]):
+            i, c = md.fc_node[e], w * md.fc_gain[e] * gtab[step, s, e]
+            for b in range(nl):
+                work[nfi + e, b] += c * V[s, i, b]
+        for d in range(ds.shape[0]):
+            i, j, c = int(ds[d, 0]), int(ds[d, 1]), w * ds[d, 2]
+            for b in range(nl):
+                dv = V[s, i, b] - (V[s, j, b] if j >= 0 else 0.0)
+                diss[d, b] += c * dv * dv
+
+
+@njit(**JIT)
+def _state_sums(k, x, v, ms, msq, gp, gdecay, gram):
+    """Reductions of the state after step k: windowed squares (ms rows node, isv, lo, hi)
+    and the leaky Gram sums (gp rows i, j, group, weight times h)."""
+    nl = x.shape[1]
+    for r in range(ms.shape[0]):
+        if ms[r, 2] <= k <= ms[r, 3]:
+            q = v[ms[r, 0]] if ms[r, 1] else x[ms[r, 0]]
+            for b in range(nl):
+                msq[r, b] += q[b] * q[b]
+    if k > 0:
+        for g in range(gram.shape[0]):
+            for b in range(nl):
+                gram[g, b] *= gdecay[g]
+    for p in range(gp.shape[0]):
+        i, j, g, w = int(gp[p, 0]), int(gp[p, 1]), int(gp[p, 2]), gp[p, 3]
+        for b in range(nl):
+            gram[g, b] += w * x[i, b] * x[j, b]
+
+
+@njit(**JIT)
+def forward(md, ta, tb, tc, h, nsteps, substeps, x, v, u, gtab, every, cps, X, V, KV, UC,
+            ds, ms, gp, gdecay, work, diss, msq, gram):
+    """Integrate a chunk of runs from x, v (dofs, lanes; the final state on return) for
+    nsteps steps; store the state before every `every`-th step in cps (checkpoint, 2, dofs,
+    lanes), the last segment's stages in X, V, KV, UC (step in segment, stage, ...) and the
+    reductions in work, diss, msq, gram (row, lane)."""
+    f = np.zeros(x.shape)
+    last = (nsteps - 1) // every
+    _state_sums(0, x, v, ms, msq, gp, gdecay, gram)
+    for step in range(nsteps):
+        seg, t = step // every, step % every
+        if t == 0:
+            cps[seg, 0] = x
+            cps[seg, 1] = v
+        q = t if seg == last else 0  # earlier segments: scratch in the first slot
+        _stages(md, ta, tc, h, x, v, u, gtab, step, substeps, X[q], V[q], KV[q], UC[q], f)
+        _stage_sums(md, tb, h, step, gtab, V[q], UC[q], ds, work, diss)
+        _combine(tb, h, x, v, V[q], KV[q])
+        _state_sums(step + 1, x, v, ms, msq, gp, gdecay, gram)
+
+
+@njit(**JIT)
+def _state_seeds(k, x, v, xb, vb, ms, msw, gp, gw, fac, gdecay):
+    """Add the reductions' adjoints at the state after step k (msw per ms row, gw per Gram
+    pair: d result / d sum), then age the Gram factors by one step."""
+    nl = x.shape[1]
+    for r in range(ms.shape[0]):
+        if ms[r, 2] <= k <= ms[r, 3]:
+            node = ms[r, 0]
+            for b in range(nl):
+                if ms[r, 1]:
+                    vb[node, b] += 2.0 * msw[r, b] * v[node, b]
+                else:
+                    xb[node, b] += 2.0 * msw[r, b] * x[node, b]
+    for p in range(gp.shape[0]):
+        i, j = int(gp[p, 0]), int(gp[p, 1])
+        for b in range(nl):
+            w = gw[p, b] * gp[p, 3] * fac[p]
+            xb[i, b] += w * x[j, b]
+            xb[j, b] += w * x[i, b]
+        fac[p] *= gdecay[int(gp[p, 2])]
+
+
+@njit(**JIT)
+def _stage_seeds(md, tb, h, step, gtab, V, UC, ds, ww, dw, VB, gr, dgr):
+    """The work and dissipation sums' adjoints (ww per force, dw per damper row) at the stage
+    velocities (into VB) and at the gains and damper coefficients (into gr, dgr)."""
+    nfi, nl = md.fi_node.shape[0], V.shape[2]
+    for s in range(tb.shape[0]):
+        w = h * tb[s]
+        for e in range(nfi):
+            i, ch, c = md.fi_node[e], md.fi_chan[e], w * md.fi_gain[e]
+            for b in range(nl):
+                VB[s, i, b] += ww[e, b] * c * UC[s, ch, b]
+                gr[md.off[FI] + e, b] += ww[e, b] * w * UC[s, ch, b] * V[s, i, b]
+        for e in range(md.fc_node.shape[0]):
+            i, g = md.fc_node[e], w * gtab[step, s, e]
+            for b in range(nl):
+                VB[s, i, b] += ww[nfi + e, b] * g * md.fc_gain[e]
+                gr[md.off[FC] + e, b] += ww[nfi + e, b] * g * V[s, i, b]
+        for d in range(ds.shape[0]):
+            i, j, c = int(ds[d, 0]), int(ds[d, 1]), w * ds[d, 2]
+            for b in range(nl):
+                dv = V[s, i, b] - (V[s, j, b] if j >= 0 else 0.0)
+                VB[s, i, b] += 2.0 * dw[d, b] * c * dv
+                if j >= 0:
+                    VB[s, j, b] -= 2.0 * dw[d, b] * c * dv
+                dgr[d, b] += dw[d, b] * w * dv * dv
+
+
+@njit(**JIT)
+def _step_vjp(md, ta, tb, h, step, gtab, X, V, KV, UC, xb, vb, VB, KB, XB, fb, gr):
+    """Turn xb, vb (adjoint of the state after the step) into the adjoint of the state
+    before it, through the stages in reverse; VB holds the stage velocities' reduction
+    adjoints on entry."""
+    S, (n, nl) = tb.shape[0], xb.shape
+    for s in range(S):
+        w = h * tb[s]
+        for i in range(n):
+            for b in range(nl):
+                VB[s, i, b] += w * xb[i, b]
+                KB[s, i, b] = w * vb[i, b]
+    for s in range(S - 1, -1, -1):
+        for i in range(n):
+            mi = md.minv[i]
+            for b in range(nl):
+                fb[i, b] = KB[s, i, b] * mi
+                gr[md.off[M] + i, b] -= KB[s, i, b] * KV[s, i, b] * mi
+                XB[i, b] = 0.0
+        forces_vjp(md, X[s], V[s], UC[s], gtab[step, s], fb, XB, VB[s], gr)
+        for i in range(n):
+            for b in range(nl):
+                xb[i, b] += XB[i, b]
+                vb[i, b] += VB[s, i, b]
+        for j in range(s):
+            ha = h * ta[s, j]
+            if ha != 0.0:
+                for i in range(n):
+                    for b in range(nl):
+                        VB[j, i, b] += ha * XB[i, b]
+                        KB[j, i, b] += ha * VB[s, i, b]
+
+
+@njit(**JIT)
+def reverse(md, ta, tb, tc, h, nsteps, substeps, u, gtab, every, cps, X, V, KV, UC, xf, vf,
+            ds, ms, gp, gdecay, ww, dw, msw, gw, xb, vb, gr, dgr):
+    """The adjoint sweep of a chunk after its `forward`: xb, vb hold the adjoint of the final
+    state xf, vf on entry and of the initial state on return; the coefficient gradient is
+    added into gr (the damper rows' own coefficients into dgr). The seeds: ww per force, dw
+    per damper row, msw per ms row, gw per Gram pair (row, lane)."""
+    n, nl = xf.shape
+    S = tc.shape[0]
+    SX, SV = np.zeros((every + 1, n, nl)), np.zeros((every + 1, n, nl))
+    VB, KB = np.zeros((S, n, nl)), np.zeros((S, n, nl))
+    XB, fb, f = np.zeros((n, nl)), np.zeros((n, nl)), np.zeros((n, nl))
+    fac = np.ones(gp.shape[0])
+    _state_seeds(nsteps, xf, vf, xb, vb, ms, msw, gp, gw, fac, gdecay)
+    last = (nsteps - 1) // every
+    for seg in range(last, -1, -1):
+        start = seg * every
+        count = min(nsteps, start + every) - start
+        SX[0], SV[0] = cps[seg, 0], cps[seg, 1]
+        for t in range(count):
+            SX[t + 1], SV[t + 1] = SX[t], SV[t]
+            if seg != last:  # the forward sweep left the last segment's stages
+                _stages(md, ta, tc, h, SX[t + 1], SV[t + 1], u, gtab, start + t, substeps,
+                        X[t], V[t], KV[t], UC[t], f)
+            _combine(tb, h, SX[t + 1], SV[t + 1], V[t], KV[t])
+        for t in range(count - 1, -1, -1):
+            step = start + t
+            VB[:] = 0.0
+            _stage_seeds(md, tb, h, step, gtab, V[t], UC[t], ds, ww, dw, VB, gr, dgr)
+            _step_vjp(md, ta, tb, h, step, gtab, X[t], V[t], KV[t], UC[t], xb, vb, VB, KB,
+                      XB, fb, gr)
+            _state_seeds(step, SX[t], SV[t], xb, vb, ms, msw, gp, gw, fac, gdecay)
+    for i in range(n):
+        for b in range(nl):
+            gr[md.off[X0] + i, b] += xb[i, b]
+            gr[md.off[V0] + i, b] += vb[i, b]

@@ -1,0 +1,181 @@
+"""A netlist file as a function of its top-level `.param` values.
+
+`ParamNetlist.load(path)` parses the file once (includes spliced in); `netlist(values)`
+elaborates it with some parameters set to other values (each `.param` line of theirs at top
+level replaced by the number, later parameters recomputed from it); `jacobian(values, wrt)`
+gives d(coefficient)/d(parameter) for every element coefficient, exact to rounding, by
+elaborating the tangent netlists of `springc.grad.derive`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from springc.errors import NetlistError, SourceLoc, UsageError
+from springc.lang import ast, elaborate, parse, read_source
+from springc.lang.expr import Env, closest, value
+from springc.lang.files import Includes
+from springc.lang.ir import FlatNetlist
+from springc.grad.derive import tangent_tree
+
+# (table attribute, coefficient field) of every coefficient the gradient covers, in order
+COEFFICIENTS = (
+    ("masses", "m"), ("masses", "b"), ("masses", "x0"), ("masses", "v0"),
+    ("springs", "k"), ("duffings", "l"), ("couplings", "k"), ("couplings", "a"),
+    ("quads", "g"), ("quads", "a"), ("dashpots", "b"), ("monomials", "c"),
+    ("forces", "gain"),
+)
+PROBE = 1e-3  # relative change of a parameter that must leave the netlist's structure alone
+
+
+def coefficients(net: FlatNetlist) -> dict[tuple[str, str], np.ndarray]:
+    """Every coefficient array of `net`, keyed as in `COEFFICIENTS`."""
+    return {(t, f): np.asarray(getattr(getattr(net, t), f), np.float64) for t, f in COEFFICIENTS}
+
+
+def structure(net: FlatNetlist) -> str:
+    """`net`'s text dump with every coefficient left out: what a parameter must not change."""
+    blank = net
+    for table, name in COEFFICIENTS:
+        tab = getattr(blank, table)
+        blank = replace(blank, **{table: replace(tab, **{name: np.zeros(len(tab))})})
+    return blank.text()
+
+
+@dataclass
+class ParamNetlist:
+    """A parsed netlist with its top-level parameters: `values` (as the file sets them) and
+    `locs` (where each is defined)."""
+
+    file: str
+    statements: list
+    values: dict[str, float]
+    locs: dict[str, SourceLoc]
+    lib_dirs: list[Path] | None = None
+
+    @classmethod
+    def load(cls, path: str | Path, lib_dirs: list[Path] | None = None) -> ParamNetlist:
+        """Parse `path`, splice its includes and read its top-level parameters; the netlist
+        must elaborate (a `NetlistError` otherwise)."""
+        return cls.from_text(read_source(path), str(path), lib_dirs)
+
+    @classmethod
+    def from_text(cls, text: str, filename: str = "<text>",
+                  lib_dirs: list[Path] | None = None) -> ParamNetlist:
+        """As `load`, from source text."""
+        tree = parse(text, filename)
+        statements = Includes(lib_dirs).expand(tree)
+        elaborate(ast.Netlist(filename, tuple(statements)), lib_dirs)
+        values, locs = _top_params(statements)
+        return cls(filename, statements, values, locs, lib_dirs)
+
+    def require(self, names: Sequence[str], option: str = "--wrt") -> None:
+        """A `UsageError` naming the option unless every name is a top-level `.param`."""
+        for name in names:
+            if name not in self.values:
+                guess = closest(name, self.values)
+                hint = (f"did you mean '{guess}'?" if guess else
+                        f"top-level parameters: {', '.join(self.values) or 'none'}")
+                raise UsageError(f"{option} {name}: {self.file} has no top-level .param "
+                                 f"'{name}'", hint=hint)
+
+    def netlist(self, values: Mapping[str, float] | None = None) -> FlatNetlist:
+        """The elaborated netlist with `values` replacing those parameters' definitions."""
+        values = dict(values or {})
+        self.require(list(values), "parameter")
+        return elaborate(self._tree(self._set(self.statements, values)), self.lib_dirs)
+
+    def jacobian(self, values: Mapping[str, float] | None, wrt: Sequence[str]
+                 ) -> dict[str, dict[tuple[str, str], np.ndarray]]:
+        """d(coefficient)/d(param) for each name of `wrt`, keyed as `coefficients()`, at the
+        parameter values `values` (others as in the file). A parameter that no coefficient
+        depends on, or that also sets something other than a coefficient (a source's
+        arguments, a time, a loop bound, a node name), is a `UsageError`."""
+        self.require(list(wrt))
+        base_stmts = self._set(self.statements, dict(values or {}))
+        base = elaborate(self._tree(base_stmts), self.lib_dirs)
+        prefix = self._prefix()
+        out = {}
+        for name in wrt:
+            self._probe(base, base_stmts, name)
+            tangent = tangent_tree(base_stmts, self.file, name, prefix)
+            try:
+                out[name] = coefficients(elaborate(tangent, self.lib_dirs))
+            except NetlistError as err:
+                raise UsageError(f"cannot differentiate with respect to '{name}': "
+                                 f"{err.format()}") from None
+        return out
+
+    def _probe(self, base: FlatNetlist, stmts: list, name: str) -> None:
+        """Elaborate with `name` nudged: the structure must stay, some coefficient must move."""
+        current = _top_params(stmts)[0][name]
+        nudged = current * (1 + PROBE) + PROBE
+        try:
+            moved = elaborate(self._tree(self._set(stmts, {name: nudged})), self.lib_dirs)
+        except NetlistError:
+            return  # a domain error at the nudged value: the tangent pass reports its own
+        where = self.locs[name]
+        if structure(moved) != structure(base):
+            raise UsageError(f"--wrt {name}: the parameter (defined at {where}) sets more "
+                             "than element coefficients (a source's arguments, a time, a "
+                             "loop bound or a node name), which have no gradient here",
+                             hint="use it only in m b x0 v0 k l a g c gain values")
+        before, after = coefficients(base), coefficients(moved)
+        if all(np.array_equal(before[k], after[k]) for k in before):
+            raise UsageError(f"--wrt {name}: no element coefficient depends on the parameter "
+                             f"(defined at {where})", hint="it is not used by any element")
+
+    def _tree(self, statements: list) -> ast.Netlist:
+        return ast.Netlist(self.file, tuple(statements))
+
+    def _set(self, statements: list, values: dict[str, float]) -> list:
+        """`statements` with each top-level `.param name=...` of `values` set to the number."""
+        if not values:
+            return statements
+        out = []
+        for stmt in statements:
+            if isinstance(stmt, ast.Directive) and stmt.name == "param":
+                args = tuple(_set_keyword(a, values) for a in stmt.args)
+                stmt = replace(stmt, args=args)
+            out.append(stmt)
+        return out
+
+    def _prefix(self) -> str:
+        """A name prefix for the derivative companions that no name of the netlist uses."""
+        text = repr(self.statements)
+        prefix = "__d_"
+        while prefix in text:
+            prefix = "_" + prefix
+        return prefix
+
+
+def _set_keyword(arg, values: dict[str, float]):
+    if isinstance(arg, ast.Keyword) and arg.key in values:
+        number = float(values[arg.key])
+        return replace(arg, value=ast.Num(number, repr(number), arg.value.loc))
+    return arg
+
+
+def _top_params(statements: list) -> tuple[dict[str, float], dict[str, SourceLoc]]:
+    """Values and locations of the top-level parameters, evaluated as the elaborator does
+    (in order, `.data` arrays visible); only called on netlists that elaborate."""
+    from springc.lang.files import beside, read_array
+
+    env = Env()
+    locs: dict[str, SourceLoc] = {}
+    for stmt in statements:
+        if not isinstance(stmt, ast.Directive):
+            continue
+        if stmt.name == "data":
+            path = beside(stmt.args[1])
+            env.vars[stmt.args[0].parts[0]] = read_array(path, stmt.args[1].loc)
+        elif stmt.name == "param":
+            for kw in stmt.args:
+                env.vars[kw.key] = value(kw.value, env)
+                locs[kw.key] = kw.loc
+    values = {k: float(env.vars[k]) for k in locs}
+    return values, locs

@@ -15,6 +15,7 @@ import click
 TABLE: dict[str, tuple[str, str, str]] = {
     "build": ("build", "build_cmd", "Parse, elaborate and check a netlist; print its summary."),
     "sim": ("sim", "sim_cmd", "Simulate a netlist for every input signal; write the probes."),
+    "grad": ("grad", "grad_cmd", "Gradient of a reduction with respect to .param values."),
     "ac": ("analyses", "ac_cmd", "Frequency response of the linearisation at rest."),
     "modes": ("analyses", "modes_cmd", "Eigenfrequencies, damping, Q and mode shapes."),
     "design": ("design", "design", "Design building blocks (Mel filterbank, MVM, ...)."),

@@ -213,7 +213,7 @@ def test_parameter_errors_are_user_errors():
         gradient(pn, "final:x(x)", ["sa"])
     with pytest.raises(UsageError, match="bad reduction"):
         gradient(pn, "mean:x(x)", ["w0"])
-    with pytest.raises(UsageError, match="no gradient for the reduction 'energy'"):
+    with pytest.raises(UsageError, match="--of energy: no gradient for this reduction"):
         gradient(pn, "energy", ["w0"])
 
 

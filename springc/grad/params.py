@@ -120,14 +120,14 @@ class ParamNetlist:
             return  # a domain error at the nudged value: the tangent pass reports its own
         where = self.locs[name]
         if structure(moved) != structure(base):
-            raise UsageError(f"--wrt {name}: the parameter (defined at {where}) sets more "
-                             "than element coefficients (a source's arguments, a time, a "
-                             "loop bound or a node name), which have no gradient here",
+            raise UsageError(f"--wrt {name}: the parameter sets more than element "
+                             "coefficients (a source's arguments, a time, a loop bound or a "
+                             "node name), which have no gradient here", where,
                              hint="use it only in m b x0 v0 k l a g c gain values")
         before, after = coefficients(base), coefficients(moved)
         if all(np.array_equal(before[k], after[k]) for k in before):
-            raise UsageError(f"--wrt {name}: no element coefficient depends on the parameter "
-                             f"(defined at {where})", hint="it is not used by any element")
+            raise UsageError(f"--wrt {name}: no element coefficient depends on the parameter",
+                             where, hint="it is not used by any element")
 
     def _tree(self, statements: list) -> ast.Netlist:
         return ast.Netlist(self.file, tuple(statements))

@@ -45,13 +45,16 @@ class Rows:
 
 
 def parse(specs: list, net: FlatNetlist) -> list[reductions.Reduction]:
-    """The reductions of `specs` (as `--reduce` takes them); one the gradient cannot follow
-    is a `UsageError` naming it."""
+    """The reductions of `specs` (as `--reduce` takes them); a malformed one, or one the
+    gradient cannot follow, is a `UsageError` naming it."""
     out = []
     for spec in specs:
-        r = reductions.parse(spec, net)
+        try:
+            r = reductions.parse(spec, net)
+        except UsageError as err:  # name the argument (`--of` of springc grad)
+            raise UsageError(f"--of {spec}: {err.message}", hint=err.diagnostic.hint) from None
         if r.kind not in SUPPORTED:
-            raise UsageError(f"no gradient for the reduction {r.spec!r}",
+            raise UsageError(f"--of {spec}: no gradient for this reduction",
                              hint=f"gradients follow {', '.join(SUPPORTED)} reductions")
         out.append(r)
     return out

@@ -26,6 +26,9 @@ from springc.check.accuracy import choose as estimate
 from springc.errors import DataError, DivergedRuns, SimulationError, UsageError
 
 TOLERANCE = 1e-3  # on Phi and the readouts, relative to each clip's largest value
+# a candidate may leave up to this share of the sample to finer steps (clips too loud for
+# it: `run_with_retries`); more, and it would cost finer steps for much of a data set
+LOUD_SHARE = 0.25
 REFERENCE = ("rk4", 16, "float64")
 METHODS = ("exp-heun3", "exp-rk4", "rk4")
 MAX_SUBSTEPS = 32
@@ -85,9 +88,10 @@ def choose(checked: CheckedNetlist, signals: np.ndarray, outputs: Outputs, durat
            tol: float = TOLERANCE, precision: str = "float32",
            methods: tuple[str, ...] = METHODS) -> Integration:
     """The cheapest integration of `checked` by one of `methods` in `precision` whose
-    `outputs(signals, method, substeps, precision)` (clips, values) are within `tol` of the
-    reference on every clip of `signals`. The error is relative to each clip's largest
-    reference value."""
+    `outputs(signals, method, substeps, precision)` (clips, values; a row of NaN for a clip
+    that diverges at that step) are within `tol` of the reference on every clip of `signals`
+    that it integrates, and that leaves at most `LOUD_SHARE` of them to finer steps. The
+    error is relative to each clip's largest reference value."""
     if not tol > 0:
         raise UsageError(f"tolerance must be positive, got {tol}")
     todo = candidates(checked, 1.0 / 16000.0, duration, tol, methods)
@@ -103,9 +107,16 @@ def choose(checked: CheckedNetlist, signals: np.ndarray, outputs: Outputs, durat
         except SimulationError:
             _say(f"integration: {method} x{substeps} {precision} diverged")
             continue
-        error = relative_error(got, reference)
+        ok = np.isfinite(got).all(axis=1) & np.isfinite(reference).all(axis=1)
+        loud = len(ok) - int(ok.sum())
+        if loud > LOUD_SHARE * len(ok):
+            _say(f"integration: {method} x{substeps} {precision} diverged on {loud} of "
+                 f"{len(ok)} clips")
+            continue
+        error = relative_error(got[ok], reference[ok])
         _say(f"integration: {method} x{substeps} {precision} error {error:.2g} "
-             f"({'within' if error <= tol else 'above'} {tol:g}), {seconds:.2f} s")
+             f"({'within' if error <= tol else 'above'} {tol:g}), {seconds:.2f} s"
+             + (f"; {loud} loud clip(s) left to finer steps" if loud else ""))
         if error <= tol:
             return Integration(method, substeps, precision, tol, error, len(signals),
                                f"{REFERENCE[0]} x{REFERENCE[1]} {REFERENCE[2]}", seconds)

@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -336,8 +336,6 @@ def integrated(s: MassSpringSettings, clips: list,
                tol: float | None) -> tuple[MassSpringSettings, integration.Integration]:
     """`s` with the integration `tol` chooses on the first INTEGRATION_CLIPS of `clips`
     (None: the paper's RK4 x8), and that choice."""
-    from dataclasses import replace
-
     if tol is None:
         chosen = integration.PAPER
     else:
@@ -350,9 +348,9 @@ def choose_integration(s: MassSpringSettings, signals: np.ndarray,
                        tol: float = integration.TOLERANCE) -> integration.Integration:
     """The cheapest integration of the feature network with Phi within `tol` of the tight
     reference on `signals` (a sample of clips, (clips, samples) at 16 kHz)."""
-    def outputs(sig, method, substeps, precision):
-        return simulate_phi(sig, s, chunk=BATCH, method=method, substeps=substeps,
-                            precision=precision)
+    def outputs(sig, method, substeps, precision):  # one try: loud clips are NaN rows
+        return phi_batch(sig, replace(s, method=method, substeps=substeps), slice(0, 1),
+                         precision)
 
     duration = horizon(s, signals.shape[1] / INPUT_RATE)
     return integration.choose(checked_features(s), signals, outputs, duration, tol,
@@ -433,12 +431,12 @@ def clips_phi(clips: list, s: MassSpringSettings, augment: bool, seed: int,
     return phi_batch(load_signals(clips, augment, seed, list(noise_files)), s, tries)
 
 
-def phi_batch(signals: np.ndarray, s: MassSpringSettings,
-              tries: slice = slice(None)) -> np.ndarray:
+def phi_batch(signals: np.ndarray, s: MassSpringSettings, tries: slice = slice(None),
+              precision: str = DATASET_PRECISION) -> np.ndarray:
     """Phi of one batch, simulated by one core (a Dask task); clips too loud for the step are
     simulated again with finer steps (`Integration.retries`, the part `tries` of them; a clip
     that diverges at the last of a part that is not the whole gets a row of NaN)."""
-    plan = integration.Integration(s.method, s.substeps, DATASET_PRECISION)
+    plan = integration.Integration(s.method, s.substeps, precision)
     signals = np.asarray(signals, dtype=np.float64)
     return integration.run_with_retries(
         plan, lambda method, sub, idx: {"phi": simulate_phi(

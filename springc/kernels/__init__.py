@@ -21,8 +21,9 @@ cache and compiles it. `springc.sim.simulate` picks the form (`kernel_form`, `ke
     exponential: Lawson       expint.kernel_source        --method exp-rk4, exp-heun3,
       and Strang splitting    (generate_lawson,           strang-rk4: driven linear blocks
                               generate)                   exact, the rest in the shared form;
-                                                          no work or dissipation reductions
+                                                          work and dissipation: Lawson only
 
+Every form is generated for `lower.kernel_netlist` (P c x^2 terms as linear springs).
 All share `codegen`'s preamble, header, argument lists, chunk and step code and records; the
 register kernels write their own stages and force terms, the exponential ones their block
 updates. What is written twice: docs/architecture.md#kernel-forms.

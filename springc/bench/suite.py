@@ -26,6 +26,7 @@ import numpy as np
 
 from springc.bench import networks as bn
 from springc.bench import ceiling
+from springc.bench import grad as gradbench
 from springc.check import CheckedNetlist, check
 from springc.kernels import expint
 from springc.design.emit import write_atomic
@@ -1169,4 +1170,5 @@ def run_suite(names: list[str] | None = None, quick: bool = False,
               progress: Callable[[str], None] = print) -> list[CaseResult]:
     """Run the named cases (default: all) in one process."""
     chosen = [c for c in cases(quick) if names is None or c.name in names]
+    gradbench.report(names, quick, progress)
     return [run_case(c, progress) for c in chosen]

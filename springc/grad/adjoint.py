@@ -23,7 +23,7 @@ from numba import njit
 
 from springc.grad.model import B, BB, CA, CK, FC, FI, K, L, M, PC, QA, QG, V0, X0
 
-JIT = dict(cache=True, nogil=True)
+JIT = dict(cache=True, nogil=True, error_model="numpy", fastmath={"contract"})
 
 
 @njit(**JIT)

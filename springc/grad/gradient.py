@@ -124,7 +124,7 @@ def _require_finite(vals: dict, names: list[str]) -> None:
                              " (a diverged run, or a logarithm of zero work or dissipation)")
 
 
-LANES = 4  # runs integrated together per kernel call (a vector of float64 lanes)
+LANES = 8  # most runs integrated together per kernel call (lanes of the state arrays)
 MEMORY = 2**28  # bytes of stage buffers per chunk below which nothing is recomputed
 
 
@@ -148,7 +148,8 @@ class _Job:
                                        np.float64)
         self.rows = seeds.plan(items, net, st.h, st.nsteps)
         self.ds, self.ms, self.gp, self.gdecay = self.rows.arrays()
-        self.lanes = min(LANES, runs)
+        # as wide as the runs allow while every core gets a chunk
+        self.lanes = max(1, min(LANES, -(-runs // _threads())))
         per_step = s * (3 * net.n + max(self.nch, 1)) * self.lanes * 8
         whole = st.nsteps * per_step <= MEMORY
         self.every = int(every or (st.nsteps if whole else max(1, math.isqrt(st.nsteps))))
@@ -228,13 +229,16 @@ def _lane_mask(take: np.ndarray, ndim: int) -> np.ndarray:
     return first.reshape((-1,) + (1,) * (ndim - 1))
 
 
+def _threads() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
 def _each(count: int, call) -> None:
     """call(c) for c < count, on up to one thread per core (the kernels release the GIL)."""
-    try:
-        threads = len(os.sched_getaffinity(0))
-    except AttributeError:
-        threads = os.cpu_count() or 1
-    workers = min(count, threads)
+    workers = min(count, _threads())
     if workers <= 1:
         for c in range(count):
             call(c)

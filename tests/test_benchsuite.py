@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from springc.bench import suite as bs
+from springc.check import check
 from springc.lang.ir import IRBuilder, Source, Tran
 from springc.sim.simulate import method_order
 
@@ -362,3 +363,16 @@ def test_an_unrecorded_row_the_guard_stops_says_so_and_is_not_re_timed(monkeypat
     calls.clear()
     bs._retime_paired(case, [row], 1, ({"float64": 50.0}, {"float64": 50.0}), {}, {})
     assert calls == []
+
+
+def test_the_pipelines_networks_are_cases_of_the_suite():
+    """kws-features and kws-classifier are the networks `train` and `eval` simulate at 8x3:
+    488 and 788 masses, checked, probed where their outputs are."""
+    from springc.bench import networks as bn
+    from springc.kws import massspring as msp
+
+    features, classifier = bn.pipeline_features(), bn.pipeline_classifier()
+    assert features.n == 488 and classifier.n == 788
+    assert check(features).net is features and check(classifier).net is classifier
+    assert msp.feature_network(msp.MassSpringSettings(bins=8, delays=3)).n == features.n
+    assert [p.label for p in classifier.probes] == ["x(r0)", "x(r6)", "x(r11)"]

@@ -24,9 +24,12 @@ from numba import njit
 from springc.grad.model import B, BB, CA, CK, FC, FI, K, L, M, PC, QA, QG, V0, X0
 
 JIT = dict(cache=True, nogil=True, error_model="numpy", fastmath={"contract"})
+# the per-stage helpers are inlined into the sweeps: a call would take a reference to
+# every array of the model (atomic counts) and copy the tuple, at every stage
+INLINE = dict(JIT, inline="always")
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def forces(md, x, v, uc, gs, f):
     """Forces (not over mass) on every node at positions x, velocities v (dofs, lanes),
     inputs uc (channel, lane) and shared source values gs (per shared force)."""
@@ -77,7 +80,7 @@ def forces(md, x, v, uc, gs, f):
             f[i, b] += c
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _dmono(ptr, var, exp, x, e, k, b):
     """d/dz_k of the product of monomial e's factors z_l^e_l (coefficient left out) in lane
     b; each factor counts as its own variable, so a node named twice sums its factors."""
@@ -91,7 +94,7 @@ def _dmono(ptr, var, exp, x, e, k, b):
     return out
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _ddmono(ptr, var, exp, x, e, k, m, b):
     """d^2/dz_k dz_m of monomial e's factor product (coefficient left out) in lane b."""
     ek, em = exp[k], exp[m]
@@ -109,7 +112,7 @@ def _ddmono(ptr, var, exp, x, e, k, m, b):
     return out
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def forces_vjp(md, x, v, uc, gs, fb, xb, vb, gr):
     """Given fb, the adjoint of `forces`' output, add its transpose into xb, vb (adjoints of
     x and v) and into the coefficient gradient gr (coefficient, lane)."""
@@ -160,7 +163,7 @@ def forces_vjp(md, x, v, uc, gs, fb, xb, vb, gr):
             gr[off[FC] + e, b] += g * fb[i, b]
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _coupling_vjp(i, j, a, k, ck, ca, x, fb, xb, gr):
     """C: r = x_i - a x_j, f_i = -(k/a) r, f_j = k r (gradient rows ck, ca)."""
     ka, ia, kaa = k / a, 1.0 / a, k / (a * a)  # out of the lane loop: divisions are slow
@@ -173,7 +176,7 @@ def _coupling_vjp(i, j, a, k, ck, ca, x, fb, xb, gr):
         gr[ca, b] += kaa * r * fb[i, b] - x[j, b] * rb
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _quad_vjp(i, j, a, g, qg, qa, x, fb, xb, gr):
     """Q: s = x_i^2 - a x_j, f_i = -(2g/a) x_i s, f_j = g s (gradient rows qg, qa)."""
     ga, ia, gaa = 2.0 * g / a, 2.0 / a, 2.0 * g / (a * a)
@@ -187,7 +190,7 @@ def _quad_vjp(i, j, a, g, qg, qa, x, fb, xb, gr):
         gr[qa, b] += gaa * xi * s * fb[i, b] - x[j, b] * sb
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _monomial_vjp(c, ptr, var, exp, row, x, e, fb, xb, gr):
     """P: the force on each factor's node is -c d/dz_k; its transpose needs the Hessian."""
     for k in range(ptr[e], ptr[e + 1]):
@@ -198,7 +201,7 @@ def _monomial_vjp(c, ptr, var, exp, row, x, e, fb, xb, gr):
                 xb[var[m], b] += gk * c * _ddmono(ptr, var, exp, x, e, k, m, b)
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _interp(u, step, substeps, c, out):
     """Inputs (channel, sample, lane) at stage time (step + c) h into out (channel, lane):
     linear between input-grid samples, as the kernels interpolate (`codegen.emit_interp`)."""
@@ -211,7 +214,7 @@ def _interp(u, step, substeps, c, out):
             out[ch, b] = (1.0 - fr) * u[ch, k0 + ip, b] + fr * u[ch, k0 + ip + 1, b]
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _stages(md, ta, tc, h, x, v, u, gtab, step, substeps, X, V, KV, UC, f):
     """Stage states X, V, accelerations KV and inputs UC (stage, ...) of one step from x, v."""
     n, nl = x.shape
@@ -234,7 +237,7 @@ def _stages(md, ta, tc, h, x, v, u, gtab, step, substeps, X, V, KV, UC, f):
                 KV[s, i, b] = f[i, b] * md.minv[i]
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _combine(tb, h, x, v, V, KV):
     """x += h sum_s b_s V_s, v += h sum_s b_s KV_s (in place)."""
     n, nl = x.shape
@@ -248,7 +251,7 @@ def _combine(tb, h, x, v, V, KV):
             v[i, b] += dv
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _stage_sums(md, tb, h, step, gtab, V, UC, ds, work, diss):
     """One step's work per force and dissipation per damper row (the tableau's quadrature
     of power, as `codegen.emit_stage_reductions`)."""
@@ -270,7 +273,7 @@ def _stage_sums(md, tb, h, step, gtab, V, UC, ds, work, diss):
                 diss[d, b] += c * dv * dv
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _state_sums(k, x, v, ms, msq, gp, gdecay, gram):
     """Reductions of the state after step k: windowed squares (ms rows node, isv, lo, hi)
     and the leaky Gram sums (gp rows i, j, group, weight times h)."""
@@ -312,7 +315,7 @@ def forward(md, ta, tb, tc, h, nsteps, substeps, x, v, u, gtab, every, cps, X, V
         _state_sums(step + 1, x, v, ms, msq, gp, gdecay, gram)
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _state_seeds(k, x, v, xb, vb, ms, msw, gp, gw, fac, gdecay):
     """Add the reductions' adjoints at the state after step k (msw per ms row, gw per Gram
     pair: d result / d sum), then age the Gram factors by one step."""
@@ -334,7 +337,7 @@ def _state_seeds(k, x, v, xb, vb, ms, msw, gp, gw, fac, gdecay):
         fac[p] *= gdecay[int(gp[p, 2])]
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _stage_seeds(md, tb, h, step, gtab, V, UC, ds, ww, dw, VB, gr, dgr):
     """The work and dissipation sums' adjoints (ww per force, dw per damper row) at the stage
     velocities (into VB) and at the gains and damper coefficients (into gr, dgr)."""
@@ -361,7 +364,7 @@ def _stage_seeds(md, tb, h, step, gtab, V, UC, ds, ww, dw, VB, gr, dgr):
                 dgr[d, b] += dw[d, b] * w * dv * dv
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _step_vjp(md, ta, tb, h, step, gtab, X, V, KV, UC, xb, vb, VB, KB, XB, fb, gr):
     """Turn xb, vb (adjoint of the state after the step) into the adjoint of the state
     before it, through the stages in reverse; VB holds the stage velocities' reduction

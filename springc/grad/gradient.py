@@ -125,7 +125,8 @@ def _require_finite(vals: dict, names: list[str]) -> None:
 
 
 LANES = 8  # most runs integrated together per kernel call (lanes of the state arrays)
-MEMORY = 2**28  # bytes of stage buffers per chunk below which nothing is recomputed
+MEMORY = 2**22  # bytes of stage buffers per chunk below which nothing is recomputed (more
+# is slower to write and read back than the recomputation, which stays in the caches)
 
 
 class _Job:

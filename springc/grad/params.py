@@ -10,7 +10,7 @@ elaborating the tangent netlists of `springc.grad.derive`.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -56,6 +56,7 @@ class ParamNetlist:
     values: dict[str, float]
     locs: dict[str, SourceLoc]
     lib_dirs: list[Path] | None = None
+    probed: set[str] = field(default_factory=set)  # parameters whose role `_probe` checked
 
     @classmethod
     def load(cls, path: str | Path, lib_dirs: list[Path] | None = None) -> ParamNetlist:
@@ -101,7 +102,9 @@ class ParamNetlist:
         prefix = self._prefix()
         out = {}
         for name in wrt:
-            self._probe(base, base_stmts, name)
+            if name not in self.probed:  # once per parameter: its role does not change
+                self._probe(base, base_stmts, name)
+                self.probed.add(name)
             tangent = tangent_tree(base_stmts, self.file, name, prefix)
             try:
                 out[name] = coefficients(elaborate(tangent, self.lib_dirs))

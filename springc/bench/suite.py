@@ -323,7 +323,8 @@ def _pipeline_cases(scale: float, runs: int) -> list[Case]:
              0.005 * scale, peers=("DOP853",),
              paired=(("rk4", 8, "float64"), ("exp-rk4", 2, "float64")), skipped=no_ngspice,
              ladder=tuple(_rk_configs((8,), method="exp-rk4")), rounds=5,
-             ref_method="exp-rk4", ref_substeps=32, check_tstop=0.0025 * scale),
+             # DOP853 at rtol 1e-12 on 788 stiff dofs: 15 s per 0.125 ms (measured, --quick)
+             ref_method="exp-rk4", ref_substeps=32, check_tstop=0.001 * scale),
     ]
 
 

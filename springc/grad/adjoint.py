@@ -23,6 +23,9 @@ from numba import njit
 
 from springc.grad.model import B, BB, CA, CK, FC, FI, K, L, M, PC, QA, QG, V0, X0
 
+# lanes per chunk: 0 here (read from the arrays); `springc.grad.lanes` compiles a copy of this
+# module with it set, so that the lane loops have a constant count (unrolled, vectorised)
+LANES = 0
 JIT = dict(cache=True, nogil=True, error_model="numpy", fastmath={"contract"})
 # the per-stage helpers are inlined into the sweeps: a call would take a reference to
 # every array of the model (atomic counts) and copy the tuple, at every stage
@@ -33,7 +36,7 @@ INLINE = dict(JIT, inline="always")
 def forces(md, x, v, uc, gs, f):
     """Forces (not over mass) on every node at positions x, velocities v (dofs, lanes),
     inputs uc (channel, lane) and shared source values gs (per shared force)."""
-    nl = x.shape[1]
+    nl = LANES or x.shape[1]
     for i in range(x.shape[0]):
         for b in range(nl):
             f[i, b] = -md.bn[i] * v[i, b]
@@ -116,7 +119,7 @@ def _ddmono(ptr, var, exp, x, e, k, m, b):
 def forces_vjp(md, x, v, uc, gs, fb, xb, vb, gr):
     """Given fb, the adjoint of `forces`' output, add its transpose into xb, vb (adjoints of
     x and v) and into the coefficient gradient gr (coefficient, lane)."""
-    off, nl = md.off, x.shape[1]
+    off, nl = md.off, LANES or x.shape[1]
     for i in range(x.shape[0]):
         c = md.bn[i]
         for b in range(nl):
@@ -167,7 +170,7 @@ def forces_vjp(md, x, v, uc, gs, fb, xb, vb, gr):
 def _coupling_vjp(i, j, a, k, ck, ca, x, fb, xb, gr):
     """C: r = x_i - a x_j, f_i = -(k/a) r, f_j = k r (gradient rows ck, ca)."""
     ka, ia, kaa = k / a, 1.0 / a, k / (a * a)  # out of the lane loop: divisions are slow
-    for b in range(x.shape[1]):
+    for b in range(LANES or x.shape[1]):
         r = x[i, b] - a * x[j, b]
         rb = k * fb[j, b] - ka * fb[i, b]
         xb[i, b] += rb
@@ -180,7 +183,7 @@ def _coupling_vjp(i, j, a, k, ck, ca, x, fb, xb, gr):
 def _quad_vjp(i, j, a, g, qg, qa, x, fb, xb, gr):
     """Q: s = x_i^2 - a x_j, f_i = -(2g/a) x_i s, f_j = g s (gradient rows qg, qa)."""
     ga, ia, gaa = 2.0 * g / a, 2.0 / a, 2.0 * g / (a * a)
-    for b in range(x.shape[1]):
+    for b in range(LANES or x.shape[1]):
         xi = x[i, b]
         s = xi * xi - a * x[j, b]
         sb = g * fb[j, b] - ga * xi * fb[i, b]
@@ -194,7 +197,7 @@ def _quad_vjp(i, j, a, g, qg, qa, x, fb, xb, gr):
 def _monomial_vjp(c, ptr, var, exp, row, x, e, fb, xb, gr):
     """P: the force on each factor's node is -c d/dz_k; its transpose needs the Hessian."""
     for k in range(ptr[e], ptr[e + 1]):
-        for b in range(x.shape[1]):
+        for b in range(LANES or x.shape[1]):
             gk = -fb[var[k], b]
             gr[row, b] += gk * _dmono(ptr, var, exp, x, e, k, b)
             for m in range(ptr[e], ptr[e + 1]):
@@ -210,14 +213,14 @@ def _interp(u, step, substeps, c, out):
     ip = int(pos)
     fr = pos - ip
     for ch in range(u.shape[0]):
-        for b in range(u.shape[2]):
+        for b in range(LANES or u.shape[2]):
             out[ch, b] = (1.0 - fr) * u[ch, k0 + ip, b] + fr * u[ch, k0 + ip + 1, b]
 
 
 @njit(**INLINE)
 def _stages(md, ta, tc, h, x, v, u, gtab, step, substeps, X, V, KV, UC, f):
     """Stage states X, V, accelerations KV and inputs UC (stage, ...) of one step from x, v."""
-    n, nl = x.shape
+    n, nl = x.shape[0], LANES or x.shape[1]
     for s in range(tc.shape[0]):
         for i in range(n):
             for b in range(nl):
@@ -240,7 +243,7 @@ def _stages(md, ta, tc, h, x, v, u, gtab, step, substeps, X, V, KV, UC, f):
 @njit(**INLINE)
 def _combine(tb, h, x, v, V, KV):
     """x += h sum_s b_s V_s, v += h sum_s b_s KV_s (in place)."""
-    n, nl = x.shape
+    n, nl = x.shape[0], LANES or x.shape[1]
     for i in range(n):
         for b in range(nl):
             dx, dv = 0.0, 0.0
@@ -255,7 +258,7 @@ def _combine(tb, h, x, v, V, KV):
 def _stage_sums(md, tb, h, step, gtab, V, UC, ds, work, diss):
     """One step's work per force and dissipation per damper row (the tableau's quadrature
     of power, as `codegen.emit_stage_reductions`)."""
-    nfi, nl = md.fi_node.shape[0], V.shape[2]
+    nfi, nl = md.fi_node.shape[0], LANES or V.shape[2]
     for s in range(tb.shape[0]):
         w = h * tb[s]
         for e in range(nfi):
@@ -277,7 +280,7 @@ def _stage_sums(md, tb, h, step, gtab, V, UC, ds, work, diss):
 def _state_sums(k, x, v, ms, msq, gp, gdecay, gram):
     """Reductions of the state after step k: windowed squares (ms rows node, isv, lo, hi)
     and the leaky Gram sums (gp rows i, j, group, weight times h)."""
-    nl = x.shape[1]
+    nl = LANES or x.shape[1]
     for r in range(ms.shape[0]):
         if ms[r, 2] <= k <= ms[r, 3]:
             q = v[ms[r, 0]] if ms[r, 1] else x[ms[r, 0]]
@@ -319,7 +322,7 @@ def forward(md, ta, tb, tc, h, nsteps, substeps, x, v, u, gtab, every, cps, X, V
 def _state_seeds(k, x, v, xb, vb, ms, msw, gp, gw, fac, gdecay):
     """Add the reductions' adjoints at the state after step k (msw per ms row, gw per Gram
     pair: d result / d sum), then age the Gram factors by one step."""
-    nl = x.shape[1]
+    nl = LANES or x.shape[1]
     for r in range(ms.shape[0]):
         if ms[r, 2] <= k <= ms[r, 3]:
             node = ms[r, 0]
@@ -341,7 +344,7 @@ def _state_seeds(k, x, v, xb, vb, ms, msw, gp, gw, fac, gdecay):
 def _stage_seeds(md, tb, h, step, gtab, V, UC, ds, ww, dw, VB, gr, dgr):
     """The work and dissipation sums' adjoints (ww per force, dw per damper row) at the stage
     velocities (into VB) and at the gains and damper coefficients (into gr, dgr)."""
-    nfi, nl = md.fi_node.shape[0], V.shape[2]
+    nfi, nl = md.fi_node.shape[0], LANES or V.shape[2]
     for s in range(tb.shape[0]):
         w = h * tb[s]
         for e in range(nfi):
@@ -369,7 +372,7 @@ def _step_vjp(md, ta, tb, h, step, gtab, X, V, KV, UC, xb, vb, VB, KB, XB, fb, g
     """Turn xb, vb (adjoint of the state after the step) into the adjoint of the state
     before it, through the stages in reverse; VB holds the stage velocities' reduction
     adjoints on entry."""
-    S, (n, nl) = tb.shape[0], xb.shape
+    S, n, nl = tb.shape[0], xb.shape[0], LANES or xb.shape[1]
     for s in range(S):
         w = h * tb[s]
         for i in range(n):
@@ -404,7 +407,7 @@ def reverse(md, ta, tb, tc, h, nsteps, substeps, u, gtab, every, cps, X, V, KV, 
     state xf, vf on entry and of the initial state on return; the coefficient gradient is
     added into gr (the damper rows' own coefficients into dgr). The seeds: ww per force, dw
     per damper row, msw per ms row, gw per Gram pair (row, lane)."""
-    n, nl = xf.shape
+    n, nl = xf.shape[0], LANES or xf.shape[1]
     S = tc.shape[0]
     SX, SV = np.zeros((every + 1, n, nl)), np.zeros((every + 1, n, nl))
     VB, KB = np.zeros((S, n, nl)), np.zeros((S, n, nl))

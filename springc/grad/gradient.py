@@ -18,7 +18,7 @@ import numpy as np
 from springc.check import check
 from springc.check.checks import CheckedNetlist, require_checked
 from springc.errors import UsageError
-from springc.grad import adjoint, model, seeds
+from springc.grad import lanes, model, seeds
 from springc.grad.params import ParamNetlist
 from springc.kernels import expint
 from springc.kernels.integrators import get_tableau
@@ -124,7 +124,6 @@ def _require_finite(vals: dict, names: list[str]) -> None:
                              " (a diverged run, or a logarithm of zero work or dissipation)")
 
 
-LANES = 8  # most runs integrated together per kernel call (lanes of the state arrays)
 MEMORY = 2**22  # bytes of stage buffers per chunk below which nothing is recomputed (more
 # is slower to write and read back than the recomputation, which stays in the caches)
 
@@ -150,7 +149,8 @@ class _Job:
         self.rows = seeds.plan(items, net, st.h, st.nsteps)
         self.ds, self.ms, self.gp, self.gdecay = self.rows.arrays()
         # as wide as the runs allow while every core gets a chunk
-        self.lanes = max(1, min(LANES, -(-runs // _threads())))
+        self.lanes = lanes.choose(-(-runs // _threads()))
+        self.kernels = lanes.module(self.lanes)
         per_step = s * (3 * net.n + max(self.nch, 1)) * self.lanes * 8
         whole = st.nsteps * per_step <= MEMORY
         self.every = int(every or (st.nsteps if whole else max(1, math.isqrt(st.nsteps))))
@@ -194,9 +194,9 @@ class _Job:
         cps = np.zeros(((st.nsteps - 1) // self.every + 1, 2, n, nl))
         X, V, KV = (np.zeros((self.every, S, n, nl)) for _ in range(3))
         UC = np.zeros((self.every, S, max(self.nch, 1), nl))
-        adjoint.forward(self.md, self.ta, self.tb, self.tc, st.h, st.nsteps, st.substeps, x, v,
-                        u, self.gtab, self.every, cps, X, V, KV, UC, self.ds, self.ms, self.gp,
-                        self.gdecay, work, diss, msq, gram)
+        lanes.call(self.kernels, "forward", self.md, self.ta, self.tb, self.tc, st.h,
+                   st.nsteps, st.substeps, x, v, u, self.gtab, self.every, cps, X, V, KV, UC,
+                   self.ds, self.ms, self.gp, self.gdecay, work, diss, msq, gram)
         acc = seeds.Acc(work.T.copy(), diss.T.copy(), msq.T.copy(), gram.T.copy(),
                         np.tile(x0, (nl, 1)), x.T.copy(), v.T.copy())
         return acc, (u, cps, X, V, KV, UC)
@@ -210,10 +210,10 @@ class _Job:
         dgr = np.zeros((len(self.ds), nl))
         lane = lambda a: np.ascontiguousarray(a.T)  # noqa: E731  (run, row) -> (row, lane)
         xb, vb = lane(sd.fx), lane(sd.fv)
-        adjoint.reverse(self.md, self.ta, self.tb, self.tc, st.h, st.nsteps, st.substeps, u,
-                        self.gtab, self.every, cps, X, V, KV, UC, lane(acc.xf), lane(acc.vf),
-                        self.ds, self.ms, self.gp, self.gdecay, lane(sd.ww), lane(sd.dw),
-                        lane(sd.msw), lane(sd.gw), xb, vb, gr, dgr)
+        lanes.call(self.kernels, "reverse", self.md, self.ta, self.tb, self.tc, st.h,
+                   st.nsteps, st.substeps, u, self.gtab, self.every, cps, X, V, KV, UC,
+                   lane(acc.xf), lane(acc.vf), self.ds, self.ms, self.gp, self.gdecay,
+                   lane(sd.ww), lane(sd.dw), lane(sd.msw), lane(sd.gw), xb, vb, gr, dgr)
         gr = gr.T
         gr[:, self.md.off[model.X0]:self.md.off[model.X0 + 1]] += sd.x0
         coefs = model.to_elements(self.net, self.md, gr)

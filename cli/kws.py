@@ -124,6 +124,10 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
               help="Data set folder (default: the one the model was trained on).")
 @click.option("--realisation", type=_REALISATION, default=None,
               help="Must match the model's (default: the model's).")
+@click.option("--protocol", type=click.Choice(PROTOCOLS), default=None,
+              help="Test split: as listed (or every clip of a folder without split lists), "
+                   "or (kws12) the paper's equal number of clips per class.  [default: the "
+                   "model's]")
 @click.option("--json", "as_json", is_flag=True, help="Print accuracy, n, per_class as JSON.")
 @_JOBS
 @_NO_CACHE
@@ -132,8 +136,10 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
                    "dissipated per stage) over the first N test clips.")
 @_SCHEDULER
 @run_user_errors
-def eval_cmd(model_dir, data, realisation, as_json, jobs, no_cache, scheduler, budget) -> None:
-    """Evaluate a trained model on the test split (testing_list.txt) of a data set."""
+def eval_cmd(model_dir, data, realisation, protocol, as_json, jobs, no_cache, scheduler,
+             budget) -> None:
+    """Evaluate a trained model on the test split of a labelled folder in the GSCD layout:
+    the clips testing_list.txt names, or every clip where the folder has no such list."""
     from springc.kws.evaluate import evaluate
 
     if budget:
@@ -145,7 +151,7 @@ def eval_cmd(model_dir, data, realisation, as_json, jobs, no_cache, scheduler, b
         click.echo("\n".join(energy.budget_table(parts)))
         return
     report = evaluate(model_dir, data, realisation, jobs=jobs, use_cache=not no_cache,
-                      scheduler=scheduler)
+                      scheduler=scheduler, protocol=protocol)
     if as_json:
         keys = ("accuracy", "majority_rate", "n", "per_class")
         keys += ("pairs",) if "pairs" in report else ()

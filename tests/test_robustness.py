@@ -327,9 +327,15 @@ def data_cases() -> dict[str, object]:
             return (["eval", k.model, "--data", k.data[name], "-j", "1"], str(k.data[name]), [],
                     False)
 
-        cases.update({f"data-info-{name}": info, f"train-data-{name}": train,
-                      f"eval-data-{name}": evaluate})
+        cases.update({f"data-info-{name}": info, f"train-data-{name}": train})
+        if name not in EVALUABLE:
+            cases[f"eval-data-{name}"] = evaluate
     return cases
+
+
+# Evaluating needs the test split alone: a folder without split lists is all test clips
+# (tests/test_kws_eval_folder.py), so eval reads it while data info and train refuse it.
+EVALUABLE = ("no-lists",)
 
 
 def _edit_json(path: Path, change) -> None:

@@ -12,6 +12,10 @@ paper's Sec. 4, TensorFlow's speech_commands recipe) holds the same number of cl
 in validation and test: every command clip, `_unknown_` subsampled to the mean command count,
 as many `_silence_` clips. Training keeps every clip in both.
 
+A caller that needs only some splits says so (`open_dataset(splits=...)`): evaluating needs the
+test split alone, so a folder without split lists is read with every clip a test clip, and
+the files of other splits are not opened.
+
 Bad files are never dropped silently: unreadable, truncated or empty ones, those holding NaN or
 infinite samples and those sampled below MIN_RATE are skipped, resampled or multi-channel ones
 converted, and each is named in `Dataset.problems` and logged as a warning. A data set left
@@ -204,10 +208,15 @@ def fit_length(x: np.ndarray, n: int = CLIP_SAMPLES) -> np.ndarray:
 # -- split lists -------------------------------------------------------------------------------
 
 
-def read_split_list(root: Path, split: str) -> list[tuple[str, int]]:
-    """The (`word/file.wav`, line number) entries of a split list; DataError if the list is
-    missing, unreadable or has a line of another form."""
+def read_split_list(root: Path, split: str, optional: bool = False) -> list[tuple[str, int]] | None:
+    """The (`word/file.wav`, line number) entries of a split list; None for an absent list
+    when `optional`; DataError if the list is missing (and needed), not a file, unreadable
+    or has a line of another form."""
     path = root / LIST_FILES[split]
+    if optional and not path.exists():
+        return None
+    if path.exists() and not path.is_file():
+        raise DataError(str(path), "is a folder, not a split list")
     if not path.is_file():
         raise DataError(str(path), "split list missing",
                         hint="a GSCD-layout folder needs validation_list.txt and "
@@ -228,12 +237,19 @@ def read_split_list(root: Path, split: str) -> list[tuple[str, int]]:
     return entries
 
 
-def held_out(root: Path, problems: list[str]) -> dict[str, str]:
-    """{`word/file.wav`: split} for the validation and test lists; entries naming no file are
-    problems, an entry in both lists is a DataError."""
+def held_out(root: Path, problems: list[str], optional: bool = False) -> tuple[dict[str, str], str]:
+    """{`word/file.wav`: split} for the validation and test lists, and the split of the clips
+    no list names: "train", or "test" where the lists are `optional` and testing_list.txt is
+    absent (a folder of recordings to test on). Entries naming no file are problems, an entry
+    in both lists is a DataError."""
     where: dict[str, str] = {}
+    unlisted = "train"
     for split in ("validation", "test"):
-        for entry, number in read_split_list(root, split):
+        entries = read_split_list(root, split, optional)
+        if entries is None:
+            unlisted = "test" if split == "test" else unlisted
+            continue
+        for entry, number in entries:
             listed = f"{root / LIST_FILES[split]}:{number}"
             if where.get(entry, split) != split:
                 raise DataError(listed, f"{entry} is also in {LIST_FILES[where[entry]]}",
@@ -242,7 +258,7 @@ def held_out(root: Path, problems: list[str]) -> dict[str, str]:
                 problems.append(f"{listed}: {entry} names no file; entry ignored")
                 continue
             where[entry] = split
-    return where
+    return where, unlisted
 
 
 # -- word clips and silence --------------------------------------------------------------------
@@ -265,14 +281,18 @@ def word_folders(root: Path) -> list[Path]:
     return folders
 
 
-def folder_audio(folder: Path, problems: list[str]) -> list[tuple[Path, str | None]]:
-    """(sound file, conversion note) in a folder; unusable files are problems and skipped."""
+def folder_audio(folder: Path, problems: list[str],
+                 wanted=lambda path: True) -> list[tuple[Path, str | None]]:
+    """(sound file, conversion note) in a folder, of the files `wanted` (a predicate on the
+    path, asked before the file is opened); unusable files are problems and skipped."""
     found = []
     for path in sorted(folder.iterdir()):
         if path.name.startswith(".") or path.stem.upper() in DOCUMENTS:
             continue
         if path.suffix.lower() not in AUDIO_SUFFIXES or not path.is_file():
             problems.append(f"{path}: not a sound file ({', '.join(AUDIO_SUFFIXES)}); ignored")
+            continue
+        if not wanted(path):
             continue
         skip, note = inspect_audio(path)
         if skip:
@@ -284,31 +304,39 @@ def folder_audio(folder: Path, problems: list[str]) -> list[tuple[Path, str | No
     return found
 
 
-def word_clips(root: Path, problems: list[str]) -> list[Clip]:
-    """Every usable recording under the word folders, with its split."""
+def word_clips(root: Path, problems: list[str], splits: tuple[str, ...] = SPLITS) -> list[Clip]:
+    """Every usable recording of the `splits` under the word folders, with its split. The
+    split lists are needed only where training or validation clips are (see `held_out`)."""
     folders = word_folders(root)
-    where = held_out(root, problems)
-    clips = []
+    where, unlisted = held_out(root, problems, optional=set(splits) <= {"test"})
+
+    def split_of(folder: Path, path: Path) -> str:
+        return where.get(f"{folder.name}/{path.name}", unlisted)
+
+    clips, passed = [], 0
     # GSCD has 105,829 files: reading their headers takes a while, so show progress.
     for folder in tqdm(folders, desc="reading headers", unit="word", file=sys.stderr,
                        disable=None, leave=False):
-        for path, _ in folder_audio(folder, problems):
-            split = where.get(f"{folder.name}/{path.name}", "train")
-            clips.append(Clip(path, folder.name, label_of(folder.name), split,
+        for path, _ in folder_audio(folder, problems,
+                                    lambda p, f=folder: split_of(f, p) in splits):
+            clips.append(Clip(path, folder.name, label_of(folder.name), split_of(folder, path),
                               speaker_of(path.name)))
-    if not clips:
+        passed += sum(1 for p in folder.iterdir() if split_of(folder, p) not in splits)
+    if not clips and not passed:
         shown = "; ".join(problems[:3]) + ("; ..." if len(problems) > 3 else "")
         raise DataError(str(root), "no usable sound file in the word folders"
                         + (f" ({shown})" if shown else ""))
     return clips
 
 
-def noise_lengths(root: Path, problems: list[str]) -> dict[Path, int]:
-    """{noise file: length in samples at SAMPLE_RATE} of `_background_noise_`."""
+def noise_lengths(root: Path, problems: list[str],
+                  splits: tuple[str, ...] = SPLITS) -> dict[Path, int]:
+    """{noise file: length in samples at SAMPLE_RATE} of `_background_noise_` (its absence is
+    a problem worded for the `splits` read: augmentation concerns training only)."""
     folder = root / NOISE_FOLDER
     if not folder.is_dir():
-        problems.append(f"{folder}: no background-noise folder; no {SILENCE} clips and no "
-                        "noise augmentation")
+        lost = "" if "train" not in splits else " and no noise augmentation"
+        problems.append(f"{folder}: no background-noise folder; no {SILENCE} clips{lost}")
         return {}
     return {path: noise_length(path) for path, _ in folder_audio(folder, problems)}
 
@@ -340,17 +368,23 @@ def silence_clips(lengths: dict[Path, int], per_split: dict[str, int], seed: int
     return clips
 
 
-def open_dataset(root, *, silence_per_split: float = 0.1, seed: int = 0) -> Dataset:
+def open_dataset(root, *, silence_per_split: float = 0.1, seed: int = 0,
+                 splits: tuple[str, ...] = SPLITS) -> Dataset:
     """Read a GSCD-layout data set: word clips with their splits, noise files, and
     `silence_per_split` times as many `_silence_` clips as each split has word clips.
+    `splits`: the splits the caller needs; the others' files are not opened, and with the
+    test split alone the split lists may be absent (`held_out`).
 
     Raises DataError for a missing folder, no word folders, no usable word clip, or an
     unreadable split list; bad sound files are skipped or converted and listed in `problems`
     (and warned)."""
     root = Path(root)
+    unknown = sorted(set(splits) - set(SPLITS))
+    if unknown:
+        raise UsageError(f"unknown split(s) {', '.join(unknown)}; use {', '.join(SPLITS)}")
     problems: list[str] = []
-    clips = word_clips(root, problems)
-    lengths = noise_lengths(root, problems)
+    clips = word_clips(root, problems, tuple(splits))
+    lengths = noise_lengths(root, problems, tuple(splits))
     want = {s: round(silence_per_split * sum(c.split == s for c in clips)) for s in SPLITS}
     clips += silence_clips(lengths, want, seed)
     for problem in problems:
@@ -361,23 +395,27 @@ def open_dataset(root, *, silence_per_split: float = 0.1, seed: int = 0) -> Data
 # -- the balanced held-out protocol ------------------------------------------------------------
 
 
-def balanced(ds: Dataset, seed: int = 0) -> Dataset:
-    """The paper's held-out protocol for the 12-class task: in validation and test every
-    command clip is kept, `_unknown_` is subsampled to the mean command count of the split
-    (spread over its words and speakers, drawn from `seed`) and `_silence_` is cut in the same
-    number from the split's part of the noise files. Training is unchanged.
+def balanced(ds: Dataset, seed: int = 0, splits: tuple[str, ...] = HELD_OUT) -> Dataset:
+    """The paper's held-out protocol for the 12-class task: in the held-out `splits`
+    (validation and test) every command clip is kept, `_unknown_` is subsampled to the mean
+    command count of the split (spread over its words and speakers, drawn from `seed`) and
+    `_silence_` is cut in the same number from the split's part of the noise files. Other
+    splits are unchanged. A split's draw does not depend on which others are balanced, so
+    evaluating gives the test split that training did.
 
-    Raises DataError when a held-out split holds no command clip (nothing to balance to)."""
-    keep = [c for c in ds.clips if c.split == "train"]
+    Raises DataError when a balanced split holds no command clip (nothing to balance to)."""
+    todo = [s for s in HELD_OUT if s in splits]
+    keep = [c for c in ds.clips if c.split not in todo]
     want: dict[str, int] = {}
-    for index, split in enumerate(HELD_OUT, 1):
+    for split in todo:
+        index = HELD_OUT.index(split) + 1
         clips = [c for c in ds.clips if c.split == split]
         want[split] = command_mean(clips, ds.root, split)
         unknown = [c for c in clips if c.label == UNKNOWN]
         chosen = set(spread_sample(unknown, want[split], np.random.default_rng([seed, index])))
         keep += [c for c in clips if c.label in COMMANDS or c in chosen]
     lengths = {path: noise_length(path) for path in ds.noise_files}
-    keep += [c for c in silence_clips(lengths, want, seed) if c.split in HELD_OUT]
+    keep += [c for c in silence_clips(lengths, want, seed) if c.split in todo]
     return Dataset(ds.root, keep, ds.noise_files, list(ds.problems))
 
 
@@ -419,12 +457,14 @@ def spread_sample(clips: list[Clip], k: int, rng: np.random.Generator) -> list[C
     return picked
 
 
-def with_protocol(ds: Dataset, protocol: str, seed: int = 0) -> Dataset:
-    """`ds` under a held-out protocol: "lists" (as read) or "balanced" (see `balanced`)."""
+def with_protocol(ds: Dataset, protocol: str, seed: int = 0,
+                  splits: tuple[str, ...] = HELD_OUT) -> Dataset:
+    """`ds` under a held-out protocol: "lists" (as read) or "balanced" (see `balanced`, on the
+    held-out `splits`)."""
     if protocol == "lists":
         return ds
     if protocol == "balanced":
-        return balanced(ds, seed)
+        return balanced(ds, seed, splits)
     raise UsageError(f"unknown protocol {protocol!r}; use one of {', '.join(PROTOCOLS)}")
 
 

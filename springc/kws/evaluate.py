@@ -1,5 +1,10 @@
-"""Evaluating a trained keyword spotter on the test split (`testing_list.txt`): its features
-through the SVM, or (mass-spring) the whole classifier network simulated."""
+"""Evaluating a trained keyword spotter on the test split of any labelled folder: its features
+through the SVM, or (mass-spring) the whole classifier network simulated.
+
+Only the test split is read: `testing_list.txt` where the folder has one, else every clip of
+the folder (a folder of recordings to test on needs no split lists, no training or validation
+clips). Words map to classes as the model's task maps them; the held-out protocol is the
+model's unless `protocol` says otherwise."""
 
 from __future__ import annotations
 
@@ -22,9 +27,11 @@ from springc.kws.transfer import (Head, classifier_batch, decisions, insertion_l
 
 
 def evaluate(model_dir: Path, data: Path | None = None, realisation: str | None = None,
-             jobs: int = 0, use_cache: bool = True, scheduler: str | None = None) -> dict:
+             jobs: int = 0, use_cache: bool = True, scheduler: str | None = None,
+             protocol: str | None = None) -> dict:
     """Evaluate the model in `model_dir` on the test split of `data` (default: the data set
-    it was trained on). `realisation` must match the model's (or be omitted)."""
+    it was trained on) under the held-out `protocol` (default: the model's). `realisation`
+    must match the model's (or be omitted)."""
     model = load_model(model_dir)
     trained_with = model.settings["realisation"]
     realisation = realisation or trained_with
@@ -35,7 +42,7 @@ def evaluate(model_dir: Path, data: Path | None = None, realisation: str | None 
     data = Path(data) if data else trained_data(model)
     task = model.settings["task"]
     ds = open_task_data(data, task, int(model.settings.get("seed", 0)),
-                        model.settings.get("protocol"))
+                        protocol or model.settings.get("protocol"), splits=("test",))
     if realisation == "mass-spring":  # simulate the whole classifier network
         return evaluate_network(model, ds, scheduler=scheduler, jobs=jobs, use_cache=use_cache)
     settings = _feature_settings(model)

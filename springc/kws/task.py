@@ -44,9 +44,12 @@ def task_weights(task: str, balance_weights: bool | None = None) -> str | None:
     return "balanced" if balance_weights else None
 
 
-def open_task_data(data: Path, task: str, seed: int = 0, protocol: str | None = None):
+def open_task_data(data: Path, task: str, seed: int = 0, protocol: str | None = None,
+                   splits: tuple[str, ...] = ("train", "validation", "test")):
     """The data set restricted to what the task uses, under the held-out `protocol`
-    (default: the task's, see `task_protocol`)."""
+    (default: the task's, see `task_protocol`). `splits`: those the caller needs (evaluating:
+    the test split alone, which a folder without split lists holds entirely); each must
+    hold clips of the task, and only they are read and balanced."""
     from springc.kws.dataset import open_dataset, with_protocol
 
     if not Path(data).is_dir():
@@ -55,13 +58,26 @@ def open_task_data(data: Path, task: str, seed: int = 0, protocol: str | None = 
     if task not in TASKS:
         raise UsageError(f"unknown task {task!r}; use one of {TASKS}")
     protocol = task_protocol(task, protocol)
-    ds = open_dataset(data, seed=seed)
+    ds = open_dataset(data, seed=seed, splits=splits)
     if task == "digits-pairs":
         ds = ds.subset(words=DIGITS)
-    for split in ("train", "validation", "test"):
+    for split in splits:
         if not ds.split(split):
-            raise DataError(str(data), f"the {split} split of task {task} holds no clips")
-    return with_protocol(ds, protocol, seed)
+            raise DataError(str(data), f"the {split} split of task {task} holds no clips",
+                            hint=_empty_split_hint(Path(data), task, split))
+    return with_protocol(ds, protocol, seed, tuple(s for s in splits if s != "train"))
+
+
+def _empty_split_hint(data: Path, task: str, split: str) -> str | None:
+    """Why a split may be empty: the list that defines it, or the words the task reads."""
+    from springc.kws.dataset import LIST_FILES
+
+    words = f"; {task} reads the words {', '.join(DIGITS)}" if task == "digits-pairs" else ""
+    if split == "train":
+        return f"training clips are those no split list names{words}"
+    if (data / LIST_FILES[split]).is_file():
+        return f"{LIST_FILES[split]} names the {split} clips{words}"
+    return words[2:] or None
 
 
 def task_counts(ds, task: str) -> dict[str, dict[str, int]]:

@@ -24,6 +24,7 @@ TABLE: dict[str, tuple[str, str, str]] = {
     "data": ("data", "data_group", "Speech data: synthesise the built-in corpus, inspect one."),
     "train": ("kws", "train_cmd", "Train a keyword spotter; write a model folder."),
     "eval": ("kws", "eval_cmd", "Evaluate a model on the test split."),
+    "classify": ("kws", "classify_cmd", "What a model hears in recordings; --stream: when."),
     "cv": ("kws", "cv_cmd", "Cross-validate digital against mass-spring on every clip."),
     "demo": ("demo", "demo_cmd", "The main job end to end on the built-in corpus."),
     "bench": ("bench", "bench_cmd", "Speed against error: integrators and peers side by side."),

@@ -231,3 +231,77 @@ def cv_cmd(data, bins, delays, realisations, folds, threshold, jobs, seed, no_ca
     click.echo("\n".join(crossval.summary_lines(report)))
     paths = crossval.write(report, out)
     click.echo(f"wrote {paths[0]} and {paths[1]}")
+
+
+@click.command("classify")
+@click.argument("model_dir", type=click.Path(path_type=Path))
+@click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--realisation", type=_REALISATION, default=None,
+              help="Must match the model's (default: the model's); a mass-spring model's "
+                   "whole classifier network is simulated.")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print a JSON list: per file its label and scores (--stream: detections).")
+@click.option("--stream", is_flag=True,
+              help="Run over each whole recording, as the physical device would, and report "
+                   "when keywords occur.")
+@click.option("--plots", type=click.Path(path_type=Path), default=None, metavar="DIR",
+              help="With --stream: write DIR/<file>.png, every class's decision through time "
+                   "under the waveform (DIR is made if missing).")
+@_JOBS
+@_SCHEDULER
+@run_user_errors
+def classify_cmd(model_dir, inputs, realisation, as_json, stream, plots, jobs,
+                 scheduler) -> None:
+    """Classify sound files (or the sound files under folders) with a trained model: per file
+    the predicted label and every class's score (the decision values eval scores). Files
+    longer than a clip: --stream for detections through the whole recording."""
+    if plots is not None:
+        _check_plot_folder(plots, stream)
+    if stream:
+        from springc.kws.stream import stream as run_stream
+
+        results = run_stream(model_dir, inputs, realisation, plots,
+                             progress=lambda s: click.echo(s, err=True))
+        click.echo(json.dumps(results) if as_json else _stream_lines(results))
+        return
+    from springc.kws.classify import classify
+
+    results = classify(model_dir, inputs, realisation, jobs=jobs, scheduler=scheduler)
+    click.echo(json.dumps(results) if as_json else _classify_lines(results))
+
+
+def _check_plot_folder(plots: Path, stream: bool) -> None:
+    """--plots: only with --stream, a folder that can be made or written (checked before
+    the work; made only when the plots are written)."""
+    from springc.errors import DataError, UsageError
+    from springc_cli.common import check_output_file
+
+    if not stream:
+        raise UsageError("--plots draws the decisions through a streamed recording",
+                         hint="add --stream")
+    if plots.exists() and not plots.is_dir():
+        raise DataError(str(plots), "is a file, not a folder for the plots")
+    check_output_file(plots / "plot.png", make_parents=True)
+
+
+def _classify_lines(results: list[dict]) -> str:
+    """`FILE: label` and the scores, highest first."""
+    lines = []
+    for r in results:
+        ranked = sorted(r["scores"].items(), key=lambda kv: -kv[1])
+        lines.append(f"{r['file']}: {r['label']}")
+        lines.append("  " + "  ".join(f"{c} {v:+.3f}" for c, v in ranked))
+    return "\n".join(lines)
+
+
+def _stream_lines(results: list[dict]) -> str:
+    """Per recording its length, then one line per detection."""
+    lines = []
+    for r in results:
+        found = r["detections"]
+        lines.append(f"{r['file']} ({r['seconds']:.2f} s): {len(found)} detection(s)"
+                     + (f", plot {r['plot']}" if r["plot"] else ""))
+        for d in found:
+            lines.append(f"  {d['time']:7.2f} s  {d['label']:<6} score {d['score']:+.3f} "
+                         f"(windows centred {d['start']:.2f}-{d['end']:.2f} s)")
+    return "\n".join(lines)

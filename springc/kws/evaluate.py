@@ -109,6 +109,12 @@ def simulate_network(net, heads: list[Head], s: msp.MassSpringSettings,
     return decisions(reds, heads), insertion_loss_db(reds, heads), seconds
 
 
+def model_integration(model) -> Integration:
+    """How the model's classifier network is integrated (settings.json's "transfer")."""
+    return from_dict(model.settings["transfer"].get("integration"),
+                     str(model.folder / "settings.json"))
+
+
 def evaluate_network(model, ds, *, scheduler: str | None = None, jobs: int = 0,
                      use_cache: bool = True, heads: list[Head] | None = None,
                      net=None) -> dict:
@@ -125,8 +131,7 @@ def evaluate_network(model, ds, *, scheduler: str | None = None, jobs: int = 0,
     clips = ds.split("test")
     task = model.settings["task"]
     signals = msp.load_signals(clips, False, 0, [])
-    plan = from_dict(model.settings["transfer"].get("integration"),
-                     str(model.folder / "settings.json"))
+    plan = model_integration(model)
     with session(scheduler, jobs or None):
         d, loss, seconds = simulate_network(net, heads, s, signals, scheduler=scheduler,
                                             jobs=jobs, plan=plan)

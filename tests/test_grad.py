@@ -222,3 +222,22 @@ def test_values_outside_the_legal_set_fail_the_checks():
 
     with pytest.raises(CheckError, match="l=-1"):
         gradient(ParamNetlist.from_text(DUFFING), "final:x(x)", ["w0"], values={"l0": -1.0})
+
+
+def test_runs_in_lanes_match_runs_alone(tmp_path, monkeypatch):
+    """Five runs share lanes (two threads' worth: chunks of 2 lanes, the last one padded):
+    each run's value and gradient as when it runs alone."""
+    import importlib
+
+    monkeypatch.setattr(importlib.import_module("springc.grad.gradient"), "_threads",
+                        lambda: 2)
+    inputs = [_wav(tmp_path / f"{k}.wav", 0.02, k) for k in range(5)]
+    pn = ParamNetlist.from_text(AUDIO)
+    together = gradient(pn, "msq:x(b)", ["k0", "bb", "gain"], inputs)
+    assert together.info["lanes"] == 2
+    for k, path in enumerate(inputs):
+        alone = gradient(pn, "msq:x(b)", ["k0", "bb", "gain"], [path])
+        assert alone.info["lanes"] == 1
+        np.testing.assert_allclose(together.grad[k], alone.grad[0], rtol=1e-12)
+        np.testing.assert_allclose(together.values["msq:x(b)"][k], alone.values["msq:x(b)"][0],
+                                   rtol=1e-12)

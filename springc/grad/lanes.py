@@ -1,8 +1,9 @@
 """The adjoint kernels compiled for a fixed number of lanes.
 
-`springc.grad.adjoint` reads its lane count from its arrays; with a constant count LLVM
-unrolls the lane loops and its SLP vectoriser turns each into vector arithmetic. `module(L)`
-writes a copy of the adjoint module with `LANES = L` to the kernel cache folder
+`springc.grad.adjoint` reads its lane count from its arrays and loops over the lanes.
+`module(L)` writes a copy of the adjoint module with `LANES = L` and its lane loops unrolled
+statement by statement (`source`), so that LLVM's SLP vectoriser packs the lanes into
+vector arithmetic, to the kernel cache folder
 (`springc.kernels.loader.cache_dir`, a real file so numba caches its machine code beside it)
 and imports it; `call(fn, ...)` runs one of its functions with the SLP vectoriser on while
 the first call compiles (as the generated kernels do).
@@ -10,6 +11,8 @@ the first call compiles (as the generated kernels do).
 
 from __future__ import annotations
 
+import ast
+import copy
 import hashlib
 import importlib.util
 import inspect
@@ -42,11 +45,7 @@ def module(lanes: int) -> ModuleType:
 
 
 def _load(lanes: int) -> ModuleType:
-    source = inspect.getsource(adjoint)
-    marker = "\nLANES = 0\n"
-    if marker not in source:
-        raise RuntimeError("springc.grad.adjoint has lost its `LANES = 0` line")
-    text = source.replace(marker, f"\nLANES = {lanes}\n", 1)
+    text = source(lanes)
     digest = hashlib.sha256(text.encode()).hexdigest()[:20]
     name = f"springc_grad_adjoint_{digest}"
     path = cache_dir() / f"{name}.py"
@@ -61,6 +60,111 @@ def _load(lanes: int) -> ModuleType:
     spec.loader.exec_module(mod)
     mod.COMPILED = set()
     return mod
+
+
+def source(lanes: int) -> str:
+    """The adjoint module's text with `LANES = lanes` and every lane loop unrolled."""
+    text = inspect.getsource(adjoint)
+    marker = "\nLANES = 0\n"
+    if marker not in text:
+        raise RuntimeError("springc.grad.adjoint has lost its `LANES = 0` line")
+    tree = ast.parse(text.replace(marker, f"\nLANES = {lanes}\n", 1))
+    tree = ast.fix_missing_locations(_Unroll(lanes).visit(tree))
+    return f"# springc.grad.adjoint for {lanes} lane(s), generated: do not edit\n" + \
+        ast.unparse(tree) + "\n"
+
+
+class _Unroll(ast.NodeTransformer):
+    """`for b in range(...)` (b is the lane everywhere in the adjoint module) becomes its
+    body statement by statement, each statement once per lane with b a constant and the
+    loop's own scalars renamed per lane. Lanes touch only their own column, so any order of
+    their statements is the loop's; statement by statement, every lane's loads of one
+    statement come before its stores, which lets the SLP vectoriser pack the lanes (a
+    store of lane 0 before a load of lane 1 through another array would not)."""
+
+    def __init__(self, lanes: int) -> None:
+        self.lanes = lanes
+        self.temps = 0
+
+    def visit_For(self, node: ast.For):
+        self.generic_visit(node)
+        if not (isinstance(node.target, ast.Name) and node.target.id == "b") or node.orelse:
+            return node
+        return self.unroll(node.body, _assigned(node.body))
+
+    def unroll(self, body: list, local: set[str]) -> list:
+        out: list = []
+        for stmt in body:
+            lane_free = lambda expr: not (_names(expr) & (local | {"b"}))  # noqa: E731
+            if isinstance(stmt, ast.If) and lane_free(stmt.test):
+                out.append(ast.If(stmt.test, self.unroll(stmt.body, local) or [ast.Pass()],
+                                  self.unroll(stmt.orelse, local)))
+            elif isinstance(stmt, ast.For) and lane_free(stmt.iter) and not stmt.orelse:
+                out.append(ast.For(stmt.target, stmt.iter, self.unroll(stmt.body, local), [],
+                                   None))
+            else:
+                copies = [_Lane(k, local).visit(copy.deepcopy(stmt)) for k in range(self.lanes)]
+                out += self.loads_first(copies)
+        return out
+
+    def loads_first(self, copies: list) -> list:
+        """Stores to arrays as `t_k = value` for every lane, then `target_k = t_k`: all
+        the lanes' loads come before their stores."""
+        if not all(_array_store(c) for c in copies):
+            return copies
+        self.temps += 1
+        names = [f"_t{self.temps}_l{k}" for k in range(len(copies))]
+        values = [c.value if isinstance(c, ast.Assign)
+                  else ast.BinOp(_read(c.target), c.op, c.value) for c in copies]
+        targets = [c.targets[0] if isinstance(c, ast.Assign) else c.target for c in copies]
+        return ([ast.Assign([ast.Name(n, ast.Store())], v) for n, v in zip(names, values)]
+                + [ast.Assign([t], ast.Name(n, ast.Load())) for n, t in zip(names, targets)])
+
+
+class _Lane(ast.NodeTransformer):
+    """One lane's copy of a statement: b -> k, the loop's scalars -> name_l<k>."""
+
+    def __init__(self, lane: int, local: set[str]) -> None:
+        self.lane, self.local = lane, local
+
+    def visit_Name(self, node: ast.Name):
+        if node.id == "b":
+            return ast.copy_location(ast.Constant(self.lane), node)
+        if node.id in self.local:
+            return ast.copy_location(ast.Name(f"{node.id}_l{self.lane}", node.ctx), node)
+        return node
+
+
+def _assigned(body: list) -> set[str]:
+    """Names a loop body assigns (not the targets of its own loops, shared by the lanes)."""
+    out: set[str] = set()
+    for node in ast.walk(ast.Module(body, [])):
+        if isinstance(node, ast.Assign):
+            targets = node.targets
+        elif isinstance(node, ast.AugAssign):
+            targets = [node.target]
+        else:
+            continue
+        for target in targets:
+            out |= {n.id for n in ast.walk(target) if isinstance(n, ast.Name)
+                    and isinstance(n.ctx, ast.Store)}
+    return out
+
+
+def _array_store(stmt) -> bool:
+    """An assignment of one value to one array element (`a[i, 0] = ...`, `a[i, 0] += ...`)."""
+    if isinstance(stmt, ast.Assign):
+        return len(stmt.targets) == 1 and isinstance(stmt.targets[0], ast.Subscript)
+    return isinstance(stmt, ast.AugAssign) and isinstance(stmt.target, ast.Subscript)
+
+
+def _read(target: ast.Subscript) -> ast.Subscript:
+    """The element a store writes, read."""
+    return ast.Subscript(copy.deepcopy(target.value), copy.deepcopy(target.slice), ast.Load())
+
+
+def _names(expr) -> set[str]:
+    return {n.id for n in ast.walk(expr) if isinstance(n, ast.Name)}
 
 
 def call(mod: ModuleType, name: str, *args) -> None:

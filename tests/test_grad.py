@@ -193,11 +193,12 @@ K{i}0 y k={i*p}
 .endfor
 """
     pn = ParamNetlist.from_text(src)
-    jac = pn.jacobian({}, ["p", "q"])
+    at = {"q": 0.5}  # away from the file's values: set values and their companions
+    jac = pn.jacobian(at, ["p", "q"])
     for name in ("p", "q"):
-        v, h = pn.values[name], 1e-4
-        hi, lo = (coefficients(pn.netlist({name: v + s * h})) for s in (1, -1))
-        hi2, lo2 = (coefficients(pn.netlist({name: v + s * h / 2})) for s in (1, -1))
+        v, h = {**pn.values, **at}[name], 1e-4
+        hi, lo = (coefficients(pn.netlist({**at, name: v + s * h})) for s in (1, -1))
+        hi2, lo2 = (coefficients(pn.netlist({**at, name: v + s * h / 2})) for s in (1, -1))
         for key, got in jac[name].items():
             want = (4 * (hi2[key] - lo2[key]) / h - (hi[key] - lo[key]) / (2 * h)) / 3
             np.testing.assert_allclose(got, want, rtol=1e-8, atol=1e-9, err_msg=str(key))

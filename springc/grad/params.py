@@ -57,6 +57,8 @@ class ParamNetlist:
     locs: dict[str, SourceLoc]
     lib_dirs: list[Path] | None = None
     probed: set[str] = field(default_factory=set)  # parameters whose role `_probe` checked
+    prefix: str | None = None  # of the derivative companions' names (`_prefix`)
+    tangents: dict[str, list] = field(default_factory=dict)  # seed -> tangent statements
 
     @classmethod
     def load(cls, path: str | Path, lib_dirs: list[Path] | None = None) -> ParamNetlist:
@@ -97,21 +99,31 @@ class ParamNetlist:
         depends on, or that also sets something other than a coefficient (a source's
         arguments, a time, a loop bound, a node name), is a `UsageError`."""
         self.require(list(wrt))
-        base_stmts = self._set(self.statements, dict(values or {}))
-        base = elaborate(self._tree(base_stmts), self.lib_dirs)
-        prefix = self._prefix()
+        values = dict(values or {})
+        base_stmts = self._set(self.statements, values)
+        if any(name not in self.probed for name in wrt):
+            base = elaborate(self._tree(base_stmts), self.lib_dirs)
         out = {}
         for name in wrt:
             if name not in self.probed:  # once per parameter: its role does not change
                 self._probe(base, base_stmts, name)
                 self.probed.add(name)
-            tangent = tangent_tree(base_stmts, self.file, name, prefix)
             try:
-                out[name] = coefficients(elaborate(tangent, self.lib_dirs))
+                out[name] = coefficients(elaborate(self._tangent(name, values), self.lib_dirs))
             except NetlistError as err:
                 raise UsageError(f"cannot differentiate with respect to '{name}': "
                                  f"{err.format()}") from None
         return out
+
+    def _tangent(self, seed: str, values: dict[str, float]) -> ast.Netlist:
+        """The tangent netlist for `seed` at `values`: built once per seed from the file's
+        statements, then the values set, each with its companion (1 for the seed, else 0:
+        a number's derivative), as `tangent_tree` of the statements with the values set."""
+        if seed not in self.tangents:
+            self.tangents[seed] = list(tangent_tree(self.statements, self.file, seed,
+                                                    self._prefix()).statements)
+        companions = {self._prefix() + k: float(k == seed) for k in values}
+        return self._tree(self._set(self.tangents[seed], {**values, **companions}))
 
     def _probe(self, base: FlatNetlist, stmts: list, name: str) -> None:
         """Elaborate with `name` nudged: the structure must stay, some coefficient must move."""
@@ -148,12 +160,14 @@ class ParamNetlist:
         return out
 
     def _prefix(self) -> str:
-        """A name prefix for the derivative companions that no name of the netlist uses."""
-        text = repr(self.statements)
-        prefix = "__d_"
-        while prefix in text:
-            prefix = "_" + prefix
-        return prefix
+        """A name prefix for the derivative companions that no name of the netlist uses
+        (found once: the text of the whole tree is long)."""
+        if self.prefix is None:
+            text = repr(self.statements)
+            self.prefix = "__d_"
+            while self.prefix in text:
+                self.prefix = "_" + self.prefix
+        return self.prefix
 
 
 def _set_keyword(arg, values: dict[str, float]):

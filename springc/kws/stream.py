@@ -15,10 +15,12 @@ belongs to a one-clip window, timed by the window's centre (where training put t
   is what a network started at rest W ago would read at t: the decision of the window
   [t - W, t], compared with the head's scale and intercept as `transfer.decisions` does at
   the end of a clip (W is `massspring.horizon` of one clip, so at t = W it is exactly the
-  clip's decision; after that the lines and low-passes still hold sound from before the
-  window, as they would in the device). A device reads it with one sample-and-hold per
-  readout. Without the subtraction the 80 s memory would pile every earlier word into the
-  decision.
+  clip's decision; later the network may not have returned to rest from earlier sound when
+  a window opens, as in the device: for a word one clip horizon of silence after another,
+  the decision was 7e-4 of the largest decision off the word's own, tests/test_kws_stream.py).
+  A device reads it with one sample-and-hold per readout. Without the subtraction the 80 s
+  memory piles every earlier word into the decision (1.6 times the largest decision off in
+  the same test).
 
 A detection: a run of consecutive windows, at least MIN_RUN long, whose predicted class
 (argmax of the rows) is the same command with a positive decision (one-versus-rest: "this

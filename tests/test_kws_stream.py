@@ -185,3 +185,19 @@ def test_the_readout_increase_is_a_later_clips_decision(env):
     np.testing.assert_allclose(rows[end_b], want[1], rtol=0, atol=2e-3 * scale)
     raw = np.array([x[k, end_b] / h.scale + h.intercept for k, h in enumerate(heads)])
     assert np.abs(raw - want[1]).max() > 10 * 2e-3 * scale
+
+
+def test_a_mass_spring_models_readme(env):
+    """The mass-spring model folder explains itself too: the network files, both
+    integrations, and a training command with every setting (no setting left out)."""
+    root, data, _ = env
+    text = (root / "ms" / "README.md").read_text()
+    (line,) = [x for x in text.splitlines() if x.startswith("springc train ")]
+    for option in ("--realisation mass-spring", "-n 2 -m 2", "--threshold 0.001",
+                   "--epsilon 1e-05", "--paper-steps"):
+        assert option in line
+    assert "has no option for" not in text
+    assert "feature network integrated by rk4 x8 float32 (set, not measured)" in text
+    assert "`springc eval` simulates the whole classifier network" in text
+    for name in ("classifier.spr", "features.spr", "head0.spr", "head3.spr"):
+        assert f"- `{name}`: " in text

@@ -1,7 +1,8 @@
 """The model folder: `settings.json` (all settings), `weights.npz` (raw-Phi coefficients,
 intercepts, classes, group index), `report.json`, `confusion.csv`, `confusion.png`,
-`per_class.csv`. Written into a temporary sibling folder and renamed into place, so a
-failed run never leaves a half-written model."""
+`per_class.csv`, and `README.md`, which explains the rest to a reader (`springc.kws.readme`).
+Written into a temporary sibling folder and renamed into place, so a failed run never leaves
+a half-written model."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from springc import __version__
 from springc.errors import DataError
 from springc.kws import report as rep
 from springc.kws.phi import group_index, n_features
+from springc.kws.readme import readme_text
 from springc.kws.svm import LinearModel
 from springc.kws.task import REALISATIONS
 
@@ -79,6 +81,8 @@ def write_model(folder: Path, settings: dict, fits: list, report: dict,
         write_report(tmp, report, title=_title(settings, report))
         for name, text in (extra or {}).items():
             (tmp / name).write_text(text)
+        files = [p.name for p in tmp.iterdir()] + ["README.md"]
+        (tmp / "README.md").write_text(readme_text(folder, settings, report, files))
         if folder.exists():
             shutil.rmtree(folder)
         tmp.rename(folder)

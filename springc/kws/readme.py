@@ -1,0 +1,179 @@
+"""A model folder's README.md: what the model was trained on, with which settings, how it
+scored, and the commands that reproduce it, so that a folder explains itself.
+
+The training command is rebuilt from settings.json; settings that `springc train` has no
+option for (set through `springc.kws.train.TrainOptions`) are listed, with their values,
+instead of silently dropped from the command."""
+
+from __future__ import annotations
+
+import shlex
+from pathlib import Path
+
+import numpy as np
+
+from springc.kws.report import counts_table, true_positive_rates
+
+TASKS = {"kws12": "GSCD's 12 classes: the 10 commands, `_unknown_` (every other word) and "
+                  "`_silence_` (windows of background noise), one-versus-rest",
+         "digits-pairs": "one/two/three/four, a binary classifier per pair (paper Fig. 8b)"}
+MODEL_FILES = {
+    "README.md": "this page",
+    "settings.json": "every setting (what this page is written from)",
+    "weights.npz": "raw-Phi coefficients, intercepts, classes",
+    "report.json": "the test report in full (confusion matrix, validation scores, timings)",
+    "confusion.csv": "test confusion matrix (rows true, columns predicted)",
+    "confusion.png": "the same, row-normalised, beside the true-positive rates",
+    "per_class.csv": "test clips, correct and true-positive rate per class",
+    "features.spr": "the mass-spring feature network",
+    "classifier.spr": "the whole classifier network, sound to decision (includes head{k}.spr)",
+}
+
+
+def readme_text(folder: Path, settings: dict, report: dict, files: list[str]) -> str:
+    """README.md of the model `folder` from its settings.json and report.json contents;
+    `files` names what the folder holds."""
+    parts = [_header(settings, report), _data(settings, report), _settings(settings),
+             _accuracy(settings, report), _reproduce(folder, settings), _files(files)]
+    return "\n\n".join(p.rstrip() for p in parts) + "\n"
+
+
+def _size(settings: dict) -> str:
+    f = settings["features"]
+    return f"{f['bins']} bins x {f['delays']} delays" if "bins" in f else "log-Mel baseline"
+
+
+def _header(settings: dict, report: dict) -> str:
+    return (f"# Keyword spotter: {settings['realisation']}, {_size(settings)}\n\n"
+            f"Trained by springc {settings.get('springc_version', '?')}; "
+            f"test accuracy {100 * report['accuracy']:.2f}% on {report['n']} clips "
+            f"(always the most frequent class: {100 * report['majority_rate']:.2f}%).")
+
+
+def _data(settings: dict, report: dict) -> str:
+    data = settings.get("dataset", {})
+    lines = ["## Data", "",
+             f"- folder: `{data.get('path', '?')}` (GSCD layout); split fingerprints "
+             + ", ".join(f"{s} `{fp}`" for s, fp in data.get("fingerprint", {}).items()),
+             f"- task `{settings['task']}`: {TASKS.get(settings['task'], '')}",
+             f"- held-out protocol `{settings.get('protocol')}`, class weights "
+             f"`{settings.get('class_weight') or 'equal'}`, seed {settings.get('seed', 0)}"]
+    if "counts" in report:
+        lines += ["", "Clips per class and split:", "", "```",
+                  counts_table(report["counts"]), "```"]
+    return "\n".join(lines)
+
+
+def _settings(settings: dict) -> str:
+    from springc.kws.integration import from_dict
+
+    f = {k: v for k, v in settings["features"].items() if k != "realisation"}
+    lines = ["## Settings", "", f"- classifier: {settings.get('classifier')}, C = "
+             f"{settings.get('C')} (chosen on the validation split)",
+             "- features: " + ", ".join(f"{k} {v}" for k, v in f.items())]
+    feats = settings.get("integration", {}).get("features")
+    if feats:
+        lines.append(f"- feature network integrated by {from_dict(feats).describe()}")
+    transfer = settings.get("transfer")
+    if transfer:
+        lines.append(f"- classifier network: {len(transfer['heads'])} heads, squaring error "
+                     f"eps {transfer['epsilon']:g}, feature amplitude "
+                     f"{transfer['amplitude']:.4g} m, integrated by "
+                     f"{from_dict(transfer.get('integration')).describe()}")
+    return "\n".join(lines)
+
+
+def _accuracy(settings: dict, report: dict) -> str:
+    classes, conf = report["classes"], np.array(report["confusion"])
+    tpr = true_positive_rates(conf)
+    lines = ["## Accuracy on the test split", ""]
+    if settings["realisation"] == "mass-spring":
+        lines += ["The SVM on the simulated feature network's Phi (the ideal readout c . Phi); "
+                  "`springc eval` simulates the whole classifier network, sound to decision.",
+                  ""]
+    lines += ["| class | test clips | correct | true-positive rate |", "|---|---|---|---|"]
+    for k, c in enumerate(classes):
+        rate = "n/a" if np.isnan(tpr[k]) else f"{100 * tpr[k]:.1f}%"
+        lines.append(f"| `{c}` | {int(conf[k].sum())} | {int(conf[k, k])} | {rate} |")
+    lines.append(f"| **all** | {report['n']} | {int(np.trace(conf))} | "
+                 f"**{100 * report['accuracy']:.2f}%** |")
+    for name, r in report.get("pairs", {}).items():
+        lines.append(f"\nPair {name}: {100 * r['accuracy']:.1f}% of {r['n']}")
+    for name, scores in report.get("validation", {}).items():
+        lines.append("\nValidation accuracy by C" + ("" if name == "all" else f" ({name})")
+                     + ": " + ", ".join(f"{c}: {100 * v:.1f}%" for c, v in scores.items()))
+    return "\n".join(lines)
+
+
+def _reproduce(folder: Path, settings: dict) -> str:
+    data = settings.get("dataset", {}).get("path", "DATA")
+    model = shlex.quote(str(folder))
+    args, missing = train_arguments(settings)
+    lines = ["## Reproduce", "", "```sh",
+             "springc train --data " + shlex.quote(data) + " " + " ".join(args) + f" -o {model}",
+             f"springc eval {model} --data {shlex.quote(data)}   # this page's test split",
+             f"springc eval {model} --data OTHER_FOLDER   # any labelled folder; no split "
+             "lists: every clip is a test clip",
+             f"springc classify {model} RECORDING.wav   # label and scores of one clip",
+             f"springc classify {model} LONG.wav --stream --plots PLOTS   # keywords through "
+             "a long recording", "```"]
+    if missing:
+        lines += ["", "Settings `springc train` has no option for (set through "
+                  "`springc.kws.train.TrainOptions`): "
+                  + ", ".join(f"{k} = {v!r}" for k, v in missing.items()) + "."]
+    return "\n".join(lines)
+
+
+def train_arguments(settings: dict) -> tuple[list[str], dict]:
+    """(`springc train` options that give these settings, the settings no option gives)."""
+    from springc.kws.digital import FeatureSettings
+
+    f = dict(settings["features"])
+    realisation = settings["realisation"]
+    args = ["--realisation", realisation, "--task", settings["task"],
+            "--protocol", str(settings.get("protocol")), "--class-weights",
+            "balanced" if settings.get("class_weight") else "none",
+            "--seed", str(settings.get("seed", 0))]
+    if realisation == "baseline":
+        return args, {}
+    size = {"bins": f["bins"], "delays": f["delays"], "td": f["td"], "tau": f["tau"],
+            "fc": f["fc"]}
+    args += ["-n", str(f["bins"]), "-m", str(f["delays"]), "--td", f"{f['td']:g}",
+             "--tau", f"{f['tau']:g}", "--fc", f"{f['fc']:g}"]
+    if realisation == "digital":
+        args += ["--filterbank", f["filterbank"], "--feature-rate", f"{f['feature_rate']:g}"]
+        given = FeatureSettings(**size, filterbank=f["filterbank"],
+                                feature_rate=f["feature_rate"]).to_dict()
+        return args, _differences(f, given)
+    return _massspring_arguments(settings, f, size, args)
+
+
+def _massspring_arguments(settings: dict, f: dict, size: dict,
+                          args: list[str]) -> tuple[list[str], dict]:
+    """The mass-spring options: threshold, epsilon, and how the integration was set."""
+    from springc.kws.massspring import from_features
+    from springc.kws.digital import FeatureSettings
+
+    args += ["--threshold", f"{f['threshold']:g}",
+             "--epsilon", f"{settings['transfer']['epsilon']:g}"]
+    tolerance = settings.get("integration", {}).get("features", {}).get("tolerance")
+    args += ["--paper-steps"] if tolerance is None else ["--tolerance", f"{tolerance:g}"]
+    given = from_features(FeatureSettings(**size), threshold=f["threshold"]).to_dict()
+    chosen = ("method", "substeps")  # chosen by the integration, not given
+    return args, {k: v for k, v in _differences(f, given).items() if k not in chosen}
+
+
+def _differences(stored: dict, given: dict) -> dict:
+    """Entries of `stored` (other than the realisation) that `given` lacks or differs in."""
+    return {k: v for k, v in stored.items()
+            if k != "realisation" and given.get(k, object()) != v}
+
+
+def _files(files: list[str]) -> str:
+    lines = ["## Files", ""]
+    for name in sorted(files):
+        what = MODEL_FILES.get(name)
+        if what is None and name.startswith("head"):
+            what = "one classifier head: its mvm, quadratic couplings and readout"
+        lines.append(f"- `{name}`: {what or 'see settings.json'}")
+    return "\n".join(lines)

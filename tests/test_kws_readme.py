@@ -1,0 +1,89 @@
+"""A model folder's README.md: its data, settings and accuracy table agree with settings.json
+and report.json, and the training command it prints reproduces the model."""
+
+from __future__ import annotations
+
+import json
+import shlex
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from springc.kws.digital import FeatureSettings
+from springc.kws.readme import train_arguments
+from springc.kws.train import TrainOptions, train
+from springc_cli.main import main
+from test_kws_train import make_corpus
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory):
+    root = tmp_path_factory.mktemp("readme")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("SPRINGC_CACHE", str(root / "cache"))
+        data = make_corpus(root / "data")
+        model = root / "model"
+        result = CliRunner().invoke(main, ["train", "--data", str(data), "-n", "4", "-m", "2",
+                                           "--td", "0.064", "--protocol", "lists",
+                                           "--class-weights", "none", "--seed", "3", "-j", "1",
+                                           "-o", str(model)])
+        assert result.exit_code == 0, result.output
+        yield root, data, model
+
+
+def section(text: str, title: str) -> str:
+    return text.split(f"## {title}\n", 1)[1].split("\n## ", 1)[0]
+
+
+def test_the_readme_holds_the_data_settings_and_table(env):
+    _, data, model = env
+    text = (model / "README.md").read_text()
+    settings = json.loads((model / "settings.json").read_text())
+    report = json.loads((model / "report.json").read_text())
+    assert text.startswith("# Keyword spotter: digital, 4 bins x 2 delays\n")
+    assert f"test accuracy {100 * report['accuracy']:.2f}% on {report['n']} clips" in text
+    assert f"`{data.resolve()}`" in section(text, "Data")
+    assert "protocol `lists`, class weights `equal`, seed 3" in text
+    assert "td 0.064" in section(text, "Settings") and f"C = {settings['C']}" in text
+    rows = [r for r in section(text, "Accuracy on the test split").splitlines()
+            if r.startswith("| `")]
+    conf = np.array(report["confusion"])
+    assert len(rows) == len(report["classes"])
+    for row, c, counts in zip(rows, report["classes"], conf):
+        cells = [x.strip() for x in row.strip("|").split("|")]
+        assert cells[:3] == [f"`{c}`", str(counts.sum()), str(counts[report["classes"].index(c)])]
+    assert sorted(p.name for p in model.iterdir()) == sorted(
+        line.split("`")[1] for line in section(text, "Files").splitlines() if line)
+
+
+def test_the_printed_command_reproduces_the_model(env, tmp_path):
+    """Run the README's `springc train` line with another output folder: same settings
+    (but the folder), same weights, same report."""
+    _, _, model = env
+    text = (model / "README.md").read_text()
+    (line,) = [x for x in text.splitlines() if x.startswith("springc train ")]
+    args = shlex.split(line)[1:]
+    assert args[-2:] == ["-o", str(model)]
+    again = tmp_path / "again"
+    result = CliRunner().invoke(main, [*args[:-1], str(again), "-j", "1"])
+    assert result.exit_code == 0, result.output
+    for name in ("settings.json", "report.json"):
+        old, new = (json.loads((m / name).read_text()) for m in (model, again))
+        old.pop("seconds", None), new.pop("seconds", None)
+        assert old == new, name
+    with np.load(model / "weights.npz") as a, np.load(again / "weights.npz") as b:
+        assert set(a) == set(b) and all(np.array_equal(a[k], b[k]) for k in a)
+
+
+def test_settings_without_an_option_are_named(env, tmp_path):
+    """A model trained through the library with a setting `springc train` cannot give
+    (here fmin) lists it beside the command rather than printing a command that differs."""
+    _, data, _ = env
+    out = tmp_path / "m"
+    train(TrainOptions(data=data, out=out, settings=FeatureSettings(bins=4, delays=2,
+                                                                    fmin=100.0), jobs=1))
+    text = (out / "README.md").read_text()
+    assert "Settings `springc train` has no option for" in text and "fmin = 100.0" in text
+    settings = json.loads((out / "settings.json").read_text())
+    assert train_arguments(settings)[1] == {"fmin": 100.0}

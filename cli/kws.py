@@ -144,8 +144,10 @@ def eval_cmd(model_dir, data, realisation, protocol, as_json, jobs, no_cache, sc
 
     if budget:
         from springc.kws import energy
+        from springc.kws.evaluate import budget_signals
 
-        parts = energy.test_split_budget(model_dir, data, budget)
+        parts = energy.model_budget(model_dir, budget_signals(model_dir, data, budget,
+                                                              protocol))
         click.echo(f"energy budget of the whole classifier, {len(parts['work in'])} test "
                    f"clips (balance error {energy.check_balance(parts).max():.1e}):")
         click.echo("\n".join(energy.budget_table(parts)))

@@ -201,3 +201,22 @@ def test_a_mass_spring_models_readme(env):
     assert "`springc eval` simulates the whole classifier network" in text
     for name in ("classifier.spr", "features.spr", "head0.spr", "head3.spr"):
         assert f"- `{name}`: " in text
+
+
+def test_the_energy_budget_reads_a_test_only_folder(env, tmp_path):
+    """`eval --budget` needs the test split alone too: on a copy of the test clips without
+    split lists it prints the table the training folder's test split gives."""
+    import shutil
+
+    from springc.kws import energy
+
+    root, data, _ = env
+    for clip in held_out_words(data)[:2]:
+        (tmp_path / "t" / clip.word).mkdir(parents=True, exist_ok=True)
+        shutil.copy(clip.path, tmp_path / "t" / clip.word / clip.path.name)
+    result = CliRunner().invoke(main, ["eval", str(root / "ms"), "--data", str(tmp_path / "t"),
+                                       "--budget", "2", "--protocol", "lists"])
+    assert result.exit_code == 0, result.output
+    want = energy.budget_table(energy.test_split_budget(root / "ms", data, 2))
+    assert result.stdout.splitlines()[1:] == want
+    assert result.stdout.startswith("energy budget of the whole classifier, 2 test clips")

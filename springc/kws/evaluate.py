@@ -52,6 +52,21 @@ def evaluate(model_dir: Path, data: Path | None = None, realisation: str | None 
     return score(model.models, x, targets(clips, task), task)
 
 
+def budget_signals(model_dir: Path, data: Path | None, clips: int,
+                   protocol: str | None = None) -> np.ndarray:
+    """The first `clips` test clips of `data` (default: the model's data set) as the network
+    hears them, for `energy.model_budget`: the test split alone is read, as `evaluate` reads
+    it. UsageError for a model that is not mass-spring."""
+    model = load_model(model_dir)
+    if model.settings["realisation"] != "mass-spring":
+        raise UsageError("the energy budget needs a mass-spring model",
+                         hint="train one with --realisation mass-spring")
+    ds = open_task_data(Path(data) if data else trained_data(model), model.settings["task"],
+                        int(model.settings.get("seed", 0)),
+                        protocol or model.settings.get("protocol"), splits=("test",))
+    return msp.load_signals(ds.split("test")[:clips], False, 0, [])
+
+
 def trained_data(model) -> Path:
     """The data folder a model was trained on (settings.json); DataError if it names none."""
     path = model.settings.get("dataset", {}).get("path")

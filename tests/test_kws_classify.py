@@ -221,3 +221,4 @@ def test_bad_input_is_a_named_user_error(env, tmp_path, case):
     assert message in output
     assert "Traceback" not in output and "INTERNAL" not in output
     assert not (tmp_path / "p").exists()  # no plot folder, no half-written output
+    assert "streaming" not in output  # every file is checked before the first is streamed

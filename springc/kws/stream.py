@@ -44,7 +44,7 @@ import numpy as np
 
 from springc.errors import UsageError
 from springc.kws.classify import (CLIP_SECONDS, Recording, decision_rows, feature_settings,
-                                  model_for, read_recordings, row_names)
+                                  model_for, read_recordings, row_names, sound_files)
 from springc.kws.dataset import CLIP_SAMPLES, COMMANDS, SAMPLE_RATE
 from springc.kws.model import TrainedModel
 from springc.kws.preprocess import remove_background
@@ -225,11 +225,11 @@ def stream(model_dir: Path, inputs, realisation: str | None = None, plots: Path 
     streamed whole; with `plots`, a PNG per recording there (`plot_trace`)."""
     model = model_for(model_dir, realisation, "streamed")
     check_streamable(model)
-    recordings = read_recordings(inputs)
-    traces = []
-    for rec in recordings:
-        progress(f"streaming {rec.path} ({rec.seconds:.2f} s)")
-        traces.append(trace_of(model, stream_signal(rec)))
+    recordings, traces = [], []
+    for path in sound_files(inputs):
+        recordings += read_recordings([path])
+        progress(f"streaming {path} ({recordings[-1].seconds:.2f} s)")
+        traces.append(trace_of(model, stream_signal(recordings[-1])))
     out = [{"file": str(rec.path), "seconds": rec.seconds, "detections": detections(trace),
             "plot": None} for rec, trace in zip(recordings, traces)]
     if plots:  # only once every recording has run: a failure leaves no plots behind

@@ -25,17 +25,20 @@ from test_kws_train import RATE, _sound, make_corpus
 
 @pytest.fixture(scope="module")
 def env(tmp_path_factory):
-    """A tiny corpus, a 4 x 2 digital kws12 model and a digits-pairs model (seconds)."""
+    """A tiny corpus, a 4 x 2 digital kws12 model, a digits-pairs model and the log-Mel
+    baseline (seconds)."""
     root = tmp_path_factory.mktemp("classify")
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("SPRINGC_CACHE", str(root / "cache"))
         data = make_corpus(root / "data")
         digits = make_corpus(root / "digits", words=("one", "two", "three", "four"),
                              per_speaker=1)
-        for folder, model, task in ((data, "model", "kws12"), (digits, "pairs", "digits-pairs")):
+        for folder, model, task in ((data, "model", "kws12"), (digits, "pairs", "digits-pairs"),
+                                    (data, "baseline", "kws12")):
             result = CliRunner().invoke(main, ["train", "--data", str(folder), "-n", "4", "-m",
                                                "2", "-j", "1", "--task", task, "-o",
-                                               str(root / model)])
+                                               str(root / model), "--realisation",
+                                               "baseline" if model == "baseline" else "digital"])
             assert result.exit_code == 0, result.output
         yield root, data
 
@@ -77,6 +80,24 @@ def test_scores_are_the_decisions_eval_computes(env):
         right += g["label"] == {"cat": "_unknown_"}.get(Path(g["file"]).parent.name,
                                                         Path(g["file"]).parent.name)
     assert right == 9  # eval: 100% on the 9 test word clips of this corpus
+
+
+def test_the_baseline_scores_its_log_mel_features(env):
+    """The log-Mel baseline classifies clips too: its scores are its logistic regression's
+    decisions on the features training computes (float32, as cached)."""
+    from springc.kws.baseline import baseline_features
+    from springc.kws.dataset import SAMPLE_RATE, load_clip
+
+    root, data = env
+    model = load_model(root / "baseline")
+    clips = [c for c in open_task_data(data, "kws12", protocol="lists", splits=("test",))
+             .split("test") if c.label != "_silence_"]
+    x = baseline_features(np.stack([load_clip(c) for c in clips]), SAMPLE_RATE)
+    want = model.models[0][1].decision(x.astype(np.float32))
+    got = classify(root / "baseline", [c.path for c in clips])
+    classes = list(model.models[0][0])
+    for g, d in zip(got, want):
+        np.testing.assert_allclose([g["scores"][c] for c in classes], d, rtol=1e-9)
 
 
 def test_a_folder_is_every_sound_file_under_it(env, tmp_path):
@@ -205,6 +226,8 @@ BAD = {
                            "is a file, not a folder"),
     "stream a pairs model": (["{pairs}", "{good}", "--stream"],
                              "model of binary classifiers: they have no class for silence"),
+    "stream the baseline": (["{baseline}", "{good}", "--stream"],
+                            "is the log-Mel baseline: its features depend on where a word"),
     "stream a bad file": (["{model}", "{good}", "{cut}", "--stream", "--plots", "{root}/p"],
                           "cut.wav: cannot read as audio"),
 }
@@ -213,7 +236,8 @@ BAD = {
 @pytest.mark.parametrize("case", sorted(BAD))
 def test_bad_input_is_a_named_user_error(env, tmp_path, case):
     root, _ = env
-    names = {"model": root / "model", "pairs": root / "pairs", "root": tmp_path,
+    names = {"model": root / "model", "pairs": root / "pairs", "baseline": root / "baseline",
+             "root": tmp_path,
              **_inputs(tmp_path)}
     args, message = BAD[case]
     code, output, _ = run(*[a.format(**names) for a in args])

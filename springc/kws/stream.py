@@ -5,8 +5,9 @@ The recording is high-passed as the clips are (`preprocess.remove_background`) b
 centred: a device listening to a stream cannot know where a word will sit. Each decision
 belongs to a one-clip window, timed by the window's centre (where training put the words).
 
-- Digital and baseline models: the window slides over the recording, HOP apart, padded with
-  half a clip of silence at each end; each window is scored like a clip.
+- Digital models: the window slides over the recording, HOP apart, padded with half a clip
+  of silence at each end; each window is scored like a clip. (The log-Mel baseline cannot
+  stream: `check_streamable`.)
 - Mass-spring models: the whole classifier network (`classifier.spr`) is simulated once over
   the whole recording from rest, as the device would hear it, and the readouts x(r_k) are
   recorded. A readout is a leaky integrator: past its fast pole,
@@ -69,8 +70,15 @@ class Trace:
 
 
 def check_streamable(model: TrainedModel) -> None:
-    """UsageError for a model that cannot tell a word from the rest: detection needs one
+    """UsageError for a model that cannot stream: the log-Mel baseline (its flattened
+    spectrogram changes with where the word sits in the window, and it was trained on
+    centred words only), or one that cannot tell a word from the rest: detection needs one
     multiclass model (kws12) whose classes include other sound than commands."""
+    if model.settings["realisation"] == "baseline":
+        raise UsageError(f"{model.folder} is the log-Mel baseline: its features depend on "
+                         "where a word sits in the window, so --stream would answer every "
+                         "window with a word anywhere in it",
+                         hint="stream with a digital or mass-spring model")
     classes, m = model.models[0]
     if len(model.models) != 1 or len(m.coef) < 2:
         raise UsageError(f"{model.folder} is a {model.settings['task']} model of binary "
@@ -83,8 +91,8 @@ def check_streamable(model: TrainedModel) -> None:
 
 
 def digital_trace(model: TrainedModel, signal: np.ndarray, hop: float = HOP) -> Trace:
-    """Decisions of a digital or baseline model on one-clip windows `hop` apart over
-    `signal` (high-passed), centred from 0 to the end of the recording."""
+    """Decisions of a digital model on one-clip windows `hop` apart over `signal`
+    (high-passed), centred from 0 to the end of the recording."""
     half = CLIP_SAMPLES // 2
     padded = np.concatenate([np.zeros(half), signal, np.zeros(half)])
     step = round(hop * SAMPLE_RATE)

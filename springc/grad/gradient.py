@@ -51,11 +51,6 @@ class GradResult:
     params: dict[str, float]
     info: dict = field(default_factory=dict)
 
-    def summed(self) -> tuple[dict[str, float], dict[str, float]]:
-        """Values and gradient summed over runs (the first reduction's value: `of[0]`)."""
-        vals = {s: float(np.sum(v)) for s, v in self.values.items()}
-        return vals, {p: float(g) for p, g in zip(self.wrt, self.grad.sum(axis=0))}
-
 
 def gradient(source: ParamNetlist | str | Path, of: str | Sequence[str], wrt: Sequence[str],
              inputs=None, input_rate: float | None = None, *,

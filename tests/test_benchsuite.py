@@ -136,6 +136,17 @@ def test_speedup_is_the_cheapest_row_at_equal_or_better_stretch_error():
     assert not out["DOP853"]["floor_limited"]
 
 
+def test_rows_without_a_finite_error_compete_for_nothing():
+    """A peer that blew up (numpy-rk4 on the compressors) and a kernel row the guard stopped
+    have NaN errors: no speed-up against the one, none won by the other."""
+    rows = [_kernel("exp-rk4", 1, math.nan, 0.005), _kernel("rk4", 8, 5e-10, 0.08),
+            _peer(math.nan, wall_per_run_s=10.0, method="numpy-rk4"),
+            _peer(1e-3, wall_per_run_s=50.0)]
+    out = {s["peer"]: s for s in bs.speedups(_result(rows))}
+    assert list(out) == ["DOP853"]
+    assert out["DOP853"]["kernel"] == "rk4 x8 float64"
+
+
 def test_speedup_counts_a_peer_below_the_floor_at_the_floor_and_reports_the_closest_row():
     rows = [_kernel("rk4", 8, 5e-10, 0.08), _kernel("rk4", 16, 3e-12, 0.16),
             _peer(1e-13, wall_per_run_s=100.0)]

@@ -721,11 +721,17 @@ def speedups(res: CaseResult) -> list[dict]:
     """Per peer: the cheapest kernel row whose worst probe error on the peers' stretch is no
     worse than the peer's (or than the reference's floor, when the peer is below it: equal
     within what the reference resolves), and how much less wall time per simulated
-    run-second it needs; without such a row, the most accurate kernel row for comparison."""
-    kernels = [r for r in res.rows if r.name.startswith("kernel") and r.stretch_errors]
+    run-second it needs; without such a row, the most accurate kernel row for comparison.
+    Rows without a finite error (a run the divergence guard stopped, a peer that blew up)
+    compete for nothing; their notes say why."""
+    def measured(r: Row, kind: str) -> bool:
+        return (r.name.startswith(kind) and bool(r.stretch_errors)
+                and math.isfinite(r.max_stretch_error))
+
+    kernels = [r for r in res.rows if measured(r, "kernel")]
     floor = float(res.reference.get("floor", 0.0))
     out = []
-    for peer in (r for r in res.rows if r.name.startswith("peer") and r.stretch_errors):
+    for peer in (r for r in res.rows if measured(r, "peer")):
         target = max(peer.max_stretch_error, floor)
         ok = [k for k in kernels if k.max_stretch_error <= target]
         best = min(ok, key=lambda k: k.wall_per_run_second, default=None)

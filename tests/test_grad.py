@@ -230,7 +230,7 @@ def test_runs_in_lanes_match_runs_alone(tmp_path, monkeypatch):
     each run's value and gradient as when it runs alone."""
     import importlib
 
-    monkeypatch.setattr(importlib.import_module("springc.grad.gradient"), "_threads",
+    monkeypatch.setattr(importlib.import_module("springc.sim.simulate"), "threads",
                         lambda: 2)
     inputs = [_wav(tmp_path / f"{k}.wav", 0.02, k) for k in range(5)]
     pn = ParamNetlist.from_text(AUDIO)

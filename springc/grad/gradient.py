@@ -6,10 +6,8 @@ d reduction / d each named parameter out), both batched over runs like `simulate
 from __future__ import annotations
 
 import math
-import os
 import time
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -144,7 +142,7 @@ class _Job:
         self.rows = seeds.plan(items, net, st.h, st.nsteps)
         self.ds, self.ms, self.gp, self.gdecay = self.rows.arrays()
         # as wide as the runs allow while every core gets a chunk
-        self.lanes = lanes.choose(-(-runs // _threads()))
+        self.lanes = lanes.choose(-(-runs // sim.threads()))
         self.kernels = lanes.module(self.lanes)
         per_step = s * (3 * net.n + max(self.nch, 1)) * self.lanes * 8
         whole = st.nsteps * per_step <= MEMORY
@@ -159,7 +157,7 @@ class _Job:
             lo = bounds[c]
             parts[c] = self.chunk(lo, min(self.runs, lo + self.lanes), weights)
 
-        _each(len(bounds), one)
+        sim.on_threads(len(bounds), one)
         vals = {k: np.concatenate([p[0][k] for p in parts]) for k in parts[0][0]}
         coefs = {k: np.concatenate([p[1][k] for p in parts]) for k in parts[0][1]}
         return vals, coefs
@@ -225,19 +223,3 @@ def _lane_mask(take: np.ndarray, ndim: int) -> np.ndarray:
     return first.reshape((-1,) + (1,) * (ndim - 1))
 
 
-def _threads() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
-
-
-def _each(count: int, call) -> None:
-    """call(c) for c < count, on up to one thread per core (the kernels release the GIL)."""
-    workers = min(count, _threads())
-    if workers <= 1:
-        for c in range(count):
-            call(c)
-        return
-    with ThreadPoolExecutor(workers) as pool:
-        list(pool.map(call, range(count)))

@@ -11,6 +11,7 @@ each, recording into one shared buffer); inside a batch, chunks of runs go to a 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -276,7 +277,7 @@ def task_runs(runs: int, batch: int | None, chunk: int | None) -> int:
     its whole batch), else a kernel call's runs spread over the threads."""
     if chunk:
         return int(chunk)
-    return max(1, -(-min(runs, batch or DEFAULT_BATCH) // _threads()))
+    return max(1, -(-min(runs, batch or DEFAULT_BATCH) // threads()))
 
 
 def kernel_source(net: FlatNetlist, opts: codegen.KernelOptions) -> str:
@@ -334,7 +335,8 @@ def _gather_inputs(net, inputs, input_rate, tstep, channel):
     return arr, [str(p) for p in paths], arr.shape[2] / rate
 
 
-def _threads() -> int:
+def threads() -> int:
+    """Cores this process may use: the threads a kernel call spreads its chunks over."""
     try:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
@@ -487,7 +489,7 @@ def record_shape(probes: int, records: int, runs: int, dtype) -> tuple[int, int,
 
 def _run_chunks(kernel, args: dict, runs: int, task: int) -> None:
     """Run the kernel's chunks (of `LANES` runs) as tasks of about `task` runs, each a
-    contiguous range of chunks, on up to `_threads()` threads (the kernel releases the GIL and
+    contiguous range of chunks, on up to `threads()` threads (the kernel releases the GIL and
     each chunk writes only its own columns). A kernel without CHUNK_RANGE (a numba prange
     kernel) runs all its chunks in one call."""
     nchunks = -(-runs // kernel.module.LANES)
@@ -500,13 +502,19 @@ def _run_chunks(kernel, args: dict, runs: int, task: int) -> None:
     def call(t: int) -> None:
         kernel.run(**fixed, c0=bounds[t], c1=bounds[t + 1])
 
-    workers = min(ntasks, _threads())
+    on_threads(ntasks, call)
+
+
+def on_threads(count: int, call: Callable[[int], None]) -> None:
+    """call(k) for every k < count, on up to one thread per core (the kernels release the
+    GIL); in this thread when one would do."""
+    workers = min(count, threads())
     if workers <= 1:
-        for t in range(ntasks):
-            call(t)
+        for k in range(count):
+            call(k)
         return
     with ThreadPoolExecutor(workers) as pool:
-        list(pool.map(call, range(ntasks)))
+        list(pool.map(call, range(count)))
 
 
 def _finish_reductions(net, rplan, args, work, wins, st) -> dict[str, np.ndarray]:

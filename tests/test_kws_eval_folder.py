@@ -19,7 +19,7 @@ from springc.kws.model import load_model
 from springc.kws.task import targets
 from springc.kws.train import feature_matrices
 from springc_cli.main import main
-from test_kws_train import RATE, SPEAKERS, _sound, make_corpus
+from test_kws_train import RATE, SPEAKERS, _sound, corpus_and_model, make_corpus
 
 TEST_SPEAKER = SPEAKERS[7]  # the speaker make_corpus lists in testing_list.txt
 
@@ -30,12 +30,7 @@ def env(tmp_path_factory):
     root = tmp_path_factory.mktemp("evalfolder")
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("SPRINGC_CACHE", str(root / "cache"))
-        data = make_corpus(root / "data")
-        model = root / "model"
-        result = CliRunner().invoke(main, ["train", "--data", str(data), "-n", "4", "-m", "2",
-                                           "-j", "1", "-o", str(model)])
-        assert result.exit_code == 0, result.output
-        yield data, model
+        yield corpus_and_model(root)
 
 
 def evaluate(model: Path, data: Path, *extra: str) -> dict:

@@ -14,7 +14,7 @@ from springc.kws.digital import FeatureSettings
 from springc.kws.readme import train_arguments
 from springc.kws.train import TrainOptions, train
 from springc_cli.main import main
-from test_kws_train import make_corpus
+from test_kws_train import corpus_and_model
 
 
 @pytest.fixture(scope="module")
@@ -22,13 +22,8 @@ def env(tmp_path_factory):
     root = tmp_path_factory.mktemp("readme")
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("SPRINGC_CACHE", str(root / "cache"))
-        data = make_corpus(root / "data")
-        model = root / "model"
-        result = CliRunner().invoke(main, ["train", "--data", str(data), "-n", "4", "-m", "2",
-                                           "--td", "0.064", "--protocol", "lists",
-                                           "--class-weights", "none", "--seed", "3", "-j", "1",
-                                           "-o", str(model)])
-        assert result.exit_code == 0, result.output
+        data, model = corpus_and_model(root, "--td", "0.064", "--protocol", "lists",
+                                       "--class-weights", "none", "--seed", "3")
         yield root, data, model
 
 

@@ -40,6 +40,20 @@ def _sound(word: str, rng: np.random.Generator) -> np.ndarray:
     return sig + 0.003 * rng.normal(size=RATE)
 
 
+def corpus_and_model(root: Path, *train_args: str) -> tuple[Path, Path]:
+    """make_corpus under `root` and a 4 x 2 model trained on it by `springc train` (with
+    `train_args`): (data, model)."""
+    from click.testing import CliRunner
+
+    from springc_cli.main import main
+
+    data, model = make_corpus(root / "data"), root / "model"
+    result = CliRunner().invoke(main, ["train", "--data", str(data), "-n", "4", "-m", "2",
+                                       "-j", "1", *train_args, "-o", str(model)])
+    assert result.exit_code == 0, result.output
+    return data, model
+
+
 def make_corpus(root: Path, words: tuple[str, ...] = ("yes", "no", "cat"), per_speaker: int = 3,
                 seed: int = 0, empty_test: bool = False) -> Path:
     """A GSCD-layout folder: <word>/<speaker>_nohash_<k>.wav, split lists, background noise."""

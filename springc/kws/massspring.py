@@ -91,7 +91,10 @@ class MassSpringSettings:
     the shortest line; `threshold`: the compression amplitude A_c (m of filter output); `g`
     = `klp`, so the low-pass holds y^2; `kq`, `fq`, `zeta`: the compressor's spring (10x
     softer than klp, so compressing barely changes the low-pass), its resonance at rest (5x
-    the low-pass cut-off: quasi-static) and its damping ratio there."""
+    the low-pass cut-off: quasi-static) and its damping ratio there. `filter_scale`,
+    `compression_scale`: per bin, factors that `springc tune` found (empty: all 1): the Mel
+    filter's frequencies (fa and alpha times the factor: the same response, shifted on a log
+    axis) and the compressor's Duffing stiffness l_i."""
 
     bins: int = 8
     delays: int = 3
@@ -115,6 +118,13 @@ class MassSpringSettings:
     network: int = NETWORK_VERSION  # in the feature-cache key: bump when the netlist changes
     method: str = "rk4"  # how the network is integrated (`springc.kws.integration`)
     substeps: int = SUBSTEPS
+    filter_scale: tuple[float, ...] = ()
+    compression_scale: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        # settings.json gives lists; the settings are hashed (cached networks)
+        for name in ("filter_scale", "compression_scale"):
+            object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
 
     def validate(self) -> None:
         """UsageError for settings the network cannot realise."""
@@ -133,10 +143,29 @@ class MassSpringSettings:
             raise UsageError(f"{self.delays} delay lines (impedance {self.line_damping():.3g} "
                              f"N s/m each) overload the low-pass (damping "
                              f"{self.lowpass_damping():.3g}); lower kc or raise klp")
+        for name in ("filter_scale", "compression_scale"):
+            scale = getattr(self, name)
+            if scale and (len(scale) != self.bins or min(scale) <= 0):
+                raise UsageError(f"{name} needs {self.bins} positive factors, got {scale}")
 
     def to_dict(self) -> dict:
-        """Plain dict (settings.json, cache keys)."""
-        return asdict(self)
+        """Plain dict (settings.json, cache keys); the tuned factors only where set, so an
+        untuned network keeps its keys."""
+        d = asdict(self)
+        for name in ("filter_scale", "compression_scale"):
+            if d[name]:
+                d[name] = list(d[name])
+            else:
+                del d[name]
+        return d
+
+    def filter_factors(self) -> np.ndarray:
+        """Per bin, the tuned factor on the Mel filter's frequencies (1 untuned)."""
+        return np.array(self.filter_scale or (1.0,) * self.bins)
+
+    def compression_factors(self) -> np.ndarray:
+        """Per bin, the tuned factor on the compressor's Duffing stiffness (1 untuned)."""
+        return np.array(self.compression_scale or (1.0,) * self.bins)
 
     @property
     def site_delay(self) -> float:
@@ -245,13 +274,16 @@ def front_end(w: SprWriter, s: MassSpringSettings) -> None:
     for name in ("melfilter", "squarer", "lowpass", "compressor", "delayline"):
         w.include(f"{name}.spr")
     w.params(ts=s.site_delay, kc=s.kc, klp=s.klp, fc=s.fc, g=s.g, kq=s.kq)
-    rows = zip(filters(s), leverages(s), compressor_duffing(s), compressor_mass(s), damping)
-    for i, (f, a, duffing, mass, b) in enumerate(rows):
+    # the compressor mass stays sized for the untuned stiffness: a tuned factor moves l alone
+    rows = zip(filters(s), s.filter_factors(), leverages(s),
+               compressor_duffing(s) * s.compression_factors(), compressor_mass(s), damping)
+    for i, (f, ff, a, duffing, mass, b) in enumerate(rows):
         w.blank()
         w.comment(f"bin {i}: Mel centre {f.centre:.0f} Hz (modes {f.fa:.0f} and {f.fb:.0f} Hz); "
                   f"compression from filter amplitude {s.threshold:.3g} m")
-        w.statement(f"Xf{i}", f"y{i}", "melfilter", f"fa={num(f.fa)}", f"delta={num(f.delta)}",
-                    f"alpha={num(f.alpha)}", "ch=0", f"gain={num(f.gain * s.input_gain)}")
+        w.statement(f"Xf{i}", f"y{i}", "melfilter", f"fa={num(f.fa * ff)}",
+                    f"delta={num(f.delta)}", f"alpha={num(f.alpha * ff)}", "ch=0",
+                    f"gain={num(f.gain * s.input_gain)}")
         w.statement(f"Xq{i}", f"y{i}", f"lp{i}", "squarer", "g={g}", f"a={num(a)}")
         w.statement(f"Xlp{i}", f"lp{i}", "lowpass", "fc={fc}", "k={klp}", f"bext={num(b)}")
         local = b - s.delays * s.line_damping()

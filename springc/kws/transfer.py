@@ -29,7 +29,7 @@ reflection-free termination the features were computed with (`springc.kws.masssp
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -254,8 +254,22 @@ def write_classifier(opts, ds, fits: list, settings: dict) -> dict[str, str]:
     return files
 
 
+def tuned_heads(heads: list[Head], couplings: list | None,
+                intercepts: list | None) -> list[Head]:
+    """The heads with `springc tune`'s factors: coupling e of head k gets g f and a / f
+    (f = couplings[k][e]; the readout's stiffness g a stays, the squaring strength moves),
+    and the intercepts replaced. None: as transferred."""
+    out = []
+    for k, h in enumerate(heads):
+        f = np.asarray(couplings[k], np.float64) if couplings is not None else 1.0
+        b = float(intercepts[k]) if intercepts is not None else h.intercept
+        out.append(replace(h, gamma=h.gamma * f, alpha=h.alpha / f, intercept=b))
+    return out
+
+
 def model_heads(model) -> tuple[msp.MassSpringSettings, list[Head]]:
-    """The settings and heads of a trained mass-spring model (re-derived, deterministic)."""
+    """The settings and heads of a trained mass-spring model (re-derived, deterministic; a
+    tuned model's factors from settings.json's "transfer": "couplings", "intercepts")."""
     from springc.errors import DataError
 
     feats = {k: v for k, v in model.settings["features"].items() if k != "realisation"}
@@ -263,6 +277,7 @@ def model_heads(model) -> tuple[msp.MassSpringSettings, list[Head]]:
     try:
         s = msp.MassSpringSettings(**feats)
         heads = heads_for(model.models, s, float(tr["amplitude"]), float(tr["epsilon"]))
+        heads = tuned_heads(heads, tr.get("couplings"), tr.get("intercepts"))
     except (TypeError, KeyError, ValueError) as exc:
         raise DataError(str(model.folder / "settings.json"),
                         f"not a mass-spring model ({exc})") from None

@@ -25,6 +25,7 @@ TABLE: dict[str, tuple[str, str, str]] = {
     "train": ("kws", "train_cmd", "Train a keyword spotter; write a model folder."),
     "eval": ("kws", "eval_cmd", "Evaluate a model on the test split."),
     "classify": ("kws", "classify_cmd", "What a model hears in recordings; --stream: when."),
+    "tune": ("tune", "tune_cmd", "Tune a mass-spring keyword spotter through its network."),
     "cv": ("kws", "cv_cmd", "Cross-validate digital against mass-spring on every clip."),
     "demo": ("demo", "demo_cmd", "The main job end to end on the built-in corpus."),
     "bench": ("bench", "bench_cmd", "Speed against error: integrators and peers side by side."),

@@ -1,0 +1,589 @@
+"""End-to-end tuning of a mass-spring keyword spotter through its simulated network
+(`springc tune`): a trained, SVM-transferred model folder in, a tuned model folder out.
+
+The loss is the softmax cross-entropy of the physical decisions d_k = x(r_k) / scale_k + b_k
+(a binary model: the logistic loss on its one row), averaged over the clips, plus
+`il_weight` times the mean insertion loss in dB. Its gradient is
+sum_k dL/dr_k dr_k/dtheta (+ the insertion loss's terms): a forward simulation gives the
+readouts and so the per-clip weights dL/dr_k, one discrete adjoint
+(`springc.grad.coefficient_gradient`, RK4 x8 float64, the paper's integration: the
+exponential integrator eval runs has no adjoint) gives d loss / d every element coefficient,
+and each group maps its factors onto coefficients exactly:
+
+    filter       per bin f: the Mel filter's fa and alpha times f (masses' b x f, springs x f^2,
+                 input gains x f^3: the same response moved along the frequency axis)
+    compression  per bin f: the compressor's Duffing stiffness l x f
+    couplings    per head and coupled eigen-component f: g x f, a / f (the readout's
+                 stiffness g a stays; the squaring strength moves)
+    readout      per head the intercept b_k (digital, unbounded)
+
+Every factor is f = lo (hi/lo)^sigmoid(z) in a box (`BOXES`, `springc.grad.legal.Range`) whose
+corners pass the checks (verified before the first step), so every tuned netlist is legal by
+construction. The tuned values live in the model's settings (features: `filter_scale`,
+`compression_scale`; transfer: `couplings`, `intercepts`), from which every command
+re-derives the same network (`springc.kws.transfer.model_heads`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from springc.check import check
+from springc.errors import DataError, UsageError
+from springc.grad.legal import Range
+from springc.kws import massspring as msp
+from springc.kws import transfer as tr
+
+GROUPS = ("filter", "compression", "couplings", "readout")
+BOXES = {
+    # +-10% in frequency: a filter stays inside its Mel band's neighbourhood
+    "filter": Range(1 / 1.1, 1.1, True),
+    # the compressor mass is sized for the untuned l (STABLE_WH = 2 at full scale): x2 raises
+    # the stiffest mode by 2^(1/3) in stiffness, w h 2.0 -> 2.25 < RK4's 2.83
+    "compression": Range(0.5, 2.0, True),
+    "couplings": Range(0.25, 4.0, True),
+}
+METHOD, SUBSTEPS = "rk4", msp.SUBSTEPS  # the paper's integration; Runge-Kutta for the adjoint
+DB = 10 / math.log(10)
+
+
+@dataclass
+class TuneOptions:
+    """What `springc tune` was asked: the model, data, output folder and the optimiser."""
+
+    model: Path
+    data: Path | None
+    out: Path
+    params: tuple[str, ...] = ("filter", "compression", "couplings", "readout")
+    epochs: int = 2
+    batch: int = 16
+    clips: int = 64
+    lr: float = 0.05
+    il_weight: float = 0.0
+    seed: int = 0
+    jobs: int = 0
+    scheduler: str | None = None
+    evaluate: bool = True
+
+
+@dataclass
+class Layout:
+    """How the optimiser's vector maps to the groups: name -> slice, and each group's shape."""
+
+    slices: dict[str, slice] = field(default_factory=dict)
+    keep: list[int] = field(default_factory=list)  # coupled components per head
+
+    @property
+    def size(self) -> int:
+        return max((s.stop for s in self.slices.values()), default=0)
+
+
+def layout(params: tuple[str, ...], bins: int, heads: list[tr.Head]) -> Layout:
+    """The vector's layout for the groups `params` (in `GROUPS` order)."""
+    sizes = {"filter": bins, "compression": bins, "couplings": sum(len(h.keep) for h in heads),
+             "readout": len(heads)}
+    out, start = Layout(keep=[len(h.keep) for h in heads]), 0
+    for name in GROUPS:
+        if name in params:
+            out.slices[name] = slice(start, start + sizes[name])
+            start += sizes[name]
+    return out
+
+
+def check_params(params: tuple[str, ...]) -> tuple[str, ...]:
+    """The groups asked for, validated; UsageError naming an unknown one."""
+    bad = [p for p in params if p not in GROUPS]
+    if bad or not params:
+        raise UsageError(f"unknown parameter group(s) {', '.join(bad) or '(none given)'}",
+                         hint=f"--params takes a comma-separated subset of {','.join(GROUPS)}")
+    return tuple(p for p in GROUPS if p in params)
+
+
+# -- the tuned network -------------------------------------------------------------------------
+
+@dataclass
+class Start:
+    """The untuned model's settings and heads (what every z is measured from)."""
+
+    s: msp.MassSpringSettings
+    heads: list[tr.Head]
+
+
+def factors(z: np.ndarray, lay: Layout, name: str, n: int) -> np.ndarray:
+    """The group's factors (or intercepts) at z; 1 (or None) where the group is not tuned."""
+    if name not in lay.slices:
+        return np.ones(n)
+    zz = z[lay.slices[name]]
+    if name == "readout":
+        return zz.copy()
+    box = BOXES[name]
+    return np.array([box.value(float(v)) for v in zz])
+
+
+def slopes(z: np.ndarray, lay: Layout) -> np.ndarray:
+    """d log(factor) / dz for the boxed entries, 1 for the intercepts (chain to z)."""
+    out = np.ones_like(z)
+    for name, sl in lay.slices.items():
+        if name != "readout":
+            box = BOXES[name]
+            sig = 1 / (1 + np.exp(-np.clip(z[sl], -500, 500)))
+            out[sl] = math.log(box.hi / box.lo) * sig * (1 - sig)
+    return out
+
+
+def tuned(start: Start, z: np.ndarray, lay: Layout) -> tuple[msp.MassSpringSettings,
+                                                             list[tr.Head]]:
+    """The settings and heads at z."""
+    s = start.s
+    if "filter" in lay.slices:
+        s = replace(s, filter_scale=tuple(factors(z, lay, "filter", s.bins)))
+    if "compression" in lay.slices:
+        s = replace(s, compression_scale=tuple(factors(z, lay, "compression", s.bins)))
+    couplings = intercepts = None
+    if "couplings" in lay.slices:
+        f = factors(z, lay, "couplings", 0)
+        couplings = np.split(f, np.cumsum(lay.keep)[:-1])
+    if "readout" in lay.slices:
+        intercepts = factors(z, lay, "readout", 0)
+    return s, tr.tuned_heads(start.heads, couplings, intercepts)
+
+
+def initial_z(start: Start, lay: Layout) -> np.ndarray:
+    """z of the untuned model: every factor 1, the intercepts the SVM's."""
+    z = np.zeros(lay.size)
+    for name, sl in lay.slices.items():
+        if name == "readout":
+            z[sl] = [h.intercept for h in start.heads]
+        else:
+            z[sl] = BOXES[name].variable(1.0)
+    return z
+
+
+def network(s: msp.MassSpringSettings, heads: list[tr.Head], epsilon: float):
+    """The checked classifier at RK4 x8 (CheckError for an illegal one)."""
+    from springc.lang import load_text
+
+    net = load_text(tr.classifier_text(heads, s, epsilon=epsilon), "<tuned classifier>")
+    return check(net, METHOD, substeps=SUBSTEPS)
+
+
+def check_corners(start: Start, lay: Layout, epsilon: float) -> int:
+    """Check the networks at the box's two extreme corners (every factor at lo, every one at
+    hi): stiffness, mass and damping move monotonically with each factor, so these bound the
+    fastest mode and the signs (`springc.grad.legal`). CheckError if one fails."""
+    for end in (-60.0, 60.0):
+        z = initial_z(start, lay)
+        for name, sl in lay.slices.items():
+            if name != "readout":
+                z[sl] = end
+        network(*tuned(start, z, lay), epsilon)
+    return 2
+
+
+# -- loss and gradient of one batch (a Dask task) ----------------------------------------------
+
+@dataclass(frozen=True)
+class Targets:
+    """Per model of the task: its rows of the decision matrix and each clip's target (the
+    row index for a multi-class model, 0/1 for a binary one, -1: not this model's clip)."""
+
+    rows: tuple[tuple[int, int], ...]
+    target: tuple[np.ndarray, ...]
+
+
+def make_targets(models, labels: np.ndarray) -> Targets:
+    """Targets of clips with true classes `labels` (as `springc.kws.task.targets` gives)."""
+    rows, target, start = [], [], 0
+    for classes, m in models:
+        n = len(m.coef)
+        rows.append((start, start + n))
+        classes = list(m.classes)
+        target.append(np.array([classes.index(y) if y in classes else -1 for y in labels]))
+        start += n
+    return Targets(tuple(rows), tuple(target))
+
+
+def loss_terms(d: np.ndarray, t: Targets) -> tuple[np.ndarray, np.ndarray]:
+    """Per clip the classification loss, and its gradient with respect to the decisions."""
+    loss, grad = np.zeros(len(d)), np.zeros_like(d)
+    for (lo, hi), y in zip(t.rows, t.target):
+        mine = y >= 0
+        if hi - lo == 1:  # binary: logistic loss on the sign, classes[1] where d > 0
+            z = d[:, lo] * np.where(y == 1, 1.0, -1.0)
+            loss += np.where(mine, np.logaddexp(0, -z), 0)
+            grad[:, lo] += np.where(mine, -np.where(y == 1, 1.0, -1.0) / (1 + np.exp(z)), 0)
+            continue
+        dd = d[:, lo:hi] - d[:, lo:hi].max(axis=1, keepdims=True)
+        p = np.exp(dd) / np.exp(dd).sum(axis=1, keepdims=True)
+        idx = np.maximum(y, 0)
+        loss += np.where(mine, -np.log(p[np.arange(len(d)), idx]), 0)
+        onehot = np.eye(hi - lo)[idx]
+        grad[:, lo:hi] += np.where(mine[:, None], p - onehot, 0)
+    return loss, grad
+
+
+@dataclass(frozen=True)
+class Batch:
+    """Everything a worker needs besides the clips: the network, the heads' scales and
+    intercepts, the targets' encoding, the loss weights and where each group's coefficients
+    sit."""
+
+    checked: object
+    scales: np.ndarray
+    intercepts: np.ndarray
+    targets: Targets
+    il_weight: float
+    tstop: float
+    bins: int
+    heads: int
+    keep: tuple[int, ...]
+
+
+def readouts(b: Batch, sig: np.ndarray) -> dict:
+    """The readout reductions of clips `sig` (clips, samples) at RK4 x8 float64."""
+    from springc.sim.simulate import simulate
+
+    specs = [f"final:x(r{k})" for k in range(b.heads)]
+    if b.il_weight:
+        specs += [f"dissipated:r{k}" for k in range(b.heads)] + ["work:in"]
+    return simulate(b.checked, sig[:, None, :], msp.INPUT_RATE, probes=[], reductions=specs,
+                    tstop=b.tstop, method=METHOD, substeps=SUBSTEPS, precision="float64",
+                    batch=len(sig)).reductions
+
+
+def batch_loss(b: Batch, reds: dict, y: np.ndarray) -> tuple[np.ndarray, dict]:
+    """Per clip the loss, and the weights (d loss / d reduction per clip) of the adjoint."""
+    r = np.stack([reds[f"final:x(r{k})"] for k in range(b.heads)], axis=1)
+    d = r / b.scales + b.intercepts
+    t = Targets(b.targets.rows, tuple(tt[y] for tt in b.targets.target))
+    loss, dd = loss_terms(d, t)
+    weights = {f"final:x(r{k})": dd[:, k] / b.scales[k] for k in range(b.heads)}
+    weights["intercepts"] = dd
+    if b.il_weight:
+        diss = sum(reds[f"dissipated:r{k}"] for k in range(b.heads))
+        work = reds["work:in"]
+        loss = loss - b.il_weight * DB * np.log(diss / work)
+        for k in range(b.heads):
+            weights[f"dissipated:r{k}"] = -b.il_weight * DB / diss
+        weights["work:in"] = b.il_weight * DB / work
+    return loss, weights
+
+
+def group_gradient(b: Batch, coef: dict, names: list) -> dict[str, np.ndarray]:
+    """Sum over the clips of d loss / d log(factor) for each group, from the coefficient
+    gradient `coef` (keyed (table, field)) and the element names of each table `names`."""
+    net = b.checked.net
+
+    def col(table: str, fld: str, name: str) -> np.ndarray:  # d/dc * c of one element
+        e = names[table].index(name)
+        return coef[(table, fld)][:, e].sum() * getattr(getattr(net, table), fld)[e]
+
+    out = {"filter": np.zeros(b.bins), "compression": np.zeros(b.bins),
+           "couplings": np.zeros(sum(b.keep))}
+    for i in range(b.bins):
+        f = f"Xf{i}."
+        out["filter"][i] = (col("masses", "b", f + "Ma") + col("masses", "b", f + "Mb")
+                            + 2 * (col("springs", "k", f + "Ka") + col("springs", "k", f + "Kb")
+                                   + col("couplings", "k", f + "Cab"))
+                            + 3 * (col("forces", "gain", f + "Fa")
+                                   + col("forces", "gain", f + "Fb")))
+        out["compression"][i] = col("duffings", "l", f"Xc{i}.Dq")
+    quads = {n: e for e, n in enumerate(names["quads"])}
+    k0 = 0
+    for k, n in enumerate(b.keep):
+        comps = sorted((int(q.split(".Qy")[1]), e) for q, e in quads.items()
+                       if q.startswith(f"Xh{k}.Qy"))
+        for j, (_, e) in enumerate(comps[:n]):
+            g, a = net.quads.g[e], net.quads.a[e]
+            out["couplings"][k0 + j] = (coef[("quads", "g")][:, e].sum() * g
+                                        - coef[("quads", "a")][:, e].sum() * a)
+        k0 += n
+    return out
+
+
+def batch_gradient(sig_y: tuple[np.ndarray, np.ndarray], b: Batch) -> dict:
+    """One worker's share of a batch: (clips, their indices into the targets) in; the loss
+    summed over them, the group gradients (summed), decisions and insertion losses out."""
+    from springc.grad import coefficient_gradient
+
+    sig, y = sig_y
+    sig = sig.astype(np.float64)
+    reds = readouts(b, sig)
+    loss, weights = batch_loss(b, reds, y)
+    dd = weights.pop("intercepts")
+    cg = coefficient_gradient(b.checked, list(weights), sig[:, None, :], msp.INPUT_RATE,
+                              weights=weights, tstop=b.tstop, method=METHOD,
+                              substeps=SUBSTEPS)
+    names = {t: getattr(b.checked.net, t).names for t in ("masses", "springs", "couplings",
+                                                           "duffings", "forces", "quads")}
+    out = group_gradient(b, cg.coefficients, names)
+    out["readout"] = dd.sum(axis=0)
+    out["loss"] = float(loss.sum())
+    out["clips"] = len(sig)
+    return out
+
+
+# -- the optimiser -----------------------------------------------------------------------------
+
+@dataclass
+class Adam:
+    """Adam on z (Kingma & Ba defaults): a step per batch, state saved in checkpoints."""
+
+    lr: float
+    m: np.ndarray
+    v: np.ndarray
+    t: int = 0
+
+    def step(self, z: np.ndarray, g: np.ndarray) -> np.ndarray:
+        """z after one step along -g."""
+        self.t += 1
+        self.m = 0.9 * self.m + 0.1 * g
+        self.v = 0.999 * self.v + 0.001 * g * g
+        mh, vh = self.m / (1 - 0.9**self.t), self.v / (1 - 0.999**self.t)
+        return z - self.lr * mh / (np.sqrt(vh) + 1e-8)
+
+
+def z_gradient(parts: list[dict], lay: Layout, z: np.ndarray) -> tuple[np.ndarray, float]:
+    """The mean loss of a batch and its gradient in z, from the workers' parts."""
+    n = sum(p["clips"] for p in parts)
+    g = np.zeros(lay.size)
+    for name, sl in lay.slices.items():
+        g[sl] = sum(p[name] for p in parts) / n
+    return g * slopes(z, lay), sum(p["loss"] for p in parts) / n
+
+
+class Progress:
+    """Batches done, rate, time left and the last loss, on stderr."""
+
+    def __init__(self, total: int, done: int = 0) -> None:
+        self.total, self.done, self.start, self.first = total, done, time.perf_counter(), done
+
+    def tick(self, epoch: int, clips: int, loss: float) -> None:
+        """One batch done."""
+        self.done += 1
+        spent = time.perf_counter() - self.start
+        rate = (self.done - self.first) / spent
+        left = (self.total - self.done) / rate if rate else float("nan")
+        print(f"tune: epoch {epoch + 1} batch {self.done}/{self.total}  loss {loss:.4f}  "
+              f"{clips * rate:.2f} clips/s  {left / 60:.1f} min left", file=sys.stderr,
+              flush=True)
+
+
+# -- checkpoints -------------------------------------------------------------------------------
+
+def checkpoint_path(out: Path) -> Path:
+    """Where the parameters are saved after every epoch: beside OUT, hidden."""
+    out = Path(out)
+    return out.parent / f".{out.name}.tune-checkpoint.json"
+
+
+def run_key(opts: TuneOptions, model_settings: dict) -> str:
+    """What a checkpoint must match to be resumed: the start model and the options."""
+    what = {"model": model_settings, "params": opts.params, "batch": opts.batch,
+            "clips": opts.clips, "lr": opts.lr, "il_weight": opts.il_weight, "seed": opts.seed,
+            "data": str(opts.data)}
+    return hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def load_checkpoint(path: Path, key: str, size: int) -> dict | None:
+    """The saved state of a run with the same key, or None (no file, or another run's)."""
+    try:
+        state = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if state.get("key") != key or len(state.get("z", ())) != size:
+        return None
+    return state
+
+
+def save_checkpoint(path: Path, key: str, epoch: int, z: np.ndarray, adam: Adam,
+                    history: list) -> None:
+    """Write the state after `epoch` epochs (whole file replaced at once)."""
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps({"key": key, "epochs_done": epoch, "z": z.tolist(),
+                               "adam": {"m": adam.m.tolist(), "v": adam.v.tolist(),
+                                        "t": adam.t}, "history": history}))
+    tmp.replace(path)
+
+
+# -- the command -------------------------------------------------------------------------------
+
+def load_start(model_dir: Path):
+    """The model to tune: (TrainedModel, Start). DataError for anything but a mass-spring
+    model with its transfer (a digital or baseline model has no network to tune)."""
+    from springc.kws.model import load_model
+
+    model = load_model(model_dir)
+    if model.settings.get("realisation") != "mass-spring" or "transfer" not in model.settings:
+        raise DataError(str(Path(model_dir) / "settings.json"),
+                        f"is a {model.settings.get('realisation')} model; tune needs a "
+                        "mass-spring model", hint="train one with --realisation mass-spring")
+    if model.settings.get("tune"):
+        raise DataError(str(Path(model_dir) / "settings.json"), "is already a tuned model",
+                        hint="tune the SVM-transferred model it came from")
+    s, heads = tr.model_heads(model)
+    return model, Start(s, heads)
+
+
+def training_clips(opts: TuneOptions, model):
+    """The data set and the training clips tuned on: `opts.clips` of them (0: all), drawn
+    with the seed."""
+    from springc.kws.evaluate import trained_data
+    from springc.kws.task import open_task_data
+
+    data = Path(opts.data) if opts.data else trained_data(model)
+    splits = ("train", "test") if opts.evaluate else ("train",)
+    ds = open_task_data(data, model.settings["task"], int(model.settings.get("seed", 0)),
+                        model.settings.get("protocol"), splits=splits)
+    clips = ds.split("train")
+    order = np.random.default_rng(opts.seed).permutation(len(clips))
+    take = order[:opts.clips] if opts.clips else order
+    return ds, [clips[i] for i in take]
+
+
+def validate(opts: TuneOptions) -> None:
+    """UsageError / DataError for options that cannot work, before any simulation."""
+    from springc.kws.model import check_out_folder
+
+    if Path(opts.out).resolve() == Path(opts.model).resolve():
+        raise UsageError("the output folder is the model being tuned",
+                         hint="give -o a new folder")
+    if opts.epochs < 1 or opts.batch < 1 or opts.clips < 0 or not opts.lr > 0:
+        raise UsageError("--epochs and --batch must be >= 1, --clips >= 0 and --lr > 0")
+    if opts.il_weight < 0:
+        raise UsageError("--il-weight must be >= 0")
+    check_out_folder(opts.out)
+
+
+def tune(opts: TuneOptions) -> dict:
+    """Tune the model `opts.model` on its training clips and write the tuned model folder
+    `opts.out` (netlists, settings, report of the test split, README); returns the report."""
+    from springc.kws.distributed import session
+
+    validate(opts)
+    opts.params = check_params(opts.params)
+    model, start = load_start(opts.model)
+    ds, clips = training_clips(opts, model)
+    started = time.perf_counter()
+    with session(opts.scheduler, opts.jobs or None):
+        z, history = optimise(opts, model, start, clips)
+        tuned_s, heads = tuned(start, z, layout(opts.params, start.s.bins, start.heads))
+        report = finish(opts, model, ds, (tuned_s, heads, start.heads), history,
+                        time.perf_counter() - started)
+    checkpoint_path(opts.out).unlink(missing_ok=True)
+    return report
+
+
+def optimise(opts: TuneOptions, model, start: Start, clips: list) -> tuple[np.ndarray, list]:
+    """Adam over the epochs, resuming from a matching checkpoint: the final z and the
+    per-epoch history (mean training loss, seconds)."""
+    from springc.kws.task import targets
+
+    lay = layout(opts.params, start.s.bins, start.heads)
+    eps = float(model.settings["transfer"]["epsilon"])
+    check_corners(start, lay, eps)
+    signals = msp.load_signals(clips, False, 0, [])
+    labels = targets(clips, model.settings["task"])
+    tg = make_targets(model.models, labels)
+    key, path = run_key(opts, model.settings), checkpoint_path(opts.out)
+    z, adam, history, first = initial_z(start, lay), Adam(opts.lr, *np.zeros((2, lay.size))), [], 0
+    state = load_checkpoint(path, key, lay.size)
+    if state:
+        z, history, first = np.array(state["z"]), state["history"], state["epochs_done"]
+        adam = Adam(opts.lr, np.array(state["adam"]["m"]), np.array(state["adam"]["v"]),
+                    state["adam"]["t"])
+        print(f"tune: resuming from {path} after epoch {first}", file=sys.stderr, flush=True)
+    tstop = msp.horizon(start.s, signals.shape[1] / msp.INPUT_RATE)
+    per_epoch = -(-len(clips) // opts.batch)
+    progress = Progress(opts.epochs * per_epoch, first * per_epoch)
+    for epoch in range(first, opts.epochs):
+        t0, losses = time.perf_counter(), []
+        order = np.random.default_rng([opts.seed, epoch]).permutation(len(clips))
+        for lo in range(0, len(clips), opts.batch):
+            idx = order[lo:lo + opts.batch]
+            g, loss = batch_step(opts, start, lay, z, eps, tstop, tg, signals, idx)
+            z = adam.step(z, g)
+            losses.append(loss)
+            progress.tick(epoch, len(idx), loss)
+        history.append({"epoch": epoch + 1, "train_loss": float(np.mean(losses)),
+                        "seconds": time.perf_counter() - t0})
+        save_checkpoint(path, key, epoch + 1, z, adam, history)
+    return z, history
+
+
+def batch_step(opts: TuneOptions, start: Start, lay: Layout, z: np.ndarray, eps: float,
+               tstop: float, tg: Targets, signals: np.ndarray, idx: np.ndarray
+               ) -> tuple[np.ndarray, float]:
+    """The gradient in z and the mean loss of the clips `idx`, split over the workers."""
+    from functools import partial
+
+    from springc.kws.distributed import cores, map_batches
+
+    s, heads = tuned(start, z, lay)
+    b = Batch(network(s, heads, eps), np.array([h.scale for h in heads]),
+              np.array([h.intercept for h in heads]), tg, opts.il_weight, tstop, s.bins,
+              len(heads), tuple(lay.keep))
+    workers = opts.jobs or cores()
+    parts = [(signals[p], p) for p in np.array_split(idx, min(workers, len(idx)))]
+    out = map_batches(partial(batch_gradient, b=b), parts, opts.scheduler, workers=workers,
+                      desc="tune batch")
+    return z_gradient(out, lay, z)
+
+
+def loss_at(opts: TuneOptions, start: Start, z: np.ndarray, eps: float, tg: Targets,
+            signals: np.ndarray, idx: np.ndarray) -> float:
+    """The mean loss of clips `idx` at z (forward simulation only: what the gradient is the
+    gradient of)."""
+    lay = layout(opts.params, start.s.bins, start.heads)
+    s, heads = tuned(start, z, lay)
+    b = Batch(network(s, heads, eps), np.array([h.scale for h in heads]),
+              np.array([h.intercept for h in heads]), tg, opts.il_weight,
+              msp.horizon(s, signals.shape[1] / msp.INPUT_RATE), s.bins, len(heads),
+              tuple(lay.keep))
+    loss, _ = batch_loss(b, readouts(b, signals[idx].astype(np.float64)), idx)
+    return float(loss.mean())
+
+
+def finish(opts: TuneOptions, model, ds, net: tuple, history: list, seconds: float) -> dict:
+    """Evaluate the tuned network `net` (settings, heads, the untuned heads) on the test
+    split and write the model folder."""
+    from springc.kws.evaluate import evaluate_network
+    from springc.kws.model import TrainedModel, write_model
+    from springc.kws.train import feature_key
+    from springc.lang import load_text
+
+    s, heads, untuned = net
+    eps = float(model.settings["transfer"]["epsilon"])
+    settings = json.loads(json.dumps(model.settings))
+    settings["features"] = feature_key("mass-spring", s)
+    settings["transfer"]["couplings"] = [(h.gamma / g.gamma).tolist()
+                                         for h, g in zip(heads, untuned)]
+    settings["transfer"]["intercepts"] = [h.intercept for h in heads]
+    settings["tune"] = {"from": str(Path(opts.model).resolve()), "params": list(opts.params),
+                        "epochs": opts.epochs, "batch": opts.batch, "clips": opts.clips,
+                        "lr": opts.lr, "il_weight": opts.il_weight, "seed": opts.seed,
+                        "integration": f"{METHOD} x{SUBSTEPS} float64", "history": history,
+                        "seconds": seconds}
+    report: dict = {"tune": settings["tune"]}
+    if opts.evaluate:
+        tm = TrainedModel(Path(opts.out), settings, model.models)
+        whole = load_text(tr.classifier_text(heads, s, epsilon=eps), "<tuned classifier>")
+        report = {**evaluate_network(tm, ds, scheduler=opts.scheduler, jobs=opts.jobs,
+                                     heads=heads, net=whole), **report}
+    files = {"features.spr": msp.feature_text(s),
+             "classifier.spr": tr.classifier_text(heads, s, include_heads=False, epsilon=eps)}
+    files.update({f"head{k}.spr": tr.head_text(k, h, s, len(heads))
+                  for k, h in enumerate(heads)})
+    c = settings.get("C")
+    fits = [(classes, m, c.get("-".join(classes)) if isinstance(c, dict) else c)
+            for classes, m in model.models]
+    write_model(opts.out, settings, fits, report, extra=files)
+    return report

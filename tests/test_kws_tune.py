@@ -1,0 +1,166 @@
+"""`springc tune` on a tiny generated corpus: the loss gradient the tuner steps along agrees with
+central differences of the loss, steps lower the training loss, the tuned folder is what
+`springc eval` simulates, every tuned netlist passes the checks, bad inputs fail cleanly."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from springc.check import check
+from springc.design.emit import num
+from springc.kws import massspring as msp
+from springc.kws import tune as T
+from springc.kws.model import load_model
+from springc.kws.task import targets
+from springc.kws.transfer import model_heads
+from springc_cli.main import main
+from test_kws_train import corpus_and_model
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory):
+    root = tmp_path_factory.mktemp("tune")
+    data, model = corpus_and_model(root, "--realisation", "mass-spring")
+    return root, data, model
+
+
+@pytest.fixture(scope="module")
+def tuned(env):
+    """Three full-batch steps on two clips (the loss of epoch e is taken before its step)."""
+    root, _, model = env
+    out = root / "tuned"
+    result = CliRunner().invoke(main, ["tune", str(model), "-o", str(out), "--clips", "2",
+                                       "--batch", "2", "--epochs", "3", "--lr", "0.1",
+                                       "-j", "1"])
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def setup(model_dir, clips: int, il_weight: float):
+    opts = T.TuneOptions(model_dir, None, model_dir.parent / "unused", clips=clips,
+                         il_weight=il_weight, evaluate=False)
+    model, start = T.load_start(model_dir)
+    _, chosen = T.training_clips(opts, model)
+    tg = T.make_targets(model.models, targets(chosen, model.settings["task"]))
+    sig = msp.load_signals(chosen, False, 0, [])
+    lay = T.layout(opts.params, start.s.bins, start.heads)
+    return opts, model, start, lay, tg, sig
+
+
+def test_the_loss_gradient_matches_central_differences(env):
+    _, _, model_dir = env
+    opts, model, start, lay, tg, sig = setup(model_dir, 1, 0.01)
+    eps = float(model.settings["transfer"]["epsilon"])
+    z = T.initial_z(start, lay) + np.random.default_rng(1).normal(0, 0.3, lay.size)
+    idx = np.arange(len(sig))
+    s, heads = T.tuned(start, z, lay)
+    b = T.Batch(T.network(s, heads, eps), np.array([h.scale for h in heads]),
+                np.array([h.intercept for h in heads]), tg, opts.il_weight,
+                msp.horizon(s, sig.shape[1] / msp.INPUT_RATE), s.bins, len(heads),
+                tuple(lay.keep))
+    g, loss = T.z_gradient([T.batch_gradient((sig, idx), b)], lay, z)
+    assert loss == pytest.approx(T.loss_at(opts, start, z, eps, tg, sig, idx), rel=1e-12)
+    for name, sl in lay.slices.items():  # one coordinate of every group
+        i = sl.start + 1
+
+        def diff(h: float) -> float:
+            zp, zm = z.copy(), z.copy()
+            zp[i] += h
+            zm[i] -= h
+            return (T.loss_at(opts, start, zp, eps, tg, sig, idx)
+                    - T.loss_at(opts, start, zm, eps, tg, sig, idx)) / (2 * h)
+
+        richardson = (4 * diff(5e-4) - diff(1e-3)) / 3
+        assert g[i] == pytest.approx(richardson, rel=1e-6), name
+        assert abs(g[i]) > 1e-6, name  # a gradient that is there
+
+
+def test_steps_lower_the_training_loss(tuned):
+    hist = json.loads((tuned / "settings.json").read_text())["tune"]["history"]
+    losses = [h["train_loss"] for h in hist]
+    assert len(losses) == 3
+    assert losses[2] < losses[1] < losses[0]
+
+
+def test_the_tuned_folder_is_what_eval_simulates(env, tuned):
+    _, _, model_dir = env
+    settings = json.loads((tuned / "settings.json").read_text())
+    factors = np.concatenate(settings["transfer"]["couplings"])
+    assert np.abs(factors - 1).max() > 1e-3
+    assert len(settings["features"]["filter_scale"]) == 4
+    s0, heads0 = model_heads(load_model(model_dir))
+    s1, heads1 = model_heads(load_model(tuned))
+    assert s1.filter_scale == tuple(settings["features"]["filter_scale"])
+    for k, (h0, h1) in enumerate(zip(heads0, heads1)):
+        f = np.array(settings["transfer"]["couplings"][k])
+        np.testing.assert_allclose(h1.gamma, h0.gamma * f, rtol=1e-12)
+        np.testing.assert_allclose(h1.gamma * h1.alpha, h0.gamma * h0.alpha, rtol=1e-12)
+        assert h1.intercept == settings["transfer"]["intercepts"][k]
+        text = (tuned / f"head{k}.spr").read_text()
+        assert f"g={num(h1.gamma[0])}" in text and f"g={num(h0.gamma[0])}" not in text
+    assert "fa=" in (tuned / "classifier.spr").read_text()
+    report = json.loads((tuned / "report.json").read_text())
+    result = CliRunner().invoke(main, ["eval", str(tuned), "-j", "1"])
+    assert result.exit_code == 0, result.output
+    assert f"{100 * report['accuracy']:.2f}%" in result.output
+    assert (tuned / "README.md").is_file()
+    assert not T.checkpoint_path(tuned).exists()  # removed once the folder is written
+
+
+def test_every_tuned_netlist_passes_the_checks(env, tuned):
+    for name in ("classifier.spr", "features.spr"):
+        result = CliRunner().invoke(main, ["build", str(tuned / name)])
+        assert result.exit_code == 0, result.output
+    _, _, model_dir = env
+    opts, model, start, lay, _, _ = setup(model_dir, 1, 0.0)
+    eps = float(model.settings["transfer"]["epsilon"])
+    rng = np.random.default_rng(2)
+    for z in (rng.normal(0, 30, lay.size), np.full(lay.size, 80.0), np.full(lay.size, -80.0)):
+        s, heads = T.tuned(start, z, lay)
+        for f, name in ((s.filter_factors(), "filter"), (s.compression_factors(),
+                                                         "compression")):
+            assert T.BOXES[name].lo <= f.min() and f.max() <= T.BOXES[name].hi
+        net = T.network(s, heads, eps).net  # CheckError if illegal
+        check(net)  # and at the netlist's own .tran / .options, as `springc build` checks
+
+
+def test_a_checkpoint_resumes_only_its_own_run(tmp_path):
+    path = tmp_path / ".out.tune-checkpoint.json"
+    adam = T.Adam(0.1, np.zeros(3), np.zeros(3))
+    z = adam.step(np.zeros(3), np.array([1.0, -2.0, 0.5]))
+    T.save_checkpoint(path, "key-a", 1, z, adam, [{"epoch": 1, "train_loss": 0.5}])
+    state = T.load_checkpoint(path, "key-a", 3)
+    assert state["epochs_done"] == 1 and state["adam"]["t"] == 1
+    np.testing.assert_allclose(state["z"], [-0.1, 0.1, -0.1], rtol=1e-6)
+    assert T.load_checkpoint(path, "key-b", 3) is None
+    assert T.load_checkpoint(path, "key-a", 4) is None
+
+
+def test_bad_inputs_fail_cleanly(env, tmp_path):
+    root, data, model = env
+    digital = tmp_path / "digital"
+    result = CliRunner().invoke(main, ["train", "--data", str(data), "-n", "4", "-m", "2",
+                                       "-j", "1", "-o", str(digital)])
+    assert result.exit_code == 0, result.output
+    out = tmp_path / "out"
+    cases = [
+        (["tune", str(digital), "-o", str(out)], ["settings.json", "mass-spring"]),
+        (["tune", str(model), "--data", str(tmp_path / "nowhere"), "-o", str(out)],
+         ["nowhere", "no such data folder"]),
+        (["tune", str(tmp_path / "nomodel"), "-o", str(out)], ["nomodel", "no such model"]),
+        (["tune", str(model), "--params", "filter,gain", "-o", str(out)], ["gain"]),
+        (["tune", str(model), "-o", str(model)], ["output folder is the model"]),
+    ]
+    for args, words in cases:
+        result = CliRunner().invoke(main, args)
+        assert result.exit_code == 1, (args, result.output)
+        assert "Traceback" not in result.output
+        for word in words:
+            assert word in result.output, (args, result.output)
+        assert not out.exists()
+    shutil.rmtree(digital)

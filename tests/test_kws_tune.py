@@ -108,7 +108,13 @@ def test_the_tuned_folder_is_what_eval_simulates(env, tuned):
     result = CliRunner().invoke(main, ["eval", str(tuned), "-j", "1"])
     assert result.exit_code == 0, result.output
     assert f"{100 * report['accuracy']:.2f}%" in result.output
-    assert (tuned / "README.md").is_file()
+    readme = (tuned / "README.md").read_text()
+    assert readme.startswith("# Keyword spotter: mass-spring, 4 bins x 2 delays\n\nTuned by")
+    assert (f"springc tune {model_dir.resolve()} -o {tuned} --params "
+            "filter,compression,couplings,readout --epochs 3 --batch 2 --clips 2 --lr 0.1 "
+            "--il-weight 0 --seed 0") in readme
+    assert f"-o {model_dir.resolve()}\n" in readme  # the train line makes the start model
+    assert "filter_scale =" not in readme  # tune's settings are not train's to list
     assert not T.checkpoint_path(tuned).exists()  # removed once the folder is written
 
 

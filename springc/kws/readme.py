@@ -3,7 +3,8 @@ scored, and the commands that reproduce it, so that a folder explains itself.
 
 The training command is rebuilt from settings.json; settings that `springc train` has no
 option for (set through `springc.kws.train.TrainOptions`) are listed, with their values,
-instead of silently dropped from the command."""
+instead of silently dropped from the command. A tuned model (settings.json's "tune") also
+gets the `springc tune` line that made it from the trained one."""
 
 from __future__ import annotations
 
@@ -28,6 +29,7 @@ MODEL_FILES = {
     "features.spr": "the mass-spring feature network",
     "classifier.spr": "the whole classifier network, sound to decision (includes head{k}.spr)",
 }
+TUNED = ("filter_scale", "compression_scale")  # feature settings `springc tune` sets
 
 
 def readme_text(folder: Path, settings: dict, report: dict, files: list[str]) -> str:
@@ -45,7 +47,8 @@ def _size(settings: dict) -> str:
 
 def _header(settings: dict, report: dict) -> str:
     return (f"# Keyword spotter: {settings['realisation']}, {_size(settings)}\n\n"
-            f"Trained by springc {settings.get('springc_version', '?')}; "
+            f"{'Tuned' if settings.get('tune') else 'Trained'} by springc "
+            f"{settings.get('springc_version', '?')}; "
             f"test accuracy {100 * report['accuracy']:.2f}% on {report['n']} clips "
             f"(always the most frequent class: {100 * report['majority_rate']:.2f}%).")
 
@@ -80,6 +83,13 @@ def _settings(settings: dict) -> str:
                      f"eps {transfer['epsilon']:g}, feature amplitude "
                      f"{transfer['amplitude']:.4g} m, integrated by "
                      f"{from_dict(transfer.get('integration')).describe()}")
+    tune = settings.get("tune")
+    if tune:
+        losses = " -> ".join(f"{h['train_loss']:.4g}" for h in tune["history"])
+        lines.append(f"- tuned by `springc tune` from `{tune['from']}`: {', '.join(tune['params'])}"
+                     f" at {tune['integration']}, training loss per epoch {losses}; the "
+                     "factors are transfer's couplings and intercepts and the features' "
+                     "filter_scale and compression_scale")
     return "\n".join(lines)
 
 
@@ -87,7 +97,10 @@ def _accuracy(settings: dict, report: dict) -> str:
     classes, conf = report["classes"], np.array(report["confusion"])
     tpr = true_positive_rates(conf)
     lines = ["## Accuracy on the test split", ""]
-    if settings["realisation"] == "mass-spring":
+    if settings.get("tune"):
+        lines += ["The whole tuned classifier network simulated, sound to decision, as "
+                  "`springc eval` does.", ""]
+    elif settings["realisation"] == "mass-spring":
         lines += ["The SVM on the simulated feature network's Phi (the ideal readout c . Phi); "
                   "`springc eval` simulates the whole classifier network, sound to decision.",
                   ""]
@@ -109,14 +122,25 @@ def _reproduce(folder: Path, settings: dict) -> str:
     data = settings.get("dataset", {}).get("path", "DATA")
     model = shlex.quote(str(folder))
     args, missing = train_arguments(settings)
+    tune = settings.get("tune")
+    trained = shlex.quote(tune["from"]) if tune else model
     lines = ["## Reproduce", "", "```sh",
-             "springc train --data " + shlex.quote(data) + " " + " ".join(args) + f" -o {model}",
-             f"springc eval {model} --data {shlex.quote(data)}   # this page's test split",
-             f"springc eval {model} --data OTHER_FOLDER   # any labelled folder; no split "
-             "lists: every clip is a test clip",
-             f"springc classify {model} RECORDING.wav   # label and scores of one clip",
-             f"springc classify {model} LONG.wav --stream --plots PLOTS   # keywords through "
-             "a long recording", "```"]
+             "springc train --data " + shlex.quote(data) + " " + " ".join(args)
+             + f" -o {trained}"]
+    if tune:
+        missing = {k: v for k, v in missing.items() if k not in TUNED}
+        data_opt = f"--data {shlex.quote(tune['data'])} " if tune.get("data") else ""
+        lines.append(f"springc tune {trained} {data_opt}-o {model} "
+                     f"--params {','.join(tune['params'])} "
+                     f"--epochs {tune['epochs']} --batch {tune['batch']} --clips "
+                     f"{tune['clips']} --lr {tune['lr']:g} --il-weight {tune['il_weight']:g} "
+                     f"--seed {tune['seed']}")
+    lines += [f"springc eval {model} --data {shlex.quote(data)}   # this page's test split",
+              f"springc eval {model} --data OTHER_FOLDER   # any labelled folder; no split "
+              "lists: every clip is a test clip",
+              f"springc classify {model} RECORDING.wav   # label and scores of one clip",
+              f"springc classify {model} LONG.wav --stream --plots PLOTS   # keywords through "
+              "a long recording", "```"]
     if missing:
         lines += ["", "Settings `springc train` has no option for (set through "
                   "`springc.kws.train.TrainOptions`): "

@@ -567,7 +567,9 @@ def finish(opts: TuneOptions, model, ds, net: tuple, history: list, seconds: flo
     settings["transfer"]["couplings"] = [(h.gamma / g.gamma).tolist()
                                          for h, g in zip(heads, untuned)]
     settings["transfer"]["intercepts"] = [h.intercept for h in heads]
-    settings["tune"] = {"from": str(Path(opts.model).resolve()), "params": list(opts.params),
+    settings["tune"] = {"from": str(Path(opts.model).resolve()),
+                        "data": str(Path(opts.data).resolve()) if opts.data else None,
+                        "params": list(opts.params),
                         "epochs": opts.epochs, "batch": opts.batch, "clips": opts.clips,
                         "lr": opts.lr, "il_weight": opts.il_weight, "seed": opts.seed,
                         "integration": f"{METHOD} x{SUBSTEPS} float64", "history": history,

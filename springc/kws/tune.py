@@ -311,12 +311,21 @@ def group_gradient(b: Batch, coef: dict, names: list) -> dict[str, np.ndarray]:
 
 def batch_gradient(sig_y: tuple[np.ndarray, np.ndarray], b: Batch) -> dict:
     """One worker's share of a batch: (clips, their indices into the targets) in; the loss
-    summed over them, the group gradients (summed), decisions and insertion losses out."""
+    and the group gradients summed over its clips, the clips counted and those dropped out.
+    A clip whose readouts are not finite at RK4 x8 (louder than the compressors' planned full
+    scale) is dropped from the step rather than stopping the run."""
     from springc.grad import coefficient_gradient
 
     sig, y = sig_y
     sig = sig.astype(np.float64)
     reds = readouts(b, sig)
+    ok = np.all([np.isfinite(v) for v in reds.values()], axis=0)
+    sig, y, reds = sig[ok], y[ok], {k: v[ok] for k, v in reds.items()}
+    out = {"filter": np.zeros(b.bins), "compression": np.zeros(b.bins),
+           "couplings": np.zeros(sum(b.keep)), "readout": np.zeros(b.heads), "loss": 0.0,
+           "clips": len(sig), "dropped": int((~ok).sum())}
+    if not len(sig):
+        return out
     loss, weights = batch_loss(b, reds, y)
     dd = weights.pop("intercepts")
     cg = coefficient_gradient(b.checked, list(weights), sig[:, None, :], msp.INPUT_RATE,
@@ -324,10 +333,8 @@ def batch_gradient(sig_y: tuple[np.ndarray, np.ndarray], b: Batch) -> dict:
                               substeps=SUBSTEPS)
     names = {t: getattr(b.checked.net, t).names for t in ("masses", "springs", "couplings",
                                                            "duffings", "forces", "quads")}
-    out = group_gradient(b, cg.coefficients, names)
-    out["readout"] = dd.sum(axis=0)
-    out["loss"] = float(loss.sum())
-    out["clips"] = len(sig)
+    out.update(group_gradient(b, cg.coefficients, names))
+    out.update(readout=dd.sum(axis=0), loss=float(loss.sum()))
     return out
 
 
@@ -353,7 +360,7 @@ class Adam:
 
 def z_gradient(parts: list[dict], lay: Layout, z: np.ndarray) -> tuple[np.ndarray, float]:
     """The mean loss of a batch and its gradient in z, from the workers' parts."""
-    n = sum(p["clips"] for p in parts)
+    n = max(1, sum(p["clips"] for p in parts))
     g = np.zeros(lay.size)
     for name, sl in lay.slices.items():
         g[sl] = sum(p[name] for p in parts) / n
@@ -505,24 +512,26 @@ def optimise(opts: TuneOptions, model, start: Start, clips: list) -> tuple[np.nd
     per_epoch = -(-len(clips) // opts.batch)
     progress = Progress(opts.epochs * per_epoch, first * per_epoch)
     for epoch in range(first, opts.epochs):
-        t0, losses = time.perf_counter(), []
+        t0, losses, dropped = time.perf_counter(), [], 0
         order = np.random.default_rng([opts.seed, epoch]).permutation(len(clips))
         for lo in range(0, len(clips), opts.batch):
             idx = order[lo:lo + opts.batch]
-            g, loss = batch_step(opts, start, lay, z, eps, tstop, tg, signals, idx)
+            g, loss, lost = batch_step(opts, start, lay, z, eps, tstop, tg, signals, idx)
+            dropped += lost
             z = adam.step(z, g)
             losses.append(loss)
             progress.tick(epoch, len(idx), loss)
         history.append({"epoch": epoch + 1, "train_loss": float(np.mean(losses)),
-                        "seconds": time.perf_counter() - t0})
+                        "dropped_clips": dropped, "seconds": time.perf_counter() - t0})
         save_checkpoint(path, key, epoch + 1, z, adam, history)
     return z, history
 
 
 def batch_step(opts: TuneOptions, start: Start, lay: Layout, z: np.ndarray, eps: float,
                tstop: float, tg: Targets, signals: np.ndarray, idx: np.ndarray
-               ) -> tuple[np.ndarray, float]:
-    """The gradient in z and the mean loss of the clips `idx`, split over the workers."""
+               ) -> tuple[np.ndarray, float, int]:
+    """The gradient in z and the mean loss of the clips `idx`, split over the workers, and
+    how many of them were dropped (not finite)."""
     from functools import partial
 
     from springc.kws.distributed import cores, map_batches
@@ -535,7 +544,7 @@ def batch_step(opts: TuneOptions, start: Start, lay: Layout, z: np.ndarray, eps:
     parts = [(signals[p], p) for p in np.array_split(idx, min(workers, len(idx)))]
     out = map_batches(partial(batch_gradient, b=b), parts, opts.scheduler, workers=workers,
                       desc="tune batch")
-    return z_gradient(out, lay, z)
+    return (*z_gradient(out, lay, z), sum(p["dropped"] for p in out))
 
 
 def loss_at(opts: TuneOptions, start: Start, z: np.ndarray, eps: float, tg: Targets,

@@ -15,8 +15,18 @@ import soundfile as sf
 
 from springc.errors import DataError, UsageError
 from springc.kws.dataset import CLIP_SAMPLES, SAMPLE_RATE, open_dataset
+from scipy.signal import butter, sosfreqz
+
 from springc.kws.synth import (
+    BAND_HIGH_HZ,
+    BAND_LOW_HZ,
+    CHANNEL_PROBABILITY,
     PARTIAL_MARK,
+    SPEED_RANGE,
+    TELEPHONE_BAND,
+    TELEPHONE_SHARE,
+    TILT_PROBABILITY,
+    band_limit,
     coloured_noise,
     fit_word,
     make_plan,
@@ -24,6 +34,7 @@ from springc.kws.synth import (
     speaker_hash,
     split_speakers,
     synthesise,
+    tilt,
 )
 from springc.kws.voices import Voice, installed_voices
 
@@ -129,6 +140,58 @@ def test_fit_word_trims_silence_and_squeezes_long_words():
     long = np.sin(2 * np.pi * 300 * np.arange(2 * RATE) / RATE)
     assert len(fit_word(long, 15000)) == 15000
 
+
+# -- the channel: band limit and tilt --------------------------------------------------------------
+
+
+def _gain_db(filtered: np.ndarray, tone: np.ndarray) -> float:
+    """The steady-state gain of a filter on a tone: RMS ratio over the last half second."""
+    half = len(tone) // 2
+    return 20 * np.log10(np.sqrt(np.mean(filtered[half:] ** 2) / np.mean(tone[half:] ** 2)))
+
+
+@pytest.mark.parametrize("freq, expected_db", [(300.0, -3.01), (1000.0, 0.0), (3400.0, -3.01),
+                                               (100.0, -38.0), (7000.0, -40.0)])
+def test_telephone_band_passes_speech_and_stops_the_rest(freq, expected_db):
+    t = np.arange(RATE) / RATE
+    tone = np.sin(2 * np.pi * freq * t)
+    measured = _gain_db(band_limit(tone, *TELEPHONE_BAND), tone)
+    # Against scipy's response of the 4th-order Butterworth band-pass at that frequency ...
+    sos = butter(4, TELEPHONE_BAND, btype="bandpass", fs=RATE, output="sos")
+    _, h = sosfreqz(sos, worN=[freq], fs=RATE)
+    assert measured == pytest.approx(20 * np.log10(abs(h[0])), abs=0.05)
+    # ... and against the band's definition: 3 dB at the corners, flat inside, deep outside.
+    if expected_db > -10:
+        assert measured == pytest.approx(expected_db, abs=0.2)
+    else:
+        assert measured < expected_db
+
+
+@pytest.mark.parametrize("a", [-0.5, 0.0, 0.8])
+def test_tilt_has_gain_one_minus_a_at_dc_and_one_plus_a_at_nyquist(a):
+    n = np.arange(4096)
+    assert np.mean(tilt(np.ones(4096), a)[1:]) == pytest.approx(1 - a, abs=1e-12)
+    alternating = (-1.0) ** n
+    assert np.mean(np.abs(tilt(alternating, a)[1:])) == pytest.approx(1 + a, abs=1e-12)
+
+
+def test_plans_draw_channels_and_speeds_in_their_ranges():
+    plans, _ = make_plan(_many_espeak(40) + RECORDED, ("yes", "no"), 2000, seed=3, babble=True)
+    bands = Counter("none" if p.band_hz == (0.0, 0.0) else
+                    "telephone" if p.band_hz == TELEPHONE_BAND else "band" for p in plans)
+    # Three-sigma binomial bounds around the shares asked for.
+    share = {"none": 1 - CHANNEL_PROBABILITY,
+             "telephone": CHANNEL_PROBABILITY * TELEPHONE_SHARE,
+             "band": CHANNEL_PROBABILITY * (1 - TELEPHONE_SHARE)}
+    for kind, p in share.items():
+        assert abs(bands[kind] - 2000 * p) <= 3 * np.sqrt(2000 * p * (1 - p)) + 1
+    for p in plans:
+        assert SPEED_RANGE[0] <= p.speed <= SPEED_RANGE[1]
+        if p.band_hz not in ((0.0, 0.0), TELEPHONE_BAND):
+            assert BAND_LOW_HZ[0] <= p.band_hz[0] <= BAND_LOW_HZ[1]
+            assert BAND_HIGH_HZ[0] <= p.band_hz[1] <= BAND_HIGH_HZ[1]
+    tilted = sum(p.tilt != 0 for p in plans)
+    assert abs(tilted - 2000 * TILT_PROBABILITY) <= 3 * np.sqrt(2000 * 0.25) + 1
 
 # -- a tiny corpus from the real engines ---------------------------------------------------------
 

@@ -2,10 +2,11 @@
 installed here, written in the GSCD layout so that `open_dataset` reads it like the real one.
 
 Every clip is planned up front from the seed (word, voice, split, speaking rate, pitch,
-loudness, placement, room echo, background noise), then rendered by worker processes, each
-with its own persistent festival. A clip's bytes depend only on the seed and its plan, never
-on scheduling, so the same seed gives the same corpus. Splits are speaker-disjoint: every
-voice of a speaker (flite slt and festival slt, say) lands in the same split.
+tape speed, loudness, placement, room echo, channel band and spectral tilt, background
+noise), then rendered by worker processes, each with its own persistent festival. A clip's
+bytes depend only on the seed and its plan, never on scheduling, so the same seed gives the
+same corpus. Splits are speaker-disjoint: every voice of a speaker (flite slt and festival
+slt, say) lands in the same split.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import soundfile as sf
 from scipy.ndimage import uniform_filter1d
-from scipy.signal import fftconvolve
+from scipy.signal import butter, fftconvolve, lfilter, sosfilt
 from tqdm import tqdm
 
 from springc.sim.audio import resample
@@ -48,6 +49,21 @@ ENGINE_SHARES = {"espeak": 0.6, "flite": 0.2, "festival": 0.2}
 CLIP_NOISE_PROBABILITY = 0.6
 ECHO_PROBABILITY = 0.5
 NOISE_KINDS = ("white", "pink", "brown", "babble")
+# The engines differ in bandwidth and spectral balance (espeak-ng's formant voices are brighter
+# than the diphone and HTS ones), and a model hears only the voices of the engines it trained
+# on: clips pass through a random channel (band limit, tilt) and a wide tape-speed range
+# (formants shift with it, as with another vocal-tract length), measured in
+# docs/results-voices.md.
+SPEED_RANGE = (0.85, 1.18)
+PITCH_RANGE = (0.6, 1.6)
+CHANNEL_PROBABILITY = 0.5  # a clip passes through a band limit
+TELEPHONE_SHARE = 0.3  # of those, the telephone band; the others a random band
+TELEPHONE_BAND = (300.0, 3400.0)
+BAND_LOW_HZ = (50.0, 400.0)  # random band: high-pass corner
+BAND_HIGH_HZ = (3000.0, 7500.0)  # and low-pass corner
+CHANNEL_ORDER = 4  # Butterworth order of each side of the band
+TILT_PROBABILITY = 0.5  # a clip passes through y[n] = x[n] - a x[n-1]
+TILT_RANGE = (-0.5, 0.8)  # a: negative darkens, positive brightens
 # Real speech recordings shipped in Debian packages (codec2-examples, alsa-utils): babble.
 BABBLE_SOURCES = (Path("/usr/share/codec2/wav"), Path("/usr/share/sounds/alsa"))
 NOISE_FILES = {"white_noise": 45, "pink_noise": 50, "brown_noise": 40, "babble": 60,
@@ -72,6 +88,8 @@ class ClipPlan:
     position: float  # where in the window the word sits, 0 (start) .. 1 (end)
     echo_rt60: float  # room reverberation time in s; 0 for none
     echo_drr_db: float  # direct-to-reverberant ratio
+    band_hz: tuple[float, float]  # channel band (low, high corner); (0, 0) for none
+    tilt: float  # first-order tilt coefficient a; 0 for none
     noise: str  # "" or one of NOISE_KINDS
     snr_db: float
     floor_db: float  # a faint noise floor so no clip is digital silence
@@ -147,14 +165,25 @@ def draw_plan(rng: np.random.Generator) -> dict:
     """The random rendering settings of one clip."""
     noisy = rng.random() < CLIP_NOISE_PROBABILITY
     echo = rng.random() < ECHO_PROBABILITY
-    return {"stretch": rng.uniform(0.8, 1.3), "pitch": rng.uniform(0.75, 1.35),
-            "speed": rng.uniform(0.92, 1.08), "level_db": rng.uniform(-26.0, -2.0),
+    return {"stretch": rng.uniform(0.8, 1.3), "pitch": rng.uniform(*PITCH_RANGE),
+            "speed": rng.uniform(*SPEED_RANGE), "level_db": rng.uniform(-26.0, -2.0),
+            "band_hz": draw_band(rng),
+            "tilt": rng.uniform(*TILT_RANGE) if rng.random() < TILT_PROBABILITY else 0.0,
             "position": rng.uniform(0.0, 1.0),
             "echo_rt60": rng.uniform(0.15, 0.6) if echo else 0.0,
             "echo_drr_db": rng.uniform(-2.0, 12.0),
             "noise": NOISE_KINDS[rng.integers(len(NOISE_KINDS))] if noisy else "",
             "snr_db": rng.uniform(5.0, 35.0), "floor_db": rng.uniform(-75.0, -50.0),
             "seed": int(rng.integers(2**32))}
+
+
+def draw_band(rng: np.random.Generator) -> tuple[float, float]:
+    """The channel band of one clip: (0, 0) for none, the telephone band, or a random one."""
+    if rng.random() >= CHANNEL_PROBABILITY:
+        return (0.0, 0.0)
+    if rng.random() < TELEPHONE_SHARE:
+        return TELEPHONE_BAND
+    return (float(rng.uniform(*BAND_LOW_HZ)), float(rng.uniform(*BAND_HIGH_HZ)))
 
 
 def make_plan(voices: list[Voice], words: tuple[str, ...], clips: int, seed: int,
@@ -257,6 +286,27 @@ def room_response(rt60: float, drr_db: float, rng: np.random.Generator) -> np.nd
     return tail
 
 
+def band_limit(x: np.ndarray, low_hz: float, high_hz: float) -> np.ndarray:
+    """`x` through a Butterworth band-pass (order CHANNEL_ORDER each side), 3 dB down at
+    `low_hz` and `high_hz`, as a telephone line or a small loudspeaker passes speech."""
+    sos = butter(CHANNEL_ORDER, [low_hz, high_hz], btype="bandpass", fs=SAMPLE_RATE,
+                 output="sos")
+    return sosfilt(sos, x)
+
+
+def tilt(x: np.ndarray, a: float) -> np.ndarray:
+    """`x` through y[n] = x[n] - a x[n-1]: gain 1 - a at 0 Hz, 1 + a at the Nyquist
+    frequency (a > 0 brightens, a < 0 darkens: a microphone's or a voice's spectral tilt)."""
+    return lfilter([1.0, -a], [1.0], x)
+
+
+def channel(x: np.ndarray, plan: ClipPlan) -> np.ndarray:
+    """`x` through the plan's channel: its band limit, then its tilt (either may be none)."""
+    if plan.band_hz[1] > 0:
+        x = band_limit(x, *plan.band_hz)
+    return tilt(x, plan.tilt) if plan.tilt else x
+
+
 def active_span(x: np.ndarray) -> tuple[int, int]:
     """First and last sample of the utterance: a 10 ms envelope above -40 dB of its peak."""
     env = np.sqrt(np.maximum(uniform_filter1d(x * x, int(0.01 * SAMPLE_RATE)), 0.0))
@@ -282,6 +332,7 @@ def render(plan: ClipPlan, speaker: Speaker, sources: list[np.ndarray]) -> np.nd
     if plan.echo_rt60 > 0:
         x = fftconvolve(x, room_response(plan.echo_rt60, plan.echo_drr_db, rng))
         x = x[: int(0.98 * CLIP_SAMPLES)]
+    x = channel(x, plan)
     x *= 10.0 ** (plan.level_db / 20.0) / np.max(np.abs(x))
     clip = np.zeros(CLIP_SAMPLES)
     start = int(plan.position * (CLIP_SAMPLES - len(x)))

@@ -9,7 +9,7 @@ import pytest
 from test_written_out import RUNS, assert_matches_scipy, every_kind, inputs
 
 from springc.bench import networks as bn, suite as benchsuite
-from springc.kernels import codegen, regkernel
+from springc.kernels import codegen, regkernel, terms
 from springc.sim import simulate as sm
 from springc.errors import SimulationError
 from springc.lang.ir import IRBuilder, Source, Tran
@@ -133,15 +133,15 @@ def test_register_terms_of_every_kind():
     dashpot ends and shared signals, as indices into the coefficient arrays."""
     net = every_kind()
     co = sm.coefficient_arrays(net, np.float64)
-    a, b, c, d = regkernel.terms(co, net.n)
+    a, b, c, d = terms.node_terms(co, net.n)
     assert a.damped and b.damped and not c.damped and not d.damped
     assert [j for _, j in a.row] == [1] and [j for _, j in b.row] == [0] and c.row == ()
     assert [ch for _, ch in c.ins] == [0, 0] and [ch for _, ch in b.ins] == [1]
-    assert [(end, j) for _, end, j in c.quads] == [("j", 0), ("j", 1)]
-    assert d.duffings == (0,) and a.duffings == ()
-    assert [(end, j) for _, end, j in b.dashpots] == [("i", 3)]
-    assert [(end, j) for _, end, j in d.dashpots] == [("j", 1)]
-    assert d.common == (0,) and a.common == ()
+    assert [(k, end, j) for k, _, end, j in c.ends] == [("quad", "j", 0), ("quad", "j", 1)]
+    assert [(k, end, j) for k, _, end, j in b.ends] == [("quad", "i", 2), ("dashpot", "i", 3)]
+    assert [(k, end, j) for k, _, end, j in d.ends] == [("duffing", "i", -1),
+                                                        ("dashpot", "j", 1), ("common", "i", -1)]
+    assert a.ends == (("quad", 0, "i", 2),)
     text = regkernel.generate(net, codegen.KernelOptions(lanes=1, registers=(a, b, c, d)))
     assert "for e in range" not in text  # no loop over index arrays
-    assert "K3_3 = " in text and "- dl0 * (XA3 * XA3 * XA3)" in text
+    assert "K3_3 = " in text and "- d_lm0 * (XA3 * XA3 * XA3)" in text

@@ -1,4 +1,4 @@
-"""Kernels with the force code written out per node (`codegen.node_terms`, `emit_nodes`): the
+"""Kernels with the force code written out per node (`terms.node_terms`, `emit_nodes`): the
 same trajectories as the shared kernel, which loops over the runtime index arrays, and as
 scipy; which simulations get them."""
 
@@ -9,7 +9,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from springc.bench import suite as benchsuite
-from springc.kernels import codegen, regkernel
+from springc.kernels import regkernel, terms
 from springc.sim import simulate as sm
 from springc.kernels.codegen import KernelOptions, generate
 from springc.lang.ir import IRBuilder, Source, Tran
@@ -150,28 +150,28 @@ def test_node_terms_of_the_feature_extractor():
     and the squarer's quadratic coupling from fa (its first end) to lp (its second)."""
     net = benchsuite.feature_extractor(bands=2)
     co = sm.coefficient_arrays(net, np.float64)
-    terms = codegen.node_terms(co, net.n)
+    nodes = terms.node_terms(co, net.n)
     names = net.nodes
-    by_name = dict(zip(names, terms))
+    by_name = dict(zip(names, nodes))
     fa, fb, lp = (by_name[n] for n in ("f0a", "f0b", "lp0"))
-    assert all(t[0] and t[1] and not t[5] for t in (fa, fb, lp))  # damped, sprung, no others
-    assert [names[j] for _, j in fa[2]] == ["f0b"] and [names[j] for _, j in fb[2]] == ["f0a"]
-    assert len(fa[3]) == len(fb[3]) == 1 and lp[2] == lp[3] == ()
-    assert [(end, names[j]) for _, end, j in fa[4]] == [("i", "lp0")]
-    assert [(end, names[j]) for _, end, j in lp[4]] == [("j", "f0a")]
-    assert fb[4] == ()
+    assert all(t.damped and t.sprung and not t.looped for t in (fa, fb, lp))
+    assert [names[j] for _, j in fa.row] == ["f0b"] and [names[j] for _, j in fb.row] == ["f0a"]
+    assert len(fa.ins) == len(fb.ins) == 1 and lp.row == lp.ins == ()
+    assert [(k, end, names[j]) for k, _, end, j in fa.ends] == [("quad", "i", "lp0")]
+    assert [(k, end, names[j]) for k, _, end, j in lp.ends] == [("quad", "j", "f0a")]
+    assert fb.ends == ()
 
 
 def test_too_large_or_too_dense_networks_keep_the_shared_kernel():
     dense = benchsuite.stiff_block()  # 23 couplings on every node
     co = sm.coefficient_arrays(dense, np.float64)
-    assert max(len(r) for r in np.split(co["l_col"], co["l_ptr"][1:-1])) > codegen.NODE_TERMS_MAX
-    assert codegen.node_terms(co, dense.n) is None
-    big = benchsuite.feature_extractor(bands=codegen.NODES_MAX // 3 + 1)
-    assert big.n > codegen.NODES_MAX
-    assert codegen.node_terms(sm.coefficient_arrays(big, np.float64), big.n) is None
-    small = benchsuite.feature_extractor(bands=codegen.NODES_MAX // 3)
-    assert codegen.node_terms(sm.coefficient_arrays(small, np.float64), small.n) is not None
+    assert max(len(r) for r in np.split(co["l_col"], co["l_ptr"][1:-1])) > terms.NODE_TERMS_MAX
+    assert terms.node_terms(co, dense.n) is None
+    big = benchsuite.feature_extractor(bands=terms.NODES_MAX // 3 + 1)
+    assert big.n > terms.NODES_MAX
+    assert terms.node_terms(sm.coefficient_arrays(big, np.float64), big.n) is None
+    small = benchsuite.feature_extractor(bands=terms.NODES_MAX // 3)
+    assert terms.node_terms(sm.coefficient_arrays(small, np.float64), small.n) is not None
 
 
 def test_long_simulations_get_the_written_out_kernel():
@@ -183,7 +183,7 @@ def test_long_simulations_get_the_written_out_kernel():
     steps = st.nsteps * net.n
     enough = -(-sm.WRITE_OUT_FROM // steps)
     assert sm.written_out(net, co, st, enough - 1, None) is None
-    assert sm.written_out(net, co, st, enough, None) == codegen.node_terms(co, net.n)
+    assert sm.written_out(net, co, st, enough, None) == terms.node_terms(co, net.n)
     assert sm.written_out(net, co, st, enough, False) is None
     assert sm.written_out(net, co, st, 1, True) is not None
     split = sm.settings(net, method="exp-rk4")
@@ -192,11 +192,14 @@ def test_long_simulations_get_the_written_out_kernel():
 
 def test_written_out_text_has_constant_rows_and_no_index_loops():
     net = every_kind()
-    nodes = codegen.node_terms(sm.coefficient_arrays(net, np.float64), net.n)
+    nodes = terms.node_terms(sm.coefficient_arrays(net, np.float64), net.n)
     text = generate(net, KernelOptions(lanes=4, nodes=nodes))
     shared = generate(net, KernelOptions(lanes=4))
     assert "# force code: written out per node" in text
     assert "ka[2, b] =" in text and "for e in range(l_ptr[i]" not in text
-    assert "for e in range(q_i.shape[0])" not in text  # quadratic couplings folded in
-    assert "for e in range(d_node.shape[0])" in text  # other kinds keep their loops
+    step = text[text.index("for ci in range(c0, c1)"):]  # after the once-per-call set-up
+    shared_step = shared[shared.index("for ci in range(c0, c1)"):]
+    for array in ("q_i", "d_node", "b_i", "fc_node"):  # every kind in the nodes' sums
+        assert f"for e in range({array}.shape[0])" not in step
+        assert f"for e in range({array}.shape[0])" in shared_step
     assert "for e in range(l_ptr[i], l_ptr[i + 1])" in shared

@@ -10,8 +10,8 @@ cache and compiles it. `springc.sim.simulate` picks the form (`kernel_form`, `ke
       runtime index arrays                                and reduction; one compiled kernel
                                                           per set of element kinds
     written out per node      codegen.generate with       Runge-Kutta runs of WRITE_OUT_FROM
-                              opts.nodes (node_terms,     dof-steps or --kernel written-out,
-                              emit_nodes)                 <= NODES_MAX (48) nodes of <= 8 terms,
+                              opts.nodes (terms.          dof-steps or --kernel written-out,
+                              node_terms, emit_nodes)     <= NODES_MAX (48) nodes of <= 8 terms,
                                                           where no register kernel serves
                                                           (reductions, P terms)
     register: each run's      regkernel.generate with     where the above would be chosen, and
@@ -23,9 +23,12 @@ cache and compiles it. `springc.sim.simulate` picks the form (`kernel_form`, `ke
                               generate)                   exact, the rest in the shared form;
                                                           work and dissipation: Lawson only
 
-Every form is generated for `lower.kernel_netlist` (P c x^2 terms as linear springs).
-All share `codegen`'s preamble, header, argument lists, chunk and step code and records; the
-register kernels write their own stages and force terms, the exponential ones their block
-updates. What is written twice: docs/architecture.md#kernel-forms.
+Every form is generated for `lower.kernel_netlist` (P c x^2 terms as linear springs), from
+one description of the step: the force of every term kind in `terms` (rendered as element
+loops for the shared form, as one sum per node for the written-out and register forms), the
+stages and combine of the tableau in `codegen.stage_terms`/`combine_terms`. All share
+`codegen`'s preamble, header, argument lists, chunk and step code and records; the register
+kernels keep the state in scalars, the exponential ones add their block updates.
+docs/architecture.md#kernel-forms.
 `streamstore` and `stackalign` are the numba intrinsics the generated kernels call.
 """

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from springc.kernels import terms
 from springc.kernels.integrators import Tableau, get_tableau
 from springc.lang.ir import FlatNetlist
 
@@ -43,9 +44,9 @@ class KernelOptions:
     `dissipation`: accumulate energy dissipated in dampers; `msq`: windowed mean squares;
     `gram`: leaky Gram sums of node-pair products (springc.sim.reductions `gram`); `lanes`: runs
     per chunk, a compile-time constant (`choose_lanes`); `nodes`: each node's force terms
-    (`node_terms`) when the force code is written out per node, None for the shared kernel
+    (`terms.node_terms`) when the force code is written out per node, None for the shared kernel
     that loops over the runtime index arrays; `registers`: each node's terms
-    (`springc.kernels.regkernel.terms`) for a register kernel, each run's step in scalars."""
+    (`springc.kernels.terms.node_terms`) for a register kernel, each run's step in scalars."""
 
     method: str = "rk4"
     precision: str = "float64"
@@ -325,7 +326,7 @@ def emit_stage_loop(c: _Code, feat: Features, tab: Tableau, width: LaneLayout,
     stage passes ~20 array arguments; the force code written out per stage compiles far
     slower: docs/performance.md#the-shared-kernels-shape). `prelude(s)` writes stage s's own
     code (its state xs, vs, its input); the force code then reads xa, va and writes ka;
-    `after(s)`, when given, writes what follows stage s's forces; `nodes` (`node_terms`), when
+    `after(s)`, when given, writes what follows stage s's forces; `nodes` (`terms.node_terms`), when
     given, has the linear, input and quadratic-coupling forces written out per node."""
     c("for s_ in range(STAGES):")
     c.indent()
@@ -353,102 +354,65 @@ def emit_stage_loop(c: _Code, feat: Features, tab: Tableau, width: LaneLayout,
 
 def emit_accel_body(c: _Code, feat: Features, width: LaneLayout,
                     nodes: tuple | None = None) -> None:
-    """The force code: ka = M^-1 F(xa, va, uc, grow), element kind by element kind (with
-    `nodes`, the linear terms, inputs and quadratic couplings node by node, `emit_nodes`)."""
+    """The force code: ka = M^-1 F(xa, va, uc, grow), from the term descriptions of
+    `springc.kernels.terms`: with `nodes` (`terms.node_terms`) one sum per node, else the
+    linear rows and then a loop per element kind; monomials loop in both."""
     if nodes is not None:
         emit_nodes(c, nodes, width)
     else:
         emit_linear(c, feat, width)
-    if feat.duffings:
-        _element_loop(c, width, "d_node", ["i = d_node[e]", "lm = d_lm[e]"],
-                      ["X{b} = xa[i, {b}]", "O{b} = ka[i, {b}]"], [],
-                      ["ka[i, {b}] = O{b} - lm * (X{b} * X{b} * X{b})"])
-    if feat.quads and nodes is None:
-        _element_loop(c, width, "q_i", ["i = q_i[e]", "j = q_j[e]", "a = q_a[e]", "gi = q_gi[e]",
-                                        "gj = q_gj[e]"],
-                      ["XI{b} = xa[i, {b}]", "XJ{b} = xa[j, {b}]", "OI{b} = ka[i, {b}]",
-                       "OJ{b} = ka[j, {b}]"],
-                      ["S{b} = XI{b} * XI{b} - a * XJ{b}"],
-                      ["ka[i, {b}] = OI{b} - gi * XI{b} * S{b}",
-                       "ka[j, {b}] = OJ{b} + gj * S{b}"])
-    if feat.dashpots:
-        _emit_dashpots(c, width)
+        for kind in terms.LOOP_ORDER:
+            if getattr(feat, kind.feature):
+                _emit_kind(c, width, kind)
     if feat.monomials:
         _emit_monomials(c, width)
-    if feat.common_forces:
-        _element_loop(c, width, "fc_node", ["i = fc_node[e]", "fv = fc_gm[e] * grow[e]"],
-                      ["O{b} = ka[i, {b}]"], [], ["ka[i, {b}] = O{b} + fv"])
+    if feat.common_forces and nodes is None:
+        _emit_kind(c, width, terms.COMMON)
 
 
-# Writing the force code out per node (`emit_nodes`): at most this many nodes (numba's
-# compile time grows with the text, and very long texts overflow its recursion limit) and
-# this many terms on any node besides its own (denser nodes run faster in the shared loops;
-# docs/performance.md#kernel-forms-shared-written-out-register).
-NODES_MAX = 48
-NODE_TERMS_MAX = 8
+def _emit_kind(c: _Code, width: LaneLayout, kind: terms.Kind) -> None:
+    """The loop over the elements of `kind` (`terms.element_loop`), with a branch for a
+    second end at the ground where the kind has one. Each element's lanes are straight-line
+    code, its rows indexed in place (a row view would cost a reference-count update per
+    element)."""
+    c(f"for e in range({kind.node_i}.shape[0]):")
+    c.indent()
+    if kind.ground is None:
+        _emit_element(c, width, terms.element_loop(kind))
+    else:
+        c(f"j = {kind.node_j}[e]")
+        c("if j < 0:  # to ground")
+        c.indent()
+        _emit_element(c, width, terms.element_loop(kind, ground=True))
+        c.dedent()
+        c("else:")
+        c.indent()
+        _emit_element(c, width, terms.element_loop(kind))
+        c.dedent()
+    c.dedent()
 
 
-def node_terms(co: dict, n: int) -> tuple | None:
-    """Each node's force terms, indexed into the kernel's coefficient arrays `co`
-    (`simulate.coefficient_arrays`): (damped, sprung (a diagonal stiffness), ((entry,
-    column) of its stiffness row), ((entry, channel) of its inputs), ((quad, end, other node)
-    of its quadratic couplings), touched (by a force kind still looped over: Duffing,
-    dashpot, monomial, common force)); None when the network is too large for the force code
-    to be written out (`NODES_MAX`, `NODE_TERMS_MAX`)."""
-    if n > NODES_MAX:
-        return None
-    touched = set()
-    for key in ("d_node", "b_i", "b_j", "p_var", "fc_node"):
-        touched.update(i for i in co[key].tolist() if i >= 0)
-    quads: list[list] = [[] for _ in range(n)]
-    for e, (i, j) in enumerate(zip(co["q_i"].tolist(), co["q_j"].tolist())):
-        quads[i].append((e, "i", j))
-        quads[j].append((e, "j", i))
-    ptr, col, fptr, chan = (co[k].tolist() for k in ("l_ptr", "l_col", "fi_ptr", "fi_chan"))
-    out = []
-    for i in range(n):
-        row = tuple((e, col[e]) for e in range(ptr[i], ptr[i + 1]))
-        ins = tuple((e, chan[e]) for e in range(fptr[i], fptr[i + 1]))
-        if len(row) + len(ins) + len(quads[i]) > NODE_TERMS_MAX:
-            return None
-        out.append((bool(co["bm"][i] != 0.0), bool(co["km"][i] != 0.0), row, ins,
-                    tuple(sorted(quads[i])), i in touched))
-    return tuple(out)
+def _emit_element(c: _Code, width: LaneLayout, code: terms.LoopCode) -> None:
+    for line in code.head:
+        c(line)
+    lanes(c, width, code.loads, code.arith, code.stores)
 
 
 def emit_nodes(c: _Code, nodes: tuple, width: LaneLayout) -> None:
-    """The force code written out node by node (`node_terms`): the node's coefficients read
-    into scalars, then one lane loop ka[i] = -(bm v + km x) + stiffness row + inputs +
-    quadratic couplings, with every row index a constant (faster than the shared kernel's
-    loops over index arrays for small networks). The scalars are read
-    before the loop so that the loop reads no coefficient array (LLVM cannot prove they do not
-    alias ka, and each one added a runtime alias check). A node without any force keeps its
-    rows of zeros."""
-    for i, (damped, sprung, row, ins, quads, touched) in enumerate(nodes):
-        own = []
-        if damped:
-            c(f"bi = bm[{i}]")
-            own.append(f"bi * va[{i}, b]")
-        if sprung:
-            c(f"ki = km[{i}]")
-            own.append(f"ki * xa[{i}, b]")
-        terms = [f"- ({' + '.join(own)})"] if own else []  # summed left to right, as written
-        for k, (e, j) in enumerate(row):
-            c(f"w{k} = l_val[{e}]")
-            terms.append(f"+ w{k} * xa[{j}, b]")
-        for k, (e, ch) in enumerate(ins):
-            c(f"gm{k} = fi_gm[{e}]")
-            terms.append(f"+ gm{k} * uc[{ch}, b]")
-        for k, (e, end, j) in enumerate(quads):
-            # U = g/(2a) (x_i^2 - a x_j)^2 (`q_gi`, `q_gj`: the ends' factors over the mass)
-            c(f"qa{k} = q_a[{e}]")
-            c(f"qg{k} = q_g{end}[{e}]")
-            terms.append(f"- qg{k} * xa[{i}, b] * (xa[{i}, b] * xa[{i}, b] - qa{k} * xa[{j}, b])"
-                         if end == "i" else
-                         f"+ qg{k} * (xa[{j}, b] * xa[{j}, b] - qa{k} * xa[{i}, b])")
-        if not terms and not touched:
+    """The force code written out node by node (`terms.node_sum`): the node's coefficients
+    read into scalars, then one lane loop ka[i] = its terms, with every row index a
+    constant (faster than the shared kernel's loops over index arrays for small networks).
+    The scalars are read before the loop so that the loop reads no coefficient array (LLVM
+    cannot prove they do not alias ka, and each one added a runtime alias check). A node
+    without any force keeps its rows of zeros."""
+    for i, node in enumerate(nodes):
+        if not (node.damped or node.sprung or node.row or node.ins or node.ends
+                or node.looped):
             continue  # its force rows stay zero
-        expr = " ".join(terms).removeprefix("+ ") if terms else "FT(0.0)"
+        for line in terms.scalar_loads(i, node):
+            c(line)
+        expr = terms.node_sum(i, node, lambda j: f"xa[{j}, b]", lambda j: f"va[{j}, b]",
+                              lambda ch: f"uc[{ch}, b]", lambda e: f"grow[{e}]")
         c(f"for b in range({width.width}):")
         c(f"    ka[{i}, b] = {expr}")
 
@@ -470,64 +434,34 @@ def emit_linear(c: _Code, feat: Features, width: LaneLayout) -> None:
     # `nystrom_stage_state`)
     c("if bi != 0.0:")
     c.indent()
-    lanes(c, full, ["V{b} = va[i, {b}]", "X{b} = xa[i, {b}]"],
-          ["A{b} = -(bi * V{b} + ki * X{b})"], [])
+    own = terms.own_sum(True, True, "bi", "ki", "V{b}", "X{b}")
+    lanes(c, full, ["V{b} = va[i, {b}]", "X{b} = xa[i, {b}]"], [f"A{{b}} = {own}"], [])
     c.dedent()
     c("else:")
     c.indent()
-    lanes(c, full, ["X{b} = xa[i, {b}]"], ["A{b} = -(ki * X{b})"], [])
+    own = terms.own_sum(False, True, "bi", "ki", "V{b}", "X{b}")
+    lanes(c, full, ["X{b} = xa[i, {b}]"], [f"A{{b}} = {own}"], [])
     c.dedent()
     if feat.couplings:
-        _gather(c, full, "l_ptr", ("j = l_col[e]", "w = l_val[e]"), "w", "xa[j, {b}]")
+        _gather(c, full, "l_ptr", ("j = l_col[e]", "w = l_val[e]"), "xa[j, {b}]",
+                terms.ROW.format(w="w", xj="Y{b}"))
     if feat.in_forces:
-        _gather(c, full, "fi_ptr", ("ch = fi_chan[e]", "gm = fi_gm[e]"), "gm", "uc[ch, {b}]")
+        _gather(c, full, "fi_ptr", ("ch = fi_chan[e]", "gm = fi_gm[e]"), "uc[ch, {b}]",
+                terms.INPUT.format(gm="gm", u="Y{b}"))
     lanes(c, full, [], [], ["ka[i, {b}] = A{b}"])
     c.dedent()
 
 
-def _gather(c: _Code, full: LaneLayout, ptr: str, head: tuple[str, ...], coef: str,
-            row: str) -> None:
-    """A{b} += coef * row over node i's entries `ptr[i]..ptr[i + 1]` (`head` sets the
-    entry's scalars, among them `coef`; `row` is the row read, `{b}` its lane)."""
+def _gather(c: _Code, full: LaneLayout, ptr: str, head: tuple[str, ...], row: str,
+            term: str) -> None:
+    """A{b} = A{b} + term over node i's entries `ptr[i]..ptr[i + 1]` (`head` sets the
+    entry's scalars; `row` is the row read into Y{b}, `{b}` its lane)."""
     c(f"for e in range({ptr}[i], {ptr}[i + 1]):")
     c.indent()
     for line in head:
         c(line)
-    lanes(c, full, [f"Y{{b}} = {row}"], [f"A{{b}} = A{{b}} + {coef} * Y{{b}}"], [])
+    lanes(c, full, [f"Y{{b}} = {row}"], [f"A{{b}} = A{{b}} {term}"], [])
     c.dedent()
-
-
-def _element_loop(c: _Code, width: LaneLayout, index: str, head: list[str], loads: list[str],
-                  arith: list[str], stores: list[str]) -> None:
-    """Loop over elements: scalars of the element, then the lanes as straight-line code (rows
-    indexed in place: a row view would cost a reference-count update per element)."""
-    c(f"for e in range({index}.shape[0]):")
-    c.indent()
-    for s in head:
-        c(s)
-    lanes(c, width, loads, arith, stores)
-    c.dedent()
-
-
-def _emit_dashpots(c: _Code, width: LaneLayout) -> None:
-    c("for e in range(b_i.shape[0]):")
-    c.indent()
-    c("i = b_i[e]")
-    c("j = b_j[e]")
-    c("bi = b_bi[e]")
-    c("if j < 0:  # to ground")
-    c.indent()
-    lanes(c, width, ["VI{b} = va[i, {b}]", "OI{b} = ka[i, {b}]"], [],
-          ["ka[i, {b}] = OI{b} - bi * VI{b}"])
-    c.dedent()
-    c("else:")
-    c.indent()
-    c("bj = b_bj[e]")
-    lanes(c, width, ["VI{b} = va[i, {b}]", "VJ{b} = va[j, {b}]", "OI{b} = ka[i, {b}]",
-                     "OJ{b} = ka[j, {b}]"],
-          ["R{b} = VI{b} - VJ{b}"],
-          ["ka[i, {b}] = OI{b} - bi * R{b}", "ka[j, {b}] = OJ{b} + bj * R{b}"])
-    c.dedent(2)
 
 
 def _emit_monomials(c: _Code, width: LaneLayout) -> None:
@@ -740,6 +674,35 @@ def nystrom_velocity(s: int) -> str:
     return "v" if s == 0 else "vs"
 
 
+def stage_reads(tab: Tableau, s: int) -> tuple[list[int], list[int]]:
+    """The force stages stage s's velocity and position read (nonzero a_sj, (A A)_sk)."""
+    _, aa, _, _ = nystrom_coefficients(tab)
+    return [j for j, a in enumerate(tab.a[s]) if a != 0.0], [int(k) for k in np.flatnonzero(aa[s])]
+
+
+def stage_terms(tab: Tableau, s: int, v: str, k: Callable[[int], str]) -> tuple[str, str]:
+    """Stage s's increments over the step's state: (h c_s v + h^2 sum_k (A A)_sk K_k,
+    h sum_j a_sj K_j), with `v` the velocity and `k(j)` stage j's force as each kernel
+    form names them (the coefficients `emit_nystrom_coefficients` defines)."""
+    row, sq = stage_reads(tab, s)
+    xterm = " + ".join([f"hc{s} * {v}"] + [f"hh{s}_{j} * {k(j)}" for j in sq])
+    return xterm, " + ".join(f"ha{s}_{j} * {k(j)}" for j in row) or "FT(0.0)"
+
+
+def combine_reads(tab: Tableau) -> tuple[list[int], list[int]]:
+    """The force stages the step's velocity and position updates read."""
+    _, _, ba, _ = nystrom_coefficients(tab)
+    return [s for s, b in enumerate(tab.b) if b != 0.0], [int(k) for k in np.flatnonzero(ba)]
+
+
+def combine_terms(tab: Tableau, v: str, k: Callable[[int], str]) -> tuple[str, str]:
+    """The step's increments: (h (sum b) v + h^2 sum_k (b A)_k K_k, h sum_s b_s K_s), named
+    as `stage_terms`."""
+    used, sq = combine_reads(tab)
+    xterm = " + ".join([f"hbs * {v}"] + [f"hhb{j} * {k(j)}" for j in sq])
+    return xterm, " + ".join(f"hb{s} * {k(s)}" for s in used)
+
+
 def nystrom_stage_state(c: _Code, tab: Tableau, s: int, width: LaneLayout,
                         frozen: str | None = None) -> None:
     """xs = x + h c_s v + h^2 sum_k (A A)_sk kv_k and vs = v + h sum_j a_sj kv_j, row by row:
@@ -748,11 +711,8 @@ def nystrom_stage_state(c: _Code, tab: Tableau, s: int, width: LaneLayout,
     fewer reads per step). Rows flagged in `frz` (the exactly propagated blocks of
     `springc.kernels.expint`) are left to the block code with `frozen` 'skip', and keep xs = x
     (their velocity kicked) with 'hold'."""
-    _, aa, _, _ = nystrom_coefficients(tab)
-    row = [j for j, a in enumerate(tab.a[s]) if a != 0.0]
-    sq = [int(k) for k in np.flatnonzero(aa[s])]
-    xterm = " + ".join([f"hc{s} * V{{b}}"] + [f"hh{s}_{k} * K{k}_{{b}}" for k in sq])
-    vterm = " + ".join(f"ha{s}_{j} * K{j}_{{b}}" for j in row) or "FT(0.0)"
+    row, sq = stage_reads(tab, s)
+    xterm, vterm = stage_terms(tab, s, "V{b}", lambda k: f"K{k}_{{b}}")
     loads = ["X{b} = x[i, {b}]", "V{b} = v[i, {b}]"]
     xloads = loads + [f"K{k}_{{b}} = kv{k}[i, {{b}}]" for k in sq]
     loads += [f"K{k}_{{b}} = kv{k}[i, {{b}}]" for k in sorted(set(row) | set(sq))]
@@ -785,12 +745,14 @@ def velocity_needed(c: _Code, feat: Features, opts: KernelOptions) -> None:
     c("vneed = np.zeros(x0.shape[0], np.bool_)")
     c("for i in range(x0.shape[0]):")
     c("    vneed[i] = bm[i] != 0.0")
-    ends = (["b_i", "b_j"] if feat.dashpots else [])
+    ends = [index for kind in terms.KINDS if getattr(feat, kind.feature)
+            and kind.reads_velocity() for index in (kind.node_i, kind.node_j) if index]
     ends += (["fi_node"] if opts.work and feat.in_forces else [])
     ends += (["fc_node"] if opts.work and feat.common_forces else [])
+    grounded = {kind.node_j for kind in terms.KINDS if kind.ground is not None}
     for index in ends:
         c(f"for e in range({index}.shape[0]):")
-        if index == "b_j":  # the only signed one: -1 is ground
+        if index in grounded:  # -1: the ground
             c(f"    if {index}[e] >= 0:")
             c(f"        vneed[{index}[e]] = True")
         else:
@@ -802,13 +764,9 @@ def nystrom_combine(c: _Code, tab: Tableau, width: LaneLayout, frozen: str | Non
     """x += h (sum b) v + h^2 sum_k (b A)_k kv_k; v += h sum_s b_s kv_s. Rows flagged in
     `frz` take xn, vn (their exact flow) with `frozen` 'exact', and keep x (their velocity
     kicked) with 'hold'."""
-    _, _, ba, _ = nystrom_coefficients(tab)
-    used = [s for s, b in enumerate(tab.b) if b != 0.0]
-    sq = [int(k) for k in np.flatnonzero(ba)]
     loads = ["X{b} = x[i, {b}]", "V{b} = v[i, {b}]"]
-    loads += [f"K{k}_{{b}} = kv{k}[i, {{b}}]" for k in sorted(set(used) | set(sq))]
-    xterm = " + ".join(["hbs * V{b}"] + [f"hhb{k} * K{k}_{{b}}" for k in sq])
-    vterm = " + ".join(f"hb{s} * K{s}_{{b}}" for s in used)
+    loads += [f"K{k}_{{b}} = kv{k}[i, {{b}}]" for k in sorted(set().union(*combine_reads(tab)))]
+    xterm, vterm = combine_terms(tab, "V{b}", lambda k: f"K{k}_{{b}}")
     c("for i in range(n):")
     c.indent()
     if frozen:

@@ -7,9 +7,9 @@ step (LLVM vectorises the loop; these kernels align their stack frame,
 `springc.kernels.stackalign`). Results agree with the shared kernel within round-off.
 
 Used where the force code would be written out (`simulate.written_out`: long runs of at most
-`codegen.NODES_MAX` masses) and for chunks of one run up to `REGISTER_ALWAYS` masses, for the
-term kinds written here (`eligible`: no reductions, no monomials); compiled per netlist
-structure, coefficients runtime arguments. Records and the divergence guard read the state
+`terms.NODES_MAX` masses) and for chunks of one run up to `REGISTER_ALWAYS` masses, for the
+term kinds of `springc.kernels.terms` (`eligible`: no reductions, no monomials); compiled per
+netlist structure, coefficients runtime arguments. Records and the divergence guard read the state
 rows (a one-run kernel writes its scalars back first). Measurements:
 docs/performance.md#kernel-forms-shared-written-out-register.
 """
@@ -17,37 +17,22 @@ docs/performance.md#kernel-forms-shared-written-out-register.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
 
-import numpy as np
-
-from springc.kernels.codegen import (Features, KernelOptions, LaneLayout, _Code, emit_chunk_end,
-                             emit_chunk_start, emit_record, emit_run_head,
-                             emit_step_end, emit_step_start, features, lane_layout, node_terms,
-                             nystrom_coefficients, preamble, run_args, source_hash,
-                             with_header)
+from springc.kernels import terms
+from springc.kernels.codegen import (Features, KernelOptions, LaneLayout, _Code, combine_terms,
+                                     emit_chunk_end, emit_chunk_start, emit_record,
+                                     emit_run_head, emit_step_end, emit_step_start, features,
+                                     lane_layout, preamble, run_args, source_hash, stage_terms,
+                                     with_header)
 from springc.kernels.integrators import TABLEAUX, Tableau, get_tableau
+from springc.kernels.terms import NodeTerms
 from springc.lang.ir import FlatNetlist
 
 # Masses up to which one run always gets a register kernel: it compiles in about the time of
-# the shared kernel. Larger networks, up to `codegen.NODES_MAX`, get one where a kernel with its
+# the shared kernel. Larger networks, up to `terms.NODES_MAX`, get one where a kernel with its
 # force code written out would be chosen (`simulate.written_out`: long simulations), which
 # pays for the longer compile.
 REGISTER_ALWAYS = 8
-
-
-@dataclass(frozen=True)
-class NodeTerms:
-    """One node's force terms, as indices into the kernel's coefficient arrays."""
-
-    damped: bool  # bm != 0: reads its own velocity
-    sprung: bool  # km != 0
-    row: tuple[tuple[int, int], ...]  # (entry of l_val, column): off-diagonal stiffness
-    ins: tuple[tuple[int, int], ...]  # (entry of fi_gm, channel): input forces
-    quads: tuple[tuple[int, str, int], ...]  # (quad, end 'i' or 'j', other node)
-    duffings: tuple[int, ...]  # Duffing elements on it
-    dashpots: tuple[tuple[int, str, int], ...]  # (dashpot, end, other node or -1 for ground)
-    common: tuple[int, ...]  # common (shared-signal) force elements on it
 
 
 def eligible(net: FlatNetlist, opts: KernelOptions) -> bool:
@@ -57,37 +42,10 @@ def eligible(net: FlatNetlist, opts: KernelOptions) -> bool:
             and not (opts.work or opts.dissipation or opts.msq or opts.gram))
 
 
-def terms(co: dict, n: int, linear: tuple | None = None) -> tuple[NodeTerms, ...] | None:
-    """Every node's terms from the coefficient arrays `co` (`simulate.coefficient_arrays`),
-    extending `linear`, their `codegen.node_terms` when the caller has them already; None
-    when the network is too large to write out."""
-    linear = linear if linear is not None else node_terms(co, n)
-    if linear is None:
-        return None
-    duff: list[list[int]] = [[] for _ in range(n)]
-    for e, i in enumerate(co["d_node"].tolist()):
-        duff[i].append(e)
-    dash: list[list[tuple]] = [[] for _ in range(n)]
-    for e, (i, j) in enumerate(zip(co["b_i"].tolist(), co["b_j"].tolist())):
-        dash[i].append((e, "i", j))
-        if j >= 0:
-            dash[j].append((e, "j", i))
-    common: list[list[int]] = [[] for _ in range(n)]
-    for e, i in enumerate(co["fc_node"].tolist()):
-        common[i].append(e)
-    return tuple(NodeTerms(damped, sprung, row, ins, quads, tuple(duff[i]), tuple(dash[i]),
-                           tuple(common[i]))
-                 for i, (damped, sprung, row, ins, quads, _) in enumerate(linear))
-
-
 def generate(net: FlatNetlist, opts: KernelOptions) -> str:
     """Python source of the register kernel for `net` under `opts` (its terms in
     `opts.registers`)."""
     return with_header(net, opts, *_body(features(net), opts))
-
-
-def _needs_velocity(node: NodeTerms) -> bool:
-    return node.damped or bool(node.dashpots)
 
 
 @functools.lru_cache(maxsize=64)
@@ -174,26 +132,14 @@ def _emit_lanes(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> 
 
 
 def _emit_scalars(c: _Code, nodes: tuple[NodeTerms, ...]) -> None:
-    """Every coefficient the force code reads, into a scalar before the loops."""
+    """Every coefficient the force code reads, into a scalar before the loops (once: both
+    ends of an element read some)."""
+    seen: set[str] = set()
     for i, node in enumerate(nodes):
-        if node.damped:
-            c(f"bm{i} = bm[{i}]")
-        if node.sprung:
-            c(f"km{i} = km[{i}]")
-        for e, _ in node.row:
-            c(f"lv{e} = l_val[{e}]")
-        for e, _ in node.ins:
-            c(f"gm{e} = fi_gm[{e}]")
-        for e, end, _ in node.quads:
-            if end == "i":
-                c(f"qa{e} = q_a[{e}]")
-            c(f"q{end}{e} = q_g{end}[{e}]")
-        for e in node.duffings:
-            c(f"dl{e} = d_lm[{e}]")
-        for e, end, _ in node.dashpots:
-            c(f"b{end}{e} = b_b{end}[{e}]")
-        for e in node.common:
-            c(f"fg{e} = fc_gm[{e}]")
+        for line in terms.scalar_loads(i, node):
+            if line not in seen:
+                seen.add(line)
+                c(line)
 
 
 def _input_times(tab: Tableau) -> list[int]:
@@ -224,7 +170,7 @@ def _emit_step(c: _Code, tab: Tableau, nodes: tuple[NodeTerms, ...], read: str) 
             for ch in channels:
                 a, b = read.format(ch=ch, k=f"kk{s}"), read.format(ch=ch, k=f"kk{s} + 1")
                 c(f"U{ch} = gr{s} * {a} + fr{s} * {b}")
-        for e in sorted({e for node in nodes for e in node.common}):
+        for e in sorted({e for node in nodes for k, e, _, _ in node.ends if k == "common"}):
             c(f"G{e} = g[step, {s}, {e}]")
         for i, node in enumerate(nodes):
             c(f"K{s}_{i} = {_force(i, node)}")
@@ -232,53 +178,25 @@ def _emit_step(c: _Code, tab: Tableau, nodes: tuple[NodeTerms, ...], read: str) 
 
 
 def _emit_stage(c: _Code, tab: Tableau, s: int, nodes: tuple[NodeTerms, ...]) -> None:
-    """Stage s's positions XA{i} and velocities VA{i} (where read)."""
+    """Stage s's positions XA{i} and velocities VA{i} (where read; `stage_terms`)."""
     c(f"# stage {s} (c = {tab.c[s]!r})")
-    _, aa, _, _ = nystrom_coefficients(tab)
-    row = [j for j, a in enumerate(tab.a[s]) if a != 0.0]
-    sq = [int(k) for k in np.flatnonzero(aa[s])]
     for i, node in enumerate(nodes):
-        if s == 0:
-            c(f"XA{i} = X{i}")
-        else:
-            xterm = " + ".join([f"hc{s} * V{i}"] + [f"hh{s}_{k} * K{k}_{i}" for k in sq])
-            c(f"XA{i} = X{i} + ({xterm})")
-        if _needs_velocity(node):
-            vterm = " + ".join(f"ha{s}_{j} * K{j}_{i}" for j in row)
-            c(f"VA{i} = V{i}" if s == 0 else f"VA{i} = V{i} + {vterm or 'FT(0.0)'}")
+        xterm, vterm = stage_terms(tab, s, f"V{i}", lambda k: f"K{k}_{i}")
+        c(f"XA{i} = X{i}" if s == 0 else f"XA{i} = X{i} + ({xterm})")
+        if node.reads_velocity():
+            c(f"VA{i} = V{i}" if s == 0 else f"VA{i} = V{i} + {vterm}")
 
 
 def _force(i: int, node: NodeTerms) -> str:
-    """Node i's acceleration at the stage, summed left to right in the shared kernel's order:
-    its own damping and spring, stiffness row, inputs, quadratic couplings (`emit_nodes`),
-    then Duffing terms, dashpots and shared signals (`emit_accel_body`)."""
-    own = ([f"bm{i} * VA{i}"] if node.damped else []) + ([f"km{i} * XA{i}"] if node.sprung else [])
-    terms = [f"- ({' + '.join(own)})"] if own else []
-    terms += [f"+ lv{e} * XA{j}" for e, j in node.row]
-    terms += [f"+ gm{e} * U{ch}" for e, ch in node.ins]
-    for e, end, j in node.quads:
-        terms.append(f"- qi{e} * XA{i} * (XA{i} * XA{i} - qa{e} * XA{j})" if end == "i" else
-                     f"+ qj{e} * (XA{j} * XA{j} - qa{e} * XA{i})")
-    terms += [f"- dl{e} * (XA{i} * XA{i} * XA{i})" for e in node.duffings]
-    for e, end, j in node.dashpots:
-        if j < 0:
-            terms.append(f"- bi{e} * VA{i}")
-        elif end == "i":
-            terms.append(f"- bi{e} * (VA{i} - VA{j})")
-        else:
-            terms.append(f"+ bj{e} * (VA{j} - VA{i})")
-    terms += [f"+ fg{e} * G{e}" for e in node.common]
-    return " ".join(terms).removeprefix("+ ") if terms else "FT(0.0)"
+    """Node i's acceleration at the stage (`terms.node_sum`, in the scalars of the stage)."""
+    return terms.node_sum(i, node, lambda j: f"XA{j}", lambda j: f"VA{j}", lambda ch: f"U{ch}",
+                          lambda e: f"G{e}")
 
 
 def _emit_combine(c: _Code, tab: Tableau, n: int) -> None:
-    """x += h (sum b) v + h^2 sum_k (b A)_k K_k; v += h sum_s b_s K_s (`nystrom_combine`)."""
-    _, _, ba, _ = nystrom_coefficients(tab)
-    used = [s for s, b in enumerate(tab.b) if b != 0.0]
-    sq = [int(k) for k in np.flatnonzero(ba)]
+    """x += h (sum b) v + h^2 sum_k (b A)_k K_k; v += h sum_s b_s K_s (`combine_terms`)."""
     for i in range(n):
-        xterm = " + ".join([f"hbs * V{i}"] + [f"hhb{k} * K{k}_{i}" for k in sq])
-        vterm = " + ".join(f"hb{s} * K{s}_{i}" for s in used)
+        xterm, vterm = combine_terms(tab, f"V{i}", lambda k: f"K{k}_{i}")
         c(f"X{i} = X{i} + ({xterm})")
         c(f"V{i} = V{i} + ({vterm})")
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from springc.kernels import codegen, expint, loader, regkernel
+from springc.kernels import codegen, expint, loader, regkernel, terms
 from springc.kernels.lower import kernel_netlist
 from springc.lang import physics
 from springc.sim import reductions, sources
@@ -32,7 +32,7 @@ from springc.lang.ir import FlatNetlist, Probe
 DEFAULT_BATCH = 256  # runs per kernel call (one progress-bar tick)
 CHECK_EVERY = 256  # steps between divergence checks
 # dof-steps (dofs x steps x runs) from which a simulation gets a kernel with its force code
-# written out per node (`codegen.node_terms`): such a kernel is compiled once per netlist
+# written out per node (`terms.node_terms`): such a kernel is compiled once per netlist
 # structure instead of being shared by every netlist of the same element kinds, so short
 # simulations (tests, one-off runs) keep the shared kernel; long ones repay the compile
 # (docs/performance.md#kernel-forms-shared-written-out-register).
@@ -252,7 +252,7 @@ def kernel_form(net: FlatNetlist, opts: codegen.KernelOptions, coeffs: dict, st:
     small = (opts.lanes == 1 and net.n <= regkernel.REGISTER_ALWAYS
              and write_out is not False)
     if (small or nodes is not None) and regkernel.eligible(net, opts):
-        regs = regkernel.terms(coeffs, net.n, nodes)
+        regs = nodes if nodes is not None else terms.node_terms(coeffs, net.n)
         if regs is not None:
             return replace(opts, registers=regs)
     return replace(opts, nodes=nodes)
@@ -261,7 +261,7 @@ def kernel_form(net: FlatNetlist, opts: codegen.KernelOptions, coeffs: dict, st:
 def written_out(net: FlatNetlist, coeffs: dict, st: Settings, runs: int,
                 write_out: bool | None) -> tuple | None:
     """The per-node force terms for a kernel with its force code written out
-    (`codegen.node_terms`), or None for the shared kernel: as `write_out` says, and when it is
+    (`terms.node_terms`), or None for the shared kernel: as `write_out` says, and when it is
     None, for simulations of at least `WRITE_OUT_FROM` dof-steps. Networks too large to write out,
     and splitting schemes (`springc.kernels.expint`: their exact block updates dominate, so
     writing out gains nothing), always get the shared kernel."""
@@ -269,7 +269,7 @@ def written_out(net: FlatNetlist, coeffs: dict, st: Settings, runs: int,
         return None
     if write_out is None:
         write_out = net.n * st.nsteps * runs >= WRITE_OUT_FROM
-    return codegen.node_terms(coeffs, net.n) if write_out else None
+    return terms.node_terms(coeffs, net.n) if write_out else None
 
 
 def task_runs(runs: int, batch: int | None, chunk: int | None) -> int:

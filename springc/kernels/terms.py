@@ -1,0 +1,240 @@
+"""Every force term, described once; each kernel form renders the descriptions.
+
+A node's acceleration is a sum of terms: its own damping and spring (`own_sum`), its
+stiffness row and input forces (`ROW`, `INPUT`), and one end of each element of the `KINDS`
+that touches it (quadratic coupling, Duffing, dashpot, shared signal). A `Kind` names the
+coefficient arrays it reads, the subexpressions both ends share, and the force on each end
+(over the mass) as a template over the ends' positions {xi} {xj} and velocities {vi} {vj}.
+
+    rendering            function        used by
+    element loops        element_loop    the shared and exponential kernels
+                                         (codegen.emit_accel_body): both ends in place
+    one sum per node     node_sum        the written-out kernels (codegen.emit_nodes) and
+                                         the register kernels (regkernel): coefficients in
+                                         scalars (`scalar_loads`), indices constants
+
+A new term kind is a `Kind` here, its arrays in `springc.sim.simulate.coefficient_arrays`
+and its flag in `codegen.Features`. Monomials (any number of factors) keep their own loop,
+`codegen._emit_monomials`, in every form.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+
+STATE = ("xi", "xj", "vi", "vj")  # the template fields that read the state (per lane)
+
+
+@dataclass(frozen=True)
+class Kind:
+    """One element kind: its node arrays, the coefficients it reads, the subexpressions its
+    ends share (`temps`, in order; one without state fields is a per-element scalar) and
+    the force on each end. `node_j` None: one-node elements; an entry < 0 in it: the
+    element's second end is the ground, and end i gets `ground` instead."""
+
+    name: str
+    feature: str  # the `codegen.Features` flag
+    node_i: str
+    node_j: str | None
+    coefs: tuple[tuple[str, str], ...]  # (template field, coefficient array)
+    temps: tuple[tuple[str, str], ...]  # (template field, template)
+    force: tuple[tuple[str, str], ...]  # (end, template): added to that end's acceleration
+    ground: str | None = None
+    signal: bool = False  # reads the element's shared-signal value {g} (`grow[e]`)
+
+    def reads_velocity(self) -> bool:
+        """Whether its force reads its ends' velocities (a damper)."""
+        text = " ".join([t for _, t in self.temps + self.force] + [self.ground or ""])
+        return "{vi}" in text or "{vj}" in text
+
+
+QUAD = Kind(  # U = g/(2a) (x_i^2 - a x_j)^2; q_gi, q_gj: each end's factor over its mass
+    "quad", "quads", "q_i", "q_j", (("a", "q_a"), ("gi", "q_gi"), ("gj", "q_gj")),
+    (("S", "{xi} * {xi} - {a} * {xj}"),), (("i", "- {gi} * {xi} * {S}"), ("j", "+ {gj} * {S}")))
+DUFFING = Kind("duffing", "duffings", "d_node", None, (("lm", "d_lm"),), (),
+               (("i", "- {lm} * ({xi} * {xi} * {xi})"),))
+DASHPOT = Kind(
+    "dashpot", "dashpots", "b_i", "b_j", (("bi", "b_bi"), ("bj", "b_bj")),
+    (("R", "{vi} - {vj}"),), (("i", "- {bi} * {R}"), ("j", "+ {bj} * {R}")),
+    ground="- {bi} * {vi}")
+COMMON = Kind("common", "common_forces", "fc_node", None, (("gm", "fc_gm"),),
+              (("F", "{gm} * {g}"),), (("i", "+ {F}"),), signal=True)
+
+# The order of a node's sum (after its own, row and input terms). The shared kernel's loops
+# run in `LOOP_ORDER`: another order would round differently from the kernels it replaced.
+KINDS = (QUAD, DUFFING, DASHPOT, COMMON)
+LOOP_ORDER = (DUFFING, QUAD, DASHPOT)  # then monomials, then COMMON (codegen.emit_accel_body)
+BY_NAME = {k.name: k for k in KINDS}
+ROW = "+ {w} * {xj}"  # an off-diagonal stiffness entry (l_val) times the other node's position
+INPUT = "+ {gm} * {u}"  # an input force's gain over the mass (fi_gm) times its channel
+
+
+def own_sum(damped: bool, sprung: bool, bm: str, km: str, v: str, x: str) -> str:
+    """A node's own terms, -(b/m v + k/m x), of those it has ('' if none)."""
+    own = ([f"{bm} * {v}"] if damped else []) + ([f"{km} * {x}"] if sprung else [])
+    return f"- ({' + '.join(own)})" if own else ""
+
+
+@dataclass(frozen=True)
+class NodeTerms:
+    """One node's force terms, as indices into the kernel's coefficient arrays."""
+
+    damped: bool  # bm != 0: reads its own velocity
+    sprung: bool  # km != 0
+    row: tuple[tuple[int, int], ...]  # (entry of l_val, column): off-diagonal stiffness
+    ins: tuple[tuple[int, int], ...]  # (entry of fi_gm, channel): input forces
+    ends: tuple[tuple[str, int, str, int], ...]  # (kind, element, end, other node or -1)
+    looped: bool  # touched by a monomial, which every form keeps in its loop
+
+    def reads_velocity(self) -> bool:
+        """Whether its force reads its own velocity (a damper on it)."""
+        return self.damped or any(k == "dashpot" for k, *_ in self.ends)
+
+
+# Writing the force code out per node: at most this many nodes (numba's compile time grows
+# with the text, and very long texts overflow its recursion limit) and this many row, input
+# and quadratic-coupling terms on any node (denser nodes run faster in the shared loops;
+# docs/performance.md#kernel-forms-shared-written-out-register).
+NODES_MAX = 48
+NODE_TERMS_MAX = 8
+
+
+def node_terms(co: dict, n: int) -> tuple[NodeTerms, ...] | None:
+    """Each node's terms from the coefficient arrays `co` (`simulate.coefficient_arrays`),
+    the kinds' ends in `KINDS` order and each kind's element order; None when the network
+    is too large to write out (`NODES_MAX`, `NODE_TERMS_MAX`)."""
+    if n > NODES_MAX:
+        return None
+    ends: list[list] = [[] for _ in range(n)]
+    for kind in KINDS:
+        if kind.node_i not in co:
+            continue
+        first = co[kind.node_i].tolist()
+        second = co[kind.node_j].tolist() if kind.node_j else [-1] * len(first)
+        for e, (i, j) in enumerate(zip(first, second)):
+            ends[i].append((kind.name, e, "i", j))
+            if j >= 0:
+                ends[j].append((kind.name, e, "j", i))
+    looped = set(co["p_var"].tolist()) if "p_var" in co else set()
+    ptr, col, fptr, chan = (co[k].tolist() for k in ("l_ptr", "l_col", "fi_ptr", "fi_chan"))
+    out = []
+    for i in range(n):
+        row = tuple((e, col[e]) for e in range(ptr[i], ptr[i + 1]))
+        ins = tuple((e, chan[e]) for e in range(fptr[i], fptr[i + 1]))
+        quads = sum(1 for k, *_ in ends[i] if k == "quad")
+        if len(row) + len(ins) + quads > NODE_TERMS_MAX:
+            return None
+        # sorted by kind order, then element: each kind's loop visits a node in that order
+        order = sorted(ends[i], key=lambda t: (KINDS.index(BY_NAME[t[0]]), t[1]))
+        out.append(NodeTerms(bool(co["bm"][i] != 0.0), bool(co["km"][i] != 0.0), row, ins,
+                             tuple(order), i in looped))
+    return tuple(out)
+
+
+def scalar(array: str, e: int) -> str:
+    """The scalar a per-node rendering reads entry e of a coefficient array into."""
+    return f"{array}{e}"
+
+
+def scalar_loads(i: int, node: NodeTerms) -> list[str]:
+    """`name = array[entry]` for every coefficient node i's sum reads (`node_sum`)."""
+    lines = ([f"bm{i} = bm[{i}]"] if node.damped else []) + (
+        [f"km{i} = km[{i}]"] if node.sprung else [])
+    lines += [f"{scalar('l_val', e)} = l_val[{e}]" for e, _ in node.row]
+    lines += [f"{scalar('fi_gm', e)} = fi_gm[{e}]" for e, _ in node.ins]
+    for name, e, end, other in node.ends:
+        kind = BY_NAME[name]
+        text = _end_template(kind, end, other)
+        lines += [f"{scalar(arr, e)} = {arr}[{e}]" for field, arr in kind.coefs
+                  if "{" + field + "}" in text]
+    return lines
+
+
+Names = Callable[[int], str]
+
+
+def node_sum(i: int, node: NodeTerms, x: Names, v: Names, u: Names, g: Names) -> str:
+    """Node i's acceleration as one expression summed left to right: own terms, stiffness
+    row, inputs, then each end in `node.ends`; `x`, `v` name a node's stage position and
+    velocity, `u` a channel's input, `g` a shared-signal element's value (coefficients as
+    `scalar_loads` names them). 'FT(0.0)' for a node without terms."""
+    terms = [own_sum(node.damped, node.sprung, f"bm{i}", f"km{i}", v(i), x(i))]
+    terms += [ROW.format(w=scalar("l_val", e), xj=x(j)) for e, j in node.row]
+    terms += [INPUT.format(gm=scalar("fi_gm", e), u=u(ch)) for e, ch in node.ins]
+    for name, e, end, other in node.ends:
+        kind = BY_NAME[name]
+        ends = (i, other) if end == "i" else (other, i)
+        state = {"xi": x(ends[0]), "vi": v(ends[0])}
+        if ends[1] >= 0:
+            state |= {"xj": x(ends[1]), "vj": v(ends[1])}
+        fields = {field: scalar(arr, e) for field, arr in kind.coefs}
+        if kind.signal:
+            fields["g"] = g(e)
+        terms.append(_end_template(kind, end, other).format(**state, **fields))
+    return " ".join(t for t in terms if t).removeprefix("+ ") or "FT(0.0)"
+
+
+def _end_template(kind: Kind, end: str, other: int) -> str:
+    """The force on one end, its subexpressions inlined (in parentheses)."""
+    template = kind.ground if other < 0 and kind.ground is not None else dict(kind.force)[end]
+    for name, temp in reversed(kind.temps):
+        template = template.replace("{" + name + "}", "(" + temp + ")")
+    return template
+
+
+@dataclass(frozen=True)
+class LoopCode:
+    """An element loop's code for `codegen.lanes`: per-element scalar statements, then per
+    lane the loads, the arithmetic and the stores (`{b}`: the lane)."""
+
+    head: list[str]
+    loads: list[str]
+    arith: list[str]
+    stores: list[str]
+
+
+def element_loop(kind: Kind, ground: bool = False) -> LoopCode:
+    """One element of `kind` in the shared kernel: its nodes and coefficients into scalars,
+    the ends' state and accelerations loaded per lane, the shared subexpressions, then each
+    end's acceleration stored. A kind with a `ground` force is rendered twice, inside a
+    branch on `j = node_j[e]` (the caller's): `ground` True for a second end at the ground."""
+    two = kind.node_j is not None and not ground
+    ends = ["i", "j"] if two else ["i"]
+    forces = {"i": kind.ground} if ground else dict(kind.force)
+    used = " ".join([forces[e] for e in ends] + [t for _, t in kind.temps])
+    head = [f"i = {kind.node_i}[e]"]
+    if two and kind.ground is None:
+        head.append(f"j = {kind.node_j}[e]")
+    head += [f"{f} = {arr}[e]" for f, arr in kind.coefs if "{" + f + "}" in used]
+    if kind.signal:
+        head.append("gv = grow[e]")  # not `g`: the kernel's argument of that name
+    fields = {f: f for f, _ in kind.coefs} | {"g": "gv"}
+    state = {s: s.upper() + "{b}" for s in STATE}
+    loads = [f"{s.upper()}{{b}} = {'xa' if s[0] == 'x' else 'va'}[{s[1]}, {{b}}]"
+             for s in STATE if "{" + s + "}" in used and s[1] in ends]
+    loads += [f"O{e.upper()}{{b}} = ka[{e}, {{b}}]" for e in ends]
+    arith = []
+    for name, temp in kind.temps:
+        if "{" + name + "}" not in used:
+            continue
+        if any("{" + s + "}" in temp for s in STATE):
+            arith.append(f"{name}{{b}} = " + _fill(temp, state, fields))
+            fields[name] = name + "{b}"
+        else:  # per element, not per lane
+            head.append(f"{name} = " + _fill(temp, state, fields))
+            fields[name] = name
+    stores = [f"ka[{e}, {{b}}] = O{e.upper()}{{b}} " + _fill(forces[e], state, fields)
+              for e in ends]
+    return LoopCode(head, loads, arith, stores)
+
+
+def _fill(template: str, state: dict[str, str], fields: dict[str, str]) -> str:
+    """The template with state fields as lane temporaries and the rest as `fields` name
+    them (the lane marker `{b}` kept for `codegen.lanes`)."""
+    out = template
+    for key, value in {**state, **fields}.items():
+        out = out.replace("{" + key + "}", value)
+    assert not re.search(r"\{(?!b\})", out), out  # every field filled
+    return out

@@ -24,6 +24,9 @@ _GROUPS = "filter,compression,couplings,readout"
 @click.option("--batch", default=16, show_default=True, help="Clips per optimiser step.")
 @click.option("--clips", default=64, show_default=True,
               help="Training clips tuned on, drawn with --seed (0: all).")
+@click.option("--val-clips", default=64, show_default=True,
+              help="Validation clips whose loss picks the epoch kept (the start included; "
+                   "0: keep the last).")
 @click.option("--lr", default=0.05, show_default=True, help="Adam step size on the variables.")
 @click.option("--il-weight", default=0.0, show_default=True,
               help="Loss weight per dB of mean insertion loss (0: accuracy alone).")
@@ -32,20 +35,21 @@ _GROUPS = "filter,compression,couplings,readout"
 @click.option("--scheduler", default=None, metavar="ADDRESS",
               help="Dask scheduler to send the batches to (default: a local cluster).")
 @run_user_errors
-def tune_cmd(model, data, out, params, epochs, batch, clips, lr, il_weight, seed, jobs,
-             scheduler):
+def tune_cmd(model, data, out, params, epochs, batch, clips, val_clips, lr, il_weight,
+             seed, jobs, scheduler):
     """Tune MODEL (trained with --realisation mass-spring) through its simulated network:
-    softmax cross-entropy of the readouts' decisions (plus --il-weight x insertion loss),
-    gradients by the discrete adjoint at RK4 x8, Adam; every tuned netlist passes the
-    checks. Writes OUT like train (netlists, settings, report of the test split, README);
-    the parameters are saved beside OUT after every epoch and a rerun resumes from them."""
-    from springc.kws.tune import TuneOptions, tune
+    softmax cross-entropy of the readouts' decisions at a learnt temperature (plus
+    --il-weight x insertion loss), gradients by the discrete adjoint at RK4 x8, Adam; keeps
+    the epoch with the lowest validation loss; every tuned netlist passes the checks.
+    Writes OUT like train (netlists, settings, report of the test split, README); the
+    parameters are saved beside OUT after every epoch and a rerun resumes from them."""
+    from springc.kws.tune import TuneOptions, history_text, tune
 
     opts = TuneOptions(model, data, out, tuple(p.strip() for p in params.split(",") if p),
-                       epochs, batch, clips, lr, il_weight, seed, jobs, scheduler)
+                       epochs, batch, clips, val_clips, lr, il_weight, seed, jobs,
+                       scheduler)
     report = tune(opts)
-    losses = " -> ".join(f"{h['train_loss']:.4f}" for h in report["tune"]["history"])
-    click.echo(f"tuned {', '.join(opts.params)}: training loss per epoch {losses}")
+    click.echo(f"tuned {', '.join(opts.params)}: {history_text(report['tune']['history'])}")
     if "accuracy" in report:
         click.echo(f"test accuracy {100 * report['accuracy']:.1f}% (n={report['n']}), "
                    f"insertion loss {report['insertion_loss_db']['median']:.1f} dB median")

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from springc.kws.evaluate import evaluate
 from springc.kws.train import TrainOptions, train
-from springc.kws.tune import TuneOptions, tune
+from springc.kws.tune import TuneOptions, history_text, tune
 from springc.kws.digital import FeatureSettings
 
 
@@ -33,6 +33,7 @@ def parse() -> argparse.Namespace:
     p.add_argument("--out", type=Path, default=Path("docs/results-tune.md"))
     p.add_argument("--size", default="4x2", help="bins x delays")
     p.add_argument("--clips", type=int, default=64, help="Training clips tuned on.")
+    p.add_argument("--val-clips", type=int, default=64, help="Validation clips (epoch choice).")
     p.add_argument("--epochs", type=int, default=2)
     p.add_argument("--batch", type=int, default=16)
     p.add_argument("--lr", type=float, default=0.05)
@@ -57,7 +58,8 @@ def tuned(args: argparse.Namespace, model: Path, weight: float) -> dict:
     """Tune `model` with insertion-loss weight `weight`; the tuned model's report."""
     out = args.work / f"{model.name}-tuned-il{weight:g}"
     opts = TuneOptions(model, None, out, epochs=args.epochs, batch=args.batch,
-                       clips=args.clips, lr=args.lr, il_weight=weight)
+                       clips=args.clips, val_clips=args.val_clips, lr=args.lr,
+                       il_weight=weight)
     return tune(opts)
 
 
@@ -78,7 +80,8 @@ def write(args: argparse.Namespace, size: str, base: tuple, runs: list, load: tu
         "gives the corpus command). Built-in corpus at "
         f"`{args.data}`, {size}, 12-class task, one held-out split (the corpus's test split, "
         "balanced protocol): not cross-validated. Tuned on "
-        f"{args.clips} training clips, {args.epochs} epochs of batches of {args.batch}, Adam "
+        f"{args.clips} training clips ({args.val_clips} validation clips choose the epoch "
+        f"kept), {args.epochs} epochs of batches of {args.batch}, Adam "
         f"step {args.lr}, gradients at RK4 x8 float64 (the paper's integration; the "
         "exponential integrator the model's eval uses has no adjoint); every model is "
         "evaluated as `springc eval` does (the whole network, the model's own integration). "
@@ -91,11 +94,11 @@ def write(args: argparse.Namespace, size: str, base: tuple, runs: list, load: tu
     ]
     for weight, rep in runs:
         lines.append(row(f"tuned, il-weight {weight:g}", rep, rep["tune"]["seconds"]))
-    lines += ["", "Training loss per epoch (mean over the epoch's batches, each at the "
-              "parameters before its step):", ""]
+    lines += ["", "Per run: the training loss per epoch (mean over the epoch's batches, each at "
+              "the parameters before its step), the validation loss from the start, and the "
+              "epoch whose parameters the tuned folder keeps:", ""]
     for weight, rep in runs:
-        hist = " -> ".join(f"{h['train_loss']:.4f}" for h in rep["tune"]["history"])
-        lines.append(f"- il-weight {weight:g}: {hist}")
+        lines.append(f"- il-weight {weight:g}: {history_text(rep['tune']['history'])}")
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True).stdout.strip() or "unknown"
     lines += ["", f"springc at {commit}. Machine: {os.cpu_count()} cores, load average "

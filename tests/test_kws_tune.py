@@ -1,6 +1,7 @@
 """`springc tune` on a tiny generated corpus: the loss gradient the tuner steps along agrees with
-central differences of the loss, steps lower the training loss, the tuned folder is what
-`springc eval` simulates, every tuned netlist passes the checks, bad inputs fail cleanly."""
+central differences of the loss, steps lower the training loss, the validation loss picks
+the epoch kept, the tuned folder is what `springc eval` simulates, every tuned netlist passes
+the checks, bad inputs fail cleanly."""
 
 from __future__ import annotations
 
@@ -31,12 +32,13 @@ def env(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def tuned(env):
-    """Three full-batch steps on two clips (the loss of epoch e is taken before its step)."""
+    """Three full-batch steps on two clips (the loss of epoch e is taken before its step),
+    the last kept (no validation clips)."""
     root, _, model = env
     out = root / "tuned"
     result = CliRunner().invoke(main, ["tune", str(model), "-o", str(out), "--clips", "2",
-                                       "--batch", "2", "--epochs", "3", "--lr", "0.1",
-                                       "-j", "1"])
+                                       "--val-clips", "0", "--batch", "2", "--epochs", "3",
+                                       "--lr", "0.1", "-j", "1"])
     assert result.exit_code == 0, result.output
     return out
 
@@ -45,7 +47,7 @@ def setup(model_dir, clips: int, il_weight: float):
     opts = T.TuneOptions(model_dir, None, model_dir.parent / "unused", clips=clips,
                          il_weight=il_weight, evaluate=False)
     model, start = T.load_start(model_dir)
-    _, chosen = T.training_clips(opts, model)
+    _, chosen, _ = T.training_clips(opts, model)
     tg = T.make_targets(model.models, targets(chosen, model.settings["task"]))
     sig = msp.load_signals(chosen, False, 0, [])
     lay = T.layout(opts.params, start.s.bins, start.heads)
@@ -58,15 +60,13 @@ def test_the_loss_gradient_matches_central_differences(env):
     eps = float(model.settings["transfer"]["epsilon"])
     z = T.initial_z(start, lay) + np.random.default_rng(1).normal(0, 0.3, lay.size)
     idx = np.arange(len(sig))
-    s, heads = T.tuned(start, z, lay)
-    b = T.Batch(T.network(s, heads, eps), np.array([h.scale for h in heads]),
-                np.array([h.intercept for h in heads]), tg, opts.il_weight,
-                msp.horizon(s, sig.shape[1] / msp.INPUT_RATE), s.bins, len(heads),
-                tuple(lay.keep))
+    b = T.make_batch(opts, start, lay, z, eps, tg,
+                     msp.horizon(start.s, sig.shape[1] / msp.INPUT_RATE))
+    assert b.temperature != 1.0  # the temperature's coordinate is perturbed too
     g, loss = T.z_gradient([T.batch_gradient((sig, idx), b)], lay, z)
     assert loss == pytest.approx(T.loss_at(opts, start, z, eps, tg, sig, idx), rel=1e-12)
-    for name, sl in lay.slices.items():  # one coordinate of every group
-        i = sl.start + 1
+    for name, sl in lay.slices.items():  # one coordinate of every group and log T
+        i = min(sl.start + 1, sl.stop - 1)
 
         def diff(h: float) -> float:
             zp, zm = z.copy(), z.copy()
@@ -82,7 +82,7 @@ def test_the_loss_gradient_matches_central_differences(env):
 
 def test_steps_lower_the_training_loss(tuned):
     hist = json.loads((tuned / "settings.json").read_text())["tune"]["history"]
-    losses = [h["train_loss"] for h in hist]
+    losses = [h["train_loss"] for h in hist if "train_loss" in h]
     assert len(losses) == 3
     assert losses[2] < losses[1] < losses[0]
 
@@ -111,11 +111,49 @@ def test_the_tuned_folder_is_what_eval_simulates(env, tuned):
     readme = (tuned / "README.md").read_text()
     assert readme.startswith("# Keyword spotter: mass-spring, 4 bins x 2 delays\n\nTuned by")
     assert (f"springc tune {model_dir.resolve()} -o {tuned} --params "
-            "filter,compression,couplings,readout --epochs 3 --batch 2 --clips 2 --lr 0.1 "
+            "filter,compression,couplings,readout --epochs 3 --batch 2 --clips 2 --val-clips 0 "
+            "--lr 0.1 "
             "--il-weight 0 --seed 0") in readme
     assert f"-o {model_dir.resolve()}\n" in readme  # the train line makes the start model
     assert "filter_scale =" not in readme  # tune's settings are not train's to list
     assert not T.checkpoint_path(tuned).exists()  # removed once the folder is written
+
+
+def test_the_lowest_validation_loss_picks_the_epoch_kept():
+    hist = [{"epoch": 0, "validation_loss": 1.2}, {"epoch": 1, "validation_loss": 0.9},
+            {"epoch": 2, "validation_loss": 1.0}, {"epoch": 3, "validation_loss": 0.9}]
+    assert T.chosen_epoch(hist) == 1  # the first of equals
+    assert T.chosen_epoch(hist[:1]) == 0  # the start
+    assert T.chosen_epoch([{"epoch": 1, "train_loss": 1.0}, {"epoch": 2}]) == 2  # none: last
+
+
+def test_a_validated_run_keeps_its_best_epoch(env):
+    """Two steps with validation clips: the validation loss from the start is recorded, the
+    folder holds the kept epoch's network (the start's when the start was best), and the
+    kept epoch's validation loss is that of the folder's network."""
+    root, _, model_dir = env
+    out = root / "tuned-validated"
+    result = CliRunner().invoke(main, ["tune", str(model_dir), "-o", str(out), "--clips", "2",
+                                       "--val-clips", "2", "--batch", "2", "--epochs", "2",
+                                       "--lr", "0.3", "-j", "1"])
+    assert result.exit_code == 0, result.output
+    tune = json.loads((out / "settings.json").read_text())["tune"]
+    val = [h["validation_loss"] for h in tune["history"]]
+    assert [h["epoch"] for h in tune["history"]] == [0, 1, 2]
+    assert tune["chosen_epoch"] == int(np.argmin(val)) and "kept epoch" in result.output
+    s0, heads0 = model_heads(load_model(model_dir))
+    s1, heads1 = model_heads(load_model(out))
+    moved = max(np.abs(h1.gamma / h0.gamma - 1).max() for h0, h1 in zip(heads0, heads1))
+    assert (moved > 1e-6) == (tune["chosen_epoch"] > 0)
+    opts = T.TuneOptions(model_dir, None, out, clips=2, val_clips=2, evaluate=False)
+    model, start = T.load_start(model_dir)
+    _, _, held = T.training_clips(opts, model)
+    clips = T.clip_set(held, model)
+    eps = float(model.settings["transfer"]["epsilon"])
+    lay = T.layout(opts.params, start.s.bins, start.heads)
+    z = T.initial_z(start, lay)  # the start: its validation loss is the first recorded
+    assert T.loss_at(opts, start, z, eps, clips.targets, clips.signals,
+                     np.arange(len(held))) == pytest.approx(val[0], rel=1e-12)
 
 
 def test_every_tuned_netlist_passes_the_checks(env, tuned):
@@ -139,10 +177,11 @@ def test_a_checkpoint_resumes_only_its_own_run(tmp_path):
     path = tmp_path / ".out.tune-checkpoint.json"
     adam = T.Adam(0.1, np.zeros(3), np.zeros(3))
     z = adam.step(np.zeros(3), np.array([1.0, -2.0, 0.5]))
-    T.save_checkpoint(path, "key-a", 1, z, adam, [{"epoch": 1, "train_loss": 0.5}])
+    T.save_checkpoint(path, "key-a", 1, z, adam, [{"epoch": 1, "train_loss": 0.5}], z * 0)
     state = T.load_checkpoint(path, "key-a", 3)
     assert state["epochs_done"] == 1 and state["adam"]["t"] == 1
     np.testing.assert_allclose(state["z"], [-0.1, 0.1, -0.1], rtol=1e-6)
+    assert state["best"] == [0.0, 0.0, 0.0]
     assert T.load_checkpoint(path, "key-b", 3) is None
     assert T.load_checkpoint(path, "key-a", 4) is None
 

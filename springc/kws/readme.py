@@ -85,9 +85,10 @@ def _settings(settings: dict) -> str:
                      f"{from_dict(transfer.get('integration')).describe()}")
     tune = settings.get("tune")
     if tune:
-        losses = " -> ".join(f"{h['train_loss']:.4g}" for h in tune["history"])
+        from springc.kws.tune import history_text
+
         lines.append(f"- tuned by `springc tune` from `{tune['from']}`: {', '.join(tune['params'])}"
-                     f" at {tune['integration']}, training loss per epoch {losses}; the "
+                     f" at {tune['integration']}, {history_text(tune['history'])}; the "
                      "factors are transfer's couplings and intercepts and the features' "
                      "filter_scale and compression_scale")
     return "\n".join(lines)
@@ -133,7 +134,8 @@ def _reproduce(folder: Path, settings: dict) -> str:
         lines.append(f"springc tune {trained} {data_opt}-o {model} "
                      f"--params {','.join(tune['params'])} "
                      f"--epochs {tune['epochs']} --batch {tune['batch']} --clips "
-                     f"{tune['clips']} --lr {tune['lr']:g} --il-weight {tune['il_weight']:g} "
+                     f"{tune['clips']} --val-clips {tune.get('val_clips', 0)} "
+                     f"--lr {tune['lr']:g} --il-weight {tune['il_weight']:g} "
                      f"--seed {tune['seed']}")
     lines += [f"springc eval {model} --data {shlex.quote(data)}   # this page's test split",
               f"springc eval {model} --data OTHER_FOLDER   # any labelled folder; no split "

@@ -2,8 +2,10 @@
 (`springc tune`): a trained, SVM-transferred model folder in, a tuned model folder out.
 
 The loss is the softmax cross-entropy of the physical decisions d_k = x(r_k) / scale_k + b_k
-(a binary model: the logistic loss on its one row), averaged over the clips, plus
-`il_weight` times the mean insertion loss in dB. Its gradient is
+at a learnt temperature T (of T d: a binary model, the logistic loss on its one row),
+averaged over the clips, plus `il_weight` times the mean insertion loss in dB. T only
+calibrates the loss (it changes no decision's sign or order): without it the SVM's decisions,
+which were not fitted as log-odds, would be rescaled through the couplings instead. Its gradient is
 sum_k dL/dr_k dr_k/dtheta (+ the insertion loss's terms): a forward simulation gives the
 readouts and so the per-clip weights dL/dr_k, one discrete adjoint
 (`springc.grad.coefficient_gradient`, RK4 x8 float64, the paper's integration: the
@@ -16,12 +18,15 @@ and each group maps its factors onto coefficients exactly:
     couplings    per head and coupled eigen-component f: g x f, a / f (the readout's
                  stiffness g a stays; the squaring strength moves)
     readout      per head the intercept b_k (digital, unbounded)
+    (always)     log T, the loss's temperature (not part of the network)
 
 Every factor is f = lo (hi/lo)^sigmoid(z) in a box (`BOXES`, `springc.grad.legal.Range`) whose
 corners pass the checks (verified before the first step), so every tuned netlist is legal by
 construction. The tuned values live in the model's settings (features: `filter_scale`,
 `compression_scale`; transfer: `couplings`, `intercepts`), from which every command
-re-derives the same network (`springc.kws.transfer.model_heads`).
+re-derives the same network (`springc.kws.transfer.model_heads`). The folder gets the
+parameters of the epoch (the start included) with the lowest loss on `val_clips` clips of the
+validation split, so tuning on few clips cannot leave a worse network than it found there.
 """
 
 from __future__ import annotations
@@ -51,6 +56,7 @@ BOXES = {
     "compression": Range(0.5, 2.0, True),
     "couplings": Range(0.25, 4.0, True),
 }
+UNBOXED = ("readout", "temperature")  # variables used as they are, not factors in a box
 METHOD, SUBSTEPS = "rk4", msp.SUBSTEPS  # the paper's integration; Runge-Kutta for the adjoint
 DB = 10 / math.log(10)
 
@@ -66,6 +72,7 @@ class TuneOptions:
     epochs: int = 2
     batch: int = 16
     clips: int = 64
+    val_clips: int = 64
     lr: float = 0.05
     il_weight: float = 0.0
     seed: int = 0
@@ -87,12 +94,12 @@ class Layout:
 
 
 def layout(params: tuple[str, ...], bins: int, heads: list[tr.Head]) -> Layout:
-    """The vector's layout for the groups `params` (in `GROUPS` order)."""
+    """The vector's layout for the groups `params` (in `GROUPS` order), then log T."""
     sizes = {"filter": bins, "compression": bins, "couplings": sum(len(h.keep) for h in heads),
-             "readout": len(heads)}
+             "readout": len(heads), "temperature": 1}
     out, start = Layout(keep=[len(h.keep) for h in heads]), 0
-    for name in GROUPS:
-        if name in params:
+    for name in GROUPS + ("temperature",):
+        if name in params or name == "temperature":
             out.slices[name] = slice(start, start + sizes[name])
             start += sizes[name]
     return out
@@ -122,17 +129,17 @@ def factors(z: np.ndarray, lay: Layout, name: str, n: int) -> np.ndarray:
     if name not in lay.slices:
         return np.ones(n)
     zz = z[lay.slices[name]]
-    if name == "readout":
+    if name in UNBOXED:
         return zz.copy()
     box = BOXES[name]
     return np.array([box.value(float(v)) for v in zz])
 
 
 def slopes(z: np.ndarray, lay: Layout) -> np.ndarray:
-    """d log(factor) / dz for the boxed entries, 1 for the intercepts (chain to z)."""
+    """d log(factor) / dz for the boxed entries, 1 for the intercepts and log T (chain to z)."""
     out = np.ones_like(z)
     for name, sl in lay.slices.items():
-        if name != "readout":
+        if name not in UNBOXED:
             box = BOXES[name]
             sig = 1 / (1 + np.exp(-np.clip(z[sl], -500, 500)))
             out[sl] = math.log(box.hi / box.lo) * sig * (1 - sig)
@@ -157,12 +164,12 @@ def tuned(start: Start, z: np.ndarray, lay: Layout) -> tuple[msp.MassSpringSetti
 
 
 def initial_z(start: Start, lay: Layout) -> np.ndarray:
-    """z of the untuned model: every factor 1, the intercepts the SVM's."""
+    """z of the untuned model: every factor 1, the intercepts the SVM's, T = 1."""
     z = np.zeros(lay.size)
     for name, sl in lay.slices.items():
         if name == "readout":
             z[sl] = [h.intercept for h in start.heads]
-        else:
+        elif name != "temperature":
             z[sl] = BOXES[name].variable(1.0)
     return z
 
@@ -182,7 +189,7 @@ def check_corners(start: Start, lay: Layout, epsilon: float) -> int:
     for end in (-60.0, 60.0):
         z = initial_z(start, lay)
         for name, sl in lay.slices.items():
-            if name != "readout":
+            if name not in UNBOXED:
                 z[sl] = end
         network(*tuned(start, z, lay), epsilon)
     return 2
@@ -245,6 +252,7 @@ class Batch:
     bins: int
     heads: int
     keep: tuple[int, ...]
+    temperature: float = 1.0
 
 
 def readouts(b: Batch, sig: np.ndarray) -> dict:
@@ -262,11 +270,13 @@ def readouts(b: Batch, sig: np.ndarray) -> dict:
 def batch_loss(b: Batch, reds: dict, y: np.ndarray) -> tuple[np.ndarray, dict]:
     """Per clip the loss, and the weights (d loss / d reduction per clip) of the adjoint."""
     r = np.stack([reds[f"final:x(r{k})"] for k in range(b.heads)], axis=1)
-    d = r / b.scales + b.intercepts
+    d = b.temperature * (r / b.scales + b.intercepts)
     t = Targets(b.targets.rows, tuple(tt[y] for tt in b.targets.target))
     loss, dd = loss_terms(d, t)
-    weights = {f"final:x(r{k})": dd[:, k] / b.scales[k] for k in range(b.heads)}
-    weights["intercepts"] = dd
+    weights = {f"final:x(r{k})": b.temperature * dd[:, k] / b.scales[k]
+               for k in range(b.heads)}
+    weights["intercepts"] = b.temperature * dd
+    weights["temperature"] = (dd * d).sum(axis=1)  # d loss / d log T
     if b.il_weight:
         diss = sum(reds[f"dissipated:r{k}"] for k in range(b.heads))
         work = reds["work:in"]
@@ -322,19 +332,21 @@ def batch_gradient(sig_y: tuple[np.ndarray, np.ndarray], b: Batch) -> dict:
     ok = np.all([np.isfinite(v) for v in reds.values()], axis=0)
     sig, y, reds = sig[ok], y[ok], {k: v[ok] for k, v in reds.items()}
     out = {"filter": np.zeros(b.bins), "compression": np.zeros(b.bins),
-           "couplings": np.zeros(sum(b.keep)), "readout": np.zeros(b.heads), "loss": 0.0,
-           "clips": len(sig), "dropped": int((~ok).sum())}
+           "couplings": np.zeros(sum(b.keep)), "readout": np.zeros(b.heads),
+           "temperature": np.zeros(1), "loss": 0.0, "clips": len(sig),
+           "dropped": int((~ok).sum())}
     if not len(sig):
         return out
     loss, weights = batch_loss(b, reds, y)
-    dd = weights.pop("intercepts")
+    dd, dlogt = weights.pop("intercepts"), weights.pop("temperature")
     cg = coefficient_gradient(b.checked, list(weights), sig[:, None, :], msp.INPUT_RATE,
                               weights=weights, tstop=b.tstop, method=METHOD,
                               substeps=SUBSTEPS)
     names = {t: getattr(b.checked.net, t).names for t in ("masses", "springs", "couplings",
                                                            "duffings", "forces", "quads")}
     out.update(group_gradient(b, cg.coefficients, names))
-    out.update(readout=dd.sum(axis=0), loss=float(loss.sum()))
+    out.update(readout=dd.sum(axis=0), temperature=np.array([dlogt.sum()]),
+               loss=float(loss.sum()))
     return out
 
 
@@ -395,8 +407,8 @@ def checkpoint_path(out: Path) -> Path:
 def run_key(opts: TuneOptions, model_settings: dict) -> str:
     """What a checkpoint must match to be resumed: the start model and the options."""
     what = {"model": model_settings, "params": opts.params, "batch": opts.batch,
-            "clips": opts.clips, "lr": opts.lr, "il_weight": opts.il_weight, "seed": opts.seed,
-            "data": str(opts.data)}
+            "clips": opts.clips, "val_clips": opts.val_clips, "lr": opts.lr,
+            "il_weight": opts.il_weight, "seed": opts.seed, "data": str(opts.data)}
     return hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()
 
 
@@ -412,10 +424,12 @@ def load_checkpoint(path: Path, key: str, size: int) -> dict | None:
 
 
 def save_checkpoint(path: Path, key: str, epoch: int, z: np.ndarray, adam: Adam,
-                    history: list) -> None:
-    """Write the state after `epoch` epochs (whole file replaced at once)."""
+                    history: list, best: np.ndarray) -> None:
+    """Write the state after `epoch` epochs, with the best z so far (whole file replaced at
+    once)."""
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps({"key": key, "epochs_done": epoch, "z": z.tolist(),
+                               "best": best.tolist(),
                                "adam": {"m": adam.m.tolist(), "v": adam.v.tolist(),
                                         "t": adam.t}, "history": history}))
     tmp.replace(path)
@@ -441,19 +455,25 @@ def load_start(model_dir: Path):
 
 
 def training_clips(opts: TuneOptions, model):
-    """The data set and the training clips tuned on: `opts.clips` of them (0: all), drawn
-    with the seed."""
+    """The data set, the training clips tuned on (`opts.clips` of them, 0: all) and the
+    validation clips the epochs are chosen by (`opts.val_clips`, 0: none), drawn with the
+    seed."""
     from springc.kws.evaluate import trained_data
     from springc.kws.task import open_task_data
 
     data = Path(opts.data) if opts.data else trained_data(model)
-    splits = ("train", "test") if opts.evaluate else ("train",)
+    splits = ("train",) + (("validation",) if opts.val_clips else ()) + (
+        ("test",) if opts.evaluate else ())
     ds = open_task_data(data, model.settings["task"], int(model.settings.get("seed", 0)),
                         model.settings.get("protocol"), splits=splits)
-    clips = ds.split("train")
-    order = np.random.default_rng(opts.seed).permutation(len(clips))
-    take = order[:opts.clips] if opts.clips else order
-    return ds, [clips[i] for i in take]
+    return ds, _draw(ds.split("train"), opts.clips, opts.seed), (
+        _draw(ds.split("validation"), opts.val_clips, opts.seed) if opts.val_clips else [])
+
+
+def _draw(clips: list, n: int, seed: int) -> list:
+    """n of the clips (0: all) in an order drawn with the seed."""
+    order = np.random.default_rng(seed).permutation(len(clips))
+    return [clips[i] for i in (order[:n] if n else order)]
 
 
 def validate(opts: TuneOptions) -> None:
@@ -463,8 +483,10 @@ def validate(opts: TuneOptions) -> None:
     if Path(opts.out).resolve() == Path(opts.model).resolve():
         raise UsageError("the output folder is the model being tuned",
                          hint="give -o a new folder")
-    if opts.epochs < 1 or opts.batch < 1 or opts.clips < 0 or not opts.lr > 0:
-        raise UsageError("--epochs and --batch must be >= 1, --clips >= 0 and --lr > 0")
+    if opts.epochs < 1 or opts.batch < 1 or opts.clips < 0 or opts.val_clips < 0 \
+            or not opts.lr > 0:
+        raise UsageError("--epochs and --batch must be >= 1, --clips and --val-clips >= 0 "
+                         "and --lr > 0")
     if opts.il_weight < 0:
         raise UsageError("--il-weight must be >= 0")
     check_out_folder(opts.out)
@@ -478,10 +500,10 @@ def tune(opts: TuneOptions) -> dict:
     validate(opts)
     opts.params = check_params(opts.params)
     model, start = load_start(opts.model)
-    ds, clips = training_clips(opts, model)
+    ds, clips, val = training_clips(opts, model)
     started = time.perf_counter()
     with session(opts.scheduler, opts.jobs or None):
-        z, history = optimise(opts, model, start, clips)
+        z, history = optimise(opts, model, start, clips, val)
         tuned_s, heads = tuned(start, z, layout(opts.params, start.s.bins, start.heads))
         report = finish(opts, model, ds, (tuned_s, heads, start.heads), history,
                         time.perf_counter() - started)
@@ -489,59 +511,117 @@ def tune(opts: TuneOptions) -> dict:
     return report
 
 
-def optimise(opts: TuneOptions, model, start: Start, clips: list) -> tuple[np.ndarray, list]:
-    """Adam over the epochs, resuming from a matching checkpoint: the final z and the
-    per-epoch history (mean training loss, seconds)."""
+@dataclass
+class Clips:
+    """Clips as the loss reads them: signals and the targets of their classes."""
+
+    signals: np.ndarray
+    targets: Targets
+
+
+def clip_set(clips: list, model) -> Clips:
+    """The signals and targets of `clips` under the model's task."""
     from springc.kws.task import targets
 
+    return Clips(msp.load_signals(clips, False, 0, []),
+                 make_targets(model.models, targets(clips, model.settings["task"])))
+
+
+def optimise(opts: TuneOptions, model, start: Start, clips: list, val: list
+             ) -> tuple[np.ndarray, list]:
+    """Adam over the epochs, resuming from a matching checkpoint: the z to keep (that of the
+    epoch with the lowest validation loss, the start included; the last without validation
+    clips) and the per-epoch history (mean training loss, validation loss, seconds)."""
     lay = layout(opts.params, start.s.bins, start.heads)
     eps = float(model.settings["transfer"]["epsilon"])
     check_corners(start, lay, eps)
-    signals = msp.load_signals(clips, False, 0, [])
-    labels = targets(clips, model.settings["task"])
-    tg = make_targets(model.models, labels)
+    train, held = clip_set(clips, model), clip_set(val, model) if val else None
     key, path = run_key(opts, model.settings), checkpoint_path(opts.out)
-    z, adam, history, first = initial_z(start, lay), Adam(opts.lr, *np.zeros((2, lay.size))), [], 0
+    z, adam, first = initial_z(start, lay), Adam(opts.lr, *np.zeros((2, lay.size))), 0
+    history = [{"epoch": 0, **_val_loss(opts, start, z, eps, held)}]
+    best = z
     state = load_checkpoint(path, key, lay.size)
     if state:
         z, history, first = np.array(state["z"]), state["history"], state["epochs_done"]
+        best = np.array(state["best"])
         adam = Adam(opts.lr, np.array(state["adam"]["m"]), np.array(state["adam"]["v"]),
                     state["adam"]["t"])
         print(f"tune: resuming from {path} after epoch {first}", file=sys.stderr, flush=True)
-    tstop = msp.horizon(start.s, signals.shape[1] / msp.INPUT_RATE)
+    tstop = msp.horizon(start.s, train.signals.shape[1] / msp.INPUT_RATE)
     per_epoch = -(-len(clips) // opts.batch)
     progress = Progress(opts.epochs * per_epoch, first * per_epoch)
     for epoch in range(first, opts.epochs):
         t0, losses, dropped = time.perf_counter(), [], 0
         order = np.random.default_rng([opts.seed, epoch]).permutation(len(clips))
         for lo in range(0, len(clips), opts.batch):
-            idx = order[lo:lo + opts.batch]
-            g, loss, lost = batch_step(opts, start, lay, z, eps, tstop, tg, signals, idx)
+            g, loss, lost = batch_step(opts, start, lay, z, eps, tstop, train,
+                                       order[lo:lo + opts.batch])
             dropped += lost
             z = adam.step(z, g)
             losses.append(loss)
-            progress.tick(epoch, len(idx), loss)
+            progress.tick(epoch, len(order[lo:lo + opts.batch]), loss)
         history.append({"epoch": epoch + 1, "train_loss": float(np.mean(losses)),
-                        "dropped_clips": dropped, "seconds": time.perf_counter() - t0})
-        save_checkpoint(path, key, epoch + 1, z, adam, history)
-    return z, history
+                        **_val_loss(opts, start, z, eps, held), "dropped_clips": dropped,
+                        "seconds": time.perf_counter() - t0})
+        best = z if chosen_epoch(history) == epoch + 1 else best
+        save_checkpoint(path, key, epoch + 1, z, adam, history, best)
+    return (best if held else z), history
+
+
+def _val_loss(opts: TuneOptions, start: Start, z: np.ndarray, eps: float,
+              held: Clips | None) -> dict:
+    """{"validation_loss": the mean loss of the validation clips at z}, or {} without any."""
+    if held is None:
+        return {}
+    value = loss_at(opts, start, z, eps, held.targets, held.signals,
+                    np.arange(len(held.signals)))
+    print(f"tune: validation loss {value:.4f} ({len(held.signals)} clips)", file=sys.stderr,
+          flush=True)
+    return {"validation_loss": value}
+
+
+def chosen_epoch(history: list[dict]) -> int:
+    """The epoch whose parameters are kept: the lowest validation loss (the first such; epoch
+    0 is the start), or the last when there is none."""
+    scored = [h for h in history if "validation_loss" in h]
+    if not scored:
+        return history[-1]["epoch"]
+    return min(scored, key=lambda h: (h["validation_loss"], h["epoch"]))["epoch"]
+
+
+def history_text(history: list[dict]) -> str:
+    """The run in a line: training loss per epoch, validation loss per epoch (from the
+    start) and the epoch kept."""
+    text = "training loss per epoch " + " -> ".join(
+        f"{h['train_loss']:.4f}" for h in history if "train_loss" in h)
+    val = [h["validation_loss"] for h in history if "validation_loss" in h]
+    if val:
+        text += ("; validation loss from the start " + " -> ".join(f"{v:.4f}" for v in val)
+                 + f"; kept epoch {chosen_epoch(history)}")
+    return text
+
+
+def make_batch(opts: TuneOptions, start: Start, lay: Layout, z: np.ndarray, eps: float,
+               tg: Targets, tstop: float) -> Batch:
+    """The checked network at z and what the loss needs (scales, intercepts, T)."""
+    s, heads = tuned(start, z, lay)
+    return Batch(network(s, heads, eps), np.array([h.scale for h in heads]),
+                 np.array([h.intercept for h in heads]), tg, opts.il_weight, tstop, s.bins,
+                 len(heads), tuple(lay.keep),
+                 float(np.exp(z[lay.slices["temperature"]][0])))
 
 
 def batch_step(opts: TuneOptions, start: Start, lay: Layout, z: np.ndarray, eps: float,
-               tstop: float, tg: Targets, signals: np.ndarray, idx: np.ndarray
-               ) -> tuple[np.ndarray, float, int]:
+               tstop: float, train: Clips, idx: np.ndarray) -> tuple[np.ndarray, float, int]:
     """The gradient in z and the mean loss of the clips `idx`, split over the workers, and
     how many of them were dropped (not finite)."""
     from functools import partial
 
     from springc.kws.distributed import cores, map_batches
 
-    s, heads = tuned(start, z, lay)
-    b = Batch(network(s, heads, eps), np.array([h.scale for h in heads]),
-              np.array([h.intercept for h in heads]), tg, opts.il_weight, tstop, s.bins,
-              len(heads), tuple(lay.keep))
+    b = make_batch(opts, start, lay, z, eps, train.targets, tstop)
     workers = opts.jobs or cores()
-    parts = [(signals[p], p) for p in np.array_split(idx, min(workers, len(idx)))]
+    parts = [(train.signals[p], p) for p in np.array_split(idx, min(workers, len(idx)))]
     out = map_batches(partial(batch_gradient, b=b), parts, opts.scheduler, workers=workers,
                       desc="tune batch")
     return (*z_gradient(out, lay, z), sum(p["dropped"] for p in out))
@@ -550,15 +630,14 @@ def batch_step(opts: TuneOptions, start: Start, lay: Layout, z: np.ndarray, eps:
 def loss_at(opts: TuneOptions, start: Start, z: np.ndarray, eps: float, tg: Targets,
             signals: np.ndarray, idx: np.ndarray) -> float:
     """The mean loss of clips `idx` at z (forward simulation only: what the gradient is the
-    gradient of)."""
+    gradient of); clips whose readouts are not finite are left out, as the steps leave them."""
     lay = layout(opts.params, start.s.bins, start.heads)
-    s, heads = tuned(start, z, lay)
-    b = Batch(network(s, heads, eps), np.array([h.scale for h in heads]),
-              np.array([h.intercept for h in heads]), tg, opts.il_weight,
-              msp.horizon(s, signals.shape[1] / msp.INPUT_RATE), s.bins, len(heads),
-              tuple(lay.keep))
-    loss, _ = batch_loss(b, readouts(b, signals[idx].astype(np.float64)), idx)
-    return float(loss.mean())
+    b = make_batch(opts, start, lay, z, eps, tg,
+                   msp.horizon(start.s, signals.shape[1] / msp.INPUT_RATE))
+    reds = readouts(b, signals[idx].astype(np.float64))
+    ok = np.all([np.isfinite(v) for v in reds.values()], axis=0)
+    loss, _ = batch_loss(b, {k: v[ok] for k, v in reds.items()}, idx[ok])
+    return float(loss.mean()) if len(loss) else float("nan")
 
 
 def finish(opts: TuneOptions, model, ds, net: tuple, history: list, seconds: float) -> dict:
@@ -580,6 +659,7 @@ def finish(opts: TuneOptions, model, ds, net: tuple, history: list, seconds: flo
                         "data": str(Path(opts.data).resolve()) if opts.data else None,
                         "params": list(opts.params),
                         "epochs": opts.epochs, "batch": opts.batch, "clips": opts.clips,
+                        "val_clips": opts.val_clips, "chosen_epoch": chosen_epoch(history),
                         "lr": opts.lr, "il_weight": opts.il_weight, "seed": opts.seed,
                         "integration": f"{METHOD} x{SUBSTEPS} float64", "history": history,
                         "seconds": seconds}

@@ -3,6 +3,8 @@ mass-spring, every stage timed, and the extrapolation to the Google Speech Comma
 
     python scripts/results_scale.py --clips 20000 --out /tmp/scale
 
+A rerun with the same OUT after a failure skips the stages it has measured (OUT/stages.json).
+
 Runs the installed `springc` as a user would (fresh kernel cache in OUT/kernels, so the
 compile times are in): `data synth`, `train` digital, `train --realisation mass-spring` (its
 report's per-phase seconds), `eval` of the whole classifier network; then the mass-spring
@@ -26,14 +28,22 @@ GSCD_CLIPS = 105829  # the paper's data set (v0.02)
 SCALING_CLIPS = 256  # training clips whose features are timed with 1 and 2 workers
 
 
-def springc(args: list[str], env: dict) -> tuple[float, str]:
+def springc(args: list[str], env: dict, done: Path) -> tuple[float, str]:
     """Run `springc ARGS`: its wall seconds and standard output (a failure stops the
-    script; progress goes to the terminal)."""
-    print("$ springc " + " ".join(args), flush=True)
+    script; progress goes to the terminal). Kept in the JSON file `done` under the command
+    line, so a rerun after a failure skips the stages it has."""
+    key = " ".join(args)
+    kept = json.loads(done.read_text()) if done.is_file() else {}
+    if key in kept:
+        print(f"$ springc {key}  (measured before: {kept[key][0]:.0f} s)", flush=True)
+        return kept[key][0], kept[key][1]
+    print("$ springc " + key, flush=True)
     start = time.perf_counter()
-    done = subprocess.run(["springc", *args], check=True, env=env, stdout=subprocess.PIPE,
-                          text=True)
-    return time.perf_counter() - start, done.stdout
+    run = subprocess.run(["springc", *args], check=True, env=env, stdout=subprocess.PIPE,
+                         text=True)
+    kept[key] = (time.perf_counter() - start, run.stdout)
+    done.write_text(json.dumps(kept))
+    return kept[key]
 
 
 def counts(data: Path) -> dict[str, int]:
@@ -73,13 +83,15 @@ def run(clips: int, out: Path) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     env = {**os.environ, "SPRINGC_CACHE": str(out / "kernels")}
     data, dig, ms = out / "corpus", out / "model-digital", out / "model-mass-spring"
-    t = {"synth": springc(["data", "synth", str(data), "--clips", str(clips)], env)[0]}
+    done = out / "stages.json"
+    t = {"synth": springc(["data", "synth", str(data), "--clips", str(clips)], env, done)[0]}
     n = counts(data)
     t["train digital"] = springc(["train", "--data", str(data), "-n", "8", "-m", "3",
-                                  "-o", str(dig)], env)[0]
+                                  "-o", str(dig)], env, done)[0]
     t["train mass-spring"] = springc(["train", "--data", str(data), "-n", "8", "-m", "3",
-                                      "--realisation", "mass-spring", "-o", str(ms)], env)[0]
-    t["eval mass-spring network"], text = springc(["eval", str(ms), "--json"], env)
+                                      "--realisation", "mass-spring", "-o", str(ms)], env,
+                                     done)[0]
+    t["eval mass-spring network"], text = springc(["eval", str(ms), "--json"], env, done)
     os.environ["SPRINGC_CACHE"] = env["SPRINGC_CACHE"]
     reports = {k: json.loads((p / "report.json").read_text()) for k, p in
                (("digital", dig), ("mass-spring", ms))}

@@ -31,11 +31,51 @@ def test_raw_weights_reproduce_the_standardised_decision(kind):
     x, y = _blobs(rng)
     model = fit_linear(x, y, 0.1, kind)
     std = Standardiser.fit(x)
-    est = (LinearSVC(C=0.1, loss="squared_hinge", penalty="l2", dual=False, max_iter=5000)
+    # liblinear held to a tight tolerance: the exact minimum the Newton solver reaches
+    est = (LinearSVC(C=0.1, loss="squared_hinge", penalty="l2", dual=False, max_iter=100000,
+                     tol=1e-12)
            if kind == "svm" else LogisticRegression(C=0.1, max_iter=500))
     est.fit(std(x), y)
-    assert np.allclose(model.decision(x), est.decision_function(std(x)), rtol=1e-9, atol=1e-9)
+    tol = 1e-6 if kind == "svm" else 1e-9
+    assert np.allclose(model.decision(x), est.decision_function(std(x)), rtol=tol, atol=tol)
     assert np.array_equal(model.predict(x), est.predict(std(x)))
+
+
+@pytest.mark.parametrize("classes", [2, 4])
+@pytest.mark.parametrize("c", [0.1, 1e4])
+def test_newton_reaches_liblinears_minimum_with_its_class_weights(classes, c):
+    """Balanced class weights as liblinear applies them (one-versus-rest: a class's weight on
+    its own samples, the rest at 1), to the minimum of liblinear held to a tight tolerance,
+    and no point near the solution has a lower objective."""
+    import warnings
+
+    from sklearn.svm import LinearSVC
+
+    from springc.kws import hinge
+
+    rng = np.random.default_rng(classes)
+    x, y = _blobs(rng, k=classes)
+    keep = np.ones(len(y), bool)
+    keep[np.flatnonzero(y == "c0")[: len(y) // (2 * classes)]] = False  # imbalanced
+    x, y = x[keep], y[keep]
+    model = fit_linear(x, y, c, class_weight="balanced")
+    std = Standardiser.fit(x)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est = LinearSVC(C=c, loss="squared_hinge", penalty="l2", dual=False, max_iter=100000,
+                        tol=1e-12, class_weight="balanced").fit(std(x), y)
+    d = est.decision_function(std(x)).reshape(len(y), -1)
+    assert np.allclose(model.decision(x), d, rtol=1e-5, atol=1e-5 * np.abs(d).max())
+    signs = np.where(y == (model.classes[1] if classes == 2 else model.classes[0]), 1.0, -1.0)
+    weight = len(y) / (classes * np.sum(y == model.classes[0 if classes > 2 else 1]))
+    costs = c * np.where(signs > 0, weight, 1.0 if classes > 2 else
+                         len(y) / (classes * np.sum(y == model.classes[0])))
+    xb = np.hstack([std(x), np.ones((len(y), 1))])
+    w = np.concatenate([model.coef[0] * std.scale, [model.intercept[0]
+                                                     + model.coef[0] @ std.mean]])
+    best = hinge.objective(xb, signs, costs, w)
+    for _ in range(5):
+        assert hinge.objective(xb, signs, costs, w + rng.normal(scale=1e-3, size=w.shape)) > best
 
 
 def test_binary_model_has_one_row_and_thresholds_at_zero():

@@ -1,9 +1,10 @@
 """Linear classifiers on fixed feature vectors: the paper's SVM (squared hinge, l2, primal,
-one-versus-rest; scikit-learn's LinearSVC / liblinear) and, for the baseline, logistic
-regression. With class_weight="balanced" each class's errors are weighted by
-n_samples / (n_classes * n_class), so a frequent class (GSCD's `_unknown_`) cannot win by
-being frequent. Features are standardised for the optimiser; the stored model is mapped back to
-raw feature space so that the physical readout c . Phi + b gives exactly the same decision.
+one-versus-rest, liblinear's objective, solved exactly by `springc.kws.hinge`) and, for the
+baseline, logistic regression (scikit-learn). With class_weight="balanced" each class's
+errors are weighted by n_samples / (n_classes * n_class) (`row_costs`), so a frequent class
+(GSCD's `_unknown_`) cannot win by being frequent. Features are standardised for the optimiser; the
+stored model is mapped back to raw feature space so that the physical readout c . Phi + b
+gives exactly the same decision.
 """
 
 from __future__ import annotations
@@ -16,10 +17,10 @@ from dataclasses import dataclass
 import numpy as np
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.linear_model import LogisticRegression
-from sklearn.svm import LinearSVC
 from threadpoolctl import threadpool_limits
 
 from springc.errors import DataError
+from springc.kws import hinge
 
 # Regularisation C, chosen on the validation split. Up to 1e4: on the demo corpus (4 x 2,
 # speaker-grouped 5-fold cross-validation) both realisations still gained from 100 to 1e4
@@ -73,34 +74,69 @@ class Standardiser:
 CLASS_WEIGHTS = (None, "balanced")
 
 
-def _estimator(kind: str, c: float, class_weight: str | None = None):
+def _check_weights(class_weight: str | None) -> None:
     if class_weight not in CLASS_WEIGHTS:
         raise ValueError(f"unknown class weights {class_weight!r}")
-    if kind == "svm":
-        # max_iter: liblinear's trust-region Newton needs thousands of iterations at large C
-        # on these correlated features; 1000 (sklearn's default) stops early there, which
-        # the validation score then judges like any other regularisation
-        return LinearSVC(C=c, loss="squared_hinge", penalty="l2", dual=False, max_iter=1000,
-                         class_weight=class_weight)
-    if kind == "logreg":
-        return LogisticRegression(C=c, max_iter=500, class_weight=class_weight)
-    raise ValueError(f"unknown classifier kind {kind!r}")
+
+
+def row_costs(y: np.ndarray, classes: np.ndarray, signs: np.ndarray,
+              class_weight: str | None) -> np.ndarray:
+    """Each row's per-sample cost over C, as liblinear weighs classes: with "balanced", a
+    class's weight n_samples / (n_classes * n_class) on its own samples; one-versus-rest, the
+    rest of a row's samples at 1; two classes, every sample at its class's weight."""
+    if class_weight is None:
+        return np.ones(signs.shape)
+    weight = {k: len(y) / (len(classes) * int(np.sum(y == k))) for k in classes}
+    per_sample = np.array([weight[k] for k in y])
+    if len(classes) == 2:
+        return per_sample[None, :]
+    return np.where(signs > 0, per_sample[None, :], 1.0)
 
 
 def fit_linear(x: np.ndarray, y: np.ndarray, c: float, kind: str = "svm",
                class_weight: str | None = None) -> LinearModel:
     """Fit one classifier with regularisation `c` on features x (samples, N), labels y;
     `class_weight` None (every sample counts the same) or "balanced" (every class does)."""
+    return _fits(x, y, (c,), kind, class_weight)[0]
+
+
+def _fits(x: np.ndarray, y: np.ndarray, grid: tuple[float, ...], kind: str,
+          class_weight: str | None, jobs: int = 1) -> list[LinearModel]:
+    """One model per C of `grid`, in its order. The SVM's are solved in increasing C, each
+    starting from the last one's weights (BLAS on every core); logistic regression fits in
+    `jobs` threads (lbfgs releases the GIL), one BLAS thread each."""
+    _check_weights(class_weight)
     classes = np.unique(y)
     if len(classes) < 2:
         raise DataError("training split", f"needs at least two classes, found {list(classes)}")
     std = Standardiser.fit(x)
-    est = _estimator(kind, c, class_weight)
-    with warnings.catch_warnings():
+    z = std(x)
+    if kind == "svm":
+        rows = classes[1:] if len(classes) == 2 else classes
+        signs = np.where(y[None, :] == rows[:, None], 1.0, -1.0)
+        weight = row_costs(y, classes, signs, class_weight)
+        out, start = {}, None
+        for c in sorted(grid):
+            coef, intercept = hinge.fit_rows(z, signs, c * weight, start)
+            start = np.hstack([coef, intercept[:, None]])
+            out[c] = LinearModel(*std.to_raw(coef, intercept), classes.astype(str))
+        return [out[c] for c in grid]
+    if kind != "logreg":
+        raise ValueError(f"unknown classifier kind {kind!r}")
+
+    def fit(c: float) -> LinearModel:
+        est = LogisticRegression(C=c, max_iter=500, class_weight=class_weight)
+        est.fit(z, y)
+        coef, intercept = std.to_raw(est.coef_, np.atleast_1d(est.intercept_))
+        return LinearModel(coef, intercept, est.classes_.astype(str))
+
+    # one BLAS thread per fit: the grid is the parallelism, and BLAS threads spinning on a
+    # busy machine cost many times the CPU time (docs/performance.md#training); warning
+    # filters are process-wide and catch_warnings is not thread-safe: set once, here
+    with warnings.catch_warnings(), threadpool_limits(1), \
+            ThreadPoolExecutor(max(1, min(jobs, len(grid)))) as pool:
         warnings.simplefilter("ignore", ConvergenceWarning)  # the validation score judges it
-        est.fit(std(x), y)
-    coef, intercept = std.to_raw(est.coef_, np.atleast_1d(est.intercept_))
-    return LinearModel(coef, intercept, est.classes_.astype(str))
+        return list(pool.map(fit, grid))
 
 
 def accuracy(model: LinearModel, x: np.ndarray, y: np.ndarray) -> float:
@@ -112,21 +148,13 @@ def select(x_train: np.ndarray, y_train: np.ndarray, x_val: np.ndarray, y_val: n
            kind: str = "svm", grid: tuple[float, ...] = SVM_GRID, jobs: int = 1,
            class_weight: str | None = None, score: Callable = accuracy,
            ) -> tuple[LinearModel, float, dict[float, float]]:
-    """Fit one model per C in `grid` (in `jobs` threads: liblinear and lbfgs release the
-    GIL), keep the best on the validation split by `score(model, x, y)` (default: accuracy;
+    """Fit one model per C in `grid` (`_fits`: `jobs` threads for logistic regression),
+    keep the best on the validation split by `score(model, x, y)` (default: accuracy;
     ties: smaller C, the stronger regularisation). `class_weight` as in `fit_linear`.
     Returns (model, C, {C: validation score})."""
     if not grid:
         raise ValueError("empty regularisation grid")
-    fit = lambda c: fit_linear(x_train, y_train, c, kind, class_weight)  # noqa: E731
-    # one BLAS thread per fit: the grid is the parallelism, and BLAS threads spinning on a
-    # busy machine cost many times the CPU time (docs/performance.md#training)
-    # warning filters are process-wide: set here too, as fit_linear's own catch_warnings
-    # is not thread-safe
-    with warnings.catch_warnings(), threadpool_limits(1), \
-            ThreadPoolExecutor(max(1, min(jobs, len(grid)))) as pool:
-        warnings.simplefilter("ignore", ConvergenceWarning)
-        models = list(pool.map(fit, grid))
+    models = _fits(x_train, y_train, grid, kind, class_weight, jobs)
     scores = {c: score(m, x_val, y_val) for c, m in zip(grid, models)}
     best = max(range(len(grid)), key=lambda i: (scores[grid[i]], -grid[i]))
     return models[best], grid[best], scores

@@ -96,8 +96,10 @@ def run(clips: int, out: Path) -> dict:
     reports = {k: json.loads((p / "report.json").read_text()) for k, p in
                (("digital", dig), ("mass-spring", ms))}
     reports["network"] = json.loads(text)
+    integration = json.loads((ms / "settings.json").read_text())["transfer"]["integration"]
     sc = scaling(data, ms)
     return {"clips": clips, "counts": n, "seconds": t, "reports": reports, "scaling": sc,
+            "network_integration": integration,
             "machine": f"{platform.machine()}, {os.cpu_count()} cores, Python "
             f"{platform.python_version()}", "load": os.getloadavg()[2]}
 
@@ -152,12 +154,13 @@ def markdown(r: dict) -> str:
         eval_h = 11005 / (ev / 2 * w) / 3600  # ev: already 2 workers' rate
         lines.append(f"| {w} | {feat_h:.2f} h | {eval_h:.2f} h |")
     acc = {k: v["accuracy"] for k, v in r["reports"].items()}
-    net = r["reports"]["network"]
+    net, ni = r["reports"]["network"], r["network_integration"]
     lines += ["", f"Test accuracy: digital {100 * acc['digital']:.1f}%, mass-spring features "
               f"(ideal readout) {100 * acc['mass-spring']:.1f}%, the whole network simulated "
               f"{100 * acc['network']:.1f}% (readout error {net.get('readout_error', 0):.2g}, "
-              f"integration {net.get('integration', {}).get('method')} "
-              f"x{net.get('integration', {}).get('substeps')}).", ""]
+              f"integration {ni['method']} x{ni['substeps']} {ni['precision']}, within "
+              f"{ni['error']:.2g} of {ni['reference']} on {ni['clips']} clips); insertion loss "
+              f"{net['insertion_loss_db']['median']:.0f} dB median.", ""]
     return "\n".join(lines)
 
 
@@ -173,9 +176,15 @@ def main() -> None:
     parser.add_argument("--doc", type=Path,
                         default=Path(__file__).resolve().parents[1] / "docs"
                         / "results-scale.md")
+    parser.add_argument("--page-only", action="store_true",
+                        help="Rewrite the page from OUT/scale.json without running anything.")
     args = parser.parse_args()
-    r = run(args.clips, args.out)
-    (args.out / "scale.json").write_text(json.dumps(r, indent=2) + "\n")
+    if args.page_only:
+        r = json.loads((args.out / "scale.json").read_text())
+        r["scaling"] = {int(k): v for k, v in r["scaling"].items()}
+    else:
+        r = run(args.clips, args.out)
+        (args.out / "scale.json").write_text(json.dumps(r, indent=2) + "\n")
     args.doc.write_text(markdown(r))
     print(f"written: {args.doc}", file=sys.stderr)
 

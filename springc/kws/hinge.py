@@ -12,7 +12,7 @@ w + 2 X_A^T (c_A (X_A w - y_A)) and its Hessian I + 2 X_A^T diag(c_A) X_A, so Ne
 with a backtracking line search reaches the minimum in a few dozen steps (finitely, once A
 stops changing; Keerthi & DeCoste, JMLR 2005). Each step costs one N x d^2 product, which
 BLAS spreads over the cores; liblinear's coordinate / trust-region solvers needed thousands of
-iterations at large C on these correlated features (docs/keyword-spotting.md#training-at-scale).
+iterations at large C on these correlated features (docs/performance.md#training).
 """
 
 from __future__ import annotations

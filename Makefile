@@ -15,7 +15,7 @@ demo: install
 	$(VENV)/bin/springc demo
 
 test: install
-	PATH="$(abspath $(VENV))/bin:$$PATH" $(PY) -m pytest -q -n auto --dist loadfile
+	PATH="$(abspath $(VENV))/bin:$$PATH" $(PY) -m pytest -q -n auto --dist loadfile --durations=25
 
 bench: install
 	$(VENV)/bin/springc bench --out bench-out

@@ -43,13 +43,14 @@ def tune_cmd(model, data, out, params, epochs, batch, clips, val_clips, lr, il_w
     the epoch with the lowest validation loss; every tuned netlist passes the checks.
     Writes OUT like train (netlists, settings, report of the test split, README); the
     parameters are saved beside OUT after every epoch and a rerun resumes from them."""
-    from springc.kws.tune import TuneOptions, history_text, tune
+    from springc.kws.readme import tune_history_text
+    from springc.kws.tune import TuneOptions, tune
 
     opts = TuneOptions(model, data, out, tuple(p.strip() for p in params.split(",") if p),
                        epochs, batch, clips, val_clips, lr, il_weight, seed, jobs,
                        scheduler)
     report = tune(opts)
-    click.echo(f"tuned {', '.join(opts.params)}: {history_text(report['tune']['history'])}")
+    click.echo(f"tuned {', '.join(opts.params)}: {tune_history_text(report['tune'])}")
     if "accuracy" in report:
         click.echo(f"test accuracy {100 * report['accuracy']:.1f}% (n={report['n']}), "
                    f"insertion loss {report['insertion_loss_db']['median']:.1f} dB median")

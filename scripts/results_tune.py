@@ -21,7 +21,8 @@ from pathlib import Path
 
 from springc.kws.evaluate import evaluate
 from springc.kws.train import TrainOptions, train
-from springc.kws.tune import TuneOptions, history_text, tune
+from springc.kws.readme import tune_history_text
+from springc.kws.tune import TuneOptions, tune
 from springc.kws.digital import FeatureSettings
 
 
@@ -98,7 +99,7 @@ def write(args: argparse.Namespace, size: str, base: tuple, runs: list, load: tu
               "the parameters before its step), the validation loss from the start, and the "
               "epoch whose parameters the tuned folder keeps:", ""]
     for weight, rep in runs:
-        lines.append(f"- il-weight {weight:g}: {history_text(rep['tune']['history'])}")
+        lines.append(f"- il-weight {weight:g}: {tune_history_text(rep['tune'])}")
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True).stdout.strip() or "unknown"
     lines += ["", f"springc at {commit}. Machine: {os.cpu_count()} cores, load average "

@@ -85,13 +85,24 @@ def _settings(settings: dict) -> str:
                      f"{from_dict(transfer.get('integration')).describe()}")
     tune = settings.get("tune")
     if tune:
-        from springc.kws.tune import history_text
-
         lines.append(f"- tuned by `springc tune` from `{tune['from']}`: {', '.join(tune['params'])}"
-                     f" at {tune['integration']}, {history_text(tune['history'])}; the "
+                     f" at {tune['integration']}, {tune_history_text(tune)}; the "
                      "factors are transfer's couplings and intercepts and the features' "
                      "filter_scale and compression_scale")
     return "\n".join(lines)
+
+
+def tune_history_text(tune: dict) -> str:
+    """A tune run (settings.json's `tune`) in a line: training loss per epoch, validation
+    loss per epoch from the start, and the epoch kept."""
+    history = tune["history"]
+    text = "training loss per epoch " + " -> ".join(
+        f"{h['train_loss']:.4f}" for h in history if "train_loss" in h)
+    val = [h["validation_loss"] for h in history if "validation_loss" in h]
+    if val:
+        text += ("; validation loss from the start " + " -> ".join(f"{v:.4f}" for v in val)
+                 + f"; kept epoch {tune['chosen_epoch']}")
+    return text
 
 
 def _accuracy(settings: dict, report: dict) -> str:

@@ -589,18 +589,6 @@ def chosen_epoch(history: list[dict]) -> int:
     return min(scored, key=lambda h: (h["validation_loss"], h["epoch"]))["epoch"]
 
 
-def history_text(history: list[dict]) -> str:
-    """The run in a line: training loss per epoch, validation loss per epoch (from the
-    start) and the epoch kept."""
-    text = "training loss per epoch " + " -> ".join(
-        f"{h['train_loss']:.4f}" for h in history if "train_loss" in h)
-    val = [h["validation_loss"] for h in history if "validation_loss" in h]
-    if val:
-        text += ("; validation loss from the start " + " -> ".join(f"{v:.4f}" for v in val)
-                 + f"; kept epoch {chosen_epoch(history)}")
-    return text
-
-
 def make_batch(opts: TuneOptions, start: Start, lay: Layout, z: np.ndarray, eps: float,
                tg: Targets, tstop: float) -> Batch:
     """The checked network at z and what the loss needs (scales, intercepts, T)."""

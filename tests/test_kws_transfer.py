@@ -93,7 +93,7 @@ def test_the_8x3_classifier_passes_the_checks():
 def test_readouts_equal_c_phi_and_score_like_the_digital_model():
     sig = words()
     phi = msp.phi_batch(sig, S)  # the data-set path (single precision), as evaluation runs it
-    amp = float(np.median(msp.simulate_peaks(sig, S)))
+    amp = msp.reference_run(sig, S).amplitude
     m = model(3)
     m.coef /= phi.std(axis=0)  # comparable terms, as a trained model on standardised Phi
     heads = tr.heads_for([(tuple(m.classes), m)], S, amp, 1e-6)

@@ -136,7 +136,7 @@ def realisation_features(clips: list, realisation: str, opts: CVOptions) -> np.n
     if realisation == "mass-spring":
         from springc.kws.massspring import integrated, physical_settings
 
-        settings, opts.integration = integrated(
+        settings, opts.integration, _ = integrated(
             physical_settings(opts.settings, opts.massspring), clips, opts.tolerance)
     else:
         settings.validate(16000)

@@ -86,20 +86,25 @@ Outputs = Callable[[np.ndarray, str, int, str], np.ndarray]
 
 def choose(checked: CheckedNetlist, signals: np.ndarray, outputs: Outputs, duration: float,
            tol: float = TOLERANCE, precision: str = "float32",
-           methods: tuple[str, ...] = METHODS) -> Integration:
+           methods: tuple[str, ...] = METHODS,
+           reference: Callable[[], np.ndarray] | None = None) -> Integration:
     """The cheapest integration of `checked` by one of `methods` in `precision` whose
     `outputs(signals, method, substeps, precision)` (clips, values; a row of NaN for a clip
     that diverges at that step) are within `tol` of the reference on every clip of `signals`
     that it integrates, and that leaves at most `LOUD_SHARE` of them to finer steps. The
-    error is relative to each clip's largest reference value."""
+    error is relative to each clip's largest reference value. `reference()`: the outputs at
+    `REFERENCE`, for a caller whose reference run records more (default: `outputs` at it);
+    it runs while the workers compile the candidates' kernels."""
     if not tol > 0:
         raise UsageError(f"tolerance must be positive, got {tol}")
     todo = candidates(checked, 1.0 / 16000.0, duration, tol, methods)
     _compile_ahead(outputs, signals, todo, precision)
     method, substeps, prec = REFERENCE
     _say(f"integration: reference {method} x{substeps} {prec} on {len(signals)} clip(s)")
-    reference, seconds = _timed(outputs, signals, method, substeps, prec)
-    known = {REFERENCE: (reference, seconds)}  # a candidate may be the reference itself
+    start = time.perf_counter()
+    reference = reference() if reference else outputs(signals, method, substeps, prec)
+    # a candidate may be the reference itself
+    known = {REFERENCE: (reference, time.perf_counter() - start)}
     for method, substeps in todo:
         config = (method, substeps, precision)
         try:

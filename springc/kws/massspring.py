@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
@@ -364,29 +365,68 @@ def checked_features(s: MassSpringSettings):
 INTEGRATION_CLIPS = 16  # clips (unaugmented, first in order) the choice is measured on
 
 
-def integrated(s: MassSpringSettings, clips: list,
-               tol: float | None) -> tuple[MassSpringSettings, integration.Integration]:
+@dataclass(frozen=True)
+class Reference:
+    """The tight reference run (`integration.REFERENCE`) on a sample of clips: what the
+    integration choice compares with (Phi) and what sizes the heads (the peaks)."""
+
+    signals: np.ndarray  # (clips, samples) at 16 kHz
+    phi: np.ndarray  # (clips, N)
+    peaks: np.ndarray  # (clips,): the largest |x| of any terminal node
+
+    @property
+    def amplitude(self) -> float:
+        """A: the median over the clips of the peak terminal displacement."""
+        return float(np.median(self.peaks))
+
+
+def reference_run(signals: np.ndarray, s: MassSpringSettings) -> Reference:
+    """Phi and the peaks of `signals` (clips, samples) at 16 kHz in one simulation: Phi as a
+    reduction, the terminal nodes recorded at 2 kHz (one kernel, compiled once, serves both)."""
+    from springc.sim.simulate import simulate
+
+    signals = np.atleast_2d(np.asarray(signals, dtype=np.float64))
+    labels = [f"x({node})" for node in terminals(s)]
+    method, substeps, precision = integration.REFERENCE
+    res = simulate(checked_features(s), signals[:, None, :], INPUT_RATE, probes=labels,
+                   reductions=[phi_reduction(feature_network(s), s)], outrate=2000.0,
+                   method=method, substeps=substeps, precision=precision, chunk=BATCH,
+                   tstop=horizon(s, signals.shape[1] / INPUT_RATE))
+    peaks = np.max([np.abs(res.probes[k]).max(axis=1) for k in labels], axis=0)
+    return Reference(signals, res.reductions["phi"], peaks)
+
+
+def integrated(s: MassSpringSettings, clips: list, tol: float | None
+               ) -> tuple[MassSpringSettings, integration.Integration, Reference]:
     """`s` with the integration `tol` chooses on the first INTEGRATION_CLIPS of `clips`
-    (None: the paper's RK4 x8), and that choice."""
+    (unaugmented; None: the paper's RK4 x8), that choice, and the reference run on them."""
+    sample = load_signals(clips[:INTEGRATION_CLIPS], False, 0, [])
     if tol is None:
-        chosen = integration.PAPER
-    else:
-        sample = load_signals(clips[:INTEGRATION_CLIPS], False, 0, [])
-        chosen = choose_integration(s, sample, tol)
-    return replace(s, method=chosen.method, substeps=chosen.substeps), chosen
+        return s, integration.PAPER, reference_run(sample, s)
+    runs = []  # the reference run, kept for its peaks
+
+    def reference() -> np.ndarray:
+        runs.append(reference_run(sample, s))
+        return runs[0].phi
+
+    chosen = choose_integration(s, sample, tol, reference)
+    return replace(s, method=chosen.method, substeps=chosen.substeps), chosen, runs[0]
 
 
 def choose_integration(s: MassSpringSettings, signals: np.ndarray,
-                       tol: float = integration.TOLERANCE) -> integration.Integration:
+                       tol: float = integration.TOLERANCE,
+                       reference: Callable[[], np.ndarray] | None = None
+                       ) -> integration.Integration:
     """The cheapest integration of the feature network with Phi within `tol` of the tight
-    reference on `signals` (a sample of clips, (clips, samples) at 16 kHz)."""
+    reference on `signals` (a sample of clips, (clips, samples) at 16 kHz); `reference` as in
+    `integration.choose`."""
     def outputs(sig, method, substeps, precision):  # one try: loud clips are NaN rows
         return phi_batch(sig, replace(s, method=method, substeps=substeps), slice(0, 1),
                          precision)
 
     duration = horizon(s, signals.shape[1] / INPUT_RATE)
     return integration.choose(checked_features(s), signals, outputs, duration, tol,
-                              DATASET_PRECISION, FEATURE_METHODS)
+                              DATASET_PRECISION, FEATURE_METHODS, reference)
 
 
 def simulate_traces(signals: np.ndarray, s: MassSpringSettings,
@@ -404,25 +444,6 @@ def simulate_traces(signals: np.ndarray, s: MassSpringSettings,
     return res.t, np.stack([res.probes[k] for k in labels], axis=1)
 
 
-def simulate_peaks(signals: np.ndarray, s: MassSpringSettings) -> np.ndarray:
-    """Per clip, the largest |x| of any terminal node (recorded at 2 kHz), integrated as the
-    reference of `springc.kws.integration` (a few clips: accuracy costs little here)."""
-    from springc.sim.simulate import simulate
-
-    signals = np.atleast_2d(np.asarray(signals, dtype=np.float64))
-    labels = [f"x({node})" for node in terminals(s)]
-    method, substeps, precision = integration.REFERENCE
-    res = simulate(checked_features(s), signals[:, None, :], INPUT_RATE, probes=labels,
-                   outrate=2000.0, method=method, substeps=substeps, precision=precision,
-                   chunk=BATCH, tstop=horizon(s, signals.shape[1] / INPUT_RATE))
-    return np.max([np.abs(res.probes[k]).max(axis=1) for k in labels], axis=0)
-
-
-# -- data sets: batches of clips through the network on Dask --------------------------------
-
-BATCH = 16  # clips simulated in lockstep by one worker (SIMD lanes; one progress tick)
-
-
 def from_features(fs, **overrides) -> MassSpringSettings:
     """Mass-spring settings matching digital `FeatureSettings` (bins, delays, td, tau, fc,
     filter range), with `overrides` for the physical parameters (threshold, kc, ...)."""
@@ -436,6 +457,11 @@ def physical_settings(fs, given=None) -> MassSpringSettings:
     s = given if given is not None else from_features(fs)
     s.validate()
     return s
+
+
+# -- data sets: batches of clips through the network on Dask --------------------------------
+
+BATCH = 16  # clips simulated in lockstep by one worker (SIMD lanes; one progress tick)
 
 
 def load_signals(clips: list, augment: bool, seed: int, noise_files: list) -> np.ndarray:

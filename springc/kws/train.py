@@ -242,11 +242,12 @@ class Phases:
 def _train(opts: TrainOptions, ds, phases: Phases) -> dict:
     from springc.kws.model import write_model
 
+    reference = None  # the mass-spring reference run on a sample: integration and heads
     if opts.realisation == "mass-spring":
         from springc.kws.massspring import integrated
 
-        opts.massspring, opts.integration = integrated(opts.massspring, ds.split("train"),
-                                                       opts.tolerance)
+        opts.massspring, opts.integration, reference = integrated(
+            opts.massspring, ds.split("train"), opts.tolerance)
         phases.done("integration of the features")
     feature_settings = opts.massspring if opts.realisation == "mass-spring" else opts.settings
     feats = split_features(ds, opts.realisation, [feature_settings], seed=opts.seed,
@@ -269,7 +270,7 @@ def _train(opts: TrainOptions, ds, phases: Phases) -> dict:
     if opts.realisation == "mass-spring":  # the classifier netlists beside the weights
         from springc.kws.transfer import write_classifier
 
-        extra = write_classifier(opts, ds, fits, settings)
+        extra = write_classifier(opts, fits, settings, reference)
         phases.done("classifier network")
     report["seconds"] = phases.seconds
     write_model(opts.out, settings, fits, report, extra=extra)

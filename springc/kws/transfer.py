@@ -210,30 +210,24 @@ def choose_classifier_integration(checked: CheckedNetlist, heads: list[Head],
                               methods=CLASSIFIER_METHODS)
 
 
-def feature_amplitude(signals: np.ndarray, s: msp.MassSpringSettings) -> float:
-    """A: the peak displacement of the terminal nodes, median over the clips `signals`
-    (clips, samples) at 16 kHz (a sample of training clips)."""
-    peaks = msp.simulate_peaks(signals, s)
-    return float(np.median(peaks))
-
-
 # -- the model folder --------------------------------------------------------------------------
 
 DEFAULT_EPSILON = 1e-5  # squaring error: readouts within ~0.2% of c . Phi (measured)
-AMPLITUDE_CLIPS = 16  # training clips (unaugmented, first in order) that measure A
 CLASSIFIER_METHODS = ("exp-rk4", "rk4")
 # of those, the clips the classifier's integration is measured on: a whole batch (a kernel
 # call costs the same for 4 clips as for 16, its lanes)
 CLASSIFIER_SAMPLE = 16
 
 
-def write_classifier(opts, ds, fits: list, settings: dict) -> dict[str, str]:
-    """Design the heads of trained `fits`, record the transfer in `settings` ("transfer") and
-    return the model folder's netlists: features.spr, head{k}.spr, classifier.spr."""
+def write_classifier(opts, fits: list, settings: dict,
+                     reference: msp.Reference) -> dict[str, str]:
+    """Design the heads of trained `fits` for the feature amplitude of `reference` (the
+    features' reference run on a sample of training clips), record the transfer in `settings`
+    ("transfer") and return the model folder's netlists: features.spr, head{k}.spr,
+    classifier.spr."""
     s = opts.massspring
     eps = opts.epsilon or DEFAULT_EPSILON
-    sample = msp.load_signals(ds.split("train")[:AMPLITUDE_CLIPS], False, 0, [])
-    amplitude = feature_amplitude(sample, s)
+    sample, amplitude = reference.signals, reference.amplitude
     heads = heads_for([(f[0], f[1]) for f in fits], s, amplitude, eps)
     settings["transfer"] = {"epsilon": eps, "amplitude": amplitude,
                             "heads": [h.name for h in heads],

@@ -108,3 +108,22 @@ def test_readouts_equal_c_phi_and_score_like_the_digital_model():
     y = np.array(["c0", "c1", "c2"])
     got = score(selection_models([(tuple(m.classes), m)]), d, y, "kws12")
     assert got["accuracy"] == score([(tuple(m.classes), m)], phi, y, "kws12")["accuracy"]
+
+
+def test_stand_in_heads_compile_the_kernel_of_trained_heads():
+    """`compile_ahead`'s premise: the classifier's kernel depends on the kinds of terms and the
+    reductions, not on the weights, amplitude or squaring error."""
+    from springc.sim.simulate import simulate
+
+    rng = np.random.default_rng(5)
+    fit = LinearModel(3 * rng.normal(size=(12, N)), rng.normal(size=12),
+                      np.array([f"w{k}" for k in range(12)]))
+    paths = []
+    for heads, eps in ((tr.heads_for([(tuple(fit.classes), fit)], S, 3e-6, 1e-4), 1e-4),
+                       (tr.stand_in_heads(S), tr.DEFAULT_EPSILON)):
+        net = check(load_text(tr.classifier_text(heads, S, epsilon=eps), "<classifier>"))
+        res = simulate(net, np.zeros((1, 1, 160)), 16000, probes=[], tstop=0.01,
+                       reductions=tr.readout_reductions(heads), chunk=msp.BATCH,
+                       method="rk4", substeps=2, precision="float64")
+        paths.append(res.info["kernel"])
+    assert paths[0] == paths[1]

@@ -433,13 +433,16 @@ def simulate_traces(signals: np.ndarray, s: MassSpringSettings,
                     rate: float = 1000.0) -> tuple[np.ndarray, np.ndarray]:
     """(t, x) with x (clips, bins, T): the compressed features c{i} (the compressor outputs,
     which feed the delay lines) at `rate`, for plots and the comparison with the digital
-    features."""
+    features. Integrated like `reference_run`, Phi included, so that it runs the reference's
+    kernel, which training has compiled."""
     from springc.sim.simulate import simulate
 
-    net = feature_network(s)
     signals = np.atleast_2d(np.asarray(signals, dtype=np.float64))
     labels = [f"x(c{i})" for i in range(s.bins)]
-    res = simulate(check(net), signals[:, None, :], INPUT_RATE, probes=labels, outrate=rate,
+    method, substeps, precision = integration.REFERENCE
+    res = simulate(checked_features(s), signals[:, None, :], INPUT_RATE, probes=labels,
+                   reductions=[phi_reduction(feature_network(s), s)], outrate=rate,
+                   method=method, substeps=substeps, precision=precision, chunk=BATCH,
                    tstop=horizon(s, signals.shape[1] / INPUT_RATE))
     return res.t, np.stack([res.probes[k] for k in labels], axis=1)
 

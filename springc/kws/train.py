@@ -245,7 +245,10 @@ def _train(opts: TrainOptions, ds, phases: Phases) -> dict:
     reference = None  # the mass-spring reference run on a sample: integration and heads
     if opts.realisation == "mass-spring":
         from springc.kws.massspring import integrated
+        from springc.kws.transfer import compile_ahead
 
+        if opts.tolerance is not None:  # the classifier's choice runs in double precision
+            compile_ahead(opts.massspring)
         opts.massspring, opts.integration, reference = integrated(
             opts.massspring, ds.split("train"), opts.tolerance)
         phases.done("integration of the features")

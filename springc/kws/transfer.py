@@ -39,7 +39,7 @@ from springc.design.mvm import design_mvm, mvm_text
 from springc.errors import UsageError
 from springc.kws import integration
 from springc.kws import massspring as msp
-from springc.kws.phi import spread
+from springc.kws.phi import n_features, spread
 from springc.check import CheckedNetlist, check
 
 TAU_READOUT = 80.0  # s (paper)
@@ -208,6 +208,41 @@ def choose_classifier_integration(checked: CheckedNetlist, heads: list[Head],
 
     return integration.choose(checked, signals, outputs, tstop, precision="float64",
                               methods=CLASSIFIER_METHODS)
+
+
+def compile_ahead(s: msp.MassSpringSettings) -> None:
+    """Start compiling the whole classifier's double-precision kernels (the reference's and
+    every candidate method's) on an idle Dask worker, while the features' integration is
+    being chosen: otherwise they compile only after the SVM fit, one after the other. A
+    kernel depends on the kinds of force terms and on what is reduced, never on the weights,
+    so stand-in heads compile the kernels the trained classifier will run (a test checks)."""
+    from springc.kws.distributed import ahead
+
+    ahead(compile_classifier, s)
+
+
+def stand_in_heads(s: msp.MassSpringSettings, rows: int = 12) -> list[Head]:
+    """Heads of random weights, built like trained ones (the 12 classes of kws12)."""
+    from springc.kws.svm import LinearModel
+
+    rng = np.random.default_rng(0)
+    n = n_features(s.bins, s.delays)
+    model = LinearModel(rng.normal(size=(rows, n)), rng.normal(size=rows),
+                        np.array([f"c{k}" for k in range(rows)]))
+    return heads_for([(tuple(model.classes), model)], s, 1e-5, DEFAULT_EPSILON)
+
+
+def compile_classifier(s: msp.MassSpringSettings) -> None:
+    """Compile (or load) the classifier kernels of `compile_ahead` in this process: the
+    stand-in classifier run on 10 ms of silence by each method in double precision."""
+    from springc.lang import load_text
+
+    heads = stand_in_heads(s)
+    checked = check(load_text(classifier_text(heads, s, epsilon=DEFAULT_EPSILON),
+                              "<classifier>"))
+    for method in dict.fromkeys((integration.REFERENCE[0],) + CLASSIFIER_METHODS):
+        classifier_batch(np.zeros((1, 160)), checked, readout_reductions(heads), 0.01,
+                         integration.Integration(method, 2, "float64"), slice(0, 1))
 
 
 # -- the model folder --------------------------------------------------------------------------

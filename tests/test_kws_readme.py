@@ -82,3 +82,21 @@ def test_settings_without_an_option_are_named(env, tmp_path):
     assert "Settings `springc train` has no option for" in text and "fmin = 100.0" in text
     settings = json.loads((out / "settings.json").read_text())
     assert train_arguments(settings)[1] == {"fmin": 100.0}
+
+
+def test_a_model_without_test_results_says_so(env, tmp_path):
+    """A report without test results (`tune` with evaluate off) writes a folder whose README
+    says it is not evaluated, and no confusion files that would have nothing to show."""
+    from springc.kws.model import load_model, write_model
+
+    _, _, model = env
+    m = load_model(model)
+    settings = json.loads((model / "settings.json").read_text())
+    fits = [(classes, fit, settings["C"]) for classes, fit in m.models]
+    out = tmp_path / "unevaluated"
+    write_model(out, settings, fits, {"note": "no test split"})
+    text = (out / "README.md").read_text()
+    assert "not evaluated on the test split" in text
+    assert "Not evaluated on the test split" in section(text, "Accuracy on the test split")
+    assert sorted(p.name for p in out.iterdir()) == ["README.md", "report.json",
+                                                    "settings.json", "weights.npz"]

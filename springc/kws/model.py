@@ -78,7 +78,7 @@ def write_model(folder: Path, settings: dict, fits: list, report: dict,
     try:
         (tmp / "settings.json").write_text(json.dumps(settings, indent=2) + "\n")
         np.savez(tmp / "weights.npz", **_weights(settings, fits))
-        write_report(tmp, report, title=_title(settings, report))
+        write_report(tmp, report, title=_title(settings, report) if evaluated(report) else "")
         for name, text in (extra or {}).items():
             (tmp / name).write_text(text)
         files = [p.name for p in tmp.iterdir()] + ["README.md"]
@@ -97,6 +97,11 @@ def _chosen_c(fits: list):
     return {"-".join(f[0]): f[2] for f in fits}
 
 
+def evaluated(report: dict) -> bool:
+    """Whether `report` holds test results (`springc tune` may skip the test split)."""
+    return "confusion" in report
+
+
 def _title(settings: dict, report: dict) -> str:
     f = settings["features"]
     size = f"{f['bins']}x{f['delays']} {f['filterbank']}" if "bins" in f else "log-Mel"
@@ -104,8 +109,11 @@ def _title(settings: dict, report: dict) -> str:
 
 
 def write_report(folder: Path, report: dict, title: str) -> None:
-    """report.json, confusion.csv, confusion.png and per_class.csv into `folder`."""
+    """report.json, and for an evaluated report confusion.csv, confusion.png and
+    per_class.csv, into `folder`."""
     (folder / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    if not evaluated(report):
+        return
     classes, conf = report["classes"], np.array(report["confusion"])
     rep.write_confusion_csv(folder / "confusion.csv", conf, classes)
     rep.write_per_class_csv(folder / "per_class.csv", conf, classes)

@@ -46,11 +46,16 @@ def _size(settings: dict) -> str:
 
 
 def _header(settings: dict, report: dict) -> str:
-    return (f"# Keyword spotter: {settings['realisation']}, {_size(settings)}\n\n"
+    head = (f"# Keyword spotter: {settings['realisation']}, {_size(settings)}\n\n"
             f"{'Tuned' if settings.get('tune') else 'Trained'} by springc "
-            f"{settings.get('springc_version', '?')}; "
-            f"test accuracy {100 * report['accuracy']:.2f}% on {report['n']} clips "
-            f"(always the most frequent class: {100 * report['majority_rate']:.2f}%).")
+            f"{settings.get('springc_version', '?')}; ")
+    if "accuracy" not in report:
+        return head + NOT_EVALUATED
+    return head + (f"test accuracy {100 * report['accuracy']:.2f}% on {report['n']} clips "
+                   f"(always the most frequent class: {100 * report['majority_rate']:.2f}%).")
+
+
+NOT_EVALUATED = "not evaluated on the test split (`springc eval` on this folder evaluates it)."
 
 
 def _data(settings: dict, report: dict) -> str:
@@ -106,9 +111,11 @@ def tune_history_text(tune: dict) -> str:
 
 
 def _accuracy(settings: dict, report: dict) -> str:
+    lines = ["## Accuracy on the test split", ""]
+    if "confusion" not in report:
+        return "\n".join(lines + [NOT_EVALUATED[0].upper() + NOT_EVALUATED[1:]])
     classes, conf = report["classes"], np.array(report["confusion"])
     tpr = true_positive_rates(conf)
-    lines = ["## Accuracy on the test split", ""]
     if settings.get("tune"):
         lines += ["The whole tuned classifier network simulated, sound to decision, as "
                   "`springc eval` does.", ""]

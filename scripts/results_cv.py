@@ -31,7 +31,10 @@ HISTORY = ("Before: with the paper's compression through the squarer's cubic sti
            "+5.8 +- 1.4 and +6.2 +- 2.3 points at 4x2, 6x3 and 8x3 (mass-spring 42.2, 59.8 "
            "and 62.9%); compressing the low-passed envelope instead (`compressor.spr`, "
            "`springc/kws/massspring.py`) moved the mass-spring features to the digital ones "
-           "or above.")
+           "or above. On the corpus synthesised before the synthesis channel change (867444d), "
+           "with liblinear's SVM and the features at RK4 x8 (git 77b6450, 13.3 min), the gaps "
+           "were -2.1 +- 0.8, -1.0 +- 1.3 and -2.2 +- 1.4 points (digital 48.2, 65.6 and "
+           "69.1%, mass-spring 50.2, 66.6 and 71.2%).")
 
 
 def run(data: Path, sizes, folds: int, jobs: int) -> list[dict]:

@@ -92,11 +92,11 @@ def write(args: argparse.Namespace, size: str, base: tuple, runs: list, load: tu
         f"`{args.data}`, {size}, 12-class task, one held-out split (the corpus's test split, "
         "balanced protocol): not cross-validated. Tuned on "
         f"{args.clips} training clips (up to {args.val_clips} validation clips, as many as the "
-        f"split holds, choose the epoch kept), {args.epochs} epochs of batches of {args.batch}, Adam "
-        f"step {args.lr}, gradients at RK4 x8 float64 (the paper's integration; the "
-        "exponential integrator the model's eval uses has no adjoint); every model is "
-        "evaluated as `springc eval` does (the whole network, the model's own integration). "
-        "Groups tuned: filter, compression, couplings, readout (intercepts).",
+        f"split holds, choose the epoch kept), {args.epochs} epochs of batches of "
+        f"{args.batch}, Adam step {args.lr}, gradients at RK4 x8 float64 (the paper's "
+        "integration; the exponential integrator the model's eval uses has no adjoint); "
+        "every model is evaluated as `springc eval` does (the whole network, the model's "
+        "own integration). Groups tuned: filter, compression, couplings, readout (intercepts).",
         "",
         "| model | test accuracy % | insertion loss median dB | mean dB | test clips | "
         "wall s |",

@@ -396,13 +396,18 @@ def reference_run(signals: np.ndarray, s: MassSpringSettings) -> Reference:
     return Reference(signals, res.reductions["phi"], peaks)
 
 
+def sample_signals(clips: list) -> np.ndarray:
+    """The first INTEGRATION_CLIPS of `clips`, unaugmented: the sample of the reference run."""
+    return load_signals(clips[:INTEGRATION_CLIPS], False, 0, [])
+
+
 def integrated(s: MassSpringSettings, clips: list, tol: float | None
-               ) -> tuple[MassSpringSettings, integration.Integration, Reference]:
-    """`s` with the integration `tol` chooses on the first INTEGRATION_CLIPS of `clips`
-    (unaugmented; None: the paper's RK4 x8), that choice, and the reference run on them."""
-    sample = load_signals(clips[:INTEGRATION_CLIPS], False, 0, [])
+               ) -> tuple[MassSpringSettings, integration.Integration, Reference | None]:
+    """`s` with the integration `tol` chooses on `sample_signals(clips)`, that choice, and the
+    reference run on them (None: the paper's RK4 x8, and no reference run)."""
     if tol is None:
-        return s, integration.PAPER, reference_run(sample, s)
+        return s, integration.PAPER, None
+    sample = sample_signals(clips)
     runs = []  # the reference run, kept for its peaks
 
     def reference() -> np.ndarray:

@@ -244,13 +244,15 @@ def _train(opts: TrainOptions, ds, phases: Phases) -> dict:
 
     reference = None  # the mass-spring reference run on a sample: integration and heads
     if opts.realisation == "mass-spring":
-        from springc.kws.massspring import integrated
+        from springc.kws.massspring import integrated, reference_run, sample_signals
         from springc.kws.transfer import compile_ahead
 
         if opts.tolerance is not None:  # the classifier's choice runs in double precision
             compile_ahead(opts.massspring)
         opts.massspring, opts.integration, reference = integrated(
             opts.massspring, ds.split("train"), opts.tolerance)
+        if reference is None:  # the paper's steps: the heads' amplitude still needs it
+            reference = reference_run(sample_signals(ds.split("train")), opts.massspring)
         phases.done("integration of the features")
     feature_settings = opts.massspring if opts.realisation == "mass-spring" else opts.settings
     feats = split_features(ds, opts.realisation, [feature_settings], seed=opts.seed,

@@ -16,7 +16,7 @@ import numpy as np
 from springc.check import check
 from springc.check.checks import CheckedNetlist, require_checked
 from springc.errors import UsageError
-from springc.grad import lanes, model, seeds
+from springc.grad import lanes, model, seeds, written
 from springc.grad.params import ParamNetlist
 from springc.kernels import expint
 from springc.kernels.integrators import get_tableau
@@ -142,9 +142,18 @@ class _Job:
         self.rows = seeds.plan(items, net, st.h, st.nsteps)
         self.ds, self.ms, self.gp, self.gdecay = self.rows.arrays()
         # as wide as the runs allow while every core gets a chunk
-        self.lanes = lanes.choose(-(-runs // sim.threads()))
-        self.kernels = lanes.module(self.lanes)
-        per_step = s * (3 * net.n + max(self.nch, 1)) * self.lanes * 8
+        per_thread = -(-runs // sim.threads())
+        self.written = written.eligible(net) and per_thread < written.RUNS_BELOW
+        if self.written:
+            self.lanes = 1
+            self.shape = written.structure(self.md, self.ds, tab, self.lanes)
+            self.kernels = lanes.load_source(written.source(self.shape), "springc_grad_written")
+            self.cf = written.coefficients(self.md, self.ds)
+            per_step = 2 * net.n * self.lanes * 8
+        else:
+            self.lanes = lanes.choose(per_thread)
+            self.kernels = lanes.module(self.lanes)
+            per_step = s * (3 * net.n + max(self.nch, 1)) * self.lanes * 8
         whole = st.nsteps * per_step <= MEMORY
         self.every = int(every or (st.nsteps if whole else max(1, math.isqrt(st.nsteps))))
 
@@ -177,6 +186,8 @@ class _Job:
     def forward(self, take: np.ndarray) -> tuple[seeds.Acc, tuple]:
         """The forward sweep of one chunk (lanes = runs `take`): accumulators (run first),
         and the checkpoints and stage buffers its reverse sweep reads."""
+        if self.written:
+            return self.forward_written(take)
         n, nl, st, S = self.net.n, self.lanes, self.st, len(self.tc)
         x0, v0 = self.net.initial_state()
         x, v = np.repeat(x0[:, None], nl, 1), np.repeat(v0[:, None], nl, 1)
@@ -197,6 +208,8 @@ class _Job:
     def reverse(self, take: np.ndarray, acc: seeds.Acc, sd: seeds.Seeds, buffers: tuple
                 ) -> dict:
         """The adjoint sweep of one chunk; the gradient per element coefficient (lane, ...)."""
+        if self.written:
+            return self.reverse_written(acc, sd, buffers)
         st, nl = self.st, self.lanes
         u, cps, X, V, KV, UC = buffers
         gr = np.zeros((int(self.md.off[-1]), nl))
@@ -207,8 +220,49 @@ class _Job:
                    st.nsteps, st.substeps, u, self.gtab, self.every, cps, X, V, KV, UC,
                    lane(acc.xf), lane(acc.vf), self.ds, self.ms, self.gp, self.gdecay,
                    lane(sd.ww), lane(sd.dw), lane(sd.msw), lane(sd.gw), xb, vb, gr, dgr)
-        gr = gr.T
-        gr[:, self.md.off[model.X0]:self.md.off[model.X0 + 1]] += sd.x0
+        return self.coefficients(gr.T, dgr, sd.x0)
+
+    def forward_written(self, take: np.ndarray) -> tuple[seeds.Acc, tuple]:
+        """`forward` with the written-out kernels (`springc.grad.written`)."""
+        n, nl, st = self.net.n, self.lanes, self.st
+        nf = len(self.md.fi_node) + len(self.md.fc_node)
+        x0, v0 = self.net.initial_state()
+        W = np.zeros((written.forward_blocks(self.shape)["US"][1], nl))
+        W[:n], W[n:2 * n] = x0[:, None], v0[:, None]
+        u = np.ascontiguousarray(self.u[take].transpose(1, 2, 0))
+        msq, gram = np.zeros((len(self.ms), nl)), np.zeros((len(self.gdecay), nl))
+        cps = np.zeros(((st.nsteps - 1) // self.every + 1, 2 * n, nl))
+        SS = np.zeros((self.every + 1, 2 * n, nl))
+        lanes.call(self.kernels, "forward", self.cf, st.h, st.nsteps, st.substeps, W.reshape(-1), u,
+                   self.gtab, self.every, cps, SS, self.ms, msq, self.gp, self.gdecay, gram)
+        end = 2 * n + nf + len(self.ds)
+        acc = seeds.Acc(W[2 * n:2 * n + nf].T.copy(), W[2 * n + nf:end].T.copy(), msq.T.copy(),
+                        gram.T.copy(), np.tile(x0, (nl, 1)), W[:n].T.copy(),
+                        W[n:2 * n].T.copy())
+        return acc, (u, cps, SS)
+
+    def reverse_written(self, acc: seeds.Acc, sd: seeds.Seeds, buffers: tuple) -> dict:
+        """`reverse` with the written-out kernels."""
+        n, st, off = self.net.n, self.st, self.md.off
+        u, cps, SS = buffers
+        lane = lambda a: np.ascontiguousarray(a.T)  # noqa: E731  (run, row) -> (row, lane)
+        wrow, drow, _ = written.adjoint_rows(self.shape)
+        A = np.zeros((written.reverse_blocks(self.shape)["US"][1], self.lanes))
+        A[:n], A[n:2 * n] = lane(sd.fx), lane(sd.fv)
+        A[wrow:drow], A[drow:drow + len(self.ds)] = lane(sd.ww), lane(sd.dw)
+        lanes.call(self.kernels, "reverse", self.cf, st.h, st.nsteps, st.substeps, u,
+                   self.gtab, self.every, cps, SS, A.reshape(-1), self.ms, lane(sd.msw), self.gp,
+                   lane(sd.gw), self.gdecay, np.ones(len(self.gp)))
+        gr = A[2 * n:2 * n + int(off[-1])]
+        gr[off[model.X0]:off[model.X0 + 1]] += A[:n]
+        gr[off[model.V0]:off[model.V0 + 1]] += A[n:2 * n]
+        return self.coefficients(gr.T, A[2 * n + int(off[-1]):wrow], sd.x0)
+
+    def coefficients(self, gr: np.ndarray, dgr: np.ndarray, x0: np.ndarray) -> dict:
+        """The kernels' gradient rows (lane, row), damper rows (row, lane) and the initial
+        positions' direct seeds (lane, node) per element coefficient (lane, element)."""
+        gr = np.array(gr)
+        gr[:, self.md.off[model.X0]:self.md.off[model.X0 + 1]] += x0
         coefs = model.to_elements(self.net, self.md, gr)
         for row, (letter, e) in enumerate(self.rows.ds_elem):
             key = ("masses", "b") if letter == "M" else ("dashpots", "b")

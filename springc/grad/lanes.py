@@ -29,6 +29,7 @@ from springc.kernels.loader import cache_dir, compile_lock, slp_vectorize
 CHOICES = (8, 4, 2, 1)  # lane counts compiled (each is a compile of its own)
 _LOADED: dict[int, ModuleType] = {}
 _LOCK = threading.Lock()
+_LOCK_SOURCE = threading.Lock()
 
 
 def choose(runs_per_thread: int) -> int:
@@ -45,9 +46,21 @@ def module(lanes: int) -> ModuleType:
 
 
 def _load(lanes: int) -> ModuleType:
-    text = source(lanes)
+    return load_source(source(lanes), "springc_grad_adjoint")
+
+
+def load_source(text: str, prefix: str) -> ModuleType:
+    """Write a generated module's `text` to the kernel cache folder (named by `prefix` and
+    its hash; a real file, so numba caches machine code beside it) and import it."""
     digest = hashlib.sha256(text.encode()).hexdigest()[:20]
-    name = f"springc_grad_adjoint_{digest}"
+    name = f"{prefix}_{digest}"
+    with _LOCK_SOURCE:
+        if name not in sys.modules:
+            sys.modules[name] = _import(text, name)
+        return sys.modules[name]
+
+
+def _import(text: str, name: str) -> ModuleType:
     path = cache_dir() / f"{name}.py"
     if not path.exists():  # whole or absent: written beside, then renamed into place
         fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")

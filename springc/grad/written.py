@@ -1,0 +1,576 @@
+"""The discrete adjoint written out per network: each step's stages and their transposes as
+scalar statements.
+
+`springc.grad.adjoint` loops over each term kind's element arrays at every stage; here the
+network's structure (which nodes each element joins, the tableau, the damper rows of the
+reductions) is written into the code, as the simulator's register kernels write it
+(`springc.kernels.regkernel`), and the coefficients are runtime arguments (`coefficients`),
+so a kernel serves every parameter value of one netlist structure. A step's state, stage
+values and adjoints are local scalars; the gradient terms are summed over a step's stages
+in scalars and added to memory once per step. The text loops over `LANES` runs around each
+step, but LLVM leaves that loop scalar (measured at 4 and 32 lanes), so the gradient uses
+these kernels for chunks of one run (`RUNS_BELOW`) and `springc.grad.adjoint`'s
+SLP-vectorised lanes for larger batches.
+
+`forward` integrates a chunk, accumulating work and dissipation per step and the mean
+squares and Gram sums of each step's state, and keeps the state every `every` steps (and
+every step of the last segment). `reverse` recomputes each earlier segment's step states
+from its checkpoint, then per step, backwards: the state seeds of the reductions, then the
+step's stages recomputed from its start state and propagated back. All the rows the step
+code touches live in one flat workspace `W` (`forward_blocks`, `reverse_blocks`). Used
+for networks `eligible` says (no monomial terms, at most `NODES_MAX` masses); the text goes
+to the kernel cache like the simulator's kernels.
+"""
+
+from __future__ import annotations
+
+import functools
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from springc.grad.model import Model
+from springc.kernels.integrators import Tableau
+from springc.lang.ir import FlatNetlist
+
+NODES_MAX = 48  # as the written-out simulator kernels (`springc.kernels.terms.NODES_MAX`)
+ELEMENTS_MAX = 400  # numba's compile time grows with the text
+# Used for chunks of one run where each thread has fewer runs than this: LLVM does not
+# vectorise the lane loop of these kernels (measured: scalar code at 4 and 32 lanes), so a
+# batch of many runs is faster in `springc.grad.adjoint`'s lanes, which the SLP vectoriser
+# packs (docs/gradients.md).
+RUNS_BELOW = 4
+
+
+def eligible(net: FlatNetlist) -> bool:
+    """Whether the written-out adjoint serves `net`: no monomials, small enough to write out."""
+    elements = (len(net.springs) + len(net.duffings) + len(net.couplings) + len(net.quads)
+                + len(net.dashpots) + len(net.forces))
+    return len(net.monomials) == 0 and net.n <= NODES_MAX and elements <= ELEMENTS_MAX
+
+
+@dataclass(frozen=True)
+class Structure:
+    """What the generated text depends on: node indices of every element (`(i, j)` with
+    j < 0 for the ground), input channels, damper rows of the reductions, the tableau and
+    the lane count."""
+
+    n: int
+    springs: tuple[int, ...]
+    duffings: tuple[int, ...]
+    couplings: tuple[tuple[int, int], ...]
+    quads: tuple[tuple[int, int], ...]
+    dashpots: tuple[tuple[int, int], ...]
+    inputs: tuple[tuple[int, int], ...]  # (node, channel)
+    commons: tuple[int, ...]
+    dampers: tuple[tuple[int, int], ...]  # the reductions' damper rows (i, j)
+    a: tuple[tuple[float, ...], ...]
+    b: tuple[float, ...]
+    c: tuple[float, ...]
+    lanes: int
+
+
+def structure(md: Model, ds: np.ndarray, tab: Tableau, lanes: int) -> Structure:
+    """The structure of the kernel model `md` with damper rows `ds` (i, j, b)."""
+    t = lambda a: tuple(int(v) for v in a)  # noqa: E731
+    pairs = lambda i, j: tuple(zip(t(i), t(j)))  # noqa: E731
+    a = tuple(tuple(float(tab.a[s][j]) if j < len(tab.a[s]) else 0.0 for j in range(s))
+              for s in range(tab.stages))
+    return Structure(
+        len(md.minv), t(md.k_node), t(md.d_node), pairs(md.c_i, md.c_j), pairs(md.q_i, md.q_j),
+        pairs(md.b_i, md.b_j), pairs(md.fi_node, md.fi_chan), t(md.fc_node),
+        tuple((int(r[0]), int(r[1])) for r in ds), a, tuple(float(v) for v in tab.b),
+        tuple(float(v) for v in tab.c), lanes)
+
+
+def coefficients(md: Model, ds: np.ndarray) -> np.ndarray:
+    """The kernels' coefficient vector: inverse masses, local damping, then each kind's
+    coefficients in `_COEFS` order, then the damper rows' coefficients."""
+    parts = [md.minv, md.bn, md.k_k, md.d_l, md.c_k, md.c_a, md.q_g, md.q_a, md.b_b,
+             md.fi_gain, md.fc_gain, ds[:, 2] if len(ds) else np.zeros(0)]
+    return np.ascontiguousarray(np.concatenate(parts), np.float64)
+
+
+class _Code:
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+        self.depth = 0
+
+    def __call__(self, text: str) -> None:
+        self.lines.append("    " * self.depth + text)
+
+    def block(self, head: str) -> _Code:
+        self(head)
+        self.depth += 1
+        return self
+
+    def end(self, levels: int = 1) -> None:
+        self.depth -= levels
+
+
+def _sum(terms: list[str]) -> str:
+    """Terms ('+ a', '- b') as one expression; '0.0' for none."""
+    return " ".join(terms).removeprefix("+ ").replace("- ", "-", 1) if terms else "0.0"
+
+
+@functools.lru_cache(maxsize=32)
+def source(st: Structure) -> str:
+    """The generated module's text for structure `st`."""
+    c = _Code()
+    c("# springc.grad.written: the adjoint written out for one network structure; generated")
+    c("import numpy as np")
+    c("from numba import njit")
+    c("")
+    c(f"LANES = {st.lanes}")
+    c('JIT = dict(cache=True, nogil=True, error_model="numpy", fastmath={"contract"})')
+    _emit_helpers(c)
+    _emit_forward(c, st)
+    _emit_reverse(c, st)
+    return "\n".join(c.lines) + "\n"
+
+
+def _layout(st: Structure) -> dict[str, int]:
+    """Offsets of each block in the coefficient vector and in the gradient rows (which
+    follow `springc.grad.model.BLOCKS`: m, b, x0, v0 per node, then per element)."""
+    n = st.n
+    sizes = [("minv", n), ("bn", n), ("ks", len(st.springs)), ("l", len(st.duffings)),
+             ("ck", len(st.couplings)), ("ca", len(st.couplings)), ("qg", len(st.quads)),
+             ("qa", len(st.quads)), ("bb", len(st.dashpots)), ("fi", len(st.inputs)),
+             ("fc", len(st.commons)), ("dc", len(st.dampers))]
+    out, at = {}, 0
+    for name, size in sizes:
+        out[name] = at
+        at += size
+    grads = [("gm", n), ("gb", n), ("gx0", n), ("gv0", n), ("gk", len(st.springs)),
+             ("gl", len(st.duffings)), ("gck", len(st.couplings)), ("gca", len(st.couplings)),
+             ("gqg", len(st.quads)), ("gqa", len(st.quads)), ("gbb", len(st.dashpots)),
+             ("gpc", 0), ("gfi", len(st.inputs)), ("gfc", len(st.commons))]
+    at = 2 * n  # the adjoint rows: xb, vb, then the gradient, then the damper rows'
+    for name, size in grads:
+        out[name] = at
+        at += size
+    out["gdc"] = at
+    return out
+
+
+def _emit_loads(c: _Code, st: Structure) -> None:
+    """Every coefficient into a named scalar, and the per-element constants."""
+    lay = _layout(st)
+    for name, count in (("minv", st.n), ("bn", st.n), ("ks", len(st.springs)),
+                        ("l", len(st.duffings)), ("ck", len(st.couplings)),
+                        ("ca", len(st.couplings)), ("qg", len(st.quads)), ("qa", len(st.quads)),
+                        ("bb", len(st.dashpots)), ("fi", len(st.inputs)),
+                        ("fc", len(st.commons)), ("dc", len(st.dampers))):
+        for e in range(count):
+            c(f"{name}{e} = cf[{lay[name] + e}]")
+    for e in range(len(st.couplings)):  # divisions out of the loops
+        c(f"cka{e} = ck{e} / ca{e}")
+        c(f"cia{e} = 1.0 / ca{e}")
+        c(f"ckaa{e} = ck{e} / (ca{e} * ca{e})")
+    for e in range(len(st.quads)):
+        c(f"qga{e} = 2.0 * qg{e} / qa{e}")
+        c(f"qia{e} = 2.0 / qa{e}")
+        c(f"qgaa{e} = 2.0 * qg{e} / (qa{e} * qa{e})")
+    for s in range(len(st.b)):
+        c(f"w{s} = h * {st.b[s]!r}")
+        for j, a in enumerate(st.a[s]):
+            if a != 0.0:
+                c(f"ha{s}_{j} = h * {a!r}")
+        for e in range(len(st.inputs)):
+            c(f"wfi{s}_{e} = w{s} * fi{e}")
+        for d in range(len(st.dampers)):
+            c(f"wdc{s}_{d} = w{s} * dc{d}")
+
+
+def _x(s: int, i: int) -> str:
+    return f"x{i}" if s == 0 else f"X{s}_{i}"
+
+
+def _v(s: int, i: int) -> str:
+    return f"v{i}" if s == 0 else f"V{s}_{i}"
+
+
+def _channels(st: Structure) -> list[int]:
+    return sorted({ch for _, ch in st.inputs})
+
+
+def _emit_step_inputs(c: _Code, st: Structure) -> None:
+    """Per step, outside the lane loop: every stage's inputs into the local rows US (stage,
+    channel, lane; linear between samples as `adjoint._interp`), and the shared sources'
+    values and work weights into scalars."""
+    channels = _channels(st)
+    if channels:
+        c("k0 = step // substeps")
+    for s, cs in enumerate(st.c):
+        if channels:
+            c(f"p = (step - k0 * substeps + {cs!r}) / substeps")
+            c("ip = int(p)")
+            c("fr = p - ip")
+            c("ip += k0")
+            for q, ch in enumerate(channels):
+                c("for b in range(LANES):")
+                c(f"    US[{s * len(channels) + q}, b] = (1.0 - fr) * u[{ch}, ip, b] "
+                  f"+ fr * u[{ch}, ip + 1, b]")
+        for e in range(len(st.commons)):
+            c(f"gv{s}_{e} = gtab[step, {s}, {e}]")
+            c(f"wg{s}_{e} = w{s} * fc{e} * gv{s}_{e}")
+
+
+def _emit_stages(c: _Code, st: Structure) -> None:
+    """Every stage's state, inputs, element temporaries, forces F and accelerations K, in
+    scalars, from the step's start state x{i}, v{i} (`adjoint._stages`)."""
+    channels = sorted({ch for _, ch in st.inputs})
+    for s in range(len(st.b)):
+        if s:
+            for i in range(st.n):
+                xs = [f"+ ha{s}_{j} * {_v(j, i)}" for j, a in enumerate(st.a[s]) if a != 0.0]
+                ks = [f"+ ha{s}_{j} * K{j}_{i}" for j, a in enumerate(st.a[s]) if a != 0.0]
+                c(f"X{s}_{i} = x{i} {' '.join(xs)}")
+                c(f"V{s}_{i} = v{i} {' '.join(ks)}")
+        for q, ch in enumerate(channels):
+            c(f"uc{s}_{ch} = US[{s * len(channels) + q}, b]")
+        forces: list[list[str]] = [[f"- bn{i} * {_v(s, i)}"] for i in range(st.n)]
+        for e, i in enumerate(st.springs):
+            forces[i].append(f"- ks{e} * {_x(s, i)}")
+        for e, i in enumerate(st.duffings):
+            xi = _x(s, i)
+            forces[i].append(f"- l{e} * ({xi} * {xi} * {xi})")
+        for e, (i, j) in enumerate(st.couplings):
+            c(f"r{s}_{e} = {_x(s, i)} - ca{e} * {_x(s, j)}")
+            forces[i].append(f"- cka{e} * r{s}_{e}")
+            forces[j].append(f"+ ck{e} * r{s}_{e}")
+        for e, (i, j) in enumerate(st.quads):
+            xi = _x(s, i)
+            c(f"q{s}_{e} = {xi} * {xi} - qa{e} * {_x(s, j)}")
+            forces[i].append(f"- qga{e} * {xi} * q{s}_{e}")
+            forces[j].append(f"+ qg{e} * q{s}_{e}")
+        for e, (i, j) in enumerate(st.dashpots):
+            other = f" - {_v(s, j)}" if j >= 0 else ""
+            c(f"dv{s}_{e} = {_v(s, i)}{other}")
+            forces[i].append(f"- bb{e} * dv{s}_{e}")
+            if j >= 0:
+                forces[j].append(f"+ bb{e} * dv{s}_{e}")
+        for e, (i, ch) in enumerate(st.inputs):
+            forces[i].append(f"+ fi{e} * uc{s}_{ch}")
+        for e, i in enumerate(st.commons):
+            forces[i].append(f"+ fc{e} * gv{s}_{e}")
+        for i in range(st.n):
+            c(f"K{s}_{i} = ({_sum(forces[i])}) * minv{i}")
+
+
+def _damper_dv(st: Structure, s: int, d: int) -> str:
+    i, j = st.dampers[d]
+    return f"({_v(s, i)} - {_v(s, j)})" if j >= 0 else _v(s, i)
+
+
+def _emit_helpers(c: _Code) -> None:
+    """The reductions of each step's state, outside the lane loop (`adjoint._state_sums`,
+    `adjoint._state_seeds`), over rows of the state array (x: rows 0..n-1, v: n..2n-1)."""
+    c("")
+    c("")
+    c('@njit(**JIT, inline="always")')
+    c("def state_sums(k, n, S, ms, msq, gp, gdecay, gram):")
+    c("    for r in range(ms.shape[0]):")
+    c("        if ms[r, 2] <= k <= ms[r, 3]:")
+    c("            row = ms[r, 0] + (n if ms[r, 1] else 0)")
+    c("            for b in range(LANES):")
+    c("                msq[r, b] += S[row, b] * S[row, b]")
+    c("    if k > 0:")
+    c("        for g in range(gram.shape[0]):")
+    c("            for b in range(LANES):")
+    c("                gram[g, b] *= gdecay[g]")
+    c("    for p in range(gp.shape[0]):")
+    c("        i, j, g, w = int(gp[p, 0]), int(gp[p, 1]), int(gp[p, 2]), gp[p, 3]")
+    c("        for b in range(LANES):")
+    c("            gram[g, b] += w * S[i, b] * S[j, b]")
+    c("")
+    c("")
+    c('@njit(**JIT, inline="always")')
+    c("def state_seeds(k, n, S, A, ms, msw, gp, gw, fac, gdecay):")
+    c("    for r in range(ms.shape[0]):")
+    c("        if ms[r, 2] <= k <= ms[r, 3]:")
+    c("            row = ms[r, 0] + (n if ms[r, 1] else 0)")
+    c("            for b in range(LANES):")
+    c("                A[row, b] += 2.0 * msw[r, b] * S[row, b]")
+    c("    for p in range(gp.shape[0]):")
+    c("        i, j = int(gp[p, 0]), int(gp[p, 1])")
+    c("        for b in range(LANES):")
+    c("            w = gw[p, b] * gp[p, 3] * fac[p]")
+    c("            A[i, b] += w * S[j, b]")
+    c("            A[j, b] += w * S[i, b]")
+    c("        fac[p] *= gdecay[int(gp[p, 2])]")
+
+
+def _place(lines: list[str], blocks: dict[str, tuple[int, int]]) -> list[str]:
+    """Rows of the named blocks (`name[row, b]`, or `name` alone for the whole block) as
+    elements of the one flat workspace W (row r, lane b at r * LANES + b). Its lane loops
+    then touch a single array at constant distances, so LLVM vectorises them across the
+    lanes without runtime checks between rows or arrays."""
+    def row(m: re.Match) -> str:
+        base, _ = blocks[m.group(1)]
+        idx = m.group(2)
+        if idx.isdigit():
+            return f"W[{base + int(idx)} * LANES + b]"
+        return f"W[({base} + {idx}) * LANES + b]"
+
+    def whole(m: re.Match) -> str:
+        lo, hi = blocks[m.group(1)]
+        return f"W[{lo} * LANES:{hi} * LANES].reshape(({hi - lo}, LANES))"
+
+    names = "|".join(blocks)
+    out = []
+    for line in lines:
+        line = re.sub(rf"\b({names})\[([^,\]]+), b\]", row, line)
+        out.append(re.sub(rf"\b({names})\b(?!\[)", whole, line))
+    return out
+
+
+def _emit_copy(c: _Code, dst: str, src: str, rows: int | str) -> None:
+    c(f"for r_ in range({rows}):")
+    c("    for b in range(LANES):")
+    c(f"        {dst}[r_, b] = {src}[r_, b]")
+
+
+def _stage_input_rows(st: Structure) -> int:
+    return len(st.b) * max(len(_channels(st)), 1)
+
+
+def forward_blocks(st: Structure) -> dict[str, tuple[int, int]]:
+    """`forward`'s workspace rows: the state and accumulators (ST), the stage inputs (US)."""
+    rows = 2 * st.n + len(st.inputs) + len(st.commons) + len(st.dampers)
+    return {"ST": (0, rows), "US": (rows, rows + _stage_input_rows(st))}
+
+
+def reverse_blocks(st: Structure) -> dict[str, tuple[int, int]]:
+    """`reverse`'s workspace rows: the adjoint rows (AD, `adjoint_rows`), a step's start
+    state (CUR) and end state (NXT), the stage inputs (US)."""
+    ad, n2 = adjoint_rows(st)[2], 2 * st.n
+    return {"AD": (0, ad), "CUR": (ad, ad + n2), "NXT": (ad + n2, ad + 2 * n2),
+            "US": (ad + 2 * n2, ad + 2 * n2 + _stage_input_rows(st))}
+
+
+def _emit_forward(c: _Code, st: Structure) -> None:
+    first = len(c.lines)
+    _emit_forward_text(c, st)
+    c.lines[first:] = _place(c.lines[first:], forward_blocks(st))
+
+
+def _emit_reverse(c: _Code, st: Structure) -> None:
+    first = len(c.lines)
+    _emit_reverse_text(c, st)
+    c.lines[first:] = _place(c.lines[first:], reverse_blocks(st))
+
+
+def _emit_forward_text(c: _Code, st: Structure) -> None:
+    n, nf = st.n, len(st.inputs) + len(st.commons)
+    c("")
+    c("")
+    c("@njit(**JIT)")
+    c("def forward(cf, h, nsteps, substeps, W, u, gtab, every, cps, SS, ms, msq, gp, gdecay,")
+    c("            gram):")
+    c('    """Integrate a chunk from the state rows of W (x, v, then the work and dissipation')
+    c("    accumulators, then the stage inputs: rows, lanes), checkpoints in cps, the last")
+    c('    segment\'s step states in SS; mean squares and Gram sums in msq, gram."""')
+    c.depth += 1
+    _emit_loads(c, st)
+    c("last = (nsteps - 1) // every")
+    c(f"state_sums(0, {n}, ST, ms, msq, gp, gdecay, gram)")
+    c.block("for step in range(nsteps):")
+    c("seg = step // every")
+    c("t = step - seg * every")
+    c.block("if t == 0:")
+    _emit_copy(c, "cps[seg]", "ST", 2 * n)
+    c.end()
+    c.block("if seg == last:")
+    _emit_copy(c, "SS[t]", "ST", 2 * n)
+    c.end()
+    _emit_step_inputs(c, st)
+    c.block("for b in range(LANES):")
+    for i in range(n):
+        c(f"x{i} = ST[{i}, b]")
+        c(f"v{i} = ST[{n + i}, b]")
+    _emit_stages(c, st)
+    _emit_stage_sums(c, st, 2 * n, 2 * n + nf)
+    _emit_combine(c, st, "ST")
+    c.end()
+    c(f"state_sums(step + 1, {n}, ST, ms, msq, gp, gdecay, gram)")
+    c.end()
+    _emit_copy(c, "SS[nsteps - last * every]", "ST", 2 * n)
+    c.end()
+
+
+def _emit_combine(c: _Code, st: Structure, out: str) -> None:
+    """The step's new state into rows of `out` (`adjoint._combine`)."""
+    n = st.n
+    for i in range(n):
+        dx = [f"+ w{s} * {_v(s, i)}" for s in range(len(st.b)) if st.b[s] != 0.0]
+        dv = [f"+ w{s} * K{s}_{i}" for s in range(len(st.b)) if st.b[s] != 0.0]
+        c(f"{out}[{i}, b] = x{i} + ({_sum(dx)})")
+        c(f"{out}[{n + i}, b] = v{i} + ({_sum(dv)})")
+
+
+def _emit_stage_sums(c: _Code, st: Structure, work: int, diss: int) -> None:
+    """Work per force and dissipation per damper row over the step's stages
+    (`adjoint._stage_sums`)."""
+    stages = range(len(st.b))
+    for e, (i, ch) in enumerate(st.inputs):
+        c(f"ST[{work + e}, b] += " + " + ".join(f"wfi{s}_{e} * uc{s}_{ch} * {_v(s, i)}"
+                                               for s in stages))
+    for e, i in enumerate(st.commons):
+        c(f"ST[{work + len(st.inputs) + e}, b] += "
+          + " + ".join(f"wg{s}_{e} * {_v(s, i)}" for s in stages))
+    for d in range(len(st.dampers)):
+        c(f"ST[{diss + d}, b] += " + " + ".join(
+            f"wdc{s}_{d} * {_damper_dv(st, s, d)} * {_damper_dv(st, s, d)}" for s in stages))
+
+
+def adjoint_rows(st: Structure) -> tuple[int, int, int]:
+    """The local adjoint array's rows: xb, vb, the gradient rows and the damper rows
+    (`_layout`), then the seeds per force (ww) and per damper row (dw): (ww row, dw row,
+    rows)."""
+    ww = _layout(st)["gdc"] + len(st.dampers)
+    dw = ww + len(st.inputs) + len(st.commons)
+    return ww, dw, dw + len(st.dampers)
+
+
+def _emit_reverse_text(c: _Code, st: Structure) -> None:
+    n = st.n
+    wrow, drow, _ = adjoint_rows(st)
+    c("")
+    c("")
+    c("@njit(**JIT)")
+    c("def reverse(cf, h, nsteps, substeps, u, gtab, every, cps, SS, W, ms, msw, gp, gw,")
+    c("            gdecay, fac):")
+    c('    """The adjoint sweep after `forward`. W: the adjoint rows (`adjoint_rows`: the')
+    c("    final state's adjoint and the seeds on entry; the initial state's adjoint and the")
+    c('    gradient on return), then scratch rows."""')
+    c.depth += 1
+    _emit_loads(c, st)
+    c("last = (nsteps - 1) // every")
+    c(f"state_seeds(nsteps, {n}, SS[nsteps - last * every], AD, ms, msw, gp, gw, fac, gdecay)")
+    c.block("for seg in range(last, -1, -1):")
+    c("start = seg * every")
+    c("count = min(nsteps, start + every) - start")
+    c.block("if seg != last:")
+    _emit_copy(c, "SS[0]", "cps[seg]", 2 * n)
+    c.block("for t in range(count - 1):")
+    c("step = start + t")
+    _emit_copy(c, "CUR", "SS[t]", 2 * n)
+    _emit_step_inputs(c, st)
+    c.block("for b in range(LANES):")
+    for i in range(n):
+        c(f"x{i} = CUR[{i}, b]")
+        c(f"v{i} = CUR[{n + i}, b]")
+    _emit_stages(c, st)
+    _emit_combine(c, st, "NXT")
+    c.end()
+    _emit_copy(c, "SS[t + 1]", "NXT", 2 * n)
+    c.end(2)
+    c.block("for t in range(count - 1, -1, -1):")
+    c("step = start + t")
+    _emit_copy(c, "CUR", "SS[t]", 2 * n)
+    _emit_step_inputs(c, st)
+    c.block("for b in range(LANES):")
+    _emit_step_vjp(c, st, wrow, drow)
+    c.end()
+    c(f"state_seeds(step, {n}, CUR, AD, ms, msw, gp, gw, fac, gdecay)")
+    c.end(3)
+
+
+def _emit_step_vjp(c: _Code, st: Structure, wrow: int, drow: int) -> None:
+    """One step backwards in one lane (`adjoint._stage_seeds`, `adjoint._step_vjp`)."""
+    n, lay, S = st.n, _layout(st), len(st.b)
+    nfi = len(st.inputs)
+    for i in range(n):
+        c(f"x{i} = CUR[{i}, b]")
+        c(f"v{i} = CUR[{n + i}, b]")
+        c(f"xb{i} = AD[{i}, b]")
+        c(f"vb{i} = AD[{n + i}, b]")
+    _emit_stages(c, st)
+    grad: dict[int, list[str]] = {}
+    add = lambda row, term: grad.setdefault(row, []).append(term)  # noqa: E731
+    vb0: list[list[list[str]]] = [[[f"+ w{s} * xb{i}"] for i in range(n)] for s in range(S)]
+    for e, (i, ch) in enumerate(st.inputs):
+        c(f"ww{e} = AD[{wrow + e}, b]")
+        for s in range(S):
+            vb0[s][i].append(f"+ ww{e} * wfi{s}_{e} * uc{s}_{ch}")
+            add(lay["gfi"] + e, f"+ ww{e} * w{s} * uc{s}_{ch} * {_v(s, i)}")
+    for e, i in enumerate(st.commons):
+        c(f"ww{nfi + e} = AD[{wrow + nfi + e}, b]")
+        for s in range(S):
+            vb0[s][i].append(f"+ ww{nfi + e} * wg{s}_{e}")
+            add(lay["gfc"] + e, f"+ ww{nfi + e} * w{s} * gv{s}_{e} * {_v(s, i)}")
+    for d, (i, j) in enumerate(st.dampers):
+        c(f"dw{d} = AD[{drow + d}, b]")
+        for s in range(S):
+            dv = _damper_dv(st, s, d)
+            vb0[s][i].append(f"+ 2.0 * dw{d} * wdc{s}_{d} * {dv}")
+            if j >= 0:
+                vb0[s][j].append(f"- 2.0 * dw{d} * wdc{s}_{d} * {dv}")
+            add(lay["gdc"] + d, f"+ dw{d} * w{s} * {dv} * {dv}")
+    for s in range(S):
+        for i in range(n):
+            c(f"VB{s}_{i} = {_sum(vb0[s][i])}")
+            c(f"KB{s}_{i} = w{s} * vb{i}")
+    for s in range(S - 1, -1, -1):
+        _emit_stage_vjp(c, st, s, add)
+    for row, terms in sorted(grad.items()):
+        c(f"AD[{row}, b] += {_sum(terms)}")
+    for i in range(n):
+        c(f"AD[{i}, b] = xb{i}")
+        c(f"AD[{n + i}, b] = vb{i}")
+
+
+def _emit_stage_vjp(c: _Code, st: Structure, s: int, add) -> None:
+    """Stage s's transposed force Jacobian (`adjoint.forces_vjp`) and the tableau's
+    coefficients back to the earlier stages."""
+    n, lay = st.n, _layout(st)
+    xb: list[list[str]] = [[] for _ in range(n)]
+    vb: list[list[str]] = [[] for _ in range(n)]
+    for i in range(n):
+        c(f"fb{s}_{i} = KB{s}_{i} * minv{i}")
+        add(lay["gm"] + i, f"- KB{s}_{i} * K{s}_{i} * minv{i}")
+        vb[i].append(f"- bn{i} * fb{s}_{i}")
+        add(lay["gb"] + i, f"- {_v(s, i)} * fb{s}_{i}")
+    for e, i in enumerate(st.springs):
+        xb[i].append(f"- ks{e} * fb{s}_{i}")
+        add(lay["gk"] + e, f"- {_x(s, i)} * fb{s}_{i}")
+    for e, i in enumerate(st.duffings):
+        xi = _x(s, i)
+        xb[i].append(f"- 3.0 * l{e} * {xi} * {xi} * fb{s}_{i}")
+        add(lay["gl"] + e, f"- {xi} * {xi} * {xi} * fb{s}_{i}")
+    for e, (i, j) in enumerate(st.couplings):
+        c(f"rb{s}_{e} = ck{e} * fb{s}_{j} - cka{e} * fb{s}_{i}")
+        xb[i].append(f"+ rb{s}_{e}")
+        xb[j].append(f"- ca{e} * rb{s}_{e}")
+        add(lay["gck"] + e, f"+ r{s}_{e} * (fb{s}_{j} - cia{e} * fb{s}_{i})")
+        add(lay["gca"] + e, f"+ ckaa{e} * r{s}_{e} * fb{s}_{i} - {_x(s, j)} * rb{s}_{e}")
+    for e, (i, j) in enumerate(st.quads):
+        xi = _x(s, i)
+        c(f"qb{s}_{e} = qg{e} * fb{s}_{j} - qga{e} * {xi} * fb{s}_{i}")
+        xb[i].append(f"+ 2.0 * {xi} * qb{s}_{e} - qga{e} * q{s}_{e} * fb{s}_{i}")
+        xb[j].append(f"- qa{e} * qb{s}_{e}")
+        add(lay["gqg"] + e, f"+ q{s}_{e} * (fb{s}_{j} - qia{e} * {xi} * fb{s}_{i})")
+        add(lay["gqa"] + e, f"+ qgaa{e} * {xi} * q{s}_{e} * fb{s}_{i} - {_x(s, j)} * qb{s}_{e}")
+    for e, (i, j) in enumerate(st.dashpots):
+        diff = f"(fb{s}_{j} - fb{s}_{i})" if j >= 0 else f"(-fb{s}_{i})"
+        c(f"db{s}_{e} = bb{e} * {diff}")
+        vb[i].append(f"+ db{s}_{e}")
+        if j >= 0:
+            vb[j].append(f"- db{s}_{e}")
+        add(lay["gbb"] + e, f"+ dv{s}_{e} * {diff}")
+    for e, (i, ch) in enumerate(st.inputs):
+        add(lay["gfi"] + e, f"+ uc{s}_{ch} * fb{s}_{i}")
+    for e, i in enumerate(st.commons):
+        add(lay["gfc"] + e, f"+ gv{s}_{e} * fb{s}_{i}")
+    for i in range(n):
+        c(f"XB{i} = {_sum(xb[i])}")
+        if vb[i]:
+            c(f"VB{s}_{i} = VB{s}_{i} {' '.join(vb[i])}")
+        c(f"xb{i} += XB{i}")
+        c(f"vb{i} += VB{s}_{i}")
+        for j, a in enumerate(st.a[s]):
+            if a != 0.0:
+                c(f"VB{j}_{i} += ha{s}_{j} * XB{i}")
+                c(f"KB{j}_{i} += ha{s}_{j} * VB{s}_{i}")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from springc.check import check
-from springc.grad import coefficient_gradient, written
+from springc.grad import coefficient_gradient, lanes, written
 from springc.lang import load_text
 
 # three masses, every element kind the written kernels write, two input channels and a
@@ -40,21 +40,26 @@ SPECS = ["msq:x(z)", "msq:v(x):0.1:0.3", "work:in", "dissipated:all", "final:x(y
 WEIGHTS = {"dissipated:all": -2.0, "gram:0.2:x,z": [1.0, -0.5, 0.25]}
 
 
-def _gradient(monkeypatch, use_written: bool, every: int | None = None):
-    monkeypatch.setattr(written, "RUNS_BELOW", 10**9 if use_written else 0)
+def _gradient(monkeypatch, use_written: bool, every: int | None = None, runs: int = 2):
+    """One thread; the element loops in chunks of at most 2 runs (their 2-lane copy)."""
+    if not use_written:
+        monkeypatch.setattr(written, "eligible", lambda net: False)
+        monkeypatch.setattr(lanes, "CHOICES", (2, 1))
     monkeypatch.setattr(importlib.import_module("springc.sim.simulate"), "threads", lambda: 1)
     net = check(load_text(NET, "<written>"))
     rng = np.random.default_rng(3)
-    inputs = 0.5 * rng.standard_normal((2, 2, 51))
+    inputs = 0.5 * rng.standard_normal((runs, 2, 51))
     return coefficient_gradient(net, SPECS, inputs, input_rate=100.0, weights=WEIGHTS,
                                 every=every)
 
 
-@pytest.mark.parametrize("every", [None, 7])
-def test_written_kernels_match_the_element_loops(monkeypatch, every):
-    ours = _gradient(monkeypatch, True, every)
-    loops = _gradient(monkeypatch, False, every)
-    assert ours.info["lanes"] == 1 and written.eligible(check(load_text(NET)).net)
+@pytest.mark.parametrize(("every", "runs", "width"), [(None, 2, 1), (7, 2, 1), (7, 5, 4)])
+def test_written_kernels_match_the_element_loops(monkeypatch, every, runs, width):
+    """Whole or checkpointed; chunks of one run, and 5 runs in a 4-lane chunk and a padded
+    one."""
+    ours = _gradient(monkeypatch, True, every, runs)
+    assert ours.info["lanes"] == width and written.eligible(check(load_text(NET)).net)
+    loops = _gradient(monkeypatch, False, every, runs)
     for spec in SPECS:
         np.testing.assert_allclose(ours.values[spec], loops.values[spec], rtol=1e-12)
     for key, want in loops.coefficients.items():

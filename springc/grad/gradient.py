@@ -143,9 +143,9 @@ class _Job:
         self.ds, self.ms, self.gp, self.gdecay = self.rows.arrays()
         # as wide as the runs allow while every core gets a chunk
         per_thread = -(-runs // sim.threads())
-        self.written = written.eligible(net) and per_thread < written.RUNS_BELOW
+        self.written = written.eligible(net)
         if self.written:
-            self.lanes = 1
+            self.lanes = written.choose_lanes(per_thread)
             self.shape = written.structure(self.md, self.ds, tab, self.lanes)
             self.kernels = lanes.load_source(written.source(self.shape), "springc_grad_written")
             self.cf = written.coefficients(self.md, self.ds)
@@ -227,7 +227,7 @@ class _Job:
         n, nl, st = self.net.n, self.lanes, self.st
         nf = len(self.md.fi_node) + len(self.md.fc_node)
         x0, v0 = self.net.initial_state()
-        W = np.zeros((written.forward_blocks(self.shape)["US"][1], nl))
+        W = np.zeros((written.rows(written.forward_blocks(self.shape)), nl))
         W[:n], W[n:2 * n] = x0[:, None], v0[:, None]
         u = np.ascontiguousarray(self.u[take].transpose(1, 2, 0))
         msq, gram = np.zeros((len(self.ms), nl)), np.zeros((len(self.gdecay), nl))
@@ -247,7 +247,7 @@ class _Job:
         u, cps, SS = buffers
         lane = lambda a: np.ascontiguousarray(a.T)  # noqa: E731  (run, row) -> (row, lane)
         wrow, drow, _ = written.adjoint_rows(self.shape)
-        A = np.zeros((written.reverse_blocks(self.shape)["US"][1], self.lanes))
+        A = np.zeros((written.rows(written.reverse_blocks(self.shape)), self.lanes))
         A[:n], A[n:2 * n] = lane(sd.fx), lane(sd.fv)
         A[wrow:drow], A[drow:drow + len(self.ds)] = lane(sd.ww), lane(sd.dw)
         lanes.call(self.kernels, "reverse", self.cf, st.h, st.nsteps, st.substeps, u,

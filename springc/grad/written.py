@@ -6,11 +6,10 @@ network's structure (which nodes each element joins, the tableau, the damper row
 reductions) is written into the code, as the simulator's register kernels write it
 (`springc.kernels.regkernel`), and the coefficients are runtime arguments (`coefficients`),
 so a kernel serves every parameter value of one netlist structure. A step's state, stage
-values and adjoints are local scalars; the gradient terms are summed over a step's stages
-in scalars and added to memory once per step. The text loops over `LANES` runs around each
-step, but LLVM leaves that loop scalar (measured at 4 and 32 lanes), so the gradient uses
-these kernels for chunks of one run (`RUNS_BELOW`) and `springc.grad.adjoint`'s
-SLP-vectorised lanes for larger batches.
+values and adjoints are local scalars inside a loop over the chunk's runs (`LANES`, a
+constant of the text), which LLVM's vectorisers pack across the runs. The reverse step is
+one loop that recomputes the stages into rows and seeds their adjoints, then one loop per
+stage: a single loop over the whole step kept too many values live (it ran scalar).
 
 `forward` integrates a chunk, accumulating work and dissipation per step and the mean
 squares and Gram sums of each step's state, and keeps the state every `every` steps (and
@@ -36,11 +35,12 @@ from springc.lang.ir import FlatNetlist
 
 NODES_MAX = 48  # as the written-out simulator kernels (`springc.kernels.terms.NODES_MAX`)
 ELEMENTS_MAX = 400  # numba's compile time grows with the text
-# Used for chunks of one run where each thread has fewer runs than this: LLVM does not
-# vectorise the lane loop of these kernels (measured: scalar code at 4 and 32 lanes), so a
-# batch of many runs is faster in `springc.grad.adjoint`'s lanes, which the SLP vectoriser
-# packs (docs/gradients.md).
-RUNS_BELOW = 4
+LANE_CHOICES = (32, 8, 4, 1)  # runs per chunk (each a compile of its own)
+
+
+def choose_lanes(runs_per_thread: int) -> int:
+    """The widest lane count of `LANE_CHOICES` that a thread's share of the runs fills."""
+    return next(w for w in LANE_CHOICES if runs_per_thread >= w)
 
 
 def eligible(net: FlatNetlist) -> bool:
@@ -218,9 +218,8 @@ def _emit_step_inputs(c: _Code, st: Structure) -> None:
 
 
 def _emit_stages(c: _Code, st: Structure) -> None:
-    """Every stage's state, inputs, element temporaries, forces F and accelerations K, in
-    scalars, from the step's start state x{i}, v{i} (`adjoint._stages`)."""
-    channels = sorted({ch for _, ch in st.inputs})
+    """Every stage's state, inputs, element temporaries and accelerations K, in scalars,
+    from the step's start state x{i}, v{i} (`adjoint._stages`)."""
     for s in range(len(st.b)):
         if s:
             for i in range(st.n):
@@ -228,8 +227,7 @@ def _emit_stages(c: _Code, st: Structure) -> None:
                 ks = [f"+ ha{s}_{j} * K{j}_{i}" for j, a in enumerate(st.a[s]) if a != 0.0]
                 c(f"X{s}_{i} = x{i} {' '.join(xs)}")
                 c(f"V{s}_{i} = v{i} {' '.join(ks)}")
-        for q, ch in enumerate(channels):
-            c(f"uc{s}_{ch} = US[{s * len(channels) + q}, b]")
+        _emit_temps(c, st, s)
         forces: list[list[str]] = [[f"- bn{i} * {_v(s, i)}"] for i in range(st.n)]
         for e, i in enumerate(st.springs):
             forces[i].append(f"- ks{e} * {_x(s, i)}")
@@ -237,17 +235,12 @@ def _emit_stages(c: _Code, st: Structure) -> None:
             xi = _x(s, i)
             forces[i].append(f"- l{e} * ({xi} * {xi} * {xi})")
         for e, (i, j) in enumerate(st.couplings):
-            c(f"r{s}_{e} = {_x(s, i)} - ca{e} * {_x(s, j)}")
             forces[i].append(f"- cka{e} * r{s}_{e}")
             forces[j].append(f"+ ck{e} * r{s}_{e}")
         for e, (i, j) in enumerate(st.quads):
-            xi = _x(s, i)
-            c(f"q{s}_{e} = {xi} * {xi} - qa{e} * {_x(s, j)}")
-            forces[i].append(f"- qga{e} * {xi} * q{s}_{e}")
+            forces[i].append(f"- qga{e} * {_x(s, i)} * q{s}_{e}")
             forces[j].append(f"+ qg{e} * q{s}_{e}")
         for e, (i, j) in enumerate(st.dashpots):
-            other = f" - {_v(s, j)}" if j >= 0 else ""
-            c(f"dv{s}_{e} = {_v(s, i)}{other}")
             forces[i].append(f"- bb{e} * dv{s}_{e}")
             if j >= 0:
                 forces[j].append(f"+ bb{e} * dv{s}_{e}")
@@ -257,6 +250,21 @@ def _emit_stages(c: _Code, st: Structure) -> None:
             forces[i].append(f"+ fc{e} * gv{s}_{e}")
         for i in range(st.n):
             c(f"K{s}_{i} = ({_sum(forces[i])}) * minv{i}")
+
+
+def _emit_temps(c: _Code, st: Structure, s: int) -> None:
+    """Stage s's inputs and the elements' shared subexpressions, from its state scalars."""
+    channels = _channels(st)
+    for q, ch in enumerate(channels):
+        c(f"uc{s}_{ch} = US[{s * len(channels) + q}, b]")
+    for e, (i, j) in enumerate(st.couplings):
+        c(f"r{s}_{e} = {_x(s, i)} - ca{e} * {_x(s, j)}")
+    for e, (i, j) in enumerate(st.quads):
+        xi = _x(s, i)
+        c(f"q{s}_{e} = {xi} * {xi} - qa{e} * {_x(s, j)}")
+    for e, (i, j) in enumerate(st.dashpots):
+        other = f" - {_v(s, j)}" if j >= 0 else ""
+        c(f"dv{s}_{e} = {_v(s, i)}{other}")
 
 
 def _damper_dv(st: Structure, s: int, d: int) -> str:
@@ -336,6 +344,11 @@ def _stage_input_rows(st: Structure) -> int:
     return len(st.b) * max(len(_channels(st)), 1)
 
 
+def rows(blocks: dict[str, tuple[int, int]]) -> int:
+    """The rows a workspace of these blocks needs."""
+    return max(hi for _, hi in blocks.values())
+
+
 def forward_blocks(st: Structure) -> dict[str, tuple[int, int]]:
     """`forward`'s workspace rows: the state and accumulators (ST), the stage inputs (US)."""
     rows = 2 * st.n + len(st.inputs) + len(st.commons) + len(st.dampers)
@@ -344,10 +357,13 @@ def forward_blocks(st: Structure) -> dict[str, tuple[int, int]]:
 
 def reverse_blocks(st: Structure) -> dict[str, tuple[int, int]]:
     """`reverse`'s workspace rows: the adjoint rows (AD, `adjoint_rows`), a step's start
-    state (CUR) and end state (NXT), the stage inputs (US)."""
-    ad, n2 = adjoint_rows(st)[2], 2 * st.n
+    state (CUR) and end state (NXT), the stage inputs (US), the stage states and
+    accelerations (STG: X, V, K per stage and node) and the stage adjoints (VBR, KBR)."""
+    ad, n2, sn = adjoint_rows(st)[2], 2 * st.n, len(st.b) * st.n
+    us = ad + 2 * n2 + _stage_input_rows(st)
     return {"AD": (0, ad), "CUR": (ad, ad + n2), "NXT": (ad + n2, ad + 2 * n2),
-            "US": (ad + 2 * n2, ad + 2 * n2 + _stage_input_rows(st))}
+            "US": (ad + 2 * n2, us), "STG": (us, us + 3 * sn), "VBR": (us + 3 * sn, us + 4 * sn),
+            "KBR": (us + 4 * sn, us + 5 * sn)}
 
 
 def _emit_forward(c: _Code, st: Structure) -> None:
@@ -471,25 +487,70 @@ def _emit_reverse_text(c: _Code, st: Structure) -> None:
     c("step = start + t")
     _emit_copy(c, "CUR", "SS[t]", 2 * n)
     _emit_step_inputs(c, st)
-    c.block("for b in range(LANES):")
     _emit_step_vjp(c, st, wrow, drow)
-    c.end()
     c(f"state_seeds(step, {n}, CUR, AD, ms, msw, gp, gw, fac, gdecay)")
     c.end(3)
 
 
+def _stg(st: Structure, kind: int, s: int, i: int) -> str:
+    """Row of stage s's position (kind 0), velocity (1) or acceleration (2) of node i."""
+    return f"STG[{(kind * len(st.b) + s) * st.n + i}, b]"
+
+
 def _emit_step_vjp(c: _Code, st: Structure, wrow: int, drow: int) -> None:
-    """One step backwards in one lane (`adjoint._stage_seeds`, `adjoint._step_vjp`)."""
-    n, lay, S = st.n, _layout(st), len(st.b)
-    nfi = len(st.inputs)
+    """One step backwards (`adjoint._stage_seeds`, `adjoint._step_vjp`): a lane loop that
+    recomputes the stages into rows and seeds their adjoints, then one lane loop per stage,
+    last to first (a loop over the whole step keeps too many values live: LLVM spilled
+    them, or would not vectorise it)."""
+    n, S = st.n, len(st.b)
+    c.block("for b in range(LANES):")
     for i in range(n):
         c(f"x{i} = CUR[{i}, b]")
         c(f"v{i} = CUR[{n + i}, b]")
         c(f"xb{i} = AD[{i}, b]")
         c(f"vb{i} = AD[{n + i}, b]")
     _emit_stages(c, st)
+    for s in range(S):
+        for i in range(n):
+            if s:
+                c(f"{_stg(st, 0, s, i)} = X{s}_{i}")
+                c(f"{_stg(st, 1, s, i)} = V{s}_{i}")
+            c(f"{_stg(st, 2, s, i)} = K{s}_{i}")
     grad: dict[int, list[str]] = {}
     add = lambda row, term: grad.setdefault(row, []).append(term)  # noqa: E731
+    vb0 = _emit_seeds(c, st, wrow, drow, add)
+    for s in range(S):
+        for i in range(n):
+            c(f"VBR[{s * n + i}, b] = {_sum(vb0[s][i])}")
+            c(f"KBR[{s * n + i}, b] = w{s} * vb{i}")
+    _emit_grad(c, grad)
+    grad.clear()
+    c.end()
+    for s in range(S - 1, -1, -1):
+        c.block("for b in range(LANES):")
+        for i in range(n):
+            if s:
+                c(f"X{s}_{i} = {_stg(st, 0, s, i)}")
+                c(f"V{s}_{i} = {_stg(st, 1, s, i)}")
+            else:
+                c(f"x{i} = CUR[{i}, b]")
+                c(f"v{i} = CUR[{n + i}, b]")
+            c(f"K{s}_{i} = {_stg(st, 2, s, i)}")
+            c(f"KB{s}_{i} = KBR[{s * n + i}, b]")
+            c(f"VB{s}_{i} = VBR[{s * n + i}, b]")
+        _emit_temps(c, st, s)
+        _emit_stage_vjp(c, st, s, add)
+        _emit_grad(c, grad)
+        grad.clear()
+        c.end()
+
+
+def _emit_seeds(c: _Code, st: Structure, wrow: int, drow: int, add) -> list:
+    """The reductions' seeds at the stage velocities (`adjoint._stage_seeds`): each stage's
+    velocity adjoint terms per node (returned), and the gain and damper gradient terms
+    (through `add`)."""
+    n, lay, S = st.n, _layout(st), len(st.b)
+    nfi = len(st.inputs)
     vb0: list[list[list[str]]] = [[[f"+ w{s} * xb{i}"] for i in range(n)] for s in range(S)]
     for e, (i, ch) in enumerate(st.inputs):
         c(f"ww{e} = AD[{wrow + e}, b]")
@@ -509,17 +570,12 @@ def _emit_step_vjp(c: _Code, st: Structure, wrow: int, drow: int) -> None:
             if j >= 0:
                 vb0[s][j].append(f"- 2.0 * dw{d} * wdc{s}_{d} * {dv}")
             add(lay["gdc"] + d, f"+ dw{d} * w{s} * {dv} * {dv}")
-    for s in range(S):
-        for i in range(n):
-            c(f"VB{s}_{i} = {_sum(vb0[s][i])}")
-            c(f"KB{s}_{i} = w{s} * vb{i}")
-    for s in range(S - 1, -1, -1):
-        _emit_stage_vjp(c, st, s, add)
+    return vb0
+
+
+def _emit_grad(c: _Code, grad: dict[int, list[str]]) -> None:
     for row, terms in sorted(grad.items()):
         c(f"AD[{row}, b] += {_sum(terms)}")
-    for i in range(n):
-        c(f"AD[{i}, b] = xb{i}")
-        c(f"AD[{n + i}, b] = vb{i}")
 
 
 def _emit_stage_vjp(c: _Code, st: Structure, s: int, add) -> None:
@@ -568,9 +624,9 @@ def _emit_stage_vjp(c: _Code, st: Structure, s: int, add) -> None:
         c(f"XB{i} = {_sum(xb[i])}")
         if vb[i]:
             c(f"VB{s}_{i} = VB{s}_{i} {' '.join(vb[i])}")
-        c(f"xb{i} += XB{i}")
-        c(f"vb{i} += VB{s}_{i}")
+        c(f"AD[{i}, b] += XB{i}")
+        c(f"AD[{n + i}, b] += VB{s}_{i}")
         for j, a in enumerate(st.a[s]):
             if a != 0.0:
-                c(f"VB{j}_{i} += ha{s}_{j} * XB{i}")
-                c(f"KB{j}_{i} += ha{s}_{j} * VB{s}_{i}")
+                c(f"VBR[{j * n + i}, b] += ha{s}_{j} * XB{i}")
+                c(f"KBR[{j * n + i}, b] += ha{s}_{j} * VB{s}_{i}")

@@ -40,13 +40,14 @@ SPECS = ["msq:x(z)", "msq:v(x):0.1:0.3", "work:in", "dissipated:all", "final:x(y
 WEIGHTS = {"dissipated:all": -2.0, "gram:0.2:x,z": [1.0, -0.5, 0.25]}
 
 
-def _gradient(monkeypatch, use_written: bool, every: int | None = None, runs: int = 2):
+def _gradient(monkeypatch, use_written: bool, every: int | None = None, runs: int = 2,
+              options: str = ""):
     """One thread; the element loops in chunks of at most 2 runs (their 2-lane copy)."""
     if not use_written:
         monkeypatch.setattr(written, "eligible", lambda net: False)
         monkeypatch.setattr(lanes, "CHOICES", (2, 1))
     monkeypatch.setattr(importlib.import_module("springc.sim.simulate"), "threads", lambda: 1)
-    net = check(load_text(NET, "<written>"))
+    net = check(load_text(NET.replace(".tran", options + ".tran"), "<written>"))
     rng = np.random.default_rng(3)
     inputs = 0.5 * rng.standard_normal((runs, 2, 51))
     return coefficient_gradient(net, SPECS, inputs, input_rate=100.0, weights=WEIGHTS,
@@ -67,6 +68,18 @@ def test_written_kernels_match_the_element_loops(monkeypatch, every, runs, width
             continue
         scale = max(np.abs(want).max(), 1e-300)
         assert np.abs(ours.coefficients[key] - want).max() <= 1e-11 * scale, key
+
+
+def test_another_tableau_and_substeps(monkeypatch):
+    """rk38 (stages reading two earlier ones, two stages at one time) at 2 substeps a
+    sample: the inputs interpolated between samples as the element loops do."""
+    options = ".options substeps=2 method=rk38\n"
+    ours = _gradient(monkeypatch, True, options=options)
+    loops = _gradient(monkeypatch, False, options=options)
+    assert ours.info["settings"].substeps == 2
+    for key, want in loops.coefficients.items():
+        if want.size:
+            assert np.abs(ours.coefficients[key] - want).max() <= 1e-11 * np.abs(want).max()
 
 
 def test_monomials_are_not_written_out():

@@ -86,13 +86,15 @@ def structure(md: Model, ds: np.ndarray, tab: Tableau, lanes: int) -> Structure:
 
 def coefficients(md: Model, ds: np.ndarray) -> np.ndarray:
     """The kernels' coefficient vector: inverse masses, local damping, then each kind's
-    coefficients in `_COEFS` order, then the damper rows' coefficients."""
+    coefficients, then the damper rows' coefficients (the order of `_layout`)."""
     parts = [md.minv, md.bn, md.k_k, md.d_l, md.c_k, md.c_a, md.q_g, md.q_a, md.b_b,
              md.fi_gain, md.fc_gain, ds[:, 2] if len(ds) else np.zeros(0)]
     return np.ascontiguousarray(np.concatenate(parts), np.float64)
 
 
 class _Code:
+    """Lines of generated text at an indentation depth."""
+
     def __init__(self) -> None:
         self.lines: list[str] = []
         self.depth = 0

@@ -111,16 +111,11 @@ def simulate_network(net, heads: list[Head], s: msp.MassSpringSettings,
     import time
     from functools import partial
 
-    from springc.kws.distributed import map_batches
-
-    parts = msp.batches(signals)
     start = time.perf_counter()
     fn = partial(classifier_batch, checked=check(net), specs=readout_reductions(heads),
-                 tstop=msp.horizon(s, signals.shape[1] / msp.INPUT_RATE), plan=plan)
-    out = map_batches(fn, parts, scheduler, workers=jobs or None, desc="mass-spring classifier",
-                      sizes=[len(p) for p in parts])
+                 tstop=msp.horizon(s, signals.shape[1] / msp.INPUT_RATE), plan=plan, s=s)
+    reds = msp.map_pooled(fn, signals, "mass-spring classifier", scheduler, jobs or None)
     seconds = time.perf_counter() - start
-    reds = {k: np.concatenate([o[k] for o in out]) for k in out[0]}
     return decisions(reds, heads), insertion_loss_db(reds, heads), seconds
 
 

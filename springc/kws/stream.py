@@ -145,7 +145,8 @@ def network_readouts(model: TrainedModel, signal: np.ndarray) -> tuple[np.ndarra
         times.append(res.t)
         return {"x": np.stack([res.probes[k] for k in labels], axis=1)}
 
-    x = integration.run_with_retries(plan, run, 1)["x"][0]
+    stiff = msp.stiffness(sig[:, 0], s)  # a recording too loud for the step: finer ones
+    x = integration.run_with_retries(plan, run, 1, stiffness=stiff)["x"][0]
     return times[-1], x
 
 

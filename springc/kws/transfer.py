@@ -176,17 +176,20 @@ def insertion_loss_db(reds: dict[str, np.ndarray], heads: list[Head]) -> np.ndar
 
 def classifier_batch(signals: np.ndarray, checked: CheckedNetlist, specs: list[str],
                      tstop: float, plan: integration.Integration = integration.PAPER,
-                     tries: slice = slice(None)) -> dict:
+                     tries: slice = slice(None),
+                     s: msp.MassSpringSettings | None = None) -> dict:
     """Readout reductions of one batch through the whole checked classifier (a Dask task),
-    integrated as `plan` says (finer steps for clips too loud for it; `tries` as in
+    integrated as `plan` says (finer steps for clips too loud for it, and with the settings
+    `s` of its front end, for clips predicted too stiff for it; `tries` as in
     `integration.run_with_retries`)."""
     from springc.sim.simulate import simulate
 
     sig = signals.astype(np.float64)[:, None, :]
+    stiff = None if s is None else msp.stiffness(signals, s)
     return integration.run_with_retries(plan, lambda method, sub, idx: simulate(
         checked, sig[idx], msp.INPUT_RATE, probes=[], reductions=specs, tstop=tstop,
         chunk=msp.BATCH, batch=len(idx), method=method, substeps=sub,
-        precision=plan.precision).reductions, len(sig), tries)
+        precision=plan.precision).reductions, len(sig), tries, stiff)
 
 
 def choose_classifier_integration(checked: CheckedNetlist, heads: list[Head],
@@ -203,7 +206,7 @@ def choose_classifier_integration(checked: CheckedNetlist, heads: list[Head],
     def outputs(sig, method, substeps, precision):  # one try: loud clips are NaN rows
         reds = classifier_batch(sig, checked, specs, tstop,
                                 integration.Integration(method, substeps, precision),
-                                slice(0, 1))
+                                slice(0, 1), s)
         return np.stack([reds[f"final:x(r{k})"] for k in range(len(heads))], axis=1)
 
     return integration.choose(checked, signals, outputs, tstop, precision="float64",

@@ -160,6 +160,10 @@ def test_stiffness_predicts_the_simulated_compressor_peaks() -> None:
     ratio = predicted / (simulated.max(axis=1) / msp.INPUT_RATE)
     assert ratio.min() >= 0.97 and ratio.max() <= 1.15, ratio
     assert predicted[3] / predicted[0] > 10  # the loud clips stiffen the compressors
+    # no sound, or none at all: the compressors at rest, sqrt(kq / m)
+    rest = np.sqrt(SMALL.kq / msp.compressor_mass(SMALL)).max() / msp.INPUT_RATE
+    np.testing.assert_allclose(msp.stiffness(np.zeros((2, 0)), SMALL), rest, rtol=1e-12)
+    np.testing.assert_allclose(msp.stiffness(np.zeros(800), SMALL), rest, rtol=1e-12)
 
 
 def test_the_last_try_raises() -> None:

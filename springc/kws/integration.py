@@ -196,11 +196,11 @@ def run_with_retries(integration: Integration, run: Callable[[str, int, np.ndarr
     `integration.precision`) at each of `integration.retries()[tries]` in turn, each time only
     those that diverged before, so one loud clip does not send its whole batch to finer steps.
     `stiffness` (runs,): the largest mode frequency each run will reach times the sample
-    period (predicted before simulating); a try leaves the runs whose w h would pass
-    MAX_WH at its step to the next, as if they had diverged (short of divergence, such a
-    run can be far off). Runs that
-    diverge at the last try raise, unless `tries` stops short of the last retry: then their
-    rows are NaN (for a caller that pools them with others' for the next tries)."""
+    period (predicted before simulating); a try leaves the runs whose w h would pass MAX_WH
+    at its step to the next, as if they had diverged (short of divergence, such a run can be
+    far off). Runs that diverge at the last try raise, unless `tries` stops short of the last
+    retry: then their rows are NaN (for a caller that pools them with others' for the next
+    tries)."""
     todo = np.arange(runs)
     out: dict[str, np.ndarray] = {}
     plan = integration.retries()

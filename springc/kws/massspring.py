@@ -246,6 +246,9 @@ def compressor_mass(s: MassSpringSettings) -> np.ndarray:
     return np.maximum(s.kq / (2 * np.pi * s.fq) ** 2, k_max * (h / STABLE_WH) ** 2)
 
 
+PREDICTION_TAIL = 2048  # samples of zero padding: the filters ring out within them
+
+
 def stiffness(signals: np.ndarray, s: MassSpringSettings) -> np.ndarray:
     """Per clip of `signals` (clips, samples) at 16 kHz, the largest angular frequency any
     compressor reaches times the sample period: what `integration.run_with_retries` needs to
@@ -254,25 +257,29 @@ def stiffness(signals: np.ndarray, s: MassSpringSettings) -> np.ndarray:
     y^2 averaged over 1 ms and low-passed (two one-pole stages: the critically damped
     low-pass) at the squarer's static gain, the static compressor at the peak level (within
     5% above the simulated peaks on 8x3 speech)."""
-    from scipy import fft as sfft
-    from scipy.signal import lfilter
-
     signals = np.atleast_2d(np.asarray(signals, dtype=np.float32))
-    n = signals.shape[1]
-    size = sfft.next_fast_len(n + PREDICTION_TAIL, real=True)
-    y = sfft.irfft(sfft.rfft(signals, size)[:, None, :] * _bank(s, size), size)[..., :n]
-    block = int(INPUT_RATE / 1000)
-    power = np.pad(y * y, ((0, 0), (0, 0), (0, -n % block))).reshape(*y.shape[:2], -1, block)
-    pole = math.exp(-2 * math.pi * s.fc * block / INPUT_RATE)
-    mean_square = lfilter([(1 - pole) ** 2], [1, -2 * pole, pole**2], power.mean(-1), axis=-1)
-    level = mean_square.max(axis=-1) * s.g / (s.klp + s.g * leverages(s))
+    level = _peak_level(signals, s) * s.g / (s.klp + s.g * leverages(s))
     duffing = compressor_duffing(s) * s.compression_factors()
     c = compressed(level, s.kq, duffing)
     omega = np.sqrt((s.kq + 3 * duffing * c**2) / compressor_mass(s))
     return omega.max(axis=-1) / INPUT_RATE
 
 
-PREDICTION_TAIL = 2048  # samples of zero padding: the filters ring out within them
+def _peak_level(signals: np.ndarray, s: MassSpringSettings) -> np.ndarray:
+    """(clips, bins): the largest low-passed y^2 of each filter output (0 for no samples)."""
+    from scipy import fft as sfft
+    from scipy.signal import lfilter
+
+    n = signals.shape[1]
+    if n == 0:
+        return np.zeros((len(signals), s.bins))
+    size = sfft.next_fast_len(n + PREDICTION_TAIL, real=True)
+    y = sfft.irfft(sfft.rfft(signals, size)[:, None, :] * _bank(s, size), size)[..., :n]
+    block = int(INPUT_RATE / 1000)
+    power = np.pad(y * y, ((0, 0), (0, 0), (0, -n % block))).reshape(*y.shape[:2], -1, block)
+    pole = math.exp(-2 * math.pi * s.fc * block / INPUT_RATE)
+    mean_square = lfilter([(1 - pole) ** 2], [1, -2 * pole, pole**2], power.mean(-1), axis=-1)
+    return mean_square.max(axis=-1)
 
 
 @functools.lru_cache(maxsize=8)

@@ -149,8 +149,7 @@ def run(args: argparse.Namespace) -> dict:
         corpora(engine, args)
     for realisation in args.realisations:
         for row in r["rows"]:
-            if len(row.get(realisation, {}).get("left_out_draws", [0] * (
-                    realisation in row))) < args.draws:  # a new cell, or draws to add
+            if draws(row.get(realisation)) < args.draws:  # a new cell, or draws to add
                 start = time.perf_counter()
                 row[realisation] = leave_out(row["engine"], realisation, args)
                 r["minutes"] += (time.perf_counter() - start) / 60
@@ -160,6 +159,14 @@ def run(args: argparse.Namespace) -> dict:
         r["realisations"] = [x for x in REALISATIONS
                              if x in r["realisations"] or x == realisation]
     return r
+
+
+def draws(cell: dict | None) -> int:
+    """Left-out corpora a cell was tested on (0: no cell yet; 1: a cell from before
+    `--draws`, which has no list of them)."""
+    if cell is None:
+        return 0
+    return len(cell.get("left_out_draws", [cell["left_out"]]))
 
 
 def git_commit() -> str:
@@ -206,9 +213,9 @@ def table(r: dict) -> list[str]:
 
 def describe(r: dict) -> str:
     """How a run was made, in one sentence."""
-    draws = len(r["rows"][0][r["realisations"][0]].get("left_out_draws", [0]))
-    seeds = (f"{draws} of them, seeds {r['seed'] + 1}-{r['seed'] + draws}" if draws > 1
-             else f"seed {r['seed'] + 1}")
+    n = draws(r["rows"][0][r["realisations"][0]])
+    seeds = f"{n} of them, seeds {r['seed'] + 1}-{r['seed'] + n}" if n > 1 else \
+        f"seed {r['seed'] + 1}"
     return (f"{r['train_clips']} clips per training corpus, {r['test_clips']} per left-out "
             f"corpus ({seeds}), seed {r['seed']}, corpora from springc at commit "
             f"{r.get('corpus_commit', r['commit'])}, models at {r['commit']}, "

@@ -20,7 +20,14 @@ _GROUPS = "filter,compression,couplings,readout"
               help="Parameter groups to tune: filter (per-bin Mel filter frequency), "
                    "compression (per-bin compressor stiffness), couplings (each head's "
                    "quadratic couplings), readout (each head's intercept).")
-@click.option("--epochs", default=2, show_default=True, help="Passes over the clips.")
+@click.option("--refit/--no-refit", default=True, show_default=True,
+              help="First refit each head's weights and intercept on the transferred "
+                   "network's exact response (an SVM on its zero modes' integrals, C on the "
+                   "validation split): forward simulations only.")
+@click.option("--refit-clips", default=0, show_default=True,
+              help="Training clips the refit simulates, drawn with --seed (0: all).")
+@click.option("--epochs", default=2, show_default=True,
+              help="Passes of gradient steps over the clips (0: the refit alone).")
 @click.option("--batch", default=16, show_default=True, help="Clips per optimiser step.")
 @click.option("--clips", default=64, show_default=True,
               help="Training clips tuned on, drawn with --seed (0: all).")
@@ -35,20 +42,21 @@ _GROUPS = "filter,compression,couplings,readout"
 @click.option("--scheduler", default=None, metavar="ADDRESS",
               help="Dask scheduler to send the batches to (default: a local cluster).")
 @run_user_errors
-def tune_cmd(model, data, out, params, epochs, batch, clips, val_clips, lr, il_weight,
-             seed, jobs, scheduler):
+def tune_cmd(model, data, out, params, refit, refit_clips, epochs, batch, clips, val_clips,
+             lr, il_weight, seed, jobs, scheduler):
     """Tune MODEL (trained with --realisation mass-spring) through its simulated network:
-    softmax cross-entropy of the readouts' decisions at a learnt temperature (plus
-    --il-weight x insertion loss), gradients by the discrete adjoint at RK4 x8, Adam; keeps
-    the epoch with the lowest validation loss; every tuned netlist passes the checks.
-    Writes OUT like train (netlists, settings, report of the test split, README); the
-    parameters are saved beside OUT after every epoch and a rerun resumes from them."""
+    the heads' weights refitted on the network's exact response, then softmax
+    cross-entropy of the readouts' decisions at a learnt temperature (plus --il-weight x
+    insertion loss), gradients by the discrete adjoint at RK4 x8, Adam; keeps the epoch with
+    the lowest validation loss; every tuned netlist passes the checks. Writes OUT like
+    train (netlists, settings, report of the test split, README); the parameters are saved
+    beside OUT after every epoch and a rerun resumes from them."""
     from springc.kws.readme import tune_history_text
     from springc.kws.tune import TuneOptions, tune
 
     opts = TuneOptions(model, data, out, tuple(p.strip() for p in params.split(",") if p),
                        epochs, batch, clips, val_clips, lr, il_weight, seed, jobs,
-                       scheduler)
+                       scheduler, refit=refit, refit_clips=refit_clips)
     report = tune(opts)
     click.echo(f"tuned {', '.join(opts.params)}: {tune_history_text(report['tune'])}")
     if "accuracy" in report:

@@ -38,7 +38,7 @@ def tuned(env):
     out = root / "tuned"
     result = CliRunner().invoke(main, ["tune", str(model), "-o", str(out), "--clips", "2",
                                        "--val-clips", "0", "--batch", "2", "--epochs", "3",
-                                       "--lr", "0.1", "-j", "1"])
+                                       "--lr", "0.1", "--no-refit", "-j", "1"])
     assert result.exit_code == 0, result.output
     return out
 
@@ -113,7 +113,7 @@ def test_the_tuned_folder_is_what_eval_simulates(env, tuned):
     assert (f"springc tune {model_dir.resolve()} -o {tuned} --params "
             "filter,compression,couplings,readout --epochs 3 --batch 2 --clips 2 --val-clips 0 "
             "--lr 0.1 "
-            "--il-weight 0 --seed 0") in readme
+            "--il-weight 0 --seed 0 --no-refit") in readme
     assert f"-o {model_dir.resolve()}\n" in readme  # the train line makes the start model
     assert "filter_scale =" not in readme  # tune's settings are not train's to list
     assert not T.checkpoint_path(tuned).exists()  # removed once the folder is written
@@ -135,7 +135,7 @@ def test_a_validated_run_keeps_its_best_epoch(env):
     out = root / "tuned-validated"
     result = CliRunner().invoke(main, ["tune", str(model_dir), "-o", str(out), "--clips", "2",
                                        "--val-clips", "2", "--batch", "2", "--epochs", "2",
-                                       "--lr", "0.3", "-j", "1"])
+                                       "--lr", "0.3", "--no-refit", "-j", "1"])
     assert result.exit_code == 0, result.output
     tune = json.loads((out / "settings.json").read_text())["tune"]
     val = [h["validation_loss"] for h in tune["history"]]

@@ -94,6 +94,11 @@ def _settings(settings: dict) -> str:
                      f" at {tune['integration']}, {tune_history_text(tune)}; the "
                      "factors are transfer's couplings and intercepts and the features' "
                      "filter_scale and compression_scale")
+    refit = (transfer or {}).get("refit")
+    if refit:
+        lines.append(f"- heads refitted first on the transferred network's exact response "
+                     f"({refit['clips']} training clips, C {refit['C']:g}; transfer's refit "
+                     "holds the weights)")
     return "\n".join(lines)
 
 
@@ -101,8 +106,9 @@ def tune_history_text(tune: dict) -> str:
     """A tune run (settings.json's `tune`) in a line: training loss per epoch, validation
     loss per epoch from the start, and the epoch kept."""
     history = tune["history"]
-    text = "training loss per epoch " + " -> ".join(
-        f"{h['train_loss']:.4f}" for h in history if "train_loss" in h)
+    train = [h["train_loss"] for h in history if "train_loss" in h]
+    text = ("training loss per epoch " + " -> ".join(f"{v:.4f}" for v in train) if train
+            else "no gradient epochs")
     val = [h["validation_loss"] for h in history if "validation_loss" in h]
     if val:
         text += ("; validation loss from the start " + " -> ".join(f"{v:.4f}" for v in val)
@@ -154,7 +160,9 @@ def _reproduce(folder: Path, settings: dict) -> str:
                      f"--epochs {tune['epochs']} --batch {tune['batch']} --clips "
                      f"{tune['clips']} --val-clips {tune.get('val_clips', 0)} "
                      f"--lr {tune['lr']:g} --il-weight {tune['il_weight']:g} "
-                     f"--seed {tune['seed']}")
+                     f"--seed {tune['seed']}"
+                     + (f" --refit-clips {tune.get('refit_clips', 0)}" if tune.get("refit")
+                        else " --no-refit"))
     lines += [f"springc eval {model} --data {shlex.quote(data)}   # this page's test split",
               f"springc eval {model} --data OTHER_FOLDER   # any labelled folder; no split "
               "lists: every clip is a test clip",

@@ -82,12 +82,38 @@ def design_head(name: str, coef: np.ndarray, intercept: float, s: msp.MassSpring
                          f"{epsilon}")
     lam, q = np.linalg.eigh(spread(coef, s.bins, s.delays))
     keep = np.flatnonzero(np.abs(lam) > DROP * np.abs(lam).max())
+    gamma, alpha, scale = couplings_for(lam[keep], s, amplitude, epsilon)
+    return Head(name, lam, q, keep, gamma, alpha, scale, float(intercept))
+
+
+def couplings_for(lam: np.ndarray, s: msp.MassSpringSettings, amplitude: float,
+                  epsilon: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """gamma, alpha and the decision scale of the couplings that realise the eigenvalues
+    `lam` (of the coupled components) at squaring error `epsilon`: the largest scale whose
+    couplings stay within the readout's stiffness (`FILL`)."""
     k_total = readout_params(TAU_READOUT, Q_READOUT).k_total
     k_t = stiffness_scale(s)
-    scale = math.sqrt(FILL * k_total * epsilon * k_t / (amplitude**2 * np.sum(lam[keep] ** 2)))
-    gamma = scale * lam[keep]
+    scale = math.sqrt(FILL * k_total * epsilon * k_t / (amplitude**2 * np.sum(lam**2)))
+    gamma = scale * lam
     alpha = amplitude**2 * gamma / (epsilon * k_t)
-    return Head(name, lam, q, keep, gamma, alpha, scale / readout_scale(), float(intercept))
+    return gamma, alpha, scale / readout_scale()
+
+
+def reweighted_heads(heads: list[Head], weights: list, intercepts: list,
+                     s: msp.MassSpringSettings, amplitude: float,
+                     epsilon: float) -> list[Head]:
+    """The heads with new eigenvalues `weights[k]` on their coupled components (the same
+    eigenvectors, so the same mvm) and new intercepts, their couplings designed as
+    `design_head` does (`springc.kws.refit` fits them on the network's exact response)."""
+    out = []
+    for h, w, b in zip(heads, weights, intercepts):
+        w = np.asarray(w, np.float64)
+        lam = h.lam.copy()
+        lam[h.keep] = w
+        gamma, alpha, scale = couplings_for(w, s, amplitude, epsilon)
+        out.append(replace(h, lam=lam, gamma=gamma, alpha=alpha, scale=scale,
+                           intercept=float(b)))
+    return out
 
 
 def heads_for(models, s: msp.MassSpringSettings, amplitude: float,
@@ -301,14 +327,20 @@ def tuned_heads(heads: list[Head], couplings: list | None,
 
 def model_heads(model) -> tuple[msp.MassSpringSettings, list[Head]]:
     """The settings and heads of a trained mass-spring model (re-derived, deterministic; a
-    tuned model's factors from settings.json's "transfer": "couplings", "intercepts")."""
+    tuned model's refitted weights and factors from settings.json's "transfer": "refit",
+    then "couplings", "intercepts")."""
     from springc.errors import DataError
 
     feats = {k: v for k, v in model.settings["features"].items() if k != "realisation"}
     tr = model.settings.get("transfer")
     try:
         s = msp.MassSpringSettings(**feats)
-        heads = heads_for(model.models, s, float(tr["amplitude"]), float(tr["epsilon"]))
+        amplitude, epsilon = float(tr["amplitude"]), float(tr["epsilon"])
+        heads = heads_for(model.models, s, amplitude, epsilon)
+        if tr.get("refit"):
+            refit = tr["refit"]
+            heads = reweighted_heads(heads, refit["weights"], refit["intercepts"], s,
+                                     amplitude, epsilon)
         heads = tuned_heads(heads, tr.get("couplings"), tr.get("intercepts"))
     except (TypeError, KeyError, ValueError) as exc:
         raise DataError(str(model.folder / "settings.json"),

@@ -1,6 +1,10 @@
 """End-to-end tuning of a mass-spring keyword spotter through its simulated network
 (`springc tune`): a trained, SVM-transferred model folder in, a tuned model folder out.
 
+First (unless `refit` is off) every head's weights and intercept are refitted on the
+transferred network's exact response (`springc.kws.refit`: forward simulations and a convex
+fit); the gradient epochs below start from the refitted heads.
+
 The loss is the softmax cross-entropy of the physical decisions d_k = x(r_k) / scale_k + b_k
 at a learnt temperature T (of T d: a binary model, the logistic loss on its one row),
 averaged over the clips, plus `il_weight` times the mean insertion loss in dB. T only
@@ -79,6 +83,8 @@ class TuneOptions:
     jobs: int = 0
     scheduler: str | None = None
     evaluate: bool = True
+    refit: bool = True  # refit the heads' weights on the exact response first
+    refit_clips: int = 0  # training clips the refit simulates (0: all)
 
 
 @dataclass
@@ -408,7 +414,8 @@ def run_key(opts: TuneOptions, model_settings: dict) -> str:
     """What a checkpoint must match to be resumed: the start model and the options."""
     what = {"model": model_settings, "params": opts.params, "batch": opts.batch,
             "clips": opts.clips, "val_clips": opts.val_clips, "lr": opts.lr,
-            "il_weight": opts.il_weight, "seed": opts.seed, "data": str(opts.data)}
+            "il_weight": opts.il_weight, "seed": opts.seed, "data": str(opts.data),
+            "refit": [opts.refit, opts.refit_clips]}
     return hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()
 
 
@@ -462,7 +469,7 @@ def training_clips(opts: TuneOptions, model):
     from springc.kws.task import open_task_data
 
     data = Path(opts.data) if opts.data else trained_data(model)
-    splits = ("train",) + (("validation",) if opts.val_clips else ()) + (
+    splits = ("train",) + (("validation",) if opts.val_clips or opts.refit else ()) + (
         ("test",) if opts.evaluate else ())
     ds = open_task_data(data, model.settings["task"], int(model.settings.get("seed", 0)),
                         model.settings.get("protocol"), splits=splits)
@@ -483,10 +490,13 @@ def validate(opts: TuneOptions) -> None:
     if Path(opts.out).resolve() == Path(opts.model).resolve():
         raise UsageError("the output folder is the model being tuned",
                          hint="give -o a new folder")
-    if opts.epochs < 1 or opts.batch < 1 or opts.clips < 0 or opts.val_clips < 0 \
-            or not opts.lr > 0:
-        raise UsageError("--epochs and --batch must be >= 1, --clips and --val-clips >= 0 "
-                         "and --lr > 0")
+    if opts.epochs < 0 or opts.batch < 1 or opts.clips < 0 or opts.val_clips < 0 \
+            or opts.refit_clips < 0 or not opts.lr > 0:
+        raise UsageError("--batch must be >= 1, --epochs, --clips, --val-clips and "
+                         "--refit-clips >= 0 and --lr > 0")
+    if opts.epochs == 0 and not opts.refit:
+        raise UsageError("nothing to tune: --epochs 0 with --no-refit",
+                         hint="give --epochs 1 or more, or leave the refit on")
     if opts.il_weight < 0:
         raise UsageError("--il-weight must be >= 0")
     check_out_folder(opts.out)
@@ -503,12 +513,43 @@ def tune(opts: TuneOptions) -> dict:
     ds, clips, val = training_clips(opts, model)
     started = time.perf_counter()
     with session(opts.scheduler, opts.jobs or None):
+        refit = None
+        if opts.refit:
+            start, refit = refit_start(opts, model, start, ds)
         z, history = optimise(opts, model, start, clips, val)
         tuned_s, heads = tuned(start, z, layout(opts.params, start.s.bins, start.heads))
         report = finish(opts, model, ds, (tuned_s, heads, start.heads), history,
-                        time.perf_counter() - started)
+                        time.perf_counter() - started, refit)
     checkpoint_path(opts.out).unlink(missing_ok=True)
     return report
+
+
+def refit_start(opts: TuneOptions, model, start: Start, ds) -> tuple[Start, dict]:
+    """The start with every head's weights refitted on the transferred network's exact
+    response (`springc.kws.refit`): `opts.refit_clips` training clips to fit, the validation
+    split to choose C. Returns it and the record settings.json keeps."""
+    from springc.kws import refit as rf
+    from springc.kws.evaluate import model_integration
+    from springc.kws.task import targets
+    from springc.lang import load_text
+
+    task, transfer = model.settings["task"], model.settings["transfer"]
+    eps = float(transfer["epsilon"])
+    net = load_text(tr.classifier_text(start.heads, start.s, epsilon=eps), "<classifier>")
+    sets = []
+    for clips in (_draw(ds.split("train"), opts.refit_clips, opts.seed),
+                  ds.split("validation")):
+        resp = rf.response(net, start.heads, start.s, msp.load_signals(clips, False, 0, []),
+                           model_integration(model), opts.scheduler, opts.jobs)
+        sets.append((resp.j, targets(clips, task)))
+    weight = model.settings.get("class_weight")
+    fitted = rf.fit(sets[0], sets[1], start.heads, model.models, task,
+                    None if weight in (None, "none") else weight)
+    heads = rf.refit_heads(start.heads, fitted, start.s, float(transfer["amplitude"]), eps)
+    print(f"tune: heads refitted on the exact response of {len(sets[0][1])} clips, C "
+          f"{fitted.c:g}, validation accuracy {100 * fitted.scores[fitted.c]:.1f}%",
+          file=sys.stderr, flush=True)
+    return Start(start.s, heads), {**fitted.to_dict(), "clips": len(sets[0][1])}
 
 
 @dataclass
@@ -628,9 +669,10 @@ def loss_at(opts: TuneOptions, start: Start, z: np.ndarray, eps: float, tg: Targ
     return float(loss.mean()) if len(loss) else float("nan")
 
 
-def finish(opts: TuneOptions, model, ds, net: tuple, history: list, seconds: float) -> dict:
-    """Evaluate the tuned network `net` (settings, heads, the untuned heads) on the test
-    split and write the model folder."""
+def finish(opts: TuneOptions, model, ds, net: tuple, history: list, seconds: float,
+           refit: dict | None = None) -> dict:
+    """Evaluate the tuned network `net` (settings, heads, the heads the gradient epochs
+    started from) on the test split and write the model folder (with the refit's record)."""
     from springc.kws.evaluate import evaluate_network
     from springc.kws.model import TrainedModel, write_model
     from springc.kws.train import feature_key
@@ -643,11 +685,14 @@ def finish(opts: TuneOptions, model, ds, net: tuple, history: list, seconds: flo
     settings["transfer"]["couplings"] = [(h.gamma / g.gamma).tolist()
                                          for h, g in zip(heads, untuned)]
     settings["transfer"]["intercepts"] = [h.intercept for h in heads]
+    if refit:
+        settings["transfer"]["refit"] = refit
     settings["tune"] = {"from": str(Path(opts.model).resolve()),
                         "data": str(Path(opts.data).resolve()) if opts.data else None,
                         "params": list(opts.params),
                         "epochs": opts.epochs, "batch": opts.batch, "clips": opts.clips,
                         "val_clips": opts.val_clips, "chosen_epoch": chosen_epoch(history),
+                        "refit": opts.refit, "refit_clips": opts.refit_clips,
                         "lr": opts.lr, "il_weight": opts.il_weight, "seed": opts.seed,
                         "integration": f"{METHOD} x{SUBSTEPS} float64", "history": history,
                         "seconds": seconds}

@@ -1,0 +1,112 @@
+"""The refit on the exact head response (`springc.kws.refit`, `springc tune`'s first stage),
+on a tiny generated corpus: a network's decisions are the linear readout sum_e lambda_e J_e + b
+of its zero modes' integrals J, J does not depend on the heads' weights (so a refitted
+network reads out what the fit assumed), and a refitted folder is what `springc eval`
+simulates."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from springc.kws import massspring as msp
+from springc.kws import refit as rf
+from springc.kws import transfer as tr
+from springc.kws.evaluate import model_integration, trained_data
+from springc.kws.model import load_model
+from springc.kws.task import open_task_data
+from springc.lang import load_text
+from springc_cli.main import main
+from test_kws_train import corpus_and_model
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory):
+    root = tmp_path_factory.mktemp("refit")
+    data, model = corpus_and_model(root, "--realisation", "mass-spring")
+    return root, data, model
+
+
+def network_at(model_dir, eps: float):
+    """The model's settings, its heads transferred at squaring error eps, four training
+    clips' signals and the model's integration."""
+    model = load_model(model_dir)
+    s, _ = tr.model_heads(model)
+    heads = tr.heads_for(model.models, s, float(model.settings["transfer"]["amplitude"]), eps)
+    ds = open_task_data(trained_data(model), model.settings["task"], 0, None,
+                        splits=("train",))
+    sig = msp.load_signals(ds.split("train")[:4], False, 0, [])
+    return s, heads, sig, model_integration(model)
+
+
+def respond(s, heads, sig, plan, eps):
+    net = load_text(tr.classifier_text(heads, s, epsilon=eps), "<classifier>")
+    return rf.response(net, heads, s, sig, plan, jobs=1)
+
+
+def lam(heads):
+    return [h.lam[h.keep] for h in heads], [h.intercept for h in heads]
+
+
+@pytest.mark.parametrize("eps", [1e-6, 1e-2])
+def test_decisions_are_the_linear_readout_of_j(env, eps):
+    """The readout is a linear oscillator driven by sum_e gamma_e y_e^2: its decision is
+    sum_e lambda_e J_e + b, with J the leaky integrals at its slow pole, squaring ideal or
+    not."""
+    s, heads, sig, plan = network_at(env[2], eps)
+    got = respond(s, heads, sig, plan, eps)
+    d = rf.decide(got.j, heads, *lam(heads))
+    scale = np.median(np.abs(got.decisions))
+    assert np.abs(d - got.decisions).max() < 1e-3 * scale
+
+
+def test_j_does_not_depend_on_the_weights(env):
+    """At eps 1e-2 the couplings' cubic stiffness distorts the zero modes, but it is the same
+    for any weights (alpha / gamma is fixed by eps): a network with other weights has the
+    same J, so the refit's decisions predicted from the transferred network's J are the
+    reweighted network's."""
+    eps = 1e-2
+    s, heads, sig, plan = network_at(env[2], eps)
+    before = respond(s, heads, sig, plan, eps)
+    rng = np.random.default_rng(3)
+    fit = rf.Refit([rng.normal(size=len(h.keep)) * np.abs(h.lam[h.keep]).max() for h in heads],
+                   [float(v) for v in rng.normal(size=len(heads))], 1.0, {})
+    new = rf.refit_heads(heads, fit, s, float(load_model(env[2]).settings["transfer"][
+        "amplitude"]), eps)
+    after = respond(s, new, sig, plan, eps)
+    assert np.abs(after.j - before.j).max() < 1e-4 * np.abs(before.j).max()
+    assert not np.allclose(after.decisions, before.decisions, rtol=1e-2)  # other weights
+    predicted = rf.decide(before.j, heads, fit.weights, fit.intercepts)
+    assert np.abs(predicted - after.decisions).max() < 1e-3 * np.abs(after.decisions).max()
+
+
+def test_a_refitted_folder_is_what_eval_simulates(env):
+    root, _, model_dir = env
+    out = root / "refitted"
+    result = CliRunner().invoke(main, ["tune", str(model_dir), "-o", str(out), "--epochs", "0",
+                                       "--val-clips", "0", "-j", "1"])
+    assert result.exit_code == 0, result.output
+    assert "heads refitted on the exact response" in result.output
+    settings = json.loads((out / "settings.json").read_text())
+    refit = settings["transfer"]["refit"]
+    _, heads = tr.model_heads(load_model(out))
+    for h, w, b in zip(heads, refit["weights"], refit["intercepts"]):
+        np.testing.assert_allclose(h.lam[h.keep], w, rtol=1e-12)
+        assert h.intercept == pytest.approx(b, rel=1e-12)
+        # designed as the transfer designs its heads: the same eps on every coupling
+        ratio = h.alpha / h.gamma
+        np.testing.assert_allclose(ratio, ratio[0], rtol=1e-12)
+    report = json.loads((out / "report.json").read_text())
+    evaluated = CliRunner().invoke(main, ["eval", str(out), "-j", "1"])
+    assert evaluated.exit_code == 0, evaluated.output
+    assert f"{100 * report['accuracy']:.2f}%" in evaluated.output
+    readme = (out / "README.md").read_text()
+    assert "heads refitted first on the transferred network's exact response" in readme
+    assert "--epochs 0" in readme and "--refit-clips 0" in readme
+    nothing = CliRunner().invoke(main, ["tune", str(model_dir), "-o", str(root / "none"),
+                                        "--epochs", "0", "--no-refit"])
+    assert nothing.exit_code == 1 and "nothing to tune" in nothing.output
+    assert not (root / "none").exists()

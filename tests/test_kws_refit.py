@@ -91,20 +91,29 @@ def test_a_refitted_folder_is_what_eval_simulates(env):
     assert result.exit_code == 0, result.output
     assert "heads refitted on the exact response" in result.output
     settings = json.loads((out / "settings.json").read_text())
-    refit = settings["transfer"]["refit"]
-    _, heads = tr.model_heads(load_model(out))
-    for h, w, b in zip(heads, refit["weights"], refit["intercepts"]):
-        np.testing.assert_allclose(h.lam[h.keep], w, rtol=1e-12)
-        assert h.intercept == pytest.approx(b, rel=1e-12)
-        # designed as the transfer designs its heads: the same eps on every coupling
-        ratio = h.alpha / h.gamma
-        np.testing.assert_allclose(ratio, ratio[0], rtol=1e-12)
+    kept = settings["tune"]["refit_kept"]
+    assert ("not kept" in result.output) != kept
+    model = load_model(out)
+    _, heads = tr.model_heads(model)
+    if kept:  # the folder's heads are the refit's, designed as the transfer designs its own
+        refit = settings["transfer"]["refit"]
+        for h, w, b in zip(heads, refit["weights"], refit["intercepts"]):
+            np.testing.assert_allclose(h.lam[h.keep], w, rtol=1e-12)
+            assert h.intercept == pytest.approx(b, rel=1e-12)
+            ratio = h.alpha / h.gamma  # the same eps on every coupling
+            np.testing.assert_allclose(ratio, ratio[0], rtol=1e-12)
+    else:  # the transferred heads, unchanged
+        assert "refit" not in settings["transfer"]
+        _, start = tr.model_heads(load_model(model_dir))
+        for h, h0 in zip(heads, start):
+            np.testing.assert_allclose(h.gamma, h0.gamma, rtol=1e-12)
     report = json.loads((out / "report.json").read_text())
     evaluated = CliRunner().invoke(main, ["eval", str(out), "-j", "1"])
     assert evaluated.exit_code == 0, evaluated.output
     assert f"{100 * report['accuracy']:.2f}%" in evaluated.output
     readme = (out / "README.md").read_text()
-    assert "heads refitted first on the transferred network's exact response" in readme
+    assert ("heads refitted first on the transferred network's exact response"
+            in readme) == kept
     assert "--epochs 0" in readme and "--refit-clips 0" in readme
     nothing = CliRunner().invoke(main, ["tune", str(model_dir), "-o", str(root / "none"),
                                         "--epochs", "0", "--no-refit"])

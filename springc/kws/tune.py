@@ -527,16 +527,21 @@ def tune(opts: TuneOptions) -> dict:
 def refit_start(opts: TuneOptions, model, start: Start, ds) -> tuple[Start, dict]:
     """The start with every head's weights refitted on the transferred network's exact
     response (`springc.kws.refit`): `opts.refit_clips` training clips to fit, the validation
-    split to choose C. Returns it and the record settings.json keeps."""
+    split to choose C; kept only where its validation accuracy beats the transferred
+    network's (as the epochs are chosen). Returns it and the record settings.json keeps."""
     from springc.kws import refit as rf
-    from springc.kws.evaluate import model_integration
+    from springc.kws.evaluate import model_integration, selection_models
+    from springc.kws.report import score
     from springc.kws.task import targets
     from springc.lang import load_text
 
     task, transfer = model.settings["task"], model.settings["transfer"]
+    if not ds.split("validation"):
+        raise DataError(str(opts.data or "the model's data set"), "the validation split holds "
+                        "no clips, which choose the refit's C", hint="tune with --no-refit")
     eps = float(transfer["epsilon"])
     net = load_text(tr.classifier_text(start.heads, start.s, epsilon=eps), "<classifier>")
-    sets = []
+    sets, resp = [], None
     for clips in (_draw(ds.split("train"), opts.refit_clips, opts.seed),
                   ds.split("validation")):
         resp = rf.response(net, start.heads, start.s, msp.load_signals(clips, False, 0, []),
@@ -545,11 +550,20 @@ def refit_start(opts: TuneOptions, model, start: Start, ds) -> tuple[Start, dict
     weight = model.settings.get("class_weight")
     fitted = rf.fit(sets[0], sets[1], start.heads, model.models, task,
                     None if weight in (None, "none") else weight)
-    heads = rf.refit_heads(start.heads, fitted, start.s, float(transfer["amplitude"]), eps)
+    # resp: the validation clips' (the loop's last), the transferred network's decisions
+    before = score(selection_models(model.models), resp.decisions, sets[1][1],
+                   task)["accuracy"]
+    kept = fitted.scores[fitted.c] > before
     print(f"tune: heads refitted on the exact response of {len(sets[0][1])} clips, C "
-          f"{fitted.c:g}, validation accuracy {100 * fitted.scores[fitted.c]:.1f}%",
+          f"{fitted.c:g}, validation accuracy {100 * fitted.scores[fitted.c]:.1f}% against "
+          f"{100 * before:.1f}% transferred: {'kept' if kept else 'not kept'}",
           file=sys.stderr, flush=True)
-    return Start(start.s, heads), {**fitted.to_dict(), "clips": len(sets[0][1])}
+    record = {**fitted.to_dict(), "clips": len(sets[0][1]), "kept": bool(kept),
+              "transferred_validation_accuracy": float(before)}
+    if not kept:
+        return start, record
+    heads = rf.refit_heads(start.heads, fitted, start.s, float(transfer["amplitude"]), eps)
+    return Start(start.s, heads), record
 
 
 @dataclass
@@ -685,7 +699,7 @@ def finish(opts: TuneOptions, model, ds, net: tuple, history: list, seconds: flo
     settings["transfer"]["couplings"] = [(h.gamma / g.gamma).tolist()
                                          for h, g in zip(heads, untuned)]
     settings["transfer"]["intercepts"] = [h.intercept for h in heads]
-    if refit:
+    if refit and refit["kept"]:
         settings["transfer"]["refit"] = refit
     settings["tune"] = {"from": str(Path(opts.model).resolve()),
                         "data": str(Path(opts.data).resolve()) if opts.data else None,
@@ -693,6 +707,7 @@ def finish(opts: TuneOptions, model, ds, net: tuple, history: list, seconds: flo
                         "epochs": opts.epochs, "batch": opts.batch, "clips": opts.clips,
                         "val_clips": opts.val_clips, "chosen_epoch": chosen_epoch(history),
                         "refit": opts.refit, "refit_clips": opts.refit_clips,
+                        "refit_kept": bool(refit and refit["kept"]),
                         "lr": opts.lr, "il_weight": opts.il_weight, "seed": opts.seed,
                         "integration": f"{METHOD} x{SUBSTEPS} float64", "history": history,
                         "seconds": seconds}

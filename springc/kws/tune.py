@@ -530,40 +530,50 @@ def refit_start(opts: TuneOptions, model, start: Start, ds) -> tuple[Start, dict
     split to choose C; kept only where its validation accuracy beats the transferred
     network's (as the epochs are chosen). Returns it and the record settings.json keeps."""
     from springc.kws import refit as rf
-    from springc.kws.evaluate import model_integration, selection_models
+    from springc.kws.evaluate import selection_models
     from springc.kws.report import score
-    from springc.kws.task import targets
-    from springc.lang import load_text
 
     task, transfer = model.settings["task"], model.settings["transfer"]
     if not ds.split("validation"):
         raise DataError(str(opts.data or "the model's data set"), "the validation split holds "
                         "no clips, which choose the refit's C", hint="tune with --no-refit")
-    eps = float(transfer["epsilon"])
+    (fit_resp, fit_y), (val_resp, val_y) = _responses(opts, model, start, ds)
+    weight = model.settings.get("class_weight")
+    fitted = rf.fit((fit_resp.j, fit_y), (val_resp.j, val_y), start.heads, model.models, task,
+                    None if weight in (None, "none") else weight)
+    before = score(selection_models(model.models), val_resp.decisions, val_y,
+                   task)["accuracy"]
+    kept = fitted.scores[fitted.c] > before
+    print(f"tune: heads refitted on the exact response of {len(fit_y)} clips, C "
+          f"{fitted.c:g}, validation accuracy {100 * fitted.scores[fitted.c]:.1f}% against "
+          f"{100 * before:.1f}% transferred: {'kept' if kept else 'not kept'}",
+          file=sys.stderr, flush=True)
+    record = {**fitted.to_dict(), "clips": len(fit_y), "kept": bool(kept),
+              "transferred_validation_accuracy": float(before)}
+    if not kept:
+        return start, record
+    heads = rf.refit_heads(start.heads, fitted, start.s, float(transfer["amplitude"]),
+                           float(transfer["epsilon"]))
+    return Start(start.s, heads), record
+
+
+def _responses(opts: TuneOptions, model, start: Start, ds) -> list[tuple]:
+    """The transferred network's exact response (`refit.response`) and the classes of the
+    refit's training clips, then of the validation split's."""
+    from springc.kws import refit as rf
+    from springc.kws.evaluate import model_integration
+    from springc.kws.task import targets
+    from springc.lang import load_text
+
+    eps = float(model.settings["transfer"]["epsilon"])
     net = load_text(tr.classifier_text(start.heads, start.s, epsilon=eps), "<classifier>")
-    sets, resp = [], None
+    out = []
     for clips in (_draw(ds.split("train"), opts.refit_clips, opts.seed),
                   ds.split("validation")):
         resp = rf.response(net, start.heads, start.s, msp.load_signals(clips, False, 0, []),
                            model_integration(model), opts.scheduler, opts.jobs)
-        sets.append((resp.j, targets(clips, task)))
-    weight = model.settings.get("class_weight")
-    fitted = rf.fit(sets[0], sets[1], start.heads, model.models, task,
-                    None if weight in (None, "none") else weight)
-    # resp: the validation clips' (the loop's last), the transferred network's decisions
-    before = score(selection_models(model.models), resp.decisions, sets[1][1],
-                   task)["accuracy"]
-    kept = fitted.scores[fitted.c] > before
-    print(f"tune: heads refitted on the exact response of {len(sets[0][1])} clips, C "
-          f"{fitted.c:g}, validation accuracy {100 * fitted.scores[fitted.c]:.1f}% against "
-          f"{100 * before:.1f}% transferred: {'kept' if kept else 'not kept'}",
-          file=sys.stderr, flush=True)
-    record = {**fitted.to_dict(), "clips": len(sets[0][1]), "kept": bool(kept),
-              "transferred_validation_accuracy": float(before)}
-    if not kept:
-        return start, record
-    heads = rf.refit_heads(start.heads, fitted, start.s, float(transfer["amplitude"]), eps)
-    return Start(start.s, heads), record
+        out.append((resp, targets(clips, model.settings["task"])))
+    return out
 
 
 @dataclass

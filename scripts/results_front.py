@@ -1,7 +1,7 @@
 """Regenerate docs/results-front.md (and results-front.png beside it, not committed): the
 accuracy-versus-insertion-loss front (paper Fig. 8e-f) of the SVM-transferred mass-spring
-network against the same network with its heads refitted on its exact response (`springc
-tune --epochs 0`, `springc.kws.refit`), cross-validated over speakers.
+network against the same network with its heads refitted on its exact response (the refit
+of `springc tune`, `springc.kws.refit`), cross-validated over speakers.
 
     springc data synth /tmp/corpus14 --clips 1600 --seed 1 \\
         --words yes,no,up,down,left,right,on,off,stop,go,one,two,three,four
@@ -13,7 +13,9 @@ as `springc cv` does) transferred to heads at each squaring error eps; the whole
 (front end and heads) simulated on --test clips of the held-out fold (transferred), on
 the training folds' clips (J, the zero modes' integrals), the refit's C chosen on the next
 fold as the SVM's, the refit fitted again on every training clip with it, and its network
-simulated on the same test clips.
+simulated on the same test clips. Unlike `springc tune`, which fits on its training split and
+keeps the refit only when it beats the transferred network on validation, every fold's refit
+is measured, so the page shows the refit itself.
 """
 
 from __future__ import annotations
@@ -226,7 +228,9 @@ def page(results: dict, meta: dict) -> str:
              f"{meta['folds'] * meta['test']} per point, each tested by models that never "
              f"heard its speaker; the refit on {meta['refit'] or 'all'} clips of the training "
              f"folds but the next, C on {meta['val'] or 'all'} clips of the next fold, then "
-             "fitted again on both). Every accuracy is the whole network simulated, sound to "
+             "fitted again on both; every fold's refit measured, without `springc tune`'s "
+             "rule that keeps it only when it beats the transferred network on validation). "
+             "Every accuracy is the whole network simulated, sound to "
              "decision; accuracies are class-balanced with speaker-bootstrap standard errors; "
              "the gain is paired (same clips). Plot: `results-front.png` beside this page "
              "after a run (not committed).", ""]

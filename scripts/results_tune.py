@@ -6,9 +6,11 @@ keyword spotter it starts from, at equal size, on the built-in corpus.
         --out docs/results-tune.md
 
 Every row equals `springc train --data DIR -n N -m M --realisation mass-spring`, then
-`springc eval MODEL` (the transferred network) and `springc tune MODEL -o TUNED
---clips C --epochs E --batch B --il-weight W` (whose report is `springc eval TUNED`'s). One
-held-out split (the corpus's test split, the paper's balanced protocol), not cross-validated.
+`springc eval MODEL` (the transferred network) and `springc tune MODEL -o TUNED --no-refit
+--clips C --epochs E --batch B --il-weight W` (whose report is `springc eval TUNED`'s): the
+gradient epochs alone; the refit that tune runs first by default is measured, cross-validated,
+by scripts/results_front.py. One held-out split (the corpus's test split, the paper's
+balanced protocol), not cross-validated.
 """
 
 from __future__ import annotations
@@ -68,7 +70,7 @@ def transferred(args: argparse.Namespace, bins: int, delays: int) -> tuple[Path,
 def tuned(args: argparse.Namespace, model: Path, weight: float) -> dict:
     """Tune `model` with insertion-loss weight `weight`; the tuned model's report."""
     out = args.work / f"{model.name}-tuned-il{weight:g}"
-    opts = TuneOptions(model, None, out, epochs=args.epochs, batch=args.batch,
+    opts = TuneOptions(model, None, out, refit=False, epochs=args.epochs, batch=args.batch,
                        clips=args.clips, val_clips=args.val_clips, lr=args.lr,
                        il_weight=weight)
     return tune(opts)

@@ -113,7 +113,8 @@ def size_run(args, clips, y, fold, groups, bins: int, delays: int, eps_list) -> 
             fitted.weights, fitted.intercepts = rf.fit_rows(
                 np.concatenate([got["fit"].j, got["val"].j]), y[both], heads, models,
                 fitted.c, weight)
-            new = rf.refit_heads(heads, fitted, s, ref.amplitude, eps)
+            new = tr.reweighted_heads(heads, fitted.weights, fitted.intercepts, s,
+                                       ref.amplitude, eps)
             net2 = load_text(tr.classifier_text(new, s, epsilon=eps), "<refit classifier>")
             again = rf.response(net2, new, s, sig(test), plan, jobs=args.jobs)
             row = out[eps]

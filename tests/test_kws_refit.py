@@ -72,14 +72,14 @@ def test_j_does_not_depend_on_the_weights(env):
     s, heads, sig, plan = network_at(env[2], eps)
     before = respond(s, heads, sig, plan, eps)
     rng = np.random.default_rng(3)
-    fit = rf.Refit([rng.normal(size=len(h.keep)) * np.abs(h.lam[h.keep]).max() for h in heads],
-                   [float(v) for v in rng.normal(size=len(heads))], 1.0, {})
-    new = rf.refit_heads(heads, fit, s, float(load_model(env[2]).settings["transfer"][
-        "amplitude"]), eps)
+    weights = [rng.normal(size=len(h.keep)) * np.abs(h.lam[h.keep]).max() for h in heads]
+    intercepts = [float(v) for v in rng.normal(size=len(heads))]
+    new = tr.reweighted_heads(heads, weights, intercepts, s, float(load_model(env[2]).settings[
+        "transfer"]["amplitude"]), eps)
     after = respond(s, new, sig, plan, eps)
     assert np.abs(after.j - before.j).max() < 1e-4 * np.abs(before.j).max()
     assert not np.allclose(after.decisions, before.decisions, rtol=1e-2)  # other weights
-    predicted = rf.decide(before.j, heads, fit.weights, fit.intercepts)
+    predicted = rf.decide(before.j, heads, weights, intercepts)
     assert np.abs(predicted - after.decisions).max() < 1e-3 * np.abs(after.decisions).max()
 
 

@@ -10,7 +10,8 @@ stiffness is 2 gamma_e / alpha_e = 2 eps kc / A^2 for every coupling whatever th
 every network with the same eigenvectors and other weights (measured: J moves by 2e-6
 relative when the weights change, 4x2 at eps 1e-2). The refit fits those weights and the
 intercepts on J like train's SVM (each row against the rest, class weights as trained, C on
-the validation clips) and the heads are designed for them as the transfer designs its own.
+the validation clips) and the heads are designed for them as the transfer designs its own
+(`transfer.reweighted_heads`).
 """
 
 from __future__ import annotations
@@ -137,8 +138,3 @@ def fit(train: tuple[np.ndarray, np.ndarray], val: tuple[np.ndarray, np.ndarray]
     _, c, w, b = best
     return Refit(w, b, c, scores)
 
-
-def refit_heads(heads: list[tr.Head], refit: Refit, s: msp.MassSpringSettings,
-                amplitude: float, epsilon: float) -> list[tr.Head]:
-    """The heads designed for the refitted weights (same eigenvectors, same epsilon)."""
-    return tr.reweighted_heads(heads, refit.weights, refit.intercepts, s, amplitude, epsilon)

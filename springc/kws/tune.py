@@ -552,8 +552,8 @@ def refit_start(opts: TuneOptions, model, start: Start, ds) -> tuple[Start, dict
               "transferred_validation_accuracy": float(before)}
     if not kept:
         return start, record
-    heads = rf.refit_heads(start.heads, fitted, start.s, float(transfer["amplitude"]),
-                           float(transfer["epsilon"]))
+    heads = tr.reweighted_heads(start.heads, fitted.weights, fitted.intercepts, start.s,
+                                float(transfer["amplitude"]), float(transfer["epsilon"]))
     return Start(start.s, heads), record
 
 

@@ -161,7 +161,12 @@ def build(path: str | Path, *, lib_dirs: list[Path] | None = None,
 
 def report_for(net: FlatNetlist, method: str | None = None) -> BuildReport:
     """Check an already elaborated netlist and summarise it."""
-    result = checks.check(net, method)
+    return summarise(checks.check(net, method))
+
+
+def summarise(result: checks.CheckedNetlist) -> BuildReport:
+    """The build report of a netlist that passed the checks (what `springc build` prints)."""
+    net = result.net
     found, step = result.modes, result.step
     mode = step.mode
     return BuildReport(

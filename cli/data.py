@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 from springc_cli.common import check_output_file, plot_option, run_user_errors
 
-from springc.kws.dataset import CLASSES, PROTOCOLS, SPLITS, WORDS
+from springc.kws.data.dataset import CLASSES, PROTOCOLS, SPLITS, WORDS
 
 
 @click.group("data")
@@ -32,7 +32,7 @@ def synth_cmd(out: Path, clips: int, seed: int, jobs: int, words: str | None, en
               plot_path: str | None) -> None:
     """Write a GSCD-layout corpus into the new folder OUT from the installed text-to-speech
     engines (espeak-ng, flite, festival), with speaker-disjoint splits and background noise."""
-    from springc.kws.synth import synthesise
+    from springc.kws.data.synth import synthesise
 
     if plot_path:  # before the minutes of synthesis
         check_output_file(plot_path, make_parents=True)
@@ -70,8 +70,8 @@ def info_cmd(folder: Path, silence: float, protocol: str, seed: int,
              plot_path: str | None) -> None:
     """Count the clips of a GSCD-layout data set per split and label (12-class task); list
     bad files."""
-    from springc.kws.dataset import open_dataset, with_protocol
-    from springc.kws.report import counts_table
+    from springc.kws.data.dataset import open_dataset, with_protocol
+    from springc.kws.training.report import counts_table
 
     if plot_path:
         check_output_file(plot_path, make_parents=True)

@@ -59,10 +59,10 @@ class Stages:
 
 def run_demo(opts: DemoOptions, echo=click.echo) -> dict:
     """All stages; returns the summary (also written to OUT/summary.json)."""
-    from springc.kws.digital import FeatureSettings
-    from springc.kws.distributed import session
-    from springc.kws.evaluate import evaluate
-    from springc.kws.train import TrainOptions, train
+    from springc.kws.features.digital import FeatureSettings
+    from springc.kws.features.distributed import session
+    from springc.kws.evaluation.evaluate import evaluate
+    from springc.kws.training.train import TrainOptions, train
 
     out = Path(opts.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -87,7 +87,7 @@ def run_demo(opts: DemoOptions, echo=click.echo) -> dict:
 
 
 def _corpus(st: Stages, folder: Path, opts: DemoOptions) -> Path:
-    from springc.kws.synth import synthesise
+    from springc.kws.data.synth import synthesise
 
     if folder.exists():  # a previous demo's corpus: reuse it (synthesis is seeded)
         st.echo(f"== corpus: reusing {folder}")
@@ -129,7 +129,7 @@ def _summary(out: Path, opts: DemoOptions, reports: dict, network: dict, st: Sta
 
 def _integration_lines(reports: dict, network: dict) -> list[str]:
     """How the mass-spring networks were integrated, and the error that was measured."""
-    from springc.kws.integration import from_dict
+    from springc.kws.features.integration import from_dict
 
     found = reports.get("mass-spring", {}).get("integration", {}).get("features")
     lines = ["integration (chosen at tolerance, error against the reference on a sample):"]
@@ -145,7 +145,7 @@ def _plots(out: Path, reports: dict, network: dict, data: Path, opts: DemoOption
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from springc.kws import report as rep
+    from springc.kws.training import report as rep
 
     rep.plot_confusion(out / "confusion-network.png", np.array(network["confusion"]),
                        network["classes"], f"mass-spring network: "
@@ -168,9 +168,9 @@ def _feature_plot(path: Path, data: Path, opts: DemoOptions) -> None:
     """One test clip: the mass-spring features (compressor outputs) beside the digital ones."""
     import matplotlib.pyplot as plt
 
-    from springc.kws import massspring as msp
-    from springc.kws.dataset import load_clip, open_dataset
-    from springc.kws.digital import FeatureSettings, features
+    from springc.kws.features import massspring as msp
+    from springc.kws.data.dataset import load_clip, open_dataset
+    from springc.kws.features.digital import FeatureSettings, features
 
     clip = next(c for c in open_dataset(data).split("test") if c.label != "_silence_")
     sig = load_clip(clip)[None]

@@ -8,12 +8,12 @@ from pathlib import Path
 import click
 from springc_cli.common import run_user_errors
 
-from springc.kws.dataset import PROTOCOLS
-from springc.kws.digital import FILTERBANKS, FeatureSettings
-from springc.kws.report import counts_table, majority_rate
-from springc.kws.task import TASKS
-from springc.kws.task import REALISATIONS
-from springc.kws.train import TrainOptions
+from springc.kws.data.dataset import PROTOCOLS
+from springc.kws.features.digital import FILTERBANKS, FeatureSettings
+from springc.kws.training.report import counts_table, majority_rate
+from springc.kws.data.task import TASKS
+from springc.kws.data.task import REALISATIONS
+from springc.kws.training.train import TrainOptions
 
 _REALISATION = click.Choice(REALISATIONS)
 _SCHEDULER = click.option("--scheduler", default=None, metavar="ADDRESS",
@@ -51,7 +51,7 @@ def _massspring(settings: FeatureSettings, threshold: float | None):
     """Mass-spring settings for `--threshold`, or None (the defaults) without it."""
     if threshold is None:
         return None
-    from springc.kws.massspring import from_features
+    from springc.kws.features.massspring import from_features
 
     return from_features(settings, threshold=threshold)
 
@@ -93,8 +93,8 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
               feature_rate, protocol, class_weights, jobs, seed, no_cache, out, epsilon,
               threshold, tolerance, paper_steps, scheduler) -> None:
     """Train the keyword spotter and write a model folder with weights and a test report."""
-    from springc.kws.model import check_out_folder
-    from springc.kws.train import train
+    from springc.kws.training.model import check_out_folder
+    from springc.kws.training.train import train
 
     check_out_folder(out)  # before the minutes of training
 
@@ -111,7 +111,7 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
     report = train(opts)
     click.echo(_summary(report))
     if "integration" in report:
-        from springc.kws.integration import from_dict
+        from springc.kws.features.integration import from_dict
 
         click.echo(f"integration of the features: "
                    f"{from_dict(report['integration']['features']).describe()}")
@@ -140,11 +140,11 @@ def eval_cmd(model_dir, data, realisation, protocol, as_json, jobs, no_cache, sc
              budget) -> None:
     """Evaluate a trained model on the test split of a labelled folder in the GSCD layout:
     the clips testing_list.txt names, or every clip where the folder has no such list."""
-    from springc.kws.evaluate import evaluate
+    from springc.kws.evaluation.evaluate import evaluate
 
     if budget:
-        from springc.kws import energy
-        from springc.kws.evaluate import budget_signals
+        from springc.kws.evaluation import energy
+        from springc.kws.evaluation.evaluate import budget_signals
 
         parts = energy.model_budget(model_dir, budget_signals(model_dir, data, budget,
                                                               protocol))
@@ -221,7 +221,7 @@ def cv_cmd(data, bins, delays, realisations, folds, threshold, jobs, seed, no_ca
     """Speaker-grouped cross-validation (12 classes) on every clip of a data set: the
     class-balanced accuracy of each realisation and their paired difference, with bootstrap
     standard errors over speakers."""
-    from springc.kws import crossval
+    from springc.kws.evaluation import crossval
 
     settings = FeatureSettings(bins=bins, delays=delays)
     opts = crossval.CVOptions(data=data, settings=settings,
@@ -260,13 +260,13 @@ def classify_cmd(model_dir, inputs, realisation, as_json, stream, plots, jobs,
     if plots is not None:
         _check_plot_folder(plots, stream)
     if stream:
-        from springc.kws.stream import stream as run_stream
+        from springc.kws.evaluation.stream import stream as run_stream
 
         results = run_stream(model_dir, inputs, realisation, plots,
                              progress=lambda s: click.echo(s, err=True))
         click.echo(json.dumps(results) if as_json else _stream_lines(results))
         return
-    from springc.kws.classify import classify
+    from springc.kws.evaluation.classify import classify
 
     results = classify(model_dir, inputs, realisation, jobs=jobs, scheduler=scheduler)
     click.echo(json.dumps(results) if as_json else _classify_lines(results))

@@ -51,8 +51,8 @@ def tune_cmd(model, data, out, params, refit, refit_clips, epochs, batch, clips,
     the lowest validation loss; every tuned netlist passes the checks. Writes OUT like
     train (netlists, settings, report of the test split, README); the parameters are saved
     beside OUT after every epoch and a rerun resumes from them."""
-    from springc.kws.readme import tune_history_text
-    from springc.kws.tune import TuneOptions, tune
+    from springc.kws.training.readme import tune_history_text
+    from springc.kws.tuning.tune import TuneOptions, tune
 
     opts = TuneOptions(model, data, out, tuple(p.strip() for p in params.split(",") if p),
                        epochs, batch, clips, val_clips, lr, il_weight, seed, jobs,

@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from springc.kws import crossval
-from springc.kws.digital import FeatureSettings
+from springc.kws.evaluation import crossval
+from springc.kws.features.digital import FeatureSettings
 
 SIZES = ((4, 2), (6, 3), (8, 3))
 # Measured with this script on the same corpus and folds before the compressor (mass-spring
@@ -30,10 +30,10 @@ HISTORY = ("Before: with the paper's compression through the squarer's cubic sti
            "resonant filter (network version 4), the same folds gave gaps of +6.0 +- 1.3, "
            "+5.8 +- 1.4 and +6.2 +- 2.3 points at 4x2, 6x3 and 8x3 (mass-spring 42.2, 59.8 "
            "and 62.9%); compressing the low-passed envelope instead (`compressor.spr`, "
-           "`springc/kws/massspring.py`) moved the mass-spring features to the digital ones "
-           "or above. On the corpus synthesised before the synthesis channel change (867444d), "
-           "with liblinear's SVM and the features at RK4 x8 (git 77b6450, 13.3 min), the gaps "
-           "were -2.1 +- 0.8, -1.0 +- 1.3 and -2.2 +- 1.4 points (digital 48.2, 65.6 and "
+           "`springc/kws/features/massspring.py`) moved the mass-spring features to the digital "
+           "ones or above. On the corpus synthesised before the synthesis channel change "
+           "(867444d), with liblinear's SVM and the features at RK4 x8 (git 77b6450, 13.3 min), "
+           "the gaps were -2.1 +- 0.8, -1.0 +- 1.3 and -2.2 +- 1.4 points (digital 48.2, 65.6 and "
            "69.1%, mass-spring 50.2, 66.6 and 71.2%). Before the stiffness prediction "
            "(c2c5bcb, the same corpus command, the 2-core machine of that day, 6.5 min), the "
            "gaps were -3.5 +- 0.9, -2.9 +- 1.1 and -1.8 +- 0.9 points (digital 46.3, 60.0 and "

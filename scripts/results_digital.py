@@ -22,14 +22,14 @@ from pathlib import Path
 
 import numpy as np
 
-from springc.kws.dataset import COMMANDS
-from springc.kws.digital import FeatureSettings
-from springc.kws.model import write_model
-from springc.kws.phi import n_features
-from springc.kws.report import evaluate_fits
-from springc.kws.svm import LOGREG_GRID, SVM_GRID
-from springc.kws.task import open_task_data, targets
-from springc.kws.train import TrainOptions, fit_task, model_settings, split_features
+from springc.kws.data.dataset import COMMANDS
+from springc.kws.features.digital import FeatureSettings
+from springc.kws.training.model import write_model
+from springc.kws.features.phi import n_features
+from springc.kws.training.report import evaluate_fits
+from springc.kws.training.svm import LOGREG_GRID, SVM_GRID
+from springc.kws.data.task import open_task_data, targets
+from springc.kws.training.train import TrainOptions, fit_task, model_settings, split_features
 
 BINS = (4, 6, 8, 12, 16)
 DELAYS = (2, 3, 4)
@@ -143,7 +143,7 @@ def rows_from_models(models: Path) -> tuple[list[dict], dict]:
 
 def document(rows: list[dict], pairs: dict, ds, data: Path, minutes: float) -> str:
     """The whole results page."""
-    from springc.kws.dataset import WORDS, open_dataset
+    from springc.kws.data.dataset import WORDS, open_dataset
 
     counts = {s: len(ds.split(s)) for s in ("train", "validation", "test")}
     raw = [c for c in open_dataset(data).clips if c.word != "_silence_"]  # as synthesised

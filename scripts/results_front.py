@@ -1,7 +1,7 @@
 """Regenerate docs/results-front.md (and results-front.png beside it, not committed): the
 accuracy-versus-insertion-loss front (paper Fig. 8e-f) of the SVM-transferred mass-spring
 network against the same network with its heads refitted on its exact response (the refit
-of `springc tune`, `springc.kws.refit`), cross-validated over speakers.
+of `springc tune`, `springc.kws.tuning.refit`), cross-validated over speakers.
 
     springc data synth /tmp/corpus14 --clips 1600 --seed 1 \\
         --words yes,no,up,down,left,right,on,off,stop,go,one,two,three,four
@@ -29,15 +29,15 @@ from pathlib import Path
 import numpy as np
 
 from springc.check import check
-from springc.kws import crossval as cv
-from springc.kws import refit as rf
-from springc.kws import transfer as tr
-from springc.kws.digital import FeatureSettings
-from springc.kws.distributed import session
-from springc.kws.massspring import integrated, load_signals, physical_settings
-from springc.kws.svm import SVM_GRID, fit_linear, select
-from springc.kws.task import open_task_data, task_weights
-from springc.kws.train import feature_matrices
+from springc.kws.evaluation import crossval as cv
+from springc.kws.tuning import refit as rf
+from springc.kws.training import transfer as tr
+from springc.kws.features.digital import FeatureSettings
+from springc.kws.features.distributed import session
+from springc.kws.features.massspring import integrated, load_signals, physical_settings
+from springc.kws.training.svm import SVM_GRID, fit_linear, select
+from springc.kws.data.task import open_task_data, task_weights
+from springc.kws.training.train import feature_matrices
 from springc.lang import load_text
 
 

@@ -6,11 +6,11 @@ next to the digital realisation of the same architecture, on the built-in corpus
 
 WORDS (`CORPUS_WORDS` below): the 10 commands and the digits one to four, which are the
 `_unknown_` class of the 12-class task and the words of the digit pairs. Held-out splits follow
-the paper's balanced protocol (`springc.kws.dataset.balanced`).
+the paper's balanced protocol (`springc.kws.data.dataset.balanced`).
 
 Every row equals `springc train --data DIR -n N -m M [--realisation mass-spring]
-[--task digits-pairs]` and `springc eval MODEL`; the sweeps are `springc.kws.sweep`. Model
-folders go under --models, the sweep plot (PNG, not committed) beside --out.
+[--task digits-pairs]` and `springc eval MODEL`; the sweeps are `springc.kws.evaluation.sweep`.
+Model folders go under --models, the sweep plot (PNG, not committed) beside --out.
 """
 
 from __future__ import annotations
@@ -21,13 +21,14 @@ import os
 import time
 from pathlib import Path
 
-from springc.kws import energy
-from springc.kws import massspring as msp
-from springc.kws.digital import FeatureSettings
-from springc.kws.evaluate import evaluate
-from springc.kws.sweep import compression_sweep, epsilon_sweep, plot_sweeps, settings_table
-from springc.kws.task import DIGITS
-from springc.kws.train import TrainOptions, train
+from springc.kws.evaluation import energy
+from springc.kws.features import massspring as msp
+from springc.kws.features.digital import FeatureSettings
+from springc.kws.evaluation.evaluate import evaluate
+from springc.kws.evaluation.sweep import (compression_sweep, epsilon_sweep, plot_sweeps,
+                                          settings_table)
+from springc.kws.data.task import DIGITS
+from springc.kws.training.train import TrainOptions, train
 
 SIZES = ((4, 2), (6, 3), (8, 3))
 SWEEP_SIZE = (4, 2)  # the paper sweeps at 4 x 3; 4 x 2 keeps the run within ~20 minutes here
@@ -126,7 +127,7 @@ def correlation(data: Path, clips: int = 16) -> list[str]:
     `clips` word clips of the test split: median correlation per bin."""
     import numpy as np
 
-    from springc.kws.dataset import open_dataset
+    from springc.kws.data.dataset import open_dataset
 
     test = [c for c in open_dataset(data).split("test") if c.label != "_silence_"][:clips]
     r = msp.feature_correlation(msp.load_signals(test, False, 0, []).astype(np.float64),
@@ -177,17 +178,17 @@ def page(data: Path, sizes: list[dict], pairs: dict, eps: list[dict], comp: list
         "readout / design scale + intercept; no parameter is fitted on test data.",
         "",
         "Columns: *digital* is the paper's architecture evaluated numerically "
-        "(`springc.kws.digital`); *ideal c.Phi* is the same trained mass-spring model read out "
-        "exactly from the simulated features (so its difference to the network is due to the "
-        "physical classifier alone); *network* is the simulated mass-spring classifier.",
+        "(`springc.kws.features.digital`); *ideal c.Phi* is the same trained mass-spring model "
+        "read out exactly from the simulated features (so its difference to the network is due "
+        "to the physical classifier alone); *network* is the simulated mass-spring classifier.",
         "",
         "## Features: mass-spring against digital",
         "",
         "Correlation of the simulated compressed feature c_i(t) with the digital "
-        "realisation's feature (`springc.kws.digital`: filter, |y|^(2/3), low-pass) of the same "
-        "bin, 8 bins, 16 test clips (medians). Where they differ: the mechanical compression "
-        "is cube-root only above the threshold A_c (pure squaring below) and acts on the "
-        "low-passed envelope (the digital one before the low-pass), the compressor lags by "
+        "realisation's feature (`springc.kws.features.digital`: filter, |y|^(2/3), low-pass) of "
+        "the same bin, 8 bins, 16 test clips (medians). Where they differ: the mechanical "
+        "compression is cube-root only above the threshold A_c (pure squaring below) and acts on "
+        "the low-passed envelope (the digital one before the low-pass), the compressor lags by "
         "about 1 ms, and the digital path filters band-limited in the frequency domain.",
         "",
         *corr,

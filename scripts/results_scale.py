@@ -49,7 +49,7 @@ def springc(args: list[str], env: dict, done: Path) -> tuple[float, str]:
 
 def counts(data: Path) -> dict[str, int]:
     """Clips per split of the 12-class task (as `train` balances them)."""
-    from springc.kws.task import open_task_data
+    from springc.kws.data.task import open_task_data
 
     ds = open_task_data(data, "kws12", 0, None)
     return {s: len(ds.split(s)) for s in ("train", "validation", "test")}
@@ -58,10 +58,10 @@ def counts(data: Path) -> dict[str, int]:
 def scaling(data: Path, model: Path) -> dict[int, float]:
     """Mass-spring feature extraction of SCALING_CLIPS training clips with 1 and 2 local
     workers, uncached, at the model's settings: clips per second."""
-    from springc.kws.distributed import session
-    from springc.kws.massspring import MassSpringSettings
-    from springc.kws.task import open_task_data
-    from springc.kws.train import feature_matrices
+    from springc.kws.features.distributed import session
+    from springc.kws.features.massspring import MassSpringSettings
+    from springc.kws.data.task import open_task_data
+    from springc.kws.training.train import feature_matrices
 
     feats = json.loads((model / "settings.json").read_text())["features"]
     s = MassSpringSettings(**{k: v for k, v in feats.items() if k != "realisation"})
@@ -89,13 +89,13 @@ def errors(data: Path, model: Path, clips: int = CHECK_CLIPS) -> dict:
     import numpy as np
 
     from springc.check import check
-    from springc.kws import integration as itg
-    from springc.kws import massspring as msp
-    from springc.kws import transfer as tr
-    from springc.kws.distributed import session
-    from springc.kws.evaluate import model_integration
-    from springc.kws.model import load_model
-    from springc.kws.task import open_task_data
+    from springc.kws.features import integration as itg
+    from springc.kws.features import massspring as msp
+    from springc.kws.training import transfer as tr
+    from springc.kws.features.distributed import session
+    from springc.kws.evaluation.evaluate import model_integration
+    from springc.kws.training.model import load_model
+    from springc.kws.data.task import open_task_data
     from springc.lang import load_file
 
     trained = load_model(model)

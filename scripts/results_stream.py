@@ -16,11 +16,12 @@ from pathlib import Path
 import numpy as np
 import soundfile as sf
 
-from springc.kws.classify import classify
-from springc.kws.dataset import COMMANDS, NOISE_REGIONS, SAMPLE_RATE, fit_length, read_converted
-from springc.kws.preprocess import energy_centroid, remove_background
-from springc.kws.stream import stream
-from springc.kws.task import open_task_data
+from springc.kws.evaluation.classify import classify
+from springc.kws.data.dataset import (COMMANDS, NOISE_REGIONS, SAMPLE_RATE, fit_length,
+                                      read_converted)
+from springc.kws.data.preprocess import energy_centroid, remove_background
+from springc.kws.evaluation.stream import stream
+from springc.kws.data.task import open_task_data
 
 TOLERANCE = 0.3  # s between a detection and the word's energy centre
 NOISE_GAIN = 0.03  # background level (training augmentation: uniform gain up to 0.1)

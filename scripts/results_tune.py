@@ -21,11 +21,11 @@ import subprocess
 import time
 from pathlib import Path
 
-from springc.kws.evaluate import evaluate
-from springc.kws.train import TrainOptions, train
-from springc.kws.readme import tune_history_text
-from springc.kws.tune import TuneOptions, tune
-from springc.kws.digital import FeatureSettings
+from springc.kws.evaluation.evaluate import evaluate
+from springc.kws.training.train import TrainOptions, train
+from springc.kws.training.readme import tune_history_text
+from springc.kws.tuning.tune import TuneOptions, tune
+from springc.kws.features.digital import FeatureSettings
 
 
 # Earlier runs, before the learnt temperature and the validation-chosen epoch (0d0334e)

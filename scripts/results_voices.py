@@ -79,11 +79,11 @@ def evaluate(model: Path, data: Path | None) -> dict:
 def features_eval(model: Path, data: Path, settings: dict) -> dict:
     """A mass-spring model's ideal readout on a folder's test split, read as `springc eval`
     reads it (the model's task, seed and protocol)."""
-    from springc.kws.massspring import MassSpringSettings
-    from springc.kws.model import load_model
-    from springc.kws.report import score
-    from springc.kws.task import open_task_data, targets
-    from springc.kws.train import feature_matrices
+    from springc.kws.features.massspring import MassSpringSettings
+    from springc.kws.training.model import load_model
+    from springc.kws.training.report import score
+    from springc.kws.data.task import open_task_data, targets
+    from springc.kws.training.train import feature_matrices
 
     print(f"$ (features of {model.name} on {data})", flush=True)
     feats = MassSpringSettings(**{k: v for k, v in settings["features"].items()

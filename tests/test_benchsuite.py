@@ -380,7 +380,7 @@ def test_the_pipelines_networks_are_cases_of_the_suite():
     """kws-features and kws-classifier are the networks `train` and `eval` simulate at 8x3:
     488 and 788 masses, checked, probed where their outputs are."""
     from springc.bench import networks as bn
-    from springc.kws import massspring as msp
+    from springc.kws.features import massspring as msp
 
     features, classifier = bn.pipeline_features(), bn.pipeline_classifier()
     assert features.n == 488 and classifier.n == 788

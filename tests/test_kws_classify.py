@@ -14,11 +14,11 @@ import pytest
 import soundfile as sf
 from click.testing import CliRunner
 
-from springc.kws.classify import classify, sound_files
-from springc.kws.digital import FeatureSettings
-from springc.kws.model import load_model
-from springc.kws.task import open_task_data
-from springc.kws.train import feature_matrices
+from springc.kws.evaluation.classify import classify, sound_files
+from springc.kws.features.digital import FeatureSettings
+from springc.kws.training.model import load_model
+from springc.kws.data.task import open_task_data
+from springc.kws.training.train import feature_matrices
 from springc_cli.main import main
 from test_kws_train import RATE, _sound, make_corpus
 
@@ -85,8 +85,8 @@ def test_scores_are_the_decisions_eval_computes(env):
 def test_the_baseline_scores_its_log_mel_features(env):
     """The log-Mel baseline classifies clips too: its scores are its logistic regression's
     decisions on the features training computes (float32, as cached)."""
-    from springc.kws.baseline import baseline_features
-    from springc.kws.dataset import SAMPLE_RATE, load_clip
+    from springc.kws.features.baseline import baseline_features
+    from springc.kws.data.dataset import SAMPLE_RATE, load_clip
 
     root, data = env
     model = load_model(root / "baseline")

@@ -1,4 +1,4 @@
-"""Speaker-grouped cross-validation (`springc.kws.crossval`) and `springc cv`."""
+"""Speaker-grouped cross-validation (`springc.kws.evaluation.crossval`) and `springc cv`."""
 
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ from springc_cli.main import main
 from test_kws_train import make_corpus
 
 from springc.errors import UsageError
-from springc.kws import crossval
-from springc.kws.digital import FeatureSettings
+from springc.kws.evaluation import crossval
+from springc.kws.features.digital import FeatureSettings
 
 KERNELS = Path(tempfile.gettempdir()) / "springc-test-kernels"  # shared compiled kernels
 
@@ -98,7 +98,7 @@ def test_a_model_never_sees_the_speaker_it_is_tested_on():
     assert np.mean(pred == y) < 0.7
     # the same data with the speaker's own clips in training: (near) perfect
     own = np.arange(len(y)) % per == 0  # one clip of each speaker held out
-    from springc.kws.svm import fit_linear
+    from springc.kws.training.svm import fit_linear
 
     model = fit_linear(x[~own], y[~own], 100.0)
     assert np.mean(model.predict(x[own]) == y[own]) > 0.95

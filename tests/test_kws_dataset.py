@@ -13,7 +13,7 @@ import pytest
 import soundfile as sf
 
 from springc.errors import DataError, UsageError
-from springc.kws.dataset import (
+from springc.kws.data.dataset import (
     CLASSES,
     CLIP_SAMPLES,
     COMMANDS,

@@ -7,8 +7,8 @@ import pytest
 
 from springc.design import filters
 from springc.errors import UsageError
-from springc.kws.digital import (FeatureSettings, features, filter_responses, filterbank,
-                                 horizon, lowpass)
+from springc.kws.features.digital import (FeatureSettings, features, filter_responses, filterbank,
+                                          horizon, lowpass)
 
 RATE = 16000.0
 

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from springc.errors import SimulationError
-from springc.kws import massspring as msp
-from springc.kws.distributed import map_batches
+from springc.kws.features import massspring as msp
+from springc.kws.features.distributed import map_batches
 
 KERNELS = Path(tempfile.gettempdir()) / "springc-test-kernels"
 S = msp.MassSpringSettings(bins=2, delays=2)
@@ -81,7 +81,7 @@ def _touch(path: str) -> None:
 def test_work_ahead_runs_on_a_session_worker_and_drops_its_errors(tmp_path):
     """`ahead` outside a session does nothing; inside, the task runs on a worker (its file
     appears), and a failing one neither raises here nor stops the session's batches."""
-    from springc.kws.distributed import ahead, session
+    from springc.kws.features.distributed import ahead, session
 
     ahead(_touch, str(tmp_path / "outside"))
     with session(None, 2):

@@ -5,8 +5,8 @@ threshold and falls with amplitude above it (paper Fig. 5)."""
 
 import numpy as np
 
-from springc.kws import energy
-from springc.kws import massspring as msp
+from springc.kws.evaluation import energy
+from springc.kws.features import massspring as msp
 
 
 def test_budget_of_the_feature_network():

@@ -14,10 +14,10 @@ import pytest
 import soundfile as sf
 from click.testing import CliRunner
 
-from springc.kws.dataset import open_dataset
-from springc.kws.model import load_model
-from springc.kws.task import targets
-from springc.kws.train import feature_matrices
+from springc.kws.data.dataset import open_dataset
+from springc.kws.training.model import load_model
+from springc.kws.data.task import targets
+from springc.kws.training.train import feature_matrices
 from springc_cli.main import main
 from test_kws_train import RATE, SPEAKERS, _sound, corpus_and_model, make_corpus
 
@@ -93,7 +93,7 @@ def test_eval_decisions_are_the_models_on_the_test_clips(env, tmp_path):
 
 
 def _settings(model):
-    from springc.kws.digital import FeatureSettings
+    from springc.kws.features.digital import FeatureSettings
 
     feats = {k: v for k, v in model.settings["features"].items() if k != "realisation"}
     return FeatureSettings(**feats)

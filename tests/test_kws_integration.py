@@ -1,4 +1,4 @@
-"""The integrator choice of the keyword-spotting networks (springc/kws/integration.py): the
+"""The integrator choice of the keyword-spotting networks (springc/kws/features/integration.py): the
 cheapest candidate within the tolerance of the reference, measured, never assumed."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ import pytest
 
 from springc.check import check
 from springc.errors import DataError, DivergedRuns, SimulationError, UsageError
-from springc.kws import integration
-from springc.kws import massspring as msp
+from springc.kws.features import integration
+from springc.kws.features import massspring as msp
 from springc.check.accuracy import cost
 
 SMALL = msp.MassSpringSettings(bins=2, delays=1)

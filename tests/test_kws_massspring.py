@@ -1,6 +1,6 @@
-"""Mass-spring feature extraction: the in-kernel Gram reduction against `springc.kws.phi` on
-recorded trajectories (to round-off), the delay lines' delays from the linearised network, and
-the simulated features against the digital realisation."""
+"""Mass-spring feature extraction: the in-kernel Gram reduction against
+`springc.kws.features.phi` on recorded trajectories (to round-off), the delay lines' delays from
+the linearised network, and the simulated features against the digital realisation."""
 
 from __future__ import annotations
 
@@ -14,9 +14,9 @@ from scipy.signal import chirp
 from springc.lang import physics
 from springc.errors import UsageError
 from springc.lang.ir import IRBuilder, Source, Tran
-from springc.kws import massspring as msp
-from springc.kws.digital import FeatureSettings, features
-from springc.kws.phi import group_index, n_features, readout_weights
+from springc.kws.features import massspring as msp
+from springc.kws.features.digital import FeatureSettings, features
+from springc.kws.features.phi import group_index, n_features, readout_weights
 from springc.sim.reductions import gram_reduction
 from springc.sim.simulate import simulate
 from springc.check import check
@@ -55,7 +55,7 @@ def chain4():
 
 
 def phi_of_recorded(x: np.ndarray, h: float, tau: float, n: int, m: int) -> np.ndarray:
-    """springc.kws.phi's definition on trajectories x (runs, n m, K+1) sampled every h."""
+    """springc.kws.features.phi's definition on trajectories x (runs, n m, K+1) sampled every h."""
     q = readout_weights(x.shape[-1], h, tau)
     g = np.einsum("rkt,rlt->rkl", x * q, x)
     idx = group_index(n, m).ravel()

@@ -7,9 +7,9 @@ from math import comb
 import numpy as np
 import pytest
 
-from springc.kws.digital import FeatureSettings
-from springc.kws.phi import (delayed, gram, group_index, kernels, n_features, phi_vector,
-                             readout, readout_weights, spread)
+from springc.kws.features.digital import FeatureSettings
+from springc.kws.features.phi import (delayed, gram, group_index, kernels, n_features, phi_vector,
+                                      readout, readout_weights, spread)
 
 SIZES = [(2, 1), (4, 2), (6, 3), (8, 3), (5, 4)]
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from springc.kws.preprocess import (
+from springc.kws.data.preprocess import (
     centre_utterance,
     lowpass_cutoff,
     preprocess,

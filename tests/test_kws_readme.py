@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from springc.kws.digital import FeatureSettings
-from springc.kws.readme import train_arguments
-from springc.kws.train import TrainOptions, train
+from springc.kws.features.digital import FeatureSettings
+from springc.kws.training.readme import train_arguments
+from springc.kws.training.train import TrainOptions, train
 from springc_cli.main import main
 from test_kws_train import corpus_and_model
 
@@ -87,7 +87,7 @@ def test_settings_without_an_option_are_named(env, tmp_path):
 def test_a_model_without_test_results_says_so(env, tmp_path):
     """A report without test results (`tune` with evaluate off) writes a folder whose README
     says it is not evaluated, and no confusion files that would have nothing to show."""
-    from springc.kws.model import load_model, write_model
+    from springc.kws.training.model import load_model, write_model
 
     _, _, model = env
     m = load_model(model)

@@ -1,4 +1,4 @@
-"""The refit on the exact head response (`springc.kws.refit`, `springc tune`'s first stage),
+"""The refit on the exact head response (`springc.kws.tuning.refit`, `springc tune`'s first stage),
 on a tiny generated corpus: a network's decisions are the linear readout sum_e lambda_e J_e + b
 of its zero modes' integrals J, J does not depend on the heads' weights (so a refitted
 network reads out what the fit assumed), and a refitted folder is what `springc eval`
@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from springc.kws import massspring as msp
-from springc.kws import refit as rf
-from springc.kws import transfer as tr
-from springc.kws.evaluate import model_integration, trained_data
-from springc.kws.model import load_model
-from springc.kws.task import open_task_data
+from springc.kws.features import massspring as msp
+from springc.kws.tuning import refit as rf
+from springc.kws.training import transfer as tr
+from springc.kws.evaluation.evaluate import model_integration, trained_data
+from springc.kws.training.model import load_model
+from springc.kws.data.task import open_task_data
 from springc.lang import load_text
 from springc_cli.main import main
 from test_kws_train import corpus_and_model

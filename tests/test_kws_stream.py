@@ -16,15 +16,15 @@ import pytest
 import soundfile as sf
 from click.testing import CliRunner
 
-from springc.kws import massspring as msp
-from springc.kws import stream as st
-from springc.kws.classify import CLIP_SECONDS, feature_rows
-from springc.kws.dataset import load_clip
-from springc.kws.evaluate import model_integration, simulate_network
-from springc.kws.model import load_model
-from springc.kws.preprocess import energy_centroid
-from springc.kws.task import open_task_data
-from springc.kws.transfer import model_heads
+from springc.kws.features import massspring as msp
+from springc.kws.evaluation import stream as st
+from springc.kws.evaluation.classify import CLIP_SECONDS, feature_rows
+from springc.kws.data.dataset import load_clip
+from springc.kws.evaluation.evaluate import model_integration, simulate_network
+from springc.kws.training.model import load_model
+from springc.kws.data.preprocess import energy_centroid
+from springc.kws.data.task import open_task_data
+from springc.kws.training.transfer import model_heads
 from springc.lang import load_file
 from springc_cli.main import main
 from test_kws_train import RATE, _sound, make_corpus
@@ -208,7 +208,7 @@ def test_the_energy_budget_reads_a_test_only_folder(env, tmp_path):
     split lists it prints the table the training folder's test split gives."""
     import shutil
 
-    from springc.kws import energy
+    from springc.kws.evaluation import energy
 
     root, data, _ = env
     for clip in held_out_words(data)[:2]:

@@ -9,9 +9,9 @@ import pytest
 from scipy.signal import chirp
 
 from springc.errors import DataError
-from springc.kws.digital import FeatureSettings, features
-from springc.kws.phi import kernels, phi_vector, readout
-from springc.kws.svm import LinearModel, Standardiser, accuracy, fit_linear, select
+from springc.kws.features.digital import FeatureSettings, features
+from springc.kws.features.phi import kernels, phi_vector, readout
+from springc.kws.training.svm import LinearModel, Standardiser, accuracy, fit_linear, select
 
 
 def _blobs(rng, k=3, n=60, dim=5):
@@ -51,7 +51,7 @@ def test_newton_reaches_liblinears_minimum_with_its_class_weights(classes, c):
 
     from sklearn.svm import LinearSVC
 
-    from springc.kws import hinge
+    from springc.kws.training import hinge
 
     rng = np.random.default_rng(classes)
     x, y = _blobs(rng, k=classes)

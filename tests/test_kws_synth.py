@@ -14,10 +14,10 @@ import pytest
 import soundfile as sf
 
 from springc.errors import DataError, UsageError
-from springc.kws.dataset import CLIP_SAMPLES, SAMPLE_RATE, open_dataset
+from springc.kws.data.dataset import CLIP_SAMPLES, SAMPLE_RATE, open_dataset
 from scipy.signal import butter, sosfreqz
 
-from springc.kws.synth import (
+from springc.kws.data.synth import (
     BAND_HIGH_HZ,
     BAND_LOW_HZ,
     CHANNEL_PROBABILITY,
@@ -36,7 +36,7 @@ from springc.kws.synth import (
     synthesise,
     tilt,
 )
-from springc.kws.voices import Voice, installed_voices
+from springc.kws.data.voices import Voice, installed_voices
 
 RATE = SAMPLE_RATE
 ESPEAK = [Voice(f"espeak:{a}+{v}", "espeak", f"espeak-{a}+{v}", f"{a}+{v}")
@@ -323,7 +323,7 @@ def test_an_interrupted_run_is_replaced(tmp_path):
 
 @needs_engines
 def test_festival_that_hangs_or_dies_is_a_synthesis_error(monkeypatch):
-    from springc.kws import voices
+    from springc.kws.data import voices
 
     monkeypatch.setattr(voices, "FESTIVAL_TIMEOUT_S", 1.0)
     with voices.Speaker() as speaker:

@@ -12,9 +12,9 @@ import soundfile as sf
 from scipy.signal import chirp
 
 from springc.errors import DataError, UsageError
-from springc.kws.digital import FeatureSettings
-from springc.kws.svm import SVM_GRID
-from springc.kws.train import TrainOptions, train
+from springc.kws.features.digital import FeatureSettings
+from springc.kws.training.svm import SVM_GRID
+from springc.kws.training.train import TrainOptions, train
 
 RATE = 16000
 SPEAKERS = [f"{i:08x}" for i in range(0x1a2b3c40, 0x1a2b3c48)]  # 6 train, 1 val, 1 test
@@ -136,8 +136,8 @@ def test_kws12_defaults_to_balanced_splits_and_class_weights(corpus, tmp_path):
 
 
 def test_protocol_defaults_per_task(corpus, tmp_path):
-    from springc.kws.dataset import balanced, open_dataset
-    from springc.kws.task import open_task_data, task_protocol, task_weights
+    from springc.kws.data.dataset import balanced, open_dataset
+    from springc.kws.data.task import open_task_data, task_protocol, task_weights
 
     assert open_task_data(corpus, "kws12", 3).clips == balanced(open_dataset(corpus, seed=3),
                                                                 3).clips
@@ -162,11 +162,11 @@ def test_raw_lists_and_equal_weights_are_recorded(corpus, tmp_path):
 def test_physical_readout_of_stored_weights_reproduces_the_decision(corpus, tmp_path):
     """c . Phi + b with the raw coefficients from weights.npz gives the stored model's
     decisions on freshly computed test features."""
-    from springc.kws.evaluate import evaluate
-    from springc.kws.model import load_model
-    from springc.kws.phi import readout, spread
-    from springc.kws.task import open_task_data
-    from springc.kws.train import feature_matrices
+    from springc.kws.evaluation.evaluate import evaluate
+    from springc.kws.training.model import load_model
+    from springc.kws.features.phi import readout, spread
+    from springc.kws.data.task import open_task_data
+    from springc.kws.training.train import feature_matrices
 
     report = train(_opts(corpus, tmp_path / "m", bins=4, delays=3))
     model = load_model(tmp_path / "m")
@@ -183,9 +183,9 @@ def test_physical_readout_of_stored_weights_reproduces_the_decision(corpus, tmp_
 
 
 def test_parallel_and_cached_features_equal_serial_ones(corpus, tmp_path, monkeypatch):
-    from springc.kws import cache
-    from springc.kws.task import open_task_data
-    from springc.kws.train import feature_matrices
+    from springc.kws.features import cache
+    from springc.kws.data.task import open_task_data
+    from springc.kws.training.train import feature_matrices
 
     monkeypatch.setenv("SPRINGC_CACHE", str(tmp_path / "own-cache"))
     ds = open_task_data(corpus, "kws12")
@@ -206,8 +206,8 @@ def test_parallel_and_cached_features_equal_serial_ones(corpus, tmp_path, monkey
 
 
 def test_shared_pass_over_delays_matches_separate_runs(corpus):
-    from springc.kws.task import open_task_data
-    from springc.kws.train import feature_matrices
+    from springc.kws.data.task import open_task_data
+    from springc.kws.training.train import feature_matrices
 
     ds = open_task_data(corpus, "kws12")
     clips = ds.split("test")[:4]
@@ -280,7 +280,7 @@ def trained(corpus, tmp_path_factory) -> Path:
 def test_model_folder_missing_a_file(trained, tmp_path, missing):
     import shutil
 
-    from springc.kws.evaluate import evaluate
+    from springc.kws.evaluation.evaluate import evaluate
 
     broken = tmp_path / "broken"
     shutil.copytree(trained, broken)
@@ -292,7 +292,7 @@ def test_model_folder_missing_a_file(trained, tmp_path, missing):
 def test_model_folder_with_mismatched_settings(trained, tmp_path):
     import shutil
 
-    from springc.kws.evaluate import evaluate
+    from springc.kws.evaluation.evaluate import evaluate
 
     broken = tmp_path / "broken"
     shutil.copytree(trained, broken)
@@ -304,7 +304,7 @@ def test_model_folder_with_mismatched_settings(trained, tmp_path):
 
 
 def test_eval_with_another_realisation_or_no_folder(trained, tmp_path):
-    from springc.kws.evaluate import evaluate
+    from springc.kws.evaluation.evaluate import evaluate
 
     with pytest.raises(UsageError, match="trained with the digital realisation"):
         evaluate(trained, realisation="baseline")
@@ -318,7 +318,7 @@ def test_eval_with_another_realisation_or_no_folder(trained, tmp_path):
 
 def test_eval_on_data_with_a_class_the_model_never_saw(trained, tmp_path):
     """A test label unknown to the model is counted (TPR 0), not an internal error."""
-    from springc.kws.evaluate import evaluate
+    from springc.kws.evaluation.evaluate import evaluate
 
     other = make_corpus(tmp_path / "other", words=("yes", "no", "cat", "up"), per_speaker=1,
                         seed=3)

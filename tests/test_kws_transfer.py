@@ -15,12 +15,12 @@ from springc.check import check
 from springc.check.compiler import build
 from springc.design.blocks import readout_params
 from springc.errors import UsageError
-from springc.kws import massspring as msp
-from springc.kws import transfer as tr
-from springc.kws.evaluate import selection_models
-from springc.kws.phi import n_features, spread
-from springc.kws.report import score
-from springc.kws.svm import LinearModel
+from springc.kws.features import massspring as msp
+from springc.kws.training import transfer as tr
+from springc.kws.evaluation.evaluate import selection_models
+from springc.kws.features.phi import n_features, spread
+from springc.kws.training.report import score
+from springc.kws.training.svm import LinearModel
 from springc.lang import load_text
 
 KERNELS = Path(tempfile.gettempdir()) / "springc-test-kernels"

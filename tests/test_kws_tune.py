@@ -14,11 +14,11 @@ from click.testing import CliRunner
 
 from springc.check import check
 from springc.design.emit import num
-from springc.kws import massspring as msp
-from springc.kws import tune as T
-from springc.kws.model import load_model
-from springc.kws.task import targets
-from springc.kws.transfer import model_heads
+from springc.kws.features import massspring as msp
+from springc.kws.tuning import tune as T
+from springc.kws.training.model import load_model
+from springc.kws.data.task import targets
+from springc.kws.training.transfer import model_heads
 from springc_cli.main import main
 from test_kws_train import corpus_and_model
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from springc.kws.massspring import compressed
+from springc.kws.features.massspring import compressed
 from springc.lang import load_text
 from springc.sim.simulate import simulate
 from springc.check import check

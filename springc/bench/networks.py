@@ -122,9 +122,9 @@ def long_delay_line(sites: int = 200, td: float = 1e-4, kc: float = 1e4) -> Flat
 
 def pipeline_features(bins: int = 8, delays: int = 3) -> FlatNetlist:
     """The feature network `springc train --realisation mass-spring` simulates
-    (`springc.kws.massspring.feature_text`: 488 masses at 8x3), probed on its first, middle
+    (`springc.kws.features.massspring.feature_text`: 488 masses at 8x3), probed on its first, middle
     and last terminal nodes (what Phi is made of)."""
-    from springc.kws import massspring as msp
+    from springc.kws.features import massspring as msp
     from springc.lang import load_text
 
     s = msp.MassSpringSettings(bins=bins, delays=delays)
@@ -137,13 +137,14 @@ def pipeline_features(bins: int = 8, delays: int = 3) -> FlatNetlist:
 def pipeline_classifier(bins: int = 8, delays: int = 3, heads: int = 12,
                         seed: int = 0) -> FlatNetlist:
     """The whole classifier `springc eval` simulates for a mass-spring model
-    (`springc.kws.transfer.classifier_text`: front end and `heads` heads, 788 masses at 8x3),
+    (`springc.kws.training.transfer.classifier_text`: front end and `heads` heads, 788 masses at
+    8x3),
     its heads designed from random classifier rows (a trained model's weights change the
     coefficients, not the work), probed on three readouts."""
-    from springc.kws import massspring as msp
-    from springc.kws.phi import n_features
-    from springc.kws.svm import LinearModel
-    from springc.kws.transfer import DEFAULT_EPSILON, classifier_text, heads_for
+    from springc.kws.features import massspring as msp
+    from springc.kws.features.phi import n_features
+    from springc.kws.training.svm import LinearModel
+    from springc.kws.training.transfer import DEFAULT_EPSILON, classifier_text, heads_for
     from springc.lang import load_text
 
     s = msp.MassSpringSettings(bins=bins, delays=delays)

@@ -1,2 +1,4 @@
-"""Keyword spotting: speech data (GSCD reader, offline synthetic corpus, pre-processing),
-features from mass-spring or digital filterbanks, linear classifiers and their evaluation."""
+"""Keyword spotting, in subpackages that import one way: `data` (speech data sets, synthetic
+corpus, pre-processing, tasks) -> `features` (digital or mass-spring filterbanks, Phi) ->
+`training` (linear classifiers, weight transfer, model folders) -> `evaluation` (test splits,
+cross-validation, energy, classifying recordings) -> `tuning` (refit and gradient tuning)."""

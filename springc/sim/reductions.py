@@ -12,7 +12,8 @@ Syntax of a reduction (the result is stored under the string as written):
 - `gram:TAU:N1,N2,...`: leaky Gram matrix of the listed nodes' displacements,
   G_kl = int_0^T exp(-(T-t)/TAU) x_k x_l dt (trapezoid on the integration grid), one value per
   pair k <= l in row-major order, shape (runs, pairs). `gram_reduction` builds the general form
-  in code: node pairs summed with weights into groups (the SVM features Phi of springc.kws.phi).
+  in code: node pairs summed with weights into groups (the SVM features Phi of
+  springc.kws.features.phi).
 """
 
 from __future__ import annotations

@@ -38,7 +38,7 @@ from tqdm import tqdm
 from springc.sim.audio import (AUDIO_SUFFIXES, non_finite, read_checked, resample,
                                wav_truncation)
 from springc.errors import DataError, UsageError
-from springc.kws.preprocess import preprocess as paper_preprocess
+from springc.kws.data.preprocess import preprocess as paper_preprocess
 
 COMMANDS: tuple[str, ...] = ("yes", "no", "up", "down", "left", "right", "on", "off", "stop", "go")
 WORDS: tuple[str, ...] = COMMANDS + (

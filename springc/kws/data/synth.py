@@ -30,7 +30,7 @@ from tqdm import tqdm
 
 from springc.sim.audio import resample
 from springc.errors import DataError, UsageError
-from springc.kws.dataset import (
+from springc.kws.data.dataset import (
     CLIP_SAMPLES,
     LIST_FILES,
     NOISE_FOLDER,
@@ -39,7 +39,7 @@ from springc.kws.dataset import (
     WORDS,
     warn,
 )
-from springc.kws.voices import ENGINES, Speaker, SynthesisError, Voice, installed_voices
+from springc.kws.data.voices import ENGINES, Speaker, SynthesisError, Voice, installed_voices
 
 DEFAULT_CLIPS = 2400
 SPLIT_SHARES = {"train": 0.8, "validation": 0.1, "test": 0.1}

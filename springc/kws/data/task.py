@@ -50,7 +50,7 @@ def open_task_data(data: Path, task: str, seed: int = 0, protocol: str | None = 
     (default: the task's, see `task_protocol`). `splits`: those the caller needs (evaluating:
     the test split alone, which a folder without split lists holds entirely); each must
     hold clips of the task, and only they are read and balanced."""
-    from springc.kws.dataset import open_dataset, with_protocol
+    from springc.kws.data.dataset import open_dataset, with_protocol
 
     if not Path(data).is_dir():
         raise DataError(str(data), "no such data folder",
@@ -70,7 +70,7 @@ def open_task_data(data: Path, task: str, seed: int = 0, protocol: str | None = 
 
 def _empty_split_hint(data: Path, task: str, split: str) -> str | None:
     """Why a split may be empty: the list that defines it, or the words the task reads."""
-    from springc.kws.dataset import LIST_FILES
+    from springc.kws.data.dataset import LIST_FILES
 
     words = f"; {task} reads the words {', '.join(DIGITS)}" if task == "digits-pairs" else ""
     if split == "train":

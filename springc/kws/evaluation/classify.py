@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from springc.errors import DataError, UsageError
-from springc.kws.dataset import (CLIP_SAMPLES, NOISE_FOLDER, SAMPLE_RATE, fit_length,
-                                 inspect_audio, read_converted, warn)
-from springc.kws.model import TrainedModel, load_model
-from springc.kws.preprocess import preprocess
+from springc.kws.data.dataset import (CLIP_SAMPLES, NOISE_FOLDER, SAMPLE_RATE, fit_length,
+                                      inspect_audio, read_converted, warn)
+from springc.kws.training.model import TrainedModel, load_model
+from springc.kws.data.preprocess import preprocess
 from springc.sim.audio import AUDIO_SUFFIXES
 
 CLIP_SECONDS = CLIP_SAMPLES / SAMPLE_RATE
@@ -115,10 +115,10 @@ def model_for(model_dir: Path, realisation: str | None, verb: str = "classified"
 def feature_settings(model: TrainedModel):
     """The settings of the model's features: digital FeatureSettings or MassSpringSettings."""
     if model.settings["realisation"] == "mass-spring":
-        from springc.kws.transfer import model_heads
+        from springc.kws.training.transfer import model_heads
 
         return model_heads(model)[0]
-    from springc.kws.evaluate import _feature_settings
+    from springc.kws.evaluation.evaluate import _feature_settings
 
     return _feature_settings(model)
 
@@ -127,12 +127,12 @@ def feature_rows(model: TrainedModel, signals: np.ndarray) -> np.ndarray:
     """Decision rows (clips, rows) of a digital or baseline model on pre-processed clips
     (clips, samples): its features, computed as training computes them, through its models."""
     if model.settings["realisation"] == "baseline":
-        from springc.kws.baseline import baseline_features
+        from springc.kws.features.baseline import baseline_features
 
         x = baseline_features(signals, SAMPLE_RATE).astype(np.float32)
     else:
-        from springc.kws.digital import features
-        from springc.kws.phi import phi_vector
+        from springc.kws.features.digital import features
+        from springc.kws.features.phi import phi_vector
 
         settings = feature_settings(model)
         x = phi_vector(features(signals, SAMPLE_RATE, settings), settings)
@@ -144,8 +144,8 @@ def network_rows(model: TrainedModel, signals: np.ndarray, jobs: int = 0,
     """Decision rows (clips, rows) of a mass-spring model: its whole classifier network
     simulated on the clips (float32 input, as the data sets' clips), integrated as
     settings.json says."""
-    from springc.kws.evaluate import model_integration, simulate_network
-    from springc.kws.transfer import model_heads
+    from springc.kws.evaluation.evaluate import model_integration, simulate_network
+    from springc.kws.training.transfer import model_heads
     from springc.lang import load_file
 
     s, heads = model_heads(model)
@@ -202,7 +202,7 @@ def classify(model_dir: Path, inputs: Sequence[Path], realisation: str | None = 
     """[{"file", "label", "scores": {class: value}}] for every sound file of `inputs`
     (files or folders), one clip each; digit-pairs models add "pairs": {pair: decision}.
     Files are read FILES_AT_ONCE at a time (a GSCD folder would not fit in memory)."""
-    from springc.kws.distributed import session
+    from springc.kws.features.distributed import session
 
     model = model_for(model_dir, realisation)
     paths = sound_files(inputs)

@@ -9,7 +9,7 @@ their difference is paired.
 
 Scores are class-balanced accuracies (the mean of the per-class true-positive rates): what
 the accuracy would be on a test set with as many clips of every class, the paper's protocol
-(`springc.kws.dataset.balanced`). Standard errors come from a bootstrap over speakers
+(`springc.kws.data.dataset.balanced`). Standard errors come from a bootstrap over speakers
 (clips of one voice are not independent; `_silence_` windows count as one group each).
 
 Why: a 136-clip balanced test split gives a difference between two realisations with a
@@ -26,11 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from springc.errors import UsageError
-from springc.kws.dataset import SILENCE
-from springc.kws.digital import FeatureSettings
-from springc.kws.svm import SVM_GRID, fit_linear, select
-from springc.kws.task import open_task_data, task_weights
-from springc.kws.train import feature_matrices
+from springc.kws.data.dataset import SILENCE
+from springc.kws.features.digital import FeatureSettings
+from springc.kws.training.svm import SVM_GRID, fit_linear, select
+from springc.kws.data.task import open_task_data, task_weights
+from springc.kws.training.train import feature_matrices
 from springc.sim.results import atomic_path
 
 REALISATIONS = ("digital", "mass-spring")
@@ -134,7 +134,7 @@ def realisation_features(clips: list, realisation: str, opts: CVOptions) -> np.n
     """Feature matrix (clips, N) of every clip, unaugmented, from the cache where present."""
     settings = opts.settings
     if realisation == "mass-spring":
-        from springc.kws.massspring import integrated, physical_settings
+        from springc.kws.features.massspring import integrated, physical_settings
 
         settings, opts.integration, _ = integrated(
             physical_settings(opts.settings, opts.massspring), clips, opts.tolerance)

@@ -16,8 +16,8 @@ import numpy as np
 from springc.lang.ir import FlatNetlist
 from springc.check import check
 
-# Stage of a mass element, by its flattened name (`springc.kws.massspring.front_end` and
-# `springc.kws.transfer.head_text` name them).
+# Stage of a mass element, by its flattened name (`springc.kws.features.massspring.front_end` and
+# `springc.kws.training.transfer.head_text` name them).
 STAGES: tuple[tuple[str, str], ...] = (
     ("Mel filters", r"^Xf\d+\."),
     ("low-pass masses", r"^Xlp\d+\."),
@@ -84,7 +84,7 @@ def run_budget(net: FlatNetlist, signals: np.ndarray, tstop: float, *,
                substeps: int | None = None) -> dict[str, np.ndarray]:
     """Simulate `signals` (clips, samples) at the clips' 16 kHz through `net` (in float64)
     and return `budget`."""
-    from springc.kws.massspring import INPUT_RATE
+    from springc.kws.features.massspring import INPUT_RATE
     from springc.sim.simulate import simulate
 
     sig = np.atleast_2d(np.asarray(signals, dtype=np.float64))[:, None, :]
@@ -95,9 +95,9 @@ def run_budget(net: FlatNetlist, signals: np.ndarray, tstop: float, *,
 
 def model_budget(model_dir, signals: np.ndarray) -> dict[str, np.ndarray]:
     """The budget of a trained mass-spring model's whole classifier on `signals`."""
-    from springc.kws import massspring as msp
-    from springc.kws import transfer as tr
-    from springc.kws.model import load_model
+    from springc.kws.features import massspring as msp
+    from springc.kws.training import transfer as tr
+    from springc.kws.training.model import load_model
     from springc.lang import load_text
 
     model = load_model(model_dir)
@@ -111,10 +111,10 @@ def test_split_budget(model_dir, data=None, clips: int = 8) -> dict[str, np.ndar
     from pathlib import Path
 
     from springc.errors import UsageError
-    from springc.kws import massspring as msp
-    from springc.kws.evaluate import trained_data
-    from springc.kws.model import load_model
-    from springc.kws.task import open_task_data
+    from springc.kws.features import massspring as msp
+    from springc.kws.evaluation.evaluate import trained_data
+    from springc.kws.training.model import load_model
+    from springc.kws.data.task import open_task_data
 
     model = load_model(model_dir)
     if model.settings.get("realisation") != "mass-spring":

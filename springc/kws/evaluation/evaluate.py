@@ -13,17 +13,17 @@ from pathlib import Path
 import numpy as np
 
 from springc.errors import DataError, UsageError
-from springc.kws import massspring as msp
-from springc.kws.digital import FeatureSettings
-from springc.kws.integration import PAPER, Integration, from_dict
-from springc.kws.model import load_model
-from springc.kws.report import score
-from springc.kws.svm import LinearModel
-from springc.kws.task import open_task_data, targets
-from springc.kws.train import check_realisation, feature_matrices
+from springc.kws.features import massspring as msp
+from springc.kws.features.digital import FeatureSettings
+from springc.kws.features.integration import PAPER, Integration, from_dict
+from springc.kws.training.model import load_model
+from springc.kws.training.report import score
+from springc.kws.training.svm import LinearModel
+from springc.kws.data.task import open_task_data, targets
+from springc.kws.training.train import check_realisation, feature_matrices
 from springc.check import check
-from springc.kws.transfer import (Head, classifier_batch, decisions, insertion_loss_db,
-                                  model_heads, readout_reductions)
+from springc.kws.training.transfer import (Head, classifier_batch, decisions, insertion_loss_db,
+                                           model_heads, readout_reductions)
 
 
 def evaluate(model_dir: Path, data: Path | None = None, realisation: str | None = None,
@@ -132,7 +132,7 @@ def evaluate_network(model, ds, *, scheduler: str | None = None, jobs: int = 0,
     test split: accuracy, confusion, per-class TPR and insertion loss of the physical
     decisions, next to the digital readout c . Phi of the same model on the same features.
     `heads` and `net` replace the model folder's (the epsilon study)."""
-    from springc.kws.distributed import cores, session
+    from springc.kws.features.distributed import cores, session
     from springc.lang import load_file
 
     s, model_heads_ = model_heads(model)

@@ -44,11 +44,12 @@ from pathlib import Path
 import numpy as np
 
 from springc.errors import UsageError
-from springc.kws.classify import (CLIP_SECONDS, Recording, decision_rows, feature_settings,
-                                  model_for, read_recordings, row_names, sound_files)
-from springc.kws.dataset import CLIP_SAMPLES, COMMANDS, SAMPLE_RATE
-from springc.kws.model import TrainedModel
-from springc.kws.preprocess import remove_background
+from springc.kws.evaluation.classify import (CLIP_SECONDS, Recording, decision_rows,
+                                             feature_settings, model_for, read_recordings,
+                                             row_names, sound_files)
+from springc.kws.data.dataset import CLIP_SAMPLES, COMMANDS, SAMPLE_RATE
+from springc.kws.training.model import TrainedModel
+from springc.kws.data.preprocess import remove_background
 
 HOP = 0.1  # s between the digital windows
 WINDOWS_PER_BATCH = 64  # digital windows whose features are computed together (memory)
@@ -111,7 +112,7 @@ def digital_trace(model: TrainedModel, signal: np.ndarray, hop: float = HOP) -> 
 def slow_pole() -> float:
     """p: the readouts' slow decay rate (1/s), b - sqrt(b^2 - 4 m k) over 2 m."""
     from springc.design.blocks import readout_params
-    from springc.kws.transfer import Q_READOUT, TAU_READOUT
+    from springc.kws.training.transfer import Q_READOUT, TAU_READOUT
 
     r = readout_params(TAU_READOUT, Q_READOUT)
     return (r.b - math.sqrt(r.b**2 - 4 * r.m * r.k_total)) / (2 * r.m)
@@ -122,10 +123,10 @@ def network_readouts(model: TrainedModel, signal: np.ndarray) -> tuple[np.ndarra
     simulated over `signal` (16 kHz) and one clip horizon of silence after it, recorded at
     READOUT_RATE, integrated as the model's settings say (finer steps if it diverges)."""
     from springc.check import check
-    from springc.kws import integration
-    from springc.kws import massspring as msp
-    from springc.kws.evaluate import model_integration
-    from springc.kws.transfer import model_heads
+    from springc.kws.features import integration
+    from springc.kws.features import massspring as msp
+    from springc.kws.evaluation.evaluate import model_integration
+    from springc.kws.training.transfer import model_heads
     from springc.lang import load_file
     from springc.sim.simulate import simulate
 
@@ -163,8 +164,8 @@ def readout_decisions(x: np.ndarray, lag: int, decay: float, heads) -> np.ndarra
 def network_trace(model: TrainedModel, signal: np.ndarray) -> Trace:
     """Decisions of a mass-spring model's simulated network over `signal` (module
     docstring), at TRACE_RATE, windows centred from 0 to the end of the recording."""
-    from springc.kws import massspring as msp
-    from springc.kws.transfer import model_heads
+    from springc.kws.features import massspring as msp
+    from springc.kws.training.transfer import model_heads
 
     s, heads = model_heads(model)
     t, x = network_readouts(model, signal)

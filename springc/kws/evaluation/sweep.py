@@ -16,17 +16,17 @@ from pathlib import Path
 
 import numpy as np
 
-from springc.kws import massspring as msp
-from springc.kws import transfer as tr
+from springc.kws.features import massspring as msp
+from springc.kws.training import transfer as tr
 
 
 def epsilon_sweep(model_dir: Path, data: Path, epsilons, *, scheduler: str | None = None,
                   jobs: int = 0) -> list[dict]:
     """[{epsilon, accuracy, ideal_accuracy, insertion_loss_db, readout_error}] for a trained
     mass-spring model, one whole-network simulation of the test split per eps."""
-    from springc.kws.evaluate import evaluate_network
-    from springc.kws.model import load_model
-    from springc.kws.task import open_task_data
+    from springc.kws.evaluation.evaluate import evaluate_network
+    from springc.kws.training.model import load_model
+    from springc.kws.data.task import open_task_data
     from springc.lang import load_text
 
     model = load_model(model_dir)
@@ -48,9 +48,9 @@ def compression_sweep(data: Path, thresholds, out: Path, *, bins: int = 4, delay
                       jobs: int = 0) -> list[dict]:
     """[{threshold, compressor Duffing range, accuracy, ...}]: a mass-spring model trained and
     simulated for every compression threshold A_c (models in `out/threshold-<A_c>`)."""
-    from springc.kws.digital import FeatureSettings
-    from springc.kws.evaluate import evaluate
-    from springc.kws.train import TrainOptions, train
+    from springc.kws.features.digital import FeatureSettings
+    from springc.kws.evaluation.evaluate import evaluate
+    from springc.kws.training.train import TrainOptions, train
 
     fs = FeatureSettings(bins=bins, delays=delays)
     rows = []

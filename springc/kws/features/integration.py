@@ -139,7 +139,7 @@ def _compile_ahead(outputs: Outputs, signals: np.ndarray, todo: list[tuple[str, 
     """Each candidate method's kernel compiled on an idle Dask worker (one clip run there)
     while the reference runs here: a kernel compile takes 10-25 s, and the choice would
     otherwise compile one after the other on one core (`distributed.ahead`)."""
-    from springc.kws.distributed import ahead
+    from springc.kws.features.distributed import ahead
 
     firsts = {}
     for method, substeps in todo:

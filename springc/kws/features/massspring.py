@@ -20,7 +20,7 @@ would pull on the last site with kc (1 - e^{-iq}) x = (i w t_s kc - m_s w^2 / 2)
 a dashpot t_s kc = sqrt(m_s kc) and a negative half site mass, so the terminal is half a site
 (m_s / 2) with that dashpot (a full site with the dashpot reflects ~w t_s / 2, 3% at 5 Hz,
 and the echo shifts the delays by ~5%, measured). In the full classifier
-(`springc.kws.transfer`) the same mass and damping come from the mvm heads instead, so the
+(`springc.kws.training.transfer`) the same mass and damping come from the mvm heads instead, so the
 features there equal the ones computed here.
 
 Compression: c = (kq lp / l)^(1/3) ~ (y^2)^(1/3) = |y|^(2/3) above the threshold, the digital
@@ -34,11 +34,11 @@ low-pass acts on the slow envelope, where the stiffening does no harm. The compr
 stiffness still grows with amplitude (kq + 3 l c^2, ~2e4 kq at full scale), so its mass is
 the larger of kq / (2 pi fq)^2 and what keeps sqrt(k_max / m) h <= STABLE_WH at the step h
 (`compressor_mass`); louder clips than FULL_SCALE plans for are simulated again with smaller
-steps (`springc.kws.integration.Integration.retries`).
+steps (`springc.kws.features.integration.Integration.retries`).
 
 Phi: the `gram` reduction over the terminal nodes, pairs (k <= l) weighted 1 (k = l) or 2 and
-summed into the groups of `springc.kws.phi.group_index`: exactly `phi_vector` of the recorded
-terminal trajectories, without storing them.
+summed into the groups of `springc.kws.features.phi.group_index`: exactly `phi_vector` of the
+recorded terminal trajectories, without storing them.
 """
 
 from __future__ import annotations
@@ -54,8 +54,8 @@ from springc.design.emit import SprWriter, num
 from springc.design.melbank import MelFilter
 from springc.errors import UsageError
 from springc.lang.ir import FlatNetlist
-from springc.kws import integration
-from springc.kws.phi import group_index, n_features
+from springc.kws.features import integration
+from springc.kws.features.phi import group_index, n_features
 from springc.sim.reductions import Reduction, gram_reduction
 from springc.check import check
 
@@ -117,7 +117,7 @@ class MassSpringSettings:
     fmin: float = 20.0
     fmax: float = 8000.0
     network: int = NETWORK_VERSION  # in the feature-cache key: bump when the netlist changes
-    method: str = "rk4"  # how the network is integrated (`springc.kws.integration`)
+    method: str = "rk4"  # how the network is integrated (`springc.kws.features.integration`)
     substeps: int = SUBSTEPS
     filter_scale: tuple[float, ...] = ()
     compression_scale: tuple[float, ...] = ()
@@ -203,7 +203,7 @@ def horizon(s: MassSpringSettings, clip_seconds: float) -> float:
 @functools.lru_cache(maxsize=16)
 def filters(s: MassSpringSettings) -> tuple[MelFilter, ...]:
     """The fitted two-mode Mel filters of the network (cached, shared with the digital path)."""
-    from springc.kws.digital import melbank_filters
+    from springc.kws.features.digital import melbank_filters
 
     return melbank_filters(s.bins, "two-mode", s.fmin, s.fmax)
 
@@ -523,7 +523,7 @@ BATCH = 16  # clips simulated in lockstep by one worker (SIMD lanes; one progres
 def load_signals(clips: list, augment: bool, seed: int, noise_files: list) -> np.ndarray:
     """The clips as the network hears them, (clips, samples) float32 at 16 kHz: the same
     preprocessing and (for training) the same per-clip augmentation as the digital path."""
-    from springc.kws.dataset import _clip_rng, load_clip
+    from springc.kws.data.dataset import _clip_rng, load_clip
 
     noise = noise_bank(tuple(noise_files)) if augment and noise_files else None
     return np.stack([load_clip(c, augment=augment, rng=_clip_rng(seed, c.key()), noise=noise)
@@ -533,7 +533,7 @@ def load_signals(clips: list, augment: bool, seed: int, noise_files: list) -> np
 @functools.lru_cache(maxsize=2)
 def noise_bank(files: tuple):
     """The background noise of augmentation, read once per process."""
-    from springc.kws.dataset import NoiseBank
+    from springc.kws.data.dataset import NoiseBank
 
     return NoiseBank(list(files))
 
@@ -567,7 +567,7 @@ def batches(signals, size: int = BATCH) -> list:
 def dataset_phi(clips: list, split: str, s: MassSpringSettings, *, noise_files: list,
                 seed: int = 0, scheduler: str | None = None,
                 workers: int | None = None) -> np.ndarray:
-    """Phi (clips, N) of a split's clips, simulated on Dask (`springc.kws.distributed`)."""
+    """Phi (clips, N) of a split's clips, simulated on Dask (`springc.kws.features.distributed`)."""
     from functools import partial
 
     work = partial(clips_phi, s=s, augment=split == "train", seed=seed,
@@ -598,7 +598,7 @@ def _map_rows(work: Callable[..., dict], items, tries: slice, desc: str,
               scheduler: str | None, workers: int | None) -> dict[str, np.ndarray]:
     from functools import partial
 
-    from springc.kws.distributed import map_batches
+    from springc.kws.features.distributed import map_batches
 
     parts = batches(items)
     got = map_batches(partial(work, tries=tries), parts, scheduler, workers=workers, desc=desc,
@@ -608,8 +608,8 @@ def _map_rows(work: Callable[..., dict], items, tries: slice, desc: str,
 
 def feature_correlation(signals: np.ndarray, s: MassSpringSettings) -> np.ndarray:
     """Per clip and bin, the correlation of the compressed feature c_i(t) with the digital
-    feature of the same bin (`springc.kws.digital`), both at 1 kHz: (clips, bins)."""
-    from springc.kws.digital import FeatureSettings, features
+    feature of the same bin (`springc.kws.features.digital`), both at 1 kHz: (clips, bins)."""
+    from springc.kws.features.digital import FeatureSettings, features
 
     _, x = simulate_traces(signals, s)
     d = features(np.asarray(signals, dtype=np.float64), INPUT_RATE,

@@ -25,7 +25,7 @@ import functools
 
 import numpy as np
 
-from springc.kws.digital import FeatureSettings
+from springc.kws.features.digital import FeatureSettings
 
 
 def n_features(n: int, m: int) -> int:

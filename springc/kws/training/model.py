@@ -1,8 +1,8 @@
 """The model folder: `settings.json` (all settings), `weights.npz` (raw-Phi coefficients,
 intercepts, classes, group index), `report.json`, `confusion.csv`, `confusion.png`,
-`per_class.csv`, and `README.md`, which explains the rest to a reader (`springc.kws.readme`).
-Written into a temporary sibling folder and renamed into place, so a failed run never leaves
-a half-written model."""
+`per_class.csv`, and `README.md`, which explains the rest to a reader
+(`springc.kws.training.readme`). Written into a temporary sibling folder and renamed into place,
+so a failed run never leaves a half-written model."""
 
 from __future__ import annotations
 
@@ -17,11 +17,11 @@ import numpy as np
 
 from springc import __version__
 from springc.errors import DataError
-from springc.kws import report as rep
-from springc.kws.phi import group_index, n_features
-from springc.kws.readme import readme_text
-from springc.kws.svm import LinearModel
-from springc.kws.task import REALISATIONS
+from springc.kws.training import report as rep
+from springc.kws.features.phi import group_index, n_features
+from springc.kws.training.readme import readme_text
+from springc.kws.training.svm import LinearModel
+from springc.kws.data.task import REALISATIONS
 
 FILES = ("settings.json", "weights.npz", "report.json")
 

@@ -2,7 +2,7 @@
 scored, and the commands that reproduce it, so that a folder explains itself.
 
 The training command is rebuilt from settings.json; settings that `springc train` has no
-option for (set through `springc.kws.train.TrainOptions`) are listed, with their values,
+option for (set through `springc.kws.training.train.TrainOptions`) are listed, with their values,
 instead of silently dropped from the command. A tuned model (settings.json's "tune") also
 gets the `springc tune` line that made it from the trained one."""
 
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from springc.kws.report import counts_table, true_positive_rates
+from springc.kws.training.report import counts_table, true_positive_rates
 
 TASKS = {"kws12": "GSCD's 12 classes: the 10 commands, `_unknown_` (every other word) and "
                   "`_silence_` (windows of background noise), one-versus-rest",
@@ -73,7 +73,7 @@ def _data(settings: dict, report: dict) -> str:
 
 
 def _settings(settings: dict) -> str:
-    from springc.kws.integration import from_dict
+    from springc.kws.features.integration import from_dict
 
     f = {k: v for k, v in settings["features"].items() if k != "realisation"}
     lines = ["## Settings", "", f"- classifier: {settings.get('classifier')}, C = "
@@ -171,14 +171,14 @@ def _reproduce(folder: Path, settings: dict) -> str:
               "a long recording", "```"]
     if missing:
         lines += ["", "Settings `springc train` has no option for (set through "
-                  "`springc.kws.train.TrainOptions`): "
+                  "`springc.kws.training.train.TrainOptions`): "
                   + ", ".join(f"{k} = {v!r}" for k, v in missing.items()) + "."]
     return "\n".join(lines)
 
 
 def train_arguments(settings: dict) -> tuple[list[str], dict]:
     """(`springc train` options that give these settings, the settings no option gives)."""
-    from springc.kws.digital import FeatureSettings
+    from springc.kws.features.digital import FeatureSettings
 
     f = dict(settings["features"])
     realisation = settings["realisation"]
@@ -203,8 +203,8 @@ def train_arguments(settings: dict) -> tuple[list[str], dict]:
 def _massspring_arguments(settings: dict, f: dict, size: dict,
                           args: list[str]) -> tuple[list[str], dict]:
     """The mass-spring options: threshold, epsilon, and how the integration was set."""
-    from springc.kws.massspring import from_features
-    from springc.kws.digital import FeatureSettings
+    from springc.kws.features.massspring import from_features
+    from springc.kws.features.digital import FeatureSettings
 
     args += ["--threshold", f"{f['threshold']:g}",
              "--epsilon", f"{settings['transfer']['epsilon']:g}"]

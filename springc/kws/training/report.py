@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from springc.kws.svm import LinearModel
-from springc.kws.task import DIGITS, PAPER_PAIRS
+from springc.kws.training.svm import LinearModel
+from springc.kws.data.task import DIGITS, PAPER_PAIRS
 
 
 def confusion(y_true: np.ndarray, y_pred: np.ndarray, classes: list[str]) -> np.ndarray:

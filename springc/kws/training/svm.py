@@ -1,5 +1,5 @@
 """Linear classifiers on fixed feature vectors: the paper's SVM (squared hinge, l2, primal,
-one-versus-rest, liblinear's objective, solved exactly by `springc.kws.hinge`) and, for the
+one-versus-rest, liblinear's objective, solved exactly by `springc.kws.training.hinge`) and, for the
 baseline, logistic regression (scikit-learn). With class_weight="balanced" each class's
 errors are weighted by n_samples / (n_classes * n_class) (`row_costs`), so a frequent class
 (GSCD's `_unknown_`) cannot win by being frequent. Features are standardised for the optimiser; the
@@ -20,7 +20,7 @@ from sklearn.linear_model import LogisticRegression
 from threadpoolctl import threadpool_limits
 
 from springc.errors import DataError
-from springc.kws import hinge
+from springc.kws.training import hinge
 
 # Regularisation C, chosen on the validation split. Up to 1e4: on the demo corpus (4 x 2,
 # speaker-grouped 5-fold cross-validation) both realisations still gained from 100 to 1e4

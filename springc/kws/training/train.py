@@ -1,5 +1,5 @@
 """Training the keyword spotter: features of every clip (in parallel, cached), a linear SVM
-per task (`springc.kws.task`) with C chosen on the validation split, and a model folder with
+per task (`springc.kws.data.task`) with C chosen on the validation split, and a model folder with
 weights and report.
 
 Realisations: "digital" (the paper's architecture evaluated numerically, `digital` + `phi`),
@@ -22,14 +22,14 @@ from tqdm import tqdm
 
 from springc import __version__
 from springc.errors import DataError, UsageError
-from springc.kws import cache
-from springc.kws.baseline import baseline_features, baseline_settings
-from springc.kws.digital import FeatureSettings, features
-from springc.kws.phi import phi_vector
-from springc.kws.report import evaluate_fits
-from springc.kws.svm import LOGREG_GRID, SVM_GRID, LinearModel, select
-from springc.kws.task import (DIGITS, REALISATIONS, open_task_data, targets, task_counts,
-                              task_protocol, task_weights)
+from springc.kws.features import cache
+from springc.kws.features.baseline import baseline_features, baseline_settings
+from springc.kws.features.digital import FeatureSettings, features
+from springc.kws.features.phi import phi_vector
+from springc.kws.training.report import evaluate_fits
+from springc.kws.training.svm import LOGREG_GRID, SVM_GRID, LinearModel, select
+from springc.kws.data.task import (DIGITS, REALISATIONS, open_task_data, targets, task_counts,
+                                   task_protocol, task_weights)
 
 CHUNK = 8  # clips per work item: big enough for batched FFTs, small enough for memory
 
@@ -56,7 +56,7 @@ class TrainOptions:
     epsilon: float | None = None
     scheduler: str | None = None
     # the error allowed on Phi and the readouts, which chooses the integrator
-    # (`springc.kws.integration`); None: the paper's RK4 with 8 substeps
+    # (`springc.kws.features.integration`); None: the paper's RK4 with 8 substeps
     tolerance: float | None = 1e-3
 
 
@@ -80,7 +80,7 @@ _WORKER: dict = {}
 
 def _init_worker(clips: list, realisation: str, settings_list: list, augment: bool,
                  seed: int, noise_files: list) -> None:
-    from springc.kws.dataset import NoiseBank
+    from springc.kws.data.dataset import NoiseBank
 
     _WORKER.update(clips=clips, realisation=realisation, settings_list=settings_list,
                    augment=augment, seed=seed,
@@ -94,7 +94,7 @@ def _init_pool_worker(*args) -> None:
 
 def _work(span: tuple[int, int]) -> list[np.ndarray]:
     """Feature matrices (one per settings) for clips[span[0]:span[1]]."""
-    from springc.kws.dataset import SAMPLE_RATE, _clip_rng, load_clip
+    from springc.kws.data.dataset import SAMPLE_RATE, _clip_rng, load_clip
 
     w = _WORKER
     clips = w["clips"][span[0]:span[1]]
@@ -160,8 +160,8 @@ def feature_matrices(clips: list, split: str, realisation: str,
     found = [cache.load(p, len(clips)) if use_cache else None for p in paths]
     todo = [s for s, f in zip(settings_list, found) if f is None]
     if todo:
-        if realisation == "mass-spring":  # simulated on Dask (springc.kws.distributed)
-            from springc.kws.massspring import dataset_phi
+        if realisation == "mass-spring":  # simulated on Dask (springc.kws.features.distributed)
+            from springc.kws.features.massspring import dataset_phi
 
             computed = iter([dataset_phi(clips, split, s, noise_files=noise_files, seed=seed,
                                          scheduler=scheduler, workers=jobs or None)
@@ -217,7 +217,7 @@ def train(opts: TrainOptions) -> dict:
     if opts.realisation == "digital":
         opts.settings.validate(16000)
     if opts.realisation == "mass-spring":
-        from springc.kws.massspring import physical_settings
+        from springc.kws.features.massspring import physical_settings
 
         opts.massspring = physical_settings(opts.settings, opts.massspring)
     ds = open_task_data(opts.data, opts.task, opts.seed, opts.protocol)
@@ -240,12 +240,12 @@ class Phases:
 
 
 def _train(opts: TrainOptions, ds, phases: Phases) -> dict:
-    from springc.kws.model import write_model
+    from springc.kws.training.model import write_model
 
     reference = None  # the mass-spring reference run on a sample: integration and heads
     if opts.realisation == "mass-spring":
-        from springc.kws.massspring import integrated, reference_run, sample_signals
-        from springc.kws.transfer import compile_ahead
+        from springc.kws.features.massspring import integrated, reference_run, sample_signals
+        from springc.kws.training.transfer import compile_ahead
 
         if opts.tolerance is not None:  # the classifier's choice runs in double precision
             compile_ahead(opts.massspring)
@@ -273,7 +273,7 @@ def _train(opts: TrainOptions, ds, phases: Phases) -> dict:
                                                            opts.integration.to_dict()}
     extra = {}
     if opts.realisation == "mass-spring":  # the classifier netlists beside the weights
-        from springc.kws.transfer import write_classifier
+        from springc.kws.training.transfer import write_classifier
 
         extra = write_classifier(opts, fits, settings, reference)
         phases.done("classifier network")
@@ -286,7 +286,7 @@ def _session(opts: TrainOptions):
     """One Dask cluster for the three splits of a mass-spring run (none for the others)."""
     from contextlib import nullcontext
 
-    from springc.kws.distributed import session
+    from springc.kws.features.distributed import session
 
     if opts.realisation != "mass-spring":
         return nullcontext()

@@ -23,7 +23,7 @@ stiffness: sum_k gamma_k alpha_k = A^2 s_c^2 sum lambda^2 / (eps kc) = FILL m_r 
 Impedance: every head's mvm inputs sit on the shared terminal nodes f{i}_{j}; with H heads each
 mvm is designed for mass m_s / (2H) and damping t_s kc / H (its nodes get half of each), so
 together their zero modes put half a line site with the matched damping on each terminal, the
-reflection-free termination the features were computed with (`springc.kws.massspring`).
+reflection-free termination the features were computed with (`springc.kws.features.massspring`).
 """
 
 from __future__ import annotations
@@ -37,9 +37,9 @@ from springc.design.blocks import readout_params
 from springc.design.emit import SprWriter, num
 from springc.design.mvm import design_mvm, mvm_text
 from springc.errors import UsageError
-from springc.kws import integration
-from springc.kws import massspring as msp
-from springc.kws.phi import n_features, spread
+from springc.kws.features import integration
+from springc.kws.features import massspring as msp
+from springc.kws.features.phi import n_features, spread
 from springc.check import CheckedNetlist, check
 
 TAU_READOUT = 80.0  # s (paper)
@@ -104,7 +104,7 @@ def reweighted_heads(heads: list[Head], weights: list, intercepts: list,
                      epsilon: float) -> list[Head]:
     """The heads with new eigenvalues `weights[k]` on their coupled components (the same
     eigenvectors, so the same mvm) and new intercepts, their couplings designed as
-    `design_head` does (`springc.kws.refit` fits them on the network's exact response)."""
+    `design_head` does (`springc.kws.tuning.refit` fits them on the network's exact response)."""
     out = []
     for h, w, b in zip(heads, weights, intercepts):
         w = np.asarray(w, np.float64)
@@ -160,7 +160,8 @@ def classifier_text(heads: list[Head], s: msp.MassSpringSettings, include_heads:
     w.title(f"mass-spring keyword spotter, {s.bins} bins x {s.delays} delays, "
             f"{len(heads)} heads")
     w.comment("From sound to decision in one passive network: feature extraction "
-              "(springc.kws.massspring) feeding every classifier head (springc.kws.transfer)."
+              "(springc.kws.features.massspring) feeding every classifier head "
+              "(springc.kws.training.transfer)."
               + (f" Squaring error eps = {epsilon:g}." if epsilon else ""))
     w.comment("Prediction: the row decisions x(r{k}) / scale_k + intercept_k (in each head's "
               "header), argmax over a model's classes (sign for a binary model).")
@@ -245,14 +246,14 @@ def compile_ahead(s: msp.MassSpringSettings) -> None:
     being chosen: otherwise they compile only after the SVM fit, one after the other. A
     kernel depends on the kinds of force terms and on what is reduced, never on the weights,
     so stand-in heads compile the kernels the trained classifier will run (a test checks)."""
-    from springc.kws.distributed import ahead
+    from springc.kws.features.distributed import ahead
 
     ahead(compile_classifier, s)
 
 
 def stand_in_heads(s: msp.MassSpringSettings, rows: int = 12) -> list[Head]:
     """Heads of random weights, built like trained ones (the 12 classes of kws12)."""
-    from springc.kws.svm import LinearModel
+    from springc.kws.training.svm import LinearModel
 
     rng = np.random.default_rng(0)
     n = n_features(s.bins, s.delays)

@@ -23,10 +23,10 @@ import numpy as np
 
 from springc.check import check
 from springc.errors import DataError
-from springc.kws import massspring as msp
-from springc.kws import transfer as tr
-from springc.kws.integration import Integration
-from springc.kws.svm import SVM_GRID, fit_linear
+from springc.kws.features import massspring as msp
+from springc.kws.training import transfer as tr
+from springc.kws.features.integration import Integration
+from springc.kws.training.svm import SVM_GRID, fit_linear
 from springc.sim.reductions import gram_reduction
 
 J = "J"  # the reduction's label
@@ -124,8 +124,8 @@ def fit(train: tuple[np.ndarray, np.ndarray], val: tuple[np.ndarray, np.ndarray]
         grid: tuple[float, ...] = SVM_GRID) -> Refit:
     """Refit on (J, classes) of training clips, C chosen by the task's accuracy on the
     validation clips' (J, classes) (ties: the smaller C)."""
-    from springc.kws.evaluate import selection_models
-    from springc.kws.report import score
+    from springc.kws.evaluation.evaluate import selection_models
+    from springc.kws.training.report import score
 
     best, scores = None, {}
     for c in grid:

@@ -2,7 +2,7 @@
 (`springc tune`): a trained, SVM-transferred model folder in, a tuned model folder out.
 
 First (unless `refit` is off) every head's weights and intercept are refitted on the
-transferred network's exact response (`springc.kws.refit`: forward simulations and a convex
+transferred network's exact response (`springc.kws.tuning.refit`: forward simulations and a convex
 fit); the gradient epochs below start from the refitted heads.
 
 The loss is the softmax cross-entropy of the physical decisions d_k = x(r_k) / scale_k + b_k
@@ -28,7 +28,7 @@ Every factor is f = lo (hi/lo)^sigmoid(z) in a box (`BOXES`, `springc.grad.legal
 corners pass the checks (verified before the first step), so every tuned netlist is legal by
 construction. The tuned values live in the model's settings (features: `filter_scale`,
 `compression_scale`; transfer: `couplings`, `intercepts`), from which every command
-re-derives the same network (`springc.kws.transfer.model_heads`). The folder gets the
+re-derives the same network (`springc.kws.training.transfer.model_heads`). The folder gets the
 parameters of the epoch (the start included) with the lowest loss on `val_clips` clips of the
 validation split, so tuning on few clips cannot leave a worse network than it found there.
 """
@@ -48,8 +48,8 @@ import numpy as np
 from springc.check import check
 from springc.errors import DataError, UsageError
 from springc.grad.legal import Range
-from springc.kws import massspring as msp
-from springc.kws import transfer as tr
+from springc.kws.features import massspring as msp
+from springc.kws.training import transfer as tr
 
 GROUPS = ("filter", "compression", "couplings", "readout")
 BOXES = {
@@ -213,7 +213,7 @@ class Targets:
 
 
 def make_targets(models, labels: np.ndarray) -> Targets:
-    """Targets of clips with true classes `labels` (as `springc.kws.task.targets` gives)."""
+    """Targets of clips with true classes `labels` (as `springc.kws.data.task.targets` gives)."""
     rows, target, start = [], [], 0
     for classes, m in models:
         n = len(m.coef)
@@ -447,7 +447,7 @@ def save_checkpoint(path: Path, key: str, epoch: int, z: np.ndarray, adam: Adam,
 def load_start(model_dir: Path):
     """The model to tune: (TrainedModel, Start). DataError for anything but a mass-spring
     model with its transfer (a digital or baseline model has no network to tune)."""
-    from springc.kws.model import load_model
+    from springc.kws.training.model import load_model
 
     model = load_model(model_dir)
     if model.settings.get("realisation") != "mass-spring" or "transfer" not in model.settings:
@@ -465,8 +465,8 @@ def training_clips(opts: TuneOptions, model):
     """The data set, the training clips tuned on (`opts.clips` of them, 0: all) and the
     validation clips the epochs are chosen by (`opts.val_clips`, 0: none), drawn with the
     seed."""
-    from springc.kws.evaluate import trained_data
-    from springc.kws.task import open_task_data
+    from springc.kws.evaluation.evaluate import trained_data
+    from springc.kws.data.task import open_task_data
 
     data = Path(opts.data) if opts.data else trained_data(model)
     splits = ("train",) + (("validation",) if opts.val_clips or opts.refit else ()) + (
@@ -485,7 +485,7 @@ def _draw(clips: list, n: int, seed: int) -> list:
 
 def validate(opts: TuneOptions) -> None:
     """UsageError / DataError for options that cannot work, before any simulation."""
-    from springc.kws.model import check_out_folder
+    from springc.kws.training.model import check_out_folder
 
     if Path(opts.out).resolve() == Path(opts.model).resolve():
         raise UsageError("the output folder is the model being tuned",
@@ -505,7 +505,7 @@ def validate(opts: TuneOptions) -> None:
 def tune(opts: TuneOptions) -> dict:
     """Tune the model `opts.model` on its training clips and write the tuned model folder
     `opts.out` (netlists, settings, report of the test split, README); returns the report."""
-    from springc.kws.distributed import session
+    from springc.kws.features.distributed import session
 
     validate(opts)
     opts.params = check_params(opts.params)
@@ -526,12 +526,12 @@ def tune(opts: TuneOptions) -> dict:
 
 def refit_start(opts: TuneOptions, model, start: Start, ds) -> tuple[Start, dict]:
     """The start with every head's weights refitted on the transferred network's exact
-    response (`springc.kws.refit`): `opts.refit_clips` training clips to fit, the validation
+    response (`springc.kws.tuning.refit`): `opts.refit_clips` training clips to fit, the validation
     split to choose C; kept only where its validation accuracy beats the transferred
     network's (as the epochs are chosen). Returns it and the record settings.json keeps."""
-    from springc.kws import refit as rf
-    from springc.kws.evaluate import selection_models
-    from springc.kws.report import score
+    from springc.kws.tuning import refit as rf
+    from springc.kws.evaluation.evaluate import selection_models
+    from springc.kws.training.report import score
 
     task, transfer = model.settings["task"], model.settings["transfer"]
     if not ds.split("validation"):
@@ -560,9 +560,9 @@ def refit_start(opts: TuneOptions, model, start: Start, ds) -> tuple[Start, dict
 def _responses(opts: TuneOptions, model, start: Start, ds) -> list[tuple]:
     """The transferred network's exact response (`refit.response`) and the classes of the
     refit's training clips, then of the validation split's."""
-    from springc.kws import refit as rf
-    from springc.kws.evaluate import model_integration
-    from springc.kws.task import targets
+    from springc.kws.tuning import refit as rf
+    from springc.kws.evaluation.evaluate import model_integration
+    from springc.kws.data.task import targets
     from springc.lang import load_text
 
     eps = float(model.settings["transfer"]["epsilon"])
@@ -586,7 +586,7 @@ class Clips:
 
 def clip_set(clips: list, model) -> Clips:
     """The signals and targets of `clips` under the model's task."""
-    from springc.kws.task import targets
+    from springc.kws.data.task import targets
 
     return Clips(msp.load_signals(clips, False, 0, []),
                  make_targets(model.models, targets(clips, model.settings["task"])))
@@ -670,7 +670,7 @@ def batch_step(opts: TuneOptions, start: Start, lay: Layout, z: np.ndarray, eps:
     how many of them were dropped (not finite)."""
     from functools import partial
 
-    from springc.kws.distributed import cores, map_batches
+    from springc.kws.features.distributed import cores, map_batches
 
     b = make_batch(opts, start, lay, z, eps, train.targets, tstop)
     workers = opts.jobs or cores()
@@ -697,9 +697,9 @@ def finish(opts: TuneOptions, model, ds, net: tuple, history: list, seconds: flo
            refit: dict | None = None) -> dict:
     """Evaluate the tuned network `net` (settings, heads, the heads the gradient epochs
     started from) on the test split and write the model folder (with the refit's record)."""
-    from springc.kws.evaluate import evaluate_network
-    from springc.kws.model import TrainedModel, write_model
-    from springc.kws.train import feature_key
+    from springc.kws.evaluation.evaluate import evaluate_network
+    from springc.kws.training.model import TrainedModel, write_model
+    from springc.kws.training.train import feature_key
     from springc.lang import load_text
 
     s, heads, untuned = net

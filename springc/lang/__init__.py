@@ -1,7 +1,7 @@
 """The .spr language front end: text -> AST (`parse`) -> flat IR (`elaborate`).
 
-`load_file` and `load_text` do both. The language is shared/design/spr-language.md; where the
-spec is silent this front end does the following (each is tested):
+`load_file` and `load_text` do both. The language is documented in docs/language.md, which
+also describes these choices of this front end (each is tested):
 - `.include` looks in the including file's folder, then `lib_dirs`, `STDLIB_DIR` and the
   SPRINGC_PATH folders; a file already included in the same scope is skipped (libraries may
   include what they use), a cycle is an error naming the chain.

@@ -17,8 +17,9 @@ KWS_RATE = 32000.0  # Hz: the integration grid of the benchmark
 
 def filter_pair(b: IRBuilder, name: str, fa: float, delta: float = 1.1,
                 alpha: float = 400.0) -> str:
-    """A two-mode band-pass filter (spec example): unit masses, springs wa^2, coupling
-    (wb^2 - wa^2)/2, damping alpha, forces of opposite sign from in(0). Returns the output."""
+    """A two-mode band-pass filter (the first example of docs/language.md): unit masses,
+    springs wa^2, coupling (wb^2 - wa^2)/2, damping alpha, forces of opposite sign from in(0).
+    Returns the output."""
     wa = 2 * np.pi * fa
     xa, xb = f"{name}a", f"{name}b"
     for node in (xa, xb):

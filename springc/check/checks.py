@@ -1,4 +1,4 @@
-"""The physics checks of a flat netlist (spec: "Checks the compiler makes", physics part).
+"""The physics checks of a flat netlist (docs/language.md, "What the checks refuse").
 
 Passes, in order: element signs, nodes without mass, the whole potential (only components
 with `P` elements can violate it: every other element is non-negative on its own), and the

@@ -2,8 +2,8 @@
 
     load_file(path) -> FlatNetlist -> checks.check(net) -> BuildReport
 
-The report is what `springc build` prints (text or one JSON object, spec "Machine-readable
-outputs"): degrees of freedom, element counts, instances, the fastest mode of the
+The report is what `springc build` prints (text or one JSON object, docs/language.md,
+"Outputs"): degrees of freedom, element counts, instances, the fastest mode of the
 linearisation and the largest stable step of the configured integrator (for a splitting
 scheme, the blocks it integrates exactly and the mode of the rest that limits its step).
 """
@@ -52,7 +52,7 @@ class BuildReport:
         return self.omega_max / (2 * math.pi)
 
     def to_json(self) -> dict:
-        """The spec's keys (`dofs`, `elements`, `omega_max`, `dt_max`) and the rest; an
+        """The documented keys (`dofs`, `elements`, `omega_max`, `dt_max`) and the rest; an
         unlimited `dt_max` is null."""
         return {
             "file": self.file,

@@ -38,7 +38,7 @@ def known_methods() -> list[str]:
 def method_name(raw: object) -> str:
     """The canonical name of an integrator (`exp_rk4`, `EXP-RK4` -> `exp-rk4`), or
     `OptionValueError` listing every known one. The split schemes are spelt with '-' on the
-    command line, but a bare word in a netlist is a name (spec: `[A-Za-z_][A-Za-z0-9_]*`), so
+    command line, but a bare word in a netlist is a name (`[A-Za-z_][A-Za-z0-9_]*`), so
     `.options` takes `method=exp_rk4` or the quoted `method="exp-rk4"`."""
     name = str(raw).lower()
     known = known_methods()

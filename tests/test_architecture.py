@@ -1,6 +1,7 @@
 """springc's modules import one another in one direction: no import circle, lazy imports
 inside functions included (a circle that only works because an import is deferred is still a
-circle in the design)."""
+circle in the design). Inside `springc.kws` the subpackages import in the order of its flow,
+data -> features -> training -> evaluation -> tuning: each only from its own or earlier ones."""
 
 from __future__ import annotations
 
@@ -86,3 +87,58 @@ def test_a_circle_through_a_lazy_import_is_found(tmp_path: Path) -> None:
     (top / "sub" / "c.py").write_text("import os\nfrom ..a import x\n")
     (top / "d.py").write_text("import pkg.a\n")
     assert circles(import_graph(top)) == [["pkg.a", "pkg.sub.b", "pkg.sub.c"]]
+
+
+KWS_ORDER = ("data", "features", "training", "evaluation", "tuning")
+
+
+def layer(module: str, package: str, order: tuple[str, ...]) -> int | None:
+    """Position in `order` of the subpackage of `package` that holds `module`; len(order) for
+    `package` itself (its `__init__` sits above every subpackage); None outside `package` or
+    for a module of `package` in no listed subpackage."""
+    if module == package:
+        return len(order)
+    if not module.startswith(package + "."):
+        return None
+    sub = module[len(package) + 1:].split(".")[0]
+    return order.index(sub) if sub in order else None
+
+
+def layer_violations(graph: dict[str, set[str]], package: str,
+                     order: tuple[str, ...]) -> list[tuple[str, str]]:
+    """Imports (module, imported) inside `package` that point to a later subpackage in
+    `order`, or from or to a module of `package` in no listed subpackage."""
+    def inside(module: str) -> bool:
+        return module == package or module.startswith(package + ".")
+
+    found = []
+    for module in filter(inside, graph):
+        here = layer(module, package, order)
+        for target in filter(inside, graph[module]):
+            there = layer(target, package, order)
+            if here is None or there is None or there > here:
+                found.append((module, target))
+    return sorted(found)
+
+
+def test_kws_subpackages_import_only_their_own_or_earlier_ones() -> None:
+    graph = import_graph(ROOT / "springc")
+    kws = sorted(m for m in graph if m.startswith("springc.kws."))
+    assert len(kws) > len(KWS_ORDER)  # the graph holds the subpackages' modules
+    assert [m for m in kws if layer(m, "springc.kws", KWS_ORDER) is None] == []
+    assert layer_violations(graph, "springc.kws", KWS_ORDER) == []
+
+
+def test_an_import_against_the_layer_order_is_found(tmp_path: Path) -> None:
+    top = tmp_path / "pkg"
+    for sub in ("early", "late"):
+        (top / sub).mkdir(parents=True)
+        (top / sub / "__init__.py").write_text("")
+    (top / "__init__.py").write_text("from pkg.late import c\n")
+    (top / "late" / "c.py").write_text("from ..early import a\n")
+    (top / "early" / "a.py").write_text("from . import b\n")
+    (top / "early" / "b.py").write_text("def f():\n    from pkg.late.c import g\n")
+    (top / "stray.py").write_text("")
+    (top / "early" / "d.py").write_text("import pkg.stray\nimport pkg\n")
+    assert layer_violations(import_graph(top), "pkg", ("early", "late")) == [
+        ("pkg.early.b", "pkg.late.c"), ("pkg.early.d", "pkg"), ("pkg.early.d", "pkg.stray")]

@@ -22,31 +22,20 @@ from springc_cli.common import check_output_file, plot_option, run_user_errors
 @run_user_errors
 def ac_cmd(netlist, node, channel, fmin, fmax, points, output, plot_path) -> None:
     """Frequency response H(f) = X(f)/U(f) of the linearisation at rest."""
-    from springc import lang
+    import springc
     from springc.analyses import ac
-    from springc.check import check
-    from springc.errors import UsageError
 
     for path in (output, plot_path):  # a failed command leaves no output: check both first
         if path:
             check_output_file(path, make_parents=True)
-    net = lang.load_file(netlist)
-    checked = check(net)
-    spec = net.acs[0] if net.acs else None
-    if node is None:
-        if spec is None:
-            raise UsageError("no output node: give --node or an .ac directive")
-        node = net.nodes[spec.node]
-    if channel is None:
-        channel = spec.input if spec else 0
-    base = ac.default_sweep(net)
-    sweep = ac.Sweep(fmin or base.fmin, fmax or base.fmax, points or base.points)
-    result = ac.response(checked, node, sweep.frequencies(), channel, progress=True)
+    result = springc.load(netlist).ac(node, input=channel, fmin=fmin, fmax=fmax,
+                                      points=points, progress=True)
     ac.write_csv(result, output)
     if plot_path:
         ac.plot(result, plot_path)
     peak = int(result.mag.argmax())
-    click.echo(f"wrote {output}: {len(result.f_hz)} points, {sweep.fmin:g}-{sweep.fmax:g} Hz; "
+    click.echo(f"wrote {output}: {len(result.f_hz)} points, {result.f_hz[0]:g}-"
+               f"{result.f_hz[-1]:g} Hz; "
                f"peak |H| {result.mag[peak]:.6g} at {result.f_hz[peak]:.6g} Hz")
 
 
@@ -57,12 +46,10 @@ def ac_cmd(netlist, node, channel, fmin, fmax, points, output, plot_path) -> Non
 @run_user_errors
 def modes_cmd(netlist: str, as_json: bool, count: int | None) -> None:
     """Eigenfrequencies, damping rates, Q factors, dominant nodes and zero modes."""
-    from springc import lang
-    from springc.analyses.modes import mode_report, mode_text
-    from springc.check import check
+    import springc
+    from springc.analyses.modes import mode_text
 
-    report = mode_report(check(lang.load_file(netlist)), count)
+    report = springc.load(netlist).modes(count)
     click.echo(json.dumps(report) if as_json else mode_text(report))
-
 
 COMMANDS = [ac_cmd, modes_cmd]

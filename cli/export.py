@@ -12,7 +12,7 @@ from springc_cli.common import check_output_file, plot_option, run_user_errors
 from springc.sim import sources
 from springc.design.emit import write_atomic
 from springc.errors import UsageError
-from springc.export.spice import SpiceOptions, export_spice, transient
+from springc.export.spice import SpiceOptions, transient
 from springc.lang.ir import FlatNetlist
 from springc.export.ngspice import CrossCheck, cross_check, plot_cross_check
 
@@ -80,21 +80,20 @@ def export_cmd(
     nonlinear forces B-sources. Run it with `ngspice -b OUT`; probes go to springc_probes.txt."""
     if not spice:
         raise UsageError("choose the output format: --spice (ngspice) is the one available")
-    from springc.check import check
-    from springc.lang import load_file
+    import springc
 
     for path in (output, plot_path):
         if path:
             check_output_file(path)
     if plot_path and not compare:  # before any work, so nothing is written
         raise UsageError("--plot shows the comparison: add --compare")
-    checked = check(load_file(netlist))
+    net = springc.load(netlist)
     options = SpiceOptions(tstop=tstop, tstep=tstep, tmax=tmax, reltol=reltol)
-    options = _bind_inputs(checked.net, options, input_path, channel)
-    write_atomic(output, export_spice(checked, options))
+    options = _bind_inputs(net.flat, options, input_path, channel)
+    write_atomic(output, net.export_spice(**vars(options)))
     click.echo(f"wrote {output}", err=True)
     if compare:
-        compared = cross_check(checked, options, substeps)
+        compared = cross_check(net.checked, options, substeps)
         click.echo(_summary(compared))
         if plot_path:
             plot_cross_check(compared, plot_path)

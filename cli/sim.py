@@ -7,8 +7,8 @@ from springc_cli.common import check_output_file, plot_option, precision_option,
 
 from springc.kernels.expint import SCHEMES
 from springc.kernels.integrators import TABLEAUX
+from springc.sim.plan import KERNEL_FORMS
 
-KERNEL_FORMS = {"auto": None, "written-out": True, "shared": False}  # simulate's write_out
 REDUCE_HELP = (
     "Streaming reduction (repeatable), stored under its text: final:x(N) | final:v(N) | "
     "msq:x(N)[:T0:T1] (mean square over T0 < t <= T1) | work:in | work:FNAME (input work, "
@@ -28,18 +28,22 @@ REDUCE_HELP = (
 @plot_option
 @click.option("--tstep", type=float, help="Input grid step in seconds (overrides .tran).")
 @click.option("--tstop", type=float, help="Stop time in seconds (overrides .tran).")
-@click.option("--substeps", type=int, help="Integration steps per input sample (default 1).")
+@click.option("--substeps", type=int,
+              help="Integration steps per input sample (default: .options substeps=, else "
+                   "chosen for --tolerance 1e-3; 1 with --method).")
 @precision_option
 @click.option("--method", type=click.Choice([*TABLEAUX, *SCHEMES]), default=None,
-              help="Integrator (default: netlist option or rk4); the split schemes strang-rk4, "
-                   "exp-rk4 and exp-heun3 propagate the driven linear filter blocks exactly "
-                   "and the rest with RK4 (Heun3: three stages).")
+              help="Integrator (default: the netlist's .options method=, else chosen for "
+                   "--tolerance 1e-3); the split schemes strang-rk4, exp-rk4 and exp-heun3 "
+                   "propagate the driven linear filter blocks exactly and the rest with RK4 "
+                   "(Heun3: three stages).")
 @click.option("--tolerance", type=float, default=None,
               help="Pick the cheapest integrator and substeps whose estimated per-mode error "
                    "(relative L2, modes up to the input Nyquist frequency) is at most this; "
                    "on a netlist with nonlinear terms, raise the substeps until step doubling "
-                   "over the first run's start agrees; prints the choice. Not with "
-                   "--method/--substeps.")
+                   "over the first run's start agrees; prints the choice. The default "
+                   "(1e-3) where neither the options nor the netlist name the integrator. "
+                   "Not with --method/--substeps.")
 @click.option("--outrate", type=float, help="Output sample rate in Hz (default 1/tstep).")
 @click.option("--reduce", "reduce_", multiple=True, metavar="SPEC", help=REDUCE_HELP)
 @click.option("--channel", type=int, default=None,
@@ -59,58 +63,28 @@ def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precisio
     """Simulate NETLIST for every input signal and write the probes and reductions.
 
     Runs are integrated together in lockstep by a kernel generated for the netlist; inputs
-    are resampled to 1/tstep and interpolated linearly at the integrator's stage times."""
-    from springc.check import check
-    from springc.lang import load_file
+    are resampled to 1/tstep and interpolated linearly at the integrator's stage times.
+    Without --method/--substeps (here or in the netlist's .options), springc chooses the
+    cheapest integrator whose estimated error is at most 1e-3 (--tolerance) and prints it."""
+    import springc
     from springc.sim import results
-    from springc.sim.simulate import simulate
 
     results.check_output_path(output)
     for path in (output, plot_path):  # a failed command leaves no output: check both first
         if path:
             check_output_file(path, make_parents=True)
-    net = load_file(netlist)
-    if tolerance is None:
-        checked = check(net, method, tstep=tstep, substeps=substeps)
-    else:  # simulate judges the chosen step against the limits this check computed
-        checked = check(net, judge_step=False)
-        method, substeps = _choose(checked, tolerance, method, substeps, tstep, tstop, inputs,
-                                   channel)
-    res = simulate(checked, list(inputs) or None, tstep=tstep, tstop=tstop, substeps=substeps,
-                   method=method, precision=precision, outrate=outrate,
-                   reductions=list(reduce_), batch=batch, channel=channel, progress=True,
-                   write_out=KERNEL_FORMS[kernel_form])
-    results.write(res, output)
+    chosen = tolerance is not None or not (method or substeps)
+    # a step springc chooses is judged when it is taken; one the user names, at load
+    net = springc.load(netlist, method=method, tstep=tstep, substeps=substeps,
+                       judge_step=not chosen)
+    res = net.simulate(list(inputs) or None, tstep=tstep, tstop=tstop, substeps=substeps,
+                       method=method, tolerance=tolerance, precision=precision,
+                       outrate=outrate, reduce=list(reduce_), batch=batch, channel=channel,
+                       progress=True, kernel=kernel_form)
+    if res.choice:
+        click.echo(res.choice)
+    res.save(output)
     if plot_path:
-        results.plot(res, plot_path)
+        res.plot(plot_path)
     click.echo(f"{len(res.runs)} run(s), {len(res.t)} samples, {len(res.probes)} probe(s) "
                f"-> {output}" + (f", plot {plot_path}" if plot_path else ""))
-
-
-def _choose(checked, tolerance, method, substeps, tstep, tstop, inputs, channel
-            ) -> tuple[str, int]:
-    """(method, substeps) from `springc.check.accuracy.choose`, echoed for the user; the
-    chosen step is judged by the check that follows."""
-    from springc.check.accuracy import choose
-    from springc.errors import UsageError
-    from springc.sim.stepcheck import verify
-
-    if method or substeps:
-        raise UsageError("--tolerance chooses the method and substeps itself",
-                         hint="drop --method/--substeps, or drop --tolerance")
-    net = checked.net
-    tstep = tstep or (net.tran.tstep if net.tran else None)
-    if tstep is None:
-        raise UsageError("no time step: the netlist has no .tran and no --tstep was given")
-    duration = tstop or (net.tran.tstop if net.tran else 1.0)
-    choice = verify(checked, choose(net, tstep, duration, tolerance), tstep, duration, tolerance,
-                    _first_run(inputs), channel)
-    click.echo(choice.describe())
-    return choice.method, choice.substeps
-
-
-def _first_run(inputs) -> list | None:
-    """The first input file, for the step-doubling check (None: a run without input)."""
-    from springc.sim.sources import expand_inputs
-
-    return expand_inputs(inputs)[:1] if inputs else None

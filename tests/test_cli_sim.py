@@ -9,8 +9,9 @@ import pytest
 import soundfile as sf
 from click.testing import CliRunner
 
+import springc
+
 from springc.lang import load_file
-from springc.sim.simulate import simulate
 from springc_cli.main import main
 from springc.check import check
 
@@ -51,10 +52,11 @@ def test_npz_holds_t_probes_and_reductions_as_the_library_computes(case):
     data = np.load(out)
     assert data["t"].shape == (501,) and data["x(a)"].shape == (2, 501)
     assert [p.rsplit("/", 1)[-1] for p in data["runs"]] == ["a.wav", "b.flac"]
-    lib = simulate(check(load_file(case / "osc.spr")), [case / "inputs"],
-                   reductions=["energy", "final:v(a)"])
-    np.testing.assert_array_equal(data["v(a)"], lib.probes["v(a)"])
-    np.testing.assert_array_equal(data["energy"], lib.reductions["energy"])
+    lib = springc.load(case / "osc.spr").simulate([case / "inputs"],
+                                                 reduce=["energy", "final:v(a)"])
+    assert lib.choice and lib.choice in res.output  # the default: chosen for 1e-3, said
+    np.testing.assert_array_equal(data["v(a)"], lib["v(a)"])
+    np.testing.assert_array_equal(data["energy"], lib["energy"])
     assert data["final:v(a)"][1] == data["v(a)"][1, -1]
     assert (case / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -73,7 +75,7 @@ def test_kernel_form_reaches_simulate(case, monkeypatch, form, write_out):
 
     monkeypatch.setattr(sm, "simulate", spy)
     res = invoke(case / "osc.spr", "-i", case / "inputs", "-o", case / f"{form}.npz",
-                 "--kernel", form)
+                 "--kernel", form, "--method", "rk4")
     assert res.exit_code == 0, res.output
     assert seen == [write_out]
     lib = real(check(load_file(case / "osc.spr")), [case / "inputs"], write_out=write_out)
@@ -96,7 +98,9 @@ def test_csv_long_format_and_overrides(case):
     (["-i", "{d}/missing.wav", "-o", "{d}/x.npz"], "missing.wav: no such file"),
     (["-i", "{d}/stereo.wav", "-o", "{d}/x.npz"], "stereo.wav: has 2 channels"),
     (["-o", "{d}/x.npz", "--reduce", "msq:x(nowhere)"], "unknown node 'nowhere'"),
-    (["-o", "{d}/x.npz", "--tstep", "0.02", "--tstop", "20"], "is unstable for rk4"),
+    (["-o", "{d}/x.npz", "--tstep", "0.02", "--tstop", "20", "--method", "rk4"],
+     "is unstable for rk4"),
+    (["-o", "{d}/x.npz", "--tolerance", "1e-3", "--method", "rk4"], "chooses the method"),
 ])
 def test_user_errors_exit_1_without_traceback_or_output(case, args, message):
     res = invoke(case / "osc.spr", *[a.format(d=case) for a in args])

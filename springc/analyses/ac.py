@@ -123,6 +123,26 @@ def _sparse(lin: linear.Linearisation, force: np.ndarray, w: np.ndarray, target:
     return out
 
 
+def target(net: FlatNetlist, node: str | None, channel: int | None) -> tuple[str, int]:
+    """(output node, input channel): as given, else the `.ac` directive's (channel 0 without
+    one); no node at all is a `UsageError`."""
+    spec = net.acs[0] if net.acs else None
+    if node is None:
+        if spec is None:
+            raise UsageError("no output node: give --node or an .ac directive")
+        node = net.nodes[spec.node]
+    if channel is None:
+        channel = spec.input if spec else 0
+    return node, channel
+
+
+def sweep(net: FlatNetlist, fmin: float | None = None, fmax: float | None = None,
+          points: int | None = None) -> Sweep:
+    """`default_sweep` with any of its bounds or its count replaced."""
+    base = default_sweep(net)
+    return Sweep(fmin or base.fmin, fmax or base.fmax, points or base.points)
+
+
 def default_sweep(net: FlatNetlist) -> Sweep:
     """From `.ac` if present, else a decade below the slowest to a decade above the fastest
     mode (1 Hz to 10 kHz if there are none)."""

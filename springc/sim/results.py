@@ -77,6 +77,11 @@ def write_csv(result: SimResult, path: str | Path) -> None:
 
 def plot(result: SimResult, path: str | Path, max_runs: int = 4) -> None:
     """PNG of every probe against time for the first `max_runs` runs."""
+    save_figure(figure(result, max_runs), path)
+
+
+def figure(result: SimResult, max_runs: int = 4):
+    """A matplotlib figure of every probe against time for the first `max_runs` runs."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -95,6 +100,13 @@ def plot(result: SimResult, path: str | Path, max_runs: int = 4) -> None:
     if len(result.runs) > 1:
         axes[0, 0].legend(fontsize="small", loc="upper right")
     fig.tight_layout()
+    return fig
+
+
+def save_figure(fig, path: str | Path) -> None:
+    """Write a figure as a PNG atomically, and free it."""
+    import matplotlib.pyplot as plt
+
     with atomic_path(path, ".png") as tmp:
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)

@@ -40,7 +40,8 @@ def nonlinear(net: FlatNetlist) -> bool:
 
 def doubling_error(checked: CheckedNetlist, method: str, substeps: int, tstep: float, inputs,
                    duration: float, channel: int | None = None,
-                   runs: dict[int, dict] | None = None) -> float:
+                   runs: dict[int, dict] | None = None,
+                   input_rate: float | None = None) -> float:
     """Worst probe's relative L2 error of `method` at `substeps` over the first `duration`
     seconds of `inputs` (one run), estimated by step doubling (module docstring). `runs`:
     probes already simulated, by substeps (filled in; a retry at twice the substeps reuses
@@ -51,7 +52,8 @@ def doubling_error(checked: CheckedNetlist, method: str, substeps: int, tstep: f
     kw = dict(tstep=tstep, tstop=duration, method=method, probes=probes, channel=channel)
     for sub in (substeps, 2 * substeps):
         if sub not in runs:
-            runs[sub] = simulate.simulate(checked, inputs, substeps=sub, **kw).probes
+            runs[sub] = simulate.simulate(checked, inputs, input_rate, substeps=sub,
+                                          **kw).probes
     coarse, fine = runs[substeps], runs[2 * substeps]
     shrink = 1.0 - 2.0 ** -simulate.method_order(method)
     worst = 0.0
@@ -64,11 +66,13 @@ def doubling_error(checked: CheckedNetlist, method: str, substeps: int, tstep: f
 
 
 def verify(checked: CheckedNetlist, choice: accuracy.Choice, tstep: float, duration: float,
-           tol: float, inputs=None, channel: int | None = None) -> accuracy.Choice:
+           tol: float, inputs=None, channel: int | None = None,
+           input_rate: float | None = None) -> accuracy.Choice:
     """`choice` checked by step doubling when `net` is nonlinear (module docstring): the same
     method at the fewest substeps whose doubling error meets `tol` over the start of a run of
     `duration` seconds, with that error in `choice.pilot_error`. `inputs`, `channel`: the
-    first run's input as `simulate` takes it (None: a run without input)."""
+    first run's input as `simulate` takes it (None: a run without input; an array at
+    `input_rate`, default 1/tstep)."""
     net = checked.net
     if not nonlinear(net):
         return choice
@@ -77,7 +81,8 @@ def verify(checked: CheckedNetlist, choice: accuracy.Choice, tstep: float, durat
     sub = choice.substeps
     runs: dict[int, dict] = {}
     for _ in range(MAX_TRIES):
-        err = doubling_error(checked, choice.method, sub, tstep, inputs, pilot, channel, runs)
+        err = doubling_error(checked, choice.method, sub, tstep, inputs, pilot, channel, runs,
+                             input_rate)
         if err <= tol:
             return replace(choice, substeps=sub, h=tstep / sub,
                            cost=accuracy.cost(net, choice.method, sub), pilot_error=err,

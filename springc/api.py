@@ -1,0 +1,224 @@
+"""springc from Python: what the command line does, for scripts and notebooks.
+
+    import springc
+    net = springc.load("netlists/examples/duffing.spr")   # parsed, elaborated, checked
+    res = net.simulate()                                   # a Result
+    res["x(x)"]                                            # (runs, T) array, by written name
+
+`load` raises the same located errors the CLI prints (`springc.errors.NetlistError`,
+`CheckError`, `UsageError`). A `Netlist` simulates, analyses and exports itself; the CLI
+commands `build`, `sim`, `ac`, `modes`, `grad` and `export` call these methods.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from springc.check import CheckedNetlist, check
+from springc.check.compiler import BuildReport, summarise
+from springc.errors import NetlistError
+from springc.grad.params import ParamNetlist
+from springc.lang import load_text, read_source
+from springc.lang.ir import FlatNetlist
+
+
+def load(source: str | Path, *, params: Mapping[str, float] | None = None,
+         method: str | None = None, tstep: float | None = None, substeps: int | None = None,
+         judge_step: bool = True, lib_dirs: Sequence[Path] | None = None) -> Netlist:
+    """Parse, elaborate and check a netlist: `source` is a file path, or netlist text when
+    it has a line break. `params` replaces top-level `.param` values (a sweep point);
+    `method`, `tstep` and `substeps` override `.options` and `.tran` for the step check
+    (`judge_step=False`: leave the step to `simulate`, which judges the step it takes)."""
+    text, filename = _source(source)
+    dirs = list(lib_dirs) if lib_dirs else None
+    if params:
+        flat = ParamNetlist.from_text(text, filename, dirs).netlist(params)
+    else:
+        flat = load_text(text, filename, dirs)
+    if flat.n == 0:
+        raise NetlistError(f"{filename}: no top-level network (a library of subcircuits?)",
+                           hint="instantiate a subcircuit in a netlist and load that")
+    checked = check(flat, method, tstep=tstep, substeps=substeps, judge_step=judge_step)
+    return Netlist(checked, text, dirs, dict(params or {}))
+
+
+def _source(source: str | Path) -> tuple[str, str]:
+    """(text, filename) of a path or of netlist text."""
+    if isinstance(source, str) and "\n" in source:
+        return source, "<text>"
+    return read_source(source), str(source)
+
+
+@dataclass
+class Netlist:
+    """A checked netlist: simulate it, analyse its linearisation, differentiate or export it.
+
+    `flat` is the elaborated network (`springc.lang.ir.FlatNetlist`), `params` the top-level
+    `.param` values it was elaborated with."""
+
+    checked: CheckedNetlist
+    text: str = field(repr=False)
+    lib_dirs: list[Path] | None = field(default=None, repr=False)
+    overrides: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def flat(self) -> FlatNetlist:
+        return self.checked.net
+
+    @property
+    def nodes(self) -> list[str]:
+        return list(self.flat.nodes)
+
+    @functools.cached_property
+    def source(self) -> ParamNetlist:
+        """The parsed netlist as a function of its top-level `.param` values."""
+        return ParamNetlist.from_text(self.text, self.flat.file, self.lib_dirs)
+
+    @property
+    def params(self) -> dict[str, float]:
+        """Top-level `.param` values (as the file sets them, with this netlist's
+        overrides)."""
+        return {**self.source.values, **self.overrides}
+
+    def with_params(self, **values: float) -> Netlist:
+        """The same netlist at other top-level `.param` values (checked again)."""
+        values = {**self.overrides, **values}
+        flat = self.source.netlist(values)
+        return Netlist(check(flat), self.text, self.lib_dirs, values)
+
+    def report(self) -> BuildReport:
+        """What `springc build` reports: dofs, elements, fastest mode, step limit, mode
+        errors."""
+        return summarise(self.checked)
+
+    def summary(self, as_dict: bool = False) -> str | dict:
+        """`springc build`'s text, or (`as_dict`) its JSON object."""
+        report = self.report()
+        return report.to_json() if as_dict else report.summary()
+
+    def simulate(self, inputs=None, *, tstop: float | None = None, tstep: float | None = None,
+                 method: str | None = None, substeps: int | None = None,
+                 tolerance: float | None = None, precision: str | None = None,
+                 reduce: Sequence[str] = (), probes: Sequence[str] | None = None,
+                 outrate: float | None = None, channel: int | None = None,
+                 input_rate: float | None = None, batch: int | None = None,
+                 kernel: str = "auto", progress: bool = False) -> Result:
+        """Simulate every input (None: one run without input; an array (runs, channels,
+        samples) at `input_rate`; or sound files and folders, one run per file).
+
+        The integrator: `method`/`substeps` as given or as the netlist's `.options` set them;
+        where neither names them, the cheapest whose estimated error is at most `tolerance`
+        (default `springc.sim.plan.DEFAULT_TOLERANCE`), reported in `Result.choice`.
+        `reduce`: streaming reductions (`springc sim --reduce` specs). `kernel`: auto,
+        written-out or shared (`springc sim --kernel`)."""
+        from springc.sim import plan
+        from springc.sim.simulate import simulate
+
+        if isinstance(inputs, (str, Path)):
+            inputs = [inputs]
+
+        steps = plan.integration(self.checked, tolerance, method, substeps, tstep, tstop,
+                                 inputs, channel, input_rate)
+        res = simulate(self.checked, inputs, input_rate, tstep=tstep, tstop=tstop,
+                       substeps=steps.substeps, method=steps.method, precision=precision,
+                       outrate=outrate, probes=list(probes) if probes else None,
+                       reductions=list(reduce), batch=batch, channel=channel,
+                       progress=progress, write_out=plan.KERNEL_FORMS[kernel])
+        return Result(res.t, res.probes, res.reductions, list(res.runs),
+                      res.info["settings"], steps.choice, res.info)
+
+    def ac(self, node: str | None = None, *, input: int | None = None,
+           fmin: float | None = None, fmax: float | None = None, points: int | None = None,
+           progress: bool = False):
+        """Frequency response X(f)/U(f) of the linearisation at rest at `node` (default: the
+        `.ac` directive's) to input channel `input`: a `springc.analyses.ac.AcResult`
+        (`f_hz`, complex `h`, `mag`, `phase`)."""
+        from springc.analyses import ac
+
+        node, channel = ac.target(self.flat, node, input)
+        f_hz = ac.sweep(self.flat, fmin, fmax, points).frequencies()
+        return ac.response(self.checked, node, f_hz, channel, progress=progress)
+
+    def modes(self, count: int | None = None) -> dict:
+        """Eigenfrequencies, damping rates, Q factors, dominant nodes and zero modes of the
+        linearisation (`springc modes --json`), the `count` slowest (all if None)."""
+        from springc.analyses.modes import mode_report
+
+        return mode_report(self.checked, count)
+
+    def grad(self, of: str | Sequence[str], wrt: str | Sequence[str], inputs=None, **settings):
+        """d(reduction `of`)/d(top-level `.param` `wrt`) per run, exact for the simulated
+        float64 computation (the discrete adjoint): a `springc.grad.GradResult` (`values`,
+        `grad[run, k]`). `settings`: tstep, tstop, substeps, method, channel."""
+        from springc.grad import gradient
+
+        names = [wrt] if isinstance(wrt, str) else list(wrt)
+        return gradient(self.source, of, names, inputs, values=self.overrides, **settings)
+
+    def export_spice(self, **options) -> str:
+        """The netlist as an ngspice circuit (`springc export --spice`); `options` are
+        `springc.export.spice.SpiceOptions` fields (tstop, tstep, tmax, reltol, inputs)."""
+        from springc.export.spice import SpiceOptions, export_spice
+
+        return export_spice(self.checked, SpiceOptions(**options))
+
+
+@dataclass
+class Result:
+    """A simulation: `t` (T,) in seconds, `probes[label]` (runs, T), `reductions[spec]`
+    (runs,), `runs` (names), the integration `settings` and, where springc chose the
+    integrator, `choice` (why)."""
+
+    t: np.ndarray
+    probes: dict[str, np.ndarray]
+    reductions: dict[str, np.ndarray]
+    runs: list[str]
+    settings: object
+    choice: str | None = None
+    info: dict = field(default_factory=dict, repr=False)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        """A probe or reduction by its written name (`x(X1.out)`, `work:in`)."""
+        if name in self.probes:
+            return self.probes[name]
+        if name in self.reductions:
+            return self.reductions[name]
+        known = ", ".join([*self.probes, *self.reductions]) or "none"
+        raise KeyError(f"no probe or reduction {name!r} (have: {known})")
+
+    def to_xarray(self):
+        """An `xarray.Dataset`: each probe over (point, run, time), each reduction over
+        (point, run); one point until the netlist is stepped."""
+        import xarray as xr
+
+        data = {k: (("point", "run", "time"), v[None]) for k, v in self.probes.items()}
+        data |= {k: (("point", "run"), v[None]) for k, v in self.reductions.items()}
+        coords = {"point": [0], "run": list(self.runs), "time": self.t}
+        return xr.Dataset(data, coords=coords, attrs={"method": self.settings.method,
+                                                      "substeps": self.settings.substeps})
+
+    def plot(self, path: str | Path | None = None, max_runs: int = 4):
+        """Every probe against time for the first `max_runs` runs: the matplotlib figure,
+        also written as a PNG where `path` is given."""
+        from springc.sim import results
+
+        fig = results.figure(self._sim(), max_runs)
+        if path is not None:
+            results.save_figure(fig, path)
+        return fig
+
+    def save(self, path: str | Path) -> None:
+        """Write `.npz` or `.csv` as `springc sim -o` does."""
+        from springc.sim import results
+
+        results.write(self._sim(), path)
+
+    def _sim(self):
+        from springc.sim.simulate import SimResult
+
+        return SimResult(self.t, self.probes, self.reductions, self.runs, self.info)

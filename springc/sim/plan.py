@@ -1,0 +1,76 @@
+"""How a simulation integrates: the integrator and substeps the caller or the netlist names,
+or else the cheapest that meets an error tolerance (`DEFAULT_TOLERANCE` when none is given).
+
+RK4 at one step per input sample, the old default, is off by 0.86 on the feature extractor
+(docs/bench.md), so nobody gets an unchecked step by default: `springc sim` and
+`springc.Netlist.simulate` choose it, print or return why, and take `--method`/`--substeps`
+(or `.options method=`/`substeps=`) as the user's own choice.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from springc.check import CheckedNetlist
+from springc.check.accuracy import choose
+from springc.errors import UsageError
+from springc.sim.sources import expand_inputs
+from springc.sim.stepcheck import verify
+
+DEFAULT_TOLERANCE = 1e-3  # relative L2 error per mode (and per probe on nonlinear terms)
+KERNEL_FORMS = {"auto": None, "written-out": True, "shared": False}  # simulate's write_out
+
+
+@dataclass(frozen=True)
+class Steps:
+    """The integrator to run (None: the netlist's or the simulator's default) and, where it
+    was chosen for a tolerance, the reason in words."""
+
+    method: str | None
+    substeps: int | None
+    choice: str | None = None
+
+
+def integration(checked: CheckedNetlist, tolerance: float | None, method: str | None,
+                substeps: int | None, tstep: float | None, tstop: float | None, inputs=None,
+                channel: int | None = None, input_rate: float | None = None) -> Steps:
+    """The method and substeps to simulate with: as given, as the netlist's `.options` set
+    them, or chosen for `tolerance` (`DEFAULT_TOLERANCE` when the caller and the netlist name
+    neither), by the per-mode estimate and, on nonlinear terms, step doubling over the start
+    of the first run (`springc.sim.stepcheck`)."""
+    net = checked.net
+    if tolerance is not None and (method or substeps):
+        raise UsageError("--tolerance chooses the method and substeps itself",
+                         hint="drop --method/--substeps, or drop --tolerance")
+    default = tolerance is None
+    if default and (method or substeps or _configured(net)):
+        return Steps(method, substeps)
+    tstep = tstep or (net.tran.tstep if net.tran else None)
+    if tstep is None:  # the simulator says what is missing
+        return Steps(method, substeps)
+    duration = tstop or (net.tran.tstop if net.tran else 1.0)
+    tol = DEFAULT_TOLERANCE if default else tolerance
+    try:
+        chosen = verify(checked, choose(net, tstep, duration, tol), tstep, duration, tol,
+                        first_run(inputs), channel, input_rate)
+    except UsageError as err:
+        if not default:
+            raise
+        raise UsageError(f"{err.message} (springc's default accuracy target)",
+                         hint="loosen it with --tolerance, or choose the integrator "
+                              "with --method/--substeps") from None
+    return Steps(chosen.method, chosen.substeps, chosen.describe())
+
+
+def _configured(net) -> bool:
+    """Whether the netlist's `.options` name the integrator or its substeps."""
+    return "method" in net.options or "substeps" in net.options
+
+
+def first_run(inputs):
+    """The first run's input, as `simulate` takes it (None: a run without input)."""
+    if isinstance(inputs, np.ndarray):
+        return inputs[:1]
+    return expand_inputs(list(inputs))[:1] if inputs else None

@@ -17,9 +17,12 @@ demo: install
 test: install
 	PATH="$(abspath $(VENV))/bin:$$PATH" $(PY) -m pytest -q -n auto --dist loadfile --durations=25
 
+# measures (about 40 min on 2 cores); the page alone again from its numbers:
+# springc bench --render docs/bench/bench.json --out docs
 bench: install
 	$(VENV)/bin/springc bench --out bench-out
-	mkdir -p docs && cp bench-out/bench.md docs/bench.md
+	mkdir -p docs/bench && cp bench-out/bench.md docs/bench.md
+	cp bench-out/bench/bench.json bench-out/bench/*.png docs/bench/
 
 clean:
 	rm -rf .venv out bench-out .pytest_cache

@@ -1,5 +1,7 @@
-"""`springc bench`: speed against error on the reference networks (`springc.bench.suite`), or
-the single-network kernel throughput table (`--issue3`, `springc.bench.throughput`)."""
+"""`springc bench`: speed against error on the reference networks (`springc.bench.suite`,
+written by `springc.bench.report`), the same page rendered again from a stored bench.json
+(`--render`), or the single-network kernel throughput table (`--issue3`,
+`springc.bench.throughput`)."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ from pathlib import Path
 import click
 from springc_cli.common import run_user_errors
 
+RENDER_COMMAND = "springc bench --render docs/bench/bench.json --out docs"
 CASE_NAMES = ("feature", "kws", "delay", "stiff", "duffing", "kws-features", "kws-classifier")
 
 
@@ -16,8 +19,12 @@ CASE_NAMES = ("feature", "kws", "delay", "stiff", "duffing", "kws-features", "kw
 @click.option("--case", "case_names", multiple=True, type=click.Choice(CASE_NAMES),
               help="Run only this reference network (repeatable; default: all).")
 @click.option("--out", "outdir", type=click.Path(file_okay=False), default="bench-out",
-              show_default=True, help="Folder for bench.json, bench.md and <case>.png.")
+              show_default=True,
+              help="Folder for bench.md and bench/ (bench.json and <case>.png).")
 @click.option("--quick", is_flag=True, help="Short workloads (checks the machinery only).")
+@click.option("--render", "render_from", type=click.Path(), default=None,
+              help="Measure nothing: write bench.md and the PNGs again from this bench.json "
+                   f"(the committed page: `{RENDER_COMMAND}`).")
 @click.option("--issue3", is_flag=True,
               help="Instead: the issue-3 kernel table on the 564-dof network (options below).")
 @click.option("--seconds", type=float, default=1.0, show_default=True,
@@ -30,18 +37,24 @@ CASE_NAMES = ("feature", "kws", "delay", "stiff", "duffing", "kws-features", "kw
               default="bench-out/bench.json", show_default=True,
               help="--issue3: where to write JSON.")
 @run_user_errors
-def bench_cmd(case_names, outdir, quick, issue3, seconds, batch, stretch, json_path):
+def bench_cmd(case_names, outdir, quick, render_from, issue3, seconds, batch, stretch,
+              json_path):
     """Speed against error: on each reference network (feature extractor, 8x3 keyword
     spotter, long delay line, stiff all-to-all block, hard-driven Duffing resonator) every
     integrator at several steps and float64/float32, and the peers (scipy RK45/DOP853 at rtol
     1e-6, numpy RK4, ngspice when installed), with per-probe errors against a tight reference,
     wall, compile time, throughput and its fraction of the measured arithmetic ceiling and of
-    the machine's FMA peak. Writes OUT/bench.json, OUT/bench.md and OUT/<case>.png; prints
-    the Markdown."""
+    the machine's FMA peak. Writes OUT/bench.md, OUT/bench/bench.json and OUT/bench/<case>.png;
+    prints the Markdown. With --render, writes the same from a stored bench.json instead."""
     if issue3:
         _issue3(seconds, batch, stretch, json_path)
         return
+    from springc.bench import report
     from springc.bench import suite as benchsuite
+
+    if render_from is not None:
+        _echo(report.render(Path(render_from), Path(outdir)))
+        return
 
     machine = benchsuite.machine_info()
     start = time.perf_counter()
@@ -51,7 +64,10 @@ def bench_cmd(case_names, outdir, quick, issue3, seconds, batch, stretch, json_p
 
     results = benchsuite.run_suite(list(case_names) or None, quick=quick, progress=say)
     machine["suite_wall_s"] = time.perf_counter() - start
-    paths = benchsuite.write_report(results, Path(outdir), machine)
+    _echo(report.write_report(results, Path(outdir), machine))
+
+
+def _echo(paths: dict[str, Path]) -> None:
     click.echo(paths["md"].read_text())
     click.echo(f"(written: {', '.join(str(p) for p in paths.values())})")
 

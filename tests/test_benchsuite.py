@@ -12,6 +12,7 @@ import types
 import numpy as np
 import pytest
 
+from springc.bench import report
 from springc.bench import suite as bs
 from springc.check import check
 from springc.lang.ir import IRBuilder, Source, Tran
@@ -195,18 +196,22 @@ def test_verdicts_say_met_missed_and_partly_met_with_the_numbers():
     assert by[("ceiling_70", "net float64")]["met"]
     assert not by[("ceiling_70", "feature float64")]["met"]
     assert by[("ceiling_70", "one float64")]["met"] is None
-    md = "\n".join(bs._verdicts_md(found["verdicts"]))
-    assert "**MET**: Feature extractor" in md
-    assert "**PARTLY MET (1 of 2)**: At least 300x faster than scipy DOP853" in md
-    assert "**PARTLY MET (1 of 2)**: Throughput" in md
-    assert "one float64 10% (a single run, not a batch: outside the claim)" in md
-    assert "feature 6250x (met; exp-rk4 x16 float64 1e-12 vs 2e-11)" in md
-    assert ("net missed: no measured kernel row reaches its error 1e-13 (most accurate: "
-            "rk4 x1 float64 1e-06, 50000x faster; predicted, not measured: rk4 x64 float64 "
-            "would reach it, 781x faster at linear cost)") in md
-    assert "**MET**: At least 50x faster than ngspice" in md  # feature only; net: not run
-    assert "feature 1600000x (met; exp-rk4 x1 float64 0.0001 vs 0.0001)" in md
-    assert "net: not measured (peer not run)" in md
+    md = report._verdicts_md(found["verdicts"])
+    assert md[0] == "## Issue 7's must-show figures: met or missed"
+    assert len(md) == 2 + 5 + 1 and md[-1] == ""  # one line per must-show
+    assert md[2].startswith("- **MET**: Feature extractor")
+    assert md[2].endswith(": float64 1.25x with exp-rk4 x1 float64.")
+    assert md[3].startswith("- **PARTLY MET (1 of 2)**: Throughput")
+    assert md[3].endswith(": feature float64 30% (missed); net float64 80%; "
+                          "one float64 10% (one run, not a batch: not judged).")
+    assert md[4].startswith("- **PARTLY MET (1 of 2)**: At least 300x faster than scipy DOP853")
+    # 500 / 0.08; net: rk4 x1 is 50000x faster at 1e-6, rk4 x64 would reach 1e-13 at 781x
+    assert md[4].endswith(": feature 6250x; net missed: no measured row as accurate "
+                          "(predicted, not measured: 781x at rk4 x64 float64); one not "
+                          "measured (peer not run).")
+    assert md[6].startswith("- **MET**: At least 50x faster than ngspice")  # net: not run
+    assert md[6].endswith(": feature 1600000x; net not measured (peer not run); one not "
+                          "measured (peer not run).")
 
 
 def test_run_case_writes_the_report_with_reference_and_ladder(tmp_path):
@@ -223,14 +228,21 @@ def test_run_case_writes_the_report_with_reference_and_ladder(tmp_path):
     kernels = [r for r in res.rows if r.name.startswith("kernel")]
     assert all(r.stretch_errors and r.errors for r in kernels)
     assert "reached" in res.ladder_note
-    paths = bs.write_report([res], tmp_path, bs.machine_info() | {"suite_wall_s": 60.0})
+    paths = report.write_report([res], tmp_path, bs.machine_info() | {"suite_wall_s": 60.0})
+    assert paths["json"] == tmp_path / "bench" / "bench.json"
     data = json.loads(paths["json"].read_text())
     assert data["cases"][0]["reference"]["substeps"] == 256
     md = paths["md"].read_text()
-    assert "## Issue 7's must-show figures: met or missed (this run)" in md
+    assert "## Issue 7's must-show figures: met or missed" in md
     assert "Reference: rk4 x256 and x128, Richardson-extrapolated" in md
     assert "the whole suite took 1.0 min" in md
-    assert paths["osc"].stat().st_size > 1000
+    assert "Plot: [speed against error](bench/osc.png)" in md
+    assert paths["osc"] == tmp_path / "bench" / "osc.png" and paths["osc"].stat().st_size > 1000
+    # the stored numbers give the same page and plots again, measuring nothing
+    again = report.render(paths["json"], tmp_path / "again")
+    assert again["md"].read_text() == md
+    assert again["json"].read_bytes() == paths["json"].read_bytes()
+    assert again["osc"].read_bytes() == paths["osc"].read_bytes()
 
 
 def test_paired_rows_and_the_ceiling_are_timed_in_alternation_least_and_best(monkeypatch):
@@ -297,7 +309,7 @@ def test_unrecorded_rows_record_nothing_are_rated_and_never_decide_a_claim(monke
     recorded = bs._find(res, "rk4", 1, "float64")
     assert recorded.recorded and recorded.errors
     assert bs.claims([res])["ceiling_fraction"]["osc"]["float64"] == recorded.ceiling_fraction
-    md = bs.markdown([res], bs.claims([res]), bs.machine_info())
+    md = report.markdown([res], bs.claims([res]), bs.machine_info())
     assert "| rk4 x1 float64, no probes | - | - |" in md
     frac = f"{100 * bare[0].ceiling_fraction:.0f}%"
     assert f"the same kernels recording no probe (the ceiling writes nothing): float64 {frac}" in md

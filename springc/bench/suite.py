@@ -5,22 +5,19 @@ networks, in one run.
 reference for run 0 (Richardson-extrapolated, checked by scipy DOP853), the peers on a stretch
 of it, every (method, substeps, precision) row timed on a batch with its error, finer rows
 (`ladder`) until one matches the best peer, and the machine's ceiling and FMA peak for the
-network's size. `write_report` writes bench.json, bench.md and one speed-versus-error PNG per
-network. Throughput is run-seconds per wall-second; the procedure in full:
-docs/performance.md#how-the-bench-measures.
+network's size; `claims` and `verdicts` turn the rows into the must-show figures, which
+`springc.bench.report` writes out. Throughput is run-seconds per wall-second; the procedure
+in full: docs/performance.md#how-the-bench-measures.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import os
-import tempfile
 import time
 from collections.abc import Callable
 from functools import cached_property
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -29,7 +26,6 @@ from springc.bench import ceiling
 from springc.bench import grad as gradbench
 from springc.check import CheckedNetlist, check
 from springc.kernels import expint
-from springc.design.emit import write_atomic
 from springc.errors import SimulationError
 from springc.lang.ir import FlatNetlist, IRBuilder, Source, Tran
 from springc.sim.simulate import method_order, record_shape, simulate
@@ -401,7 +397,7 @@ def _climb_ladder(case: Case, ref: Reference, rows: list[Row], peers: list[Row],
         if not row.stretch_errors:
             continue  # stopped by the divergence guard: a finer rung may not be
         if not row.max_stretch_error < LADDER_GAIN * last:
-            return (f"stopped at {_label(row)} ({row.max_stretch_error:.3g}): no gain on the "
+            return (f"stopped at {row_label(row)} ({row.max_stretch_error:.3g}): no gain on the "
                     f"rung before (round-off); " + _reached(targets, rows))
         last = row.max_stretch_error
     pending = {k: t for k, t in targets.items() if _best_stretch(rows) > t}
@@ -435,7 +431,7 @@ def _out_of_reach(pending: dict[str, float], rows: list[Row], method: str, top: 
         parts.append(f"{peer}'s {t:.3g} needs about {method} x{2 ** math.ceil(math.log2(need))}")
     return (f"out of reach of the affordable ladder (up to x{top}): " + "; ".join(parts)
             + f" by {_ordinal(method_order(method))}-order convergence from "
-            f"{_label(base)} "
+            f"{row_label(base)} "
             f"({base.max_stretch_error:.3g}); " + _reached(targets, rows))
 
 
@@ -449,7 +445,8 @@ def _best_stretch(rows: list[Row]) -> float:
     return min((r.max_stretch_error for r in rows if r.stretch_errors), default=math.inf)
 
 
-def _worst(errors: dict[str, float]) -> float:
+def worst_error(errors: dict[str, float]) -> float:
+    """The largest of per-probe errors (NaN for none)."""
     return max(errors.values(), default=math.nan)
 
 
@@ -717,6 +714,24 @@ def _threads() -> int:
 
 # --- report -----------------------------------------------------------------------------
 
+def measured(r: Row, kind: str) -> bool:
+    """Whether `r` is a `kind` ("kernel" or "peer") row with a finite stretch error: the rows
+    an equal-error comparison can use."""
+    return (r.name.startswith(kind) and bool(r.stretch_errors)
+            and math.isfinite(r.max_stretch_error))
+
+
+def speedup(kernel: Row, peer: Row, floor: float) -> float | None:
+    """How many times less wall time per run-second `kernel` needs than `peer` where its
+    stretch error is no worse than the peer's (or the reference's floor, if larger); None
+    where it is worse, or either has no finite error."""
+    if not (measured(kernel, "kernel") and measured(peer, "peer")):
+        return None
+    if kernel.max_stretch_error > max(peer.max_stretch_error, floor):
+        return None
+    return peer.wall_per_run_second / kernel.wall_per_run_second
+
+
 def speedups(res: CaseResult) -> list[dict]:
     """Per peer: the cheapest kernel row whose worst probe error on the peers' stretch is no
     worse than the peer's (or than the reference's floor, when the peer is below it: equal
@@ -724,10 +739,6 @@ def speedups(res: CaseResult) -> list[dict]:
     run-second it needs; without such a row, the most accurate kernel row for comparison.
     Rows without a finite error (a run the divergence guard stopped, a peer that blew up)
     compete for nothing; their notes say why."""
-    def measured(r: Row, kind: str) -> bool:
-        return (r.name.startswith(kind) and bool(r.stretch_errors)
-                and math.isfinite(r.max_stretch_error))
-
     kernels = [r for r in res.rows if measured(r, "kernel")]
     floor = float(res.reference.get("floor", 0.0))
     out = []
@@ -738,12 +749,12 @@ def speedups(res: CaseResult) -> list[dict]:
         closest = min(kernels, key=lambda k: k.max_stretch_error, default=None)
         need = _needed_substeps(closest, target) if closest and not best else None
         out.append({"peer": peer.method, "peer_error": peer.max_stretch_error,
-                    "floor": floor, "floor_limited": floor > peer.max_stretch_error,
-                    "kernel": _label(best) if best else None,
+                    "floor": floor, "floor_limited": bool(floor > peer.max_stretch_error),
+                    "kernel": row_label(best) if best else None,
                     "kernel_error": best.max_stretch_error if best else None,
                     "speedup": peer.wall_per_run_second / best.wall_per_run_second
                     if best else None,
-                    "closest": _label(closest) if closest else None,
+                    "closest": row_label(closest) if closest else None,
                     "closest_error": closest.max_stretch_error if closest else None,
                     "closest_speedup": peer.wall_per_run_second / closest.wall_per_run_second
                     if closest else None,
@@ -783,7 +794,7 @@ def claims(results: list[CaseResult]) -> dict:
             best = min(mine, key=lambda r: r.wall_s, default=None)
             out[f"feature_1e-3_{precision}"] = {
                 "rk4_x1_error": base.max_error,
-                "cheapest": _label(best) if best else None,
+                "cheapest": row_label(best) if best else None,
                 "cheapest_error": best.max_error if best else None,
                 "wall_ratio_to_rk4_x1": best.wall_s / base.wall_s if best else None}
     out["ceiling_fraction"] = {
@@ -866,304 +877,12 @@ def _find(res: CaseResult, method: str, sub: int, precision: str) -> Row | None:
                  and r.precision == precision and r.errors), None)
 
 
-def _label(row: Row) -> str:
+def row_label(row: Row) -> str:
+    """"rk4 x4 float64" for a kernel row, the peer's name for a peer."""
     if row.name.startswith("peer"):
         return row.method
     return f"{row.method} x{row.substeps} {row.precision}" + ("" if row.recorded else
                                                               ", no probes")
-
-
-def write_report(results: list[CaseResult], outdir: Path, machine: dict) -> dict[str, Path]:
-    """bench.json, bench.md and <case>.png in `outdir` (each written atomically)."""
-    outdir.mkdir(parents=True, exist_ok=True)
-    data = {"machine": machine, "claims": claims(results),
-            "cases": [_case_json(r) for r in results]}
-    paths = {"json": outdir / "bench.json", "md": outdir / "bench.md"}
-    write_atomic(paths["json"], json.dumps(data, indent=1, default=_json_default))
-    write_atomic(paths["md"], markdown(results, data["claims"], machine))
-    for r in results:
-        paths[r.name] = outdir / f"{r.name}.png"
-        plot(r, paths[r.name])
-    return paths
-
-
-def _json_default(value):
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return str(value)
-
-
-def _case_json(r: CaseResult) -> dict:
-    d = asdict(r)
-    for row, src in zip(d["rows"], r.rows):
-        row["max_error"] = src.max_error
-    return d
-
-
-def _fmt(v: float | None, spec: str = ".3g") -> str:
-    return "-" if v is None or not math.isfinite(v) else format(v, spec)
-
-
-def markdown(results: list[CaseResult], found: dict, machine: dict) -> str:
-    """The benchmark tables (docs/bench.md), the must-show verdicts first."""
-    took = machine.get("suite_wall_s")
-    lines = ["# springc bench: speed against error", "",
-             ("Regenerate with `make bench` (`springc bench --out bench-out`, then copy "
-              "`bench-out/bench.md` here); plots in `bench-out/<case>.png`."), "",
-             (f"Machine: {machine.get('cpus')} CPU(s) available, load average "
-              f"{machine.get('load')} at the start, {machine.get('when')}"
-              + (f"; the whole suite took {took / 60:.1f} min." if took else ".")), ""]
-    lines += _verdicts_md(found["verdicts"])
-    lines += [
-        ("Error: relative L2 error of each probe (run 0) against the case's reference (its "
-         "method at its substeps and half as many, Richardson-extrapolated; stated per "
-         "case with its own error estimate and a check by scipy DOP853 at rtol "
-         f"{REF_CHECK_RTOL:g}); *whole run* for the kernels over the whole run, *stretch* "
-         "over the peers' shorter stretch (the peers only run that). Tables show the worst "
-         "probe (all probes in bench.json). Equal-error comparisons use the stretch errors of "
-         "both sides; a peer below the reference's floor (the larger of its estimate and the "
-         "check) counts as at the floor. Wall: the least of repeated calls, kernels and the "
-         f"scipy and numpy peers alike ({MIN_CALLS} or more for a kernel, 1 or more for a "
-         f"peer, repeated while they took under {REPEAT_FOR:g} s in all, at most {MAX_CALLS}; "
-         "ngspice once); rows re-timed in alternation with the ceiling say so; a kernel's "
-         "repeated calls record into the buffer of the one before (`simulate`'s "
-         "`record_into`), as the ceiling reuses its memory, so they do not wait for the OS to "
-         "zero fresh pages (what that costs is stated per case). Compile: the first "
-         "call's time (a load from numba's cache when the kernel was built before). "
-         "Throughput: run-seconds per wall-second (the batch of runs in lockstep; the peers "
-         "run one). Ceiling: the measured arithmetic ceiling (`springc.bench.ceiling`) for the "
-         "network's size and batch at the row's step, same precision, rated with the RK4 "
-         "flop count, the best of its measurements (taken in alternation with the re-timed rows); "
-         "the claim is about batched kernels (a case of one run is reported, not judged). "
-         "The ceiling is that of a kernel moving its stage rows through memory at every stage, "
-         "as the shared kernel does; a register kernel, its stage values in registers, can "
-         "pass it. FMA peak: the machine's (`ceiling.measure_peak`: chains of FMAs in "
-         "registers, vectorised over the batch's lanes), rated the same way; no kernel doing "
-         "the counted flops can pass that (informative, decides nothing). "
-         "Rows marked 'no probes' run the same kernel recording nothing (timing only): what "
-         "recording the probes costs, memory traffic the ceiling does not do. "
-         "scipy DOP853 runs twice: as issue 7 measured it (rtol 1e-6, atol "
-         "1e-12, scipy's free step size) and held to max_step tstep/8 (`springc.bench.reference`'s "
-         "default: the linearly interpolated input has a kink at every sample, which the "
-         "step control alone steps over with a visible error); RK45 runs held to tstep/8. "
-         "Ladder: the finer rows measured while a peer's error was within reach of the "
-         "case's affordable substeps."), ""]
-    lines += _claims_md(found)
-    for r in results:
-        lines += [f"## {r.name}: {r.title}", "",
-                  f"{r.dofs} dofs, {r.runs} run(s) of {r.tstop:g} s at tstep {r.tstep:.4g} s; "
-                  f"peers' stretch {r.peer_tstop:g} s; ceiling (RK4-rated, 1 step per sample): "
-                  + ", ".join(f"{p} {v:.3g} run-s/s" for p, v in r.ceiling.items())
-                  + ("; FMA peak, rated the same: "
-                     + ", ".join(f"{p} {v:.3g} run-s/s" for p, v in r.peak.items())
-                     if r.peak else ""), "",
-                  _reference_md(r), "", f"Ladder: {r.ladder_note}.", "",
-                  ("| integrator | worst error, whole run (probe) | worst error, stretch | "
-                   "wall s | compile s | wall s per run-s | throughput run-s/s | of ceiling | "
-                   "of FMA peak | note |"),
-                  "|---|---|---|---|---|---|---|---|---|---|"]
-        for row in r.rows:
-            worst = max(row.errors, key=row.errors.get) if row.errors else ""
-            whole = (f"{_fmt(row.max_error)} ({worst})" if row.name.startswith("kernel")
-                     else f"- ({worst})") if row.errors else "-"
-            lines.append(
-                f"| {_label(row)} | {whole} | {_fmt(row.max_stretch_error)} | "
-                f"{_fmt(row.wall_s)} | {_fmt(row.compile_s, '.2f')} | "
-                f"{_fmt(row.wall_per_run_second if row.simulated_s else None)} | "
-                f"{_fmt(row.throughput)} | "
-                f"{_percent(row.ceiling_fraction)} | {_percent(row.peak_fraction)} | "
-                f"{row.note} |")
-        lines.append("")
-    return "\n".join(lines) + "\n"
-
-
-def _reference_md(r: CaseResult) -> str:
-    ref = r.reference
-    if not ref:
-        return "Reference: none recorded."
-    return (f"Reference: {ref['method']} x{ref['substeps']} and x{ref['substeps'] // 2}, "
-            f"Richardson-extrapolated ({_fmt(ref['wall_s'], '.1f')} s). Its error estimate "
-            f"(|fine - coarse| / {2 ** method_order(ref['method']) - 1}, the fine run's own "
-            "error; worst probe): "
-            f"{_fmt(_worst(ref['estimate']))} over the run, "
-            f"{_fmt(_worst(ref['stretch_estimate']))} over the peers' stretch. Check: scipy "
-            f"DOP853 at rtol {ref['check_rtol']:g} (max_step tstep/{REF_CHECK_MAX_STEP}) "
-            f"differs from it by {_fmt(_worst(ref['check']))} over the first "
-            f"{ref['check_tstop']:g} s ({_fmt(ref['check_wall_s'], '.1f')} s). Floor: "
-            f"{_fmt(ref['floor'])}.")
-
-
-_CLAIM_TEXT = {
-    "feature_1e-3": ("Feature extractor: every probe within 1e-3 of the reference at no more "
-                     "than 1.5x the wall time of classic RK4 at 32 kHz"),
-    "ceiling_70": "Throughput of the batched kernels at least 70% of the measured ceiling",
-    "speedup_DOP853": ("At least 300x faster than scipy DOP853 (rtol 1e-6) at equal or better "
-                       "error, DOP853 as issue 7 measured it (atol 1e-12, scipy's free step "
-                       "size)"),
-    "speedup_DOP853 tstep/8": ("The same against DOP853 rtol 1e-6 held to max_step tstep/8 (at "
-                               "least 8 steps per input sample: far more accurate than rtol "
-                               "1e-6 asks, see its errors)"),
-    "speedup_ngspice": "At least 50x faster than ngspice at equal or better error",
-}
-
-
-def _verdicts_md(found: list[dict]) -> list[str]:
-    """One line per must-show: met, missed or partly met, then the numbers per scope."""
-    lines = ["## Issue 7's must-show figures: met or missed (this run)", ""]
-    for claim, text in _CLAIM_TEXT.items():
-        mine = [v for v in found if v["claim"] == claim]
-        if not mine:
-            continue
-        judged = [v for v in mine if v["met"] is not None]
-        met = sum(bool(v["met"]) for v in judged)
-        word = ("MET" if judged and met == len(judged) else "MISSED" if met == 0
-                else f"PARTLY MET ({met} of {len(judged)})")
-        lines.append(f"- **{word}**: {text}. " + "; ".join(_verdict_part(v) for v in mine)
-                     + ".")
-    return lines + [""]
-
-
-def _verdict_part(v: dict) -> str:
-    mark = {True: "met", False: "missed", None: "not measured"}[v["met"]]
-    if v["claim"] == "feature_1e-3":
-        d = v["detail"]
-        return (f"{v['scope']} {mark}: {d['cheapest']} (worst {_fmt(d['cheapest_error'])}) at "
-                f"{_fmt(v['value'], '.2f')}x RK4 x1's wall")
-    if v["claim"] == "ceiling_70":
-        why = "a single run, not a batch: outside the claim" if v.get("detail") else mark
-        return f"{v['scope']} {_fmt(100 * v['value'], '.0f')}% ({why})"
-    d = v["detail"]
-    if isinstance(d, str):
-        return f"{v['scope']}: {mark} ({d})"
-    if d["speedup"] is not None:
-        at = " (both at the reference's floor)" if d["floor_limited"] else ""
-        return (f"{v['scope']} {_fmt(d['speedup'], '.0f')}x ({mark}; {d['kernel']} "
-                f"{_fmt(d['kernel_error'])} vs {_fmt(d['peer_error'])}{at})")
-    at = (f" (the reference's floor; the peer's own {_fmt(d['peer_error'])} is below it)"
-          if d["floor_limited"] else "")
-    return (f"{v['scope']} missed: no measured kernel row reaches its error "
-            f"{_fmt(max(d['peer_error'], d['floor']))}{at} (most accurate: {d['closest']} "
-            f"{_fmt(d['closest_error'])}, {_fmt(d['closest_speedup'], '.0f')}x faster; "
-            f"predicted, not measured: {d['needed']} would reach it, "
-            f"{_fmt(d['predicted_speedup'], '.0f')}x faster at linear cost)")
-
-
-def _first_touch_md(touch: dict[str, dict[str, float]]) -> str:
-    """One line: how much of a recorded call is the OS handing out fresh pages."""
-    parts = [f"{_fmt(t['mb'])} MB in {p}: {_fmt(1e3 * t['s'], '.3g')} ms"
-             + (f", {_fmt(100 * t['share'], '.0f')}% of the RK4 x1 call" if t["share"] else "")
-             + (f"; its lines written into memory handed out already (non-temporal stores, "
-                f"as the kernels write): {_fmt(1e3 * t['store_s'], '.3g')} ms, which after "
-                "the ceiling's own time would leave the row at most "
-                f"{_fmt(100 * t['store_bound'], '.0f')}% of the ceiling if the stores "
-                "overlapped none of the arithmetic" if "store_bound" in t else "")
-             for p, t in touch.items()]
-    threads = max(t["threads"] for t in touch.values())
-    return ("a recorded call into fresh memory pays first the OS's zeroing of its pages (the "
-            "timed calls reuse their record buffer, as the ceiling reuses its memory); the "
-            f"first touch of that much alone (a zeroed array, one write per 4 KiB page, "
-            f"{threads} thread{'s' if threads > 1 else ''} each on its own runs, least of the "
-            "re-timing rounds): " + "; ".join(parts) + ".")
-
-
-def _percent(fraction: float | None) -> str:
-    return f"{_fmt(100 * fraction, '.0f')}%" if fraction else "-"
-
-
-def _claims_md(found: dict) -> list[str]:
-    lines = ["## The issue's figures (measured in this run)", ""]
-    for precision in ("float64", "float32"):
-        fe = found.get(f"feature_1e-3_{precision}")
-        if fe:
-            lines.append(
-                f"- Feature extractor, {precision}: RK4 at 32 kHz has worst probe error "
-                f"{_fmt(fe['rk4_x1_error'])}; the cheapest configuration with every probe "
-                f"within 1e-3 is **{fe['cheapest']}** (worst {_fmt(fe['cheapest_error'])}) at "
-                f"**{_fmt(fe['wall_ratio_to_rk4_x1'], '.2f')}x** the wall time of RK4 at "
-                "32 kHz in the same precision (target: at most 1.5x).")
-    for name, fr in found["ceiling_fraction"].items():
-        parts = [f"{p} {_fmt(100 * v, '.0f')}%" for p, v in fr.items() if v]
-        if parts:
-            target = ("target: 70%" if found["runs"].get(name, 2) > 1
-                      else "a single run: reported, the target is for batches")
-            bare = [f"{p} {_fmt(100 * v, '.0f')}%" for p, v in
-                    found["ceiling_fraction_unrecorded"].get(name, {}).items() if v]
-            fresh = [f"{p} {_fmt(100 * v, '.0f')}%" for p, v in
-                     found.get("ceiling_fraction_fresh", {}).get(name, {}).items()]
-            lines.append(f"- {name}: RK4 x1 throughput as a fraction of the ceiling: "
-                         + ", ".join(parts) + f" ({target})"
-                         + ("; the same kernels recording no probe (the ceiling writes "
-                            "nothing): " + ", ".join(bare) if bare else "")
-                         + ("; recording into fresh memory every call (the OS zeroes each "
-                            "page before the kernel writes it): " + ", ".join(fresh)
-                            if fresh else "") + ".")
-            peak = [f"{p} {_percent(v)}" for p, v in found["peak_fraction"].get(name, {}).items()]
-            if peak:
-                lines.append(f"- {name}: RK4 x1 throughput as a fraction of the machine's FMA "
-                             "peak (informative): " + ", ".join(peak) + ".")
-        touch = found.get("first_touch", {}).get(name)
-        if touch:
-            lines.append(f"- {name}: " + _first_touch_md(touch))
-    for name, rows in found["speedups"].items():
-        for s in rows:
-            at = (f" (below the reference's floor {_fmt(s['floor'])}: compared at the floor)"
-                  if s["floor_limited"] else "")
-            if s["speedup"] is not None:
-                lines.append(f"- {name}: {s['kernel']} (stretch error "
-                             f"{_fmt(s['kernel_error'])}) is **{_fmt(s['speedup'], '.0f')}x** "
-                             f"faster per run-second than {s['peer']} (error "
-                             f"{_fmt(s['peer_error'])}{at}).")
-            else:
-                lines.append(f"- {name}: no measured kernel row reaches {s['peer']}'s error "
-                             f"{_fmt(s['peer_error'])}{at}; the most accurate, {s['closest']} "
-                             f"({_fmt(s['closest_error'])}), is "
-                             f"{_fmt(s['closest_speedup'], '.0f')}x faster per run-second; "
-                             f"by {s['order']}-order convergence {s['needed']} would reach "
-                             "it, "
-                             f"about {_fmt(s['predicted_speedup'], '.0f')}x faster if its "
-                             "cost grows linearly with the substeps (predicted, not measured).")
-    return lines + [""]
-
-
-def plot(r: CaseResult, path: Path) -> None:
-    """Speed against error: wall seconds per simulated run-second against the worst probe
-    error on the peers' stretch (the errors the equal-error comparison uses), with the
-    reference's floor as a dashed line."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 5))
-    for row in r.rows:
-        if not row.stretch_errors or not row.simulated_s:
-            continue
-        kernel = row.name.startswith("kernel")
-        marker = {"rk4": "o", "strang-rk4": "s", "exp-heun3": "D"}.get(row.method, "^") \
-            if kernel else "x"
-        err = max(row.max_stretch_error, 1e-16)
-        ax.loglog(row.wall_per_run_second, err, marker,
-                  color=("C0" if row.precision == "float64" else "C1") if kernel else "C3")
-        ax.annotate(_label(row), (row.wall_per_run_second, err), fontsize=7, xytext=(3, 3),
-                    textcoords="offset points")
-    floor = r.reference.get("floor")
-    if floor:
-        ax.axhline(floor, color="grey", ls="--", lw=0.8)
-        ax.annotate("reference floor", (ax.get_xlim()[0], floor), fontsize=7, color="grey",
-                    xytext=(3, -9), textcoords="offset points")
-    ax.set_xlabel("wall seconds per simulated run-second")
-    ax.set_ylabel(f"worst probe relative L2 error, first {r.peer_tstop:g} s")
-    ax.set_title(f"{r.name}: {r.title}", fontsize=9)
-    ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".png")
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=110)
-        os.replace(tmp, path)
-    finally:
-        plt.close(fig)
-        Path(tmp).unlink(missing_ok=True)
 
 
 def machine_info() -> dict:

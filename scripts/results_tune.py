@@ -84,21 +84,10 @@ def row(name: str, rep: dict, seconds: float) -> str:
 
 
 def write(args: argparse.Namespace, size: str, base: tuple, runs: list, load: tuple) -> None:
-    """docs/results-tune.md."""
+    """docs/results-tune.md: the table and each run's losses first, how it was measured after."""
     folder, rep0, train_s = base
     lines = [
         "# Results: `springc tune` against the SVM-transferred network",
-        "",
-        "Regenerate with `python scripts/results_tune.py --data DIR --work DIR` (its docstring "
-        "gives the corpus command). Built-in corpus at "
-        f"`{args.data}`, {size}, 12-class task, one held-out split (the corpus's test split, "
-        "balanced protocol): not cross-validated. Tuned on "
-        f"{args.clips} training clips (up to {args.val_clips} validation clips, as many as the "
-        f"split holds, choose the epoch kept), {args.epochs} epochs of batches of "
-        f"{args.batch}, Adam step {args.lr}, gradients at RK4 x8 float64 (the paper's "
-        "integration; the exponential integrator the model's eval uses has no adjoint); "
-        "every model is evaluated as `springc eval` does (the whole network, the model's "
-        "own integration). Groups tuned: filter, compression, couplings, readout (intercepts).",
         "",
         "| model | test accuracy % | insertion loss median dB | mean dB | test clips | "
         "wall s |",
@@ -112,6 +101,21 @@ def write(args: argparse.Namespace, size: str, base: tuple, runs: list, load: tu
               "epoch whose parameters the tuned folder keeps:", ""]
     for weight, rep in runs:
         lines.append(f"- il-weight {weight:g}: {tune_history_text(rep['tune'])}")
+    lines += [
+        "",
+        "## How it was measured",
+        "",
+        "Regenerate with `python scripts/results_tune.py --data DIR --work DIR` (its docstring "
+        "gives the corpus command). Built-in corpus at "
+        f"`{args.data}`, {size}, 12-class task, one held-out split (the corpus's test split, "
+        "balanced protocol): not cross-validated. Tuned on "
+        f"{args.clips} training clips (up to {args.val_clips} validation clips, as many as the "
+        f"split holds, choose the epoch kept), {args.epochs} epochs of batches of "
+        f"{args.batch}, Adam step {args.lr}, gradients at RK4 x8 float64 (the paper's "
+        "integration; the exponential integrator the model's eval uses has no adjoint); "
+        "every model is evaluated as `springc eval` does (the whole network, the model's "
+        "own integration). Groups tuned: filter, compression, couplings, readout (intercepts).",
+    ]
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True).stdout.strip() or "unknown"
     lines += ["", f"springc at {commit}. Machine: {os.cpu_count()} cores, load average "

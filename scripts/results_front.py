@@ -219,22 +219,10 @@ def front_lines(rows: list[dict]) -> list[str]:
 
 
 def page(results: dict, meta: dict) -> str:
-    """The markdown page from the numbers and the run's settings (`meta`)."""
+    """The markdown page from the numbers and the run's settings (`meta`): the plot, the
+    tables per size, then how it was measured."""
     lines = ["# Results: the accuracy-insertion loss front, transferred against refitted",
-             "", f"Regenerate with `python scripts/results_front.py --data DIR` (its docstring "
-             f"gives the corpus command; springc at {meta['commit']}, {meta['minutes']:.1f} "
-             "min on the 2-core machine, warm feature cache). "
-             f"{meta['folds']}-fold speaker cross-validation of the built-in corpus "
-             f"({meta['test']} test clips drawn from each held-out fold, so "
-             f"{meta['folds'] * meta['test']} per point, each tested by models that never "
-             f"heard its speaker; the refit on {meta['refit'] or 'all'} clips of the training "
-             f"folds but the next, C on {meta['val'] or 'all'} clips of the next fold, then "
-             "fitted again on both; every fold's refit measured, without `springc tune`'s "
-             "rule that keeps it only when it beats the transferred network on validation). "
-             "Every accuracy is the whole network simulated, sound to "
-             "decision; accuracies are class-balanced with speaker-bootstrap standard errors; "
-             "the gain is paired (same clips). Plot: `results-front.png` beside this page "
-             "after a run (not committed).", ""]
+             "", "Plot: `results-front.png` beside this page after a run (not committed).", ""]
     for size, res in results.items():
         rows = res["rows"]
         lines += [f"## {size} ({res['plan']})", "",
@@ -248,6 +236,20 @@ def page(results: dict, meta: dict) -> str:
                 f"{r['il_r']:.1f} | {', '.join(f'{c:g}' for c in r['c'])} |")
         lines += ["", "Against the transferred front (linear between its points):", ""]
         lines += front_lines(rows) + [""]
+    lines += ["## How it was measured", "",
+              "Regenerate with `python scripts/results_front.py --data DIR` (its docstring "
+              f"gives the corpus command; springc at {meta['commit']}, {meta['minutes']:.1f} "
+              "min on the 2-core machine, warm feature cache). "
+              f"{meta['folds']}-fold speaker cross-validation of the built-in corpus "
+              f"({meta['test']} test clips drawn from each held-out fold, so "
+              f"{meta['folds'] * meta['test']} per point, each tested by models that never "
+              f"heard its speaker; the refit on {meta['refit'] or 'all'} clips of the training "
+              f"folds but the next, C on {meta['val'] or 'all'} clips of the next fold, then "
+              "fitted again on both; every fold's refit measured, without `springc tune`'s "
+              "rule that keeps it only when it beats the transferred network on validation). "
+              "Every accuracy is the whole network simulated, sound to "
+              "decision; accuracies are class-balanced with speaker-bootstrap standard errors; "
+              "the gain is paired (same clips).", ""]
     return "\n".join(lines)
 
 

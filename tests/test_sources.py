@@ -86,6 +86,20 @@ def test_common_table_tabulates_wav_and_analytic(tmp_path):
     assert sources.input_forces(net) == [2] and sources.channels_used(net) == 1
 
 
+def test_common_table_reads_the_channel_a_wav_source_names(tmp_path):
+    wav = tmp_path / "stereo.wav"
+    ramp = np.linspace(0, 0.99, 100)
+    sf.write(wav, np.stack([ramp, -0.5 * ramp], axis=1), 100, subtype="DOUBLE")
+    b = IRBuilder()
+    b.mass("M", "a", 1.0)
+    b.force("F0", "a", Source("wav", path=str(wav), channel=0))
+    b.force("F1", "a", Source("wav", path=str(wav), channel=1))
+    table = sources.common_table(b.finish(), 10, 0.005, 0.01, get_tableau("rk4"))
+    t = sources.stage_times(10, 0.005, get_tableau("rk4"))
+    np.testing.assert_allclose(table[..., 0], t, atol=1e-12)
+    np.testing.assert_allclose(table[..., 1], -0.5 * t, atol=1e-12)
+
+
 def test_read_inputs_pads_resamples_and_picks_channels(tmp_path):
     t = np.arange(800) / 8000
     sf.write(tmp_path / "a.wav", np.sin(2 * np.pi * 100 * t), 8000, subtype="DOUBLE")

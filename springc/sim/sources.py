@@ -79,7 +79,7 @@ def common_table(net: FlatNetlist, nsteps: int, h: float, tstep: float,
     for col, e in enumerate(idx):
         src = net.forces.source[e]
         if src.kind == "wav":
-            samples = load_audio(src.path, 1.0 / tstep, 0)
+            samples = load_audio(src.path, 1.0 / tstep, src.channel)
             out[..., col] = at_stage_times(
                 lambda t: interpolate(samples, 1.0 / tstep, t), nsteps, h, tab)
         elif src.kind == "sin":

@@ -207,11 +207,9 @@ def test_verdicts_say_met_missed_and_partly_met_with_the_numbers():
     assert md[4].startswith("- **PARTLY MET (1 of 2)**: At least 300x faster than scipy DOP853")
     # 500 / 0.08; net: rk4 x1 is 50000x faster at 1e-6, rk4 x64 would reach 1e-13 at 781x
     assert md[4].endswith(": feature 6250x; net missed: no measured row as accurate "
-                          "(predicted, not measured: 781x at rk4 x64 float64); one not "
-                          "measured (peer not run).")
+                          "(predicted, not measured: 781x at rk4 x64 float64); one not run.")
     assert md[6].startswith("- **MET**: At least 50x faster than ngspice")  # net: not run
-    assert md[6].endswith(": feature 1600000x; net not measured (peer not run); one not "
-                          "measured (peer not run).")
+    assert md[6].endswith(": feature 1600000x; net not run; one not run.")
 
 
 def test_run_case_writes_the_report_with_reference_and_ladder(tmp_path):

@@ -255,8 +255,8 @@ def _verdict_part(v: dict) -> str:
     if v["claim"] == "ceiling_70":
         why = " (one run, not a batch: not judged)" if d else missed
         return f"{v['scope']} {_fmt(100 * v['value'], '.0f')}%{why}"
-    if isinstance(d, str):
-        return f"{v['scope']} not measured ({d})"
+    if isinstance(d, str):  # the peer did not run there (the case's table says why) or failed
+        return f"{v['scope']} {'peer failed' if d == 'peer failed' else 'not run'}"
     if d["speedup"] is not None:
         return f"{v['scope']} {_times(d['speedup'])}{missed}"
     return (f"{v['scope']} missed: no measured row as accurate (predicted, not measured: "

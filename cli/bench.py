@@ -64,6 +64,7 @@ def bench_cmd(case_names, outdir, quick, render_from, issue3, seconds, batch, st
 
     results = benchsuite.run_suite(list(case_names) or None, quick=quick, progress=say)
     machine["suite_wall_s"] = time.perf_counter() - start
+    machine["load_end"] = benchsuite.machine_info()["load"]
     _echo(report.write_report(results, Path(outdir), machine))
 
 

@@ -190,3 +190,14 @@ def test_the_installed_command_refuses_a_folder_without_a_traceback(tmp_path):
     assert got.returncode == 1
     assert got.stderr.strip() == f"error: {tmp_path}: is a folder; give the bench.json file"
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("start, end, busy", [(0.3, None, False), (0.3, 0.9, False),
+                                              (0.3, 1.0, True), (2.5, None, True)])
+def test_the_method_section_says_when_the_machine_was_busy(start, end, busy):
+    """Busy: a load average of half the CPUs or more at the start or at the end."""
+    machine = {"cpus": 2, "load": start, "when": "then"} | ({"load_end": end} if end else {})
+    text = report._machine_md(machine)
+    assert text.startswith(f"Machine: 2 CPU(s) available, load average {start} at the start"
+                           + (f" and {end} at the end, then." if end else ", then."))
+    assert ("The machine was busy with other work" in text) == busy

@@ -271,17 +271,17 @@ def _method_md(machine: dict) -> list[str]:
 
 def _machine_md(machine: dict) -> str:
     took = machine.get("suite_wall_s")
-    cpus, load = machine.get("cpus"), machine.get("load")
-    busy = (isinstance(load, (int, float)) and isinstance(cpus, int)
-            and load >= 0.5 * cpus)
-    return (f"Machine: {cpus} CPU(s) available, load average {load} at the start, "
-            f"{machine.get('when')}" + (f"; the whole suite took {took / 60:.1f} min" if took
-                                        else "") + "."
+    cpus, loads = machine.get("cpus"), [machine.get("load"), machine.get("load_end")]
+    busy = isinstance(cpus, int) and any(isinstance(x, (int, float)) and x >= 0.5 * cpus
+                                         for x in loads)
+    return (f"Machine: {cpus} CPU(s) available, load average {loads[0]} at the start"
+            + (f" and {loads[1]} at the end" if loads[1] is not None else "")
+            + f", {machine.get('when')}"
+            + (f"; the whole suite took {took / 60:.1f} min" if took else "") + "."
             + (" The machine was busy with other work while the suite ran (a load average "
-               "of half its CPUs or more at the start): every wall time is the least of "
-               "repeated calls, which removes much of that load but not all of it, so the "
-               "throughputs and speed-ups are, if anything, on the low side."
-               if busy else ""))
+               "of half its CPUs or more): every wall time is the least of repeated calls, "
+               "which removes much of that load but not all of it, so the throughputs and "
+               "speed-ups are, if anything, on the low side." if busy else ""))
 
 
 def _method_items() -> list[str]:

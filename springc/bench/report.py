@@ -488,7 +488,7 @@ def plot(r: CaseResult, path: Path) -> None:
     if floor:
         ax.axhline(floor, color="grey", ls=":", lw=0.8)
         ax.annotate("reference floor", (ax.get_xlim()[0], floor), fontsize=7, color="grey",
-                    xytext=(3, -9), textcoords="offset points")
+                    xytext=(3, 2), textcoords="offset points")
     ax.set_xlabel("wall seconds per simulated run-second (left is faster; crosses: peers)")
     ax.set_ylabel(f"worst probe error, first {_ms(r.peer_tstop)}")
     ax.set_title(f"{r.name}: {r.title}", fontsize=9)

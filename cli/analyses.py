@@ -52,4 +52,47 @@ def modes_cmd(netlist: str, as_json: bool, count: int | None) -> None:
     report = springc.load(netlist).modes(count)
     click.echo(json.dumps(report) if as_json else mode_text(report))
 
-COMMANDS = [ac_cmd, modes_cmd]
+@click.command("noise")
+@click.argument("netlist", type=click.Path(dir_okay=False))
+@click.option("--node", default=None, help="Output node (default: the .noise directive's).")
+@click.option("--input", "channel", type=int, default=None,
+              help="Input channel k the input-referred noise is referred to (default: "
+                   ".noise's, where an F element is driven by it).")
+@click.option("--temp", type=float, default=None,
+              help="Temperature in kelvin (default: .options temp=, else 300 K).")
+@click.option("--fmin", type=float, default=None, help="Lowest frequency, Hz.")
+@click.option("--fmax", type=float, default=None, help="Highest frequency, Hz.")
+@click.option("--points", type=int, default=None, help="Number of log-spaced frequencies.")
+@click.option("-o", "--output", required=True, type=click.Path(),
+              help="CSV file: f_hz, psd_m2_per_hz, input_referred (if any), one psd:NAME "
+                   "column per damper.")
+@click.option("--json", "as_json", is_flag=True,
+              help='Also print {"f", "psd", "sources", "rms", "input_referred", ...}.')
+@plot_option
+@run_user_errors
+def noise_cmd(netlist, node, channel, temp, fmin, fmax, points, output, as_json,
+              plot_path) -> None:
+    """Thermal noise at rest: every damper b is a white force of one-sided PSD 4 k_B T b
+    (N^2/Hz); the displacement PSD of the node (m^2/Hz), each damper's share, the RMS over
+    the band and the input-referred noise, from the linearisation `springc ac` uses."""
+    import springc
+    from springc.analyses import noise
+
+    for path in (output, plot_path):  # a failed command leaves no output: check both first
+        if path:
+            check_output_file(path, make_parents=True)
+    result = springc.load(netlist).noise(node, input=channel, temp=temp, fmin=fmin,
+                                         fmax=fmax, points=points)
+    noise.write_csv(result, output)
+    if plot_path:
+        noise.plot(result, plot_path)
+    if as_json:
+        click.echo(json.dumps(result.to_json()))
+        return
+    click.echo(f"wrote {output}: {len(result.f_hz)} points, {result.f_hz[0]:g}-"
+               f"{result.f_hz[-1]:g} Hz at {result.temp:g} K; RMS displacement of "
+               f"{result.node} over the band {result.rms:.6g} m; "
+               f"{len(result.sources)} damper(s)")
+
+
+COMMANDS = [ac_cmd, modes_cmd, noise_cmd]

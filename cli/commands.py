@@ -18,6 +18,7 @@ TABLE: dict[str, tuple[str, str, str]] = {
     "grad": ("grad", "grad_cmd", "Gradient of a reduction with respect to .param values."),
     "ac": ("analyses", "ac_cmd", "Frequency response of the linearisation at rest."),
     "modes": ("analyses", "modes_cmd", "Eigenfrequencies, damping, Q and mode shapes."),
+    "noise": ("analyses", "noise_cmd", "Thermal-noise PSD of a node at rest (.noise)."),
     "design": ("design", "design", "Design building blocks (Mel filterbank, MVM, ...)."),
     "figures": ("figures", "figures_cmd", "Building-block experiments as PNG figures."),
     "export": ("export", "export_cmd", "Export a netlist to ngspice (force-current analogy)."),

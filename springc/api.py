@@ -144,6 +144,18 @@ class Netlist:
         f_hz = ac.sweep(self.flat, fmin, fmax, points).frequencies()
         return ac.response(self.checked, node, f_hz, channel, progress=progress)
 
+    def noise(self, node: str | None = None, *, input: int | None = None,
+              temp: float | None = None, fmin: float | None = None, fmax: float | None = None,
+              points: int | None = None):
+        """Thermal noise at rest at `node` (default: the `.noise` directive's): a
+        `springc.analyses.noise.NoiseResult` (`f_hz`, `psd` in m^2/Hz, `sources`, `rms`,
+        `input_referred`). `temp` in kelvin (default `.options temp=`, else 300 K)."""
+        from springc.analyses import noise
+
+        node, channel = noise.target(self.flat, node, input)
+        f_hz = noise.sweep(self.flat, fmin, fmax, points).frequencies()
+        return noise.noise(self.checked, node, f_hz, temp, channel)
+
     def modes(self, count: int | None = None) -> dict:
         """Eigenfrequencies, damping rates, Q factors, dominant nodes and zero modes of the
         linearisation (`springc modes --json`), the `count` slowest (all if None)."""

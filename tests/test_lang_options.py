@@ -12,9 +12,10 @@ from springc.lang.options import KNOWN_OPTIONS, OptionValueError, known_methods
 
 
 def test_known_keys() -> None:
-    assert set(KNOWN_OPTIONS) == {"method", "substeps", "precision", "outrate"}
+    assert set(KNOWN_OPTIONS) == {"method", "substeps", "precision", "outrate", "temp", "seed"}
     assert KNOWN_OPTIONS["method"].word and KNOWN_OPTIONS["precision"].word
     assert not KNOWN_OPTIONS["substeps"].word and not KNOWN_OPTIONS["outrate"].word
+    assert not KNOWN_OPTIONS["temp"].word and not KNOWN_OPTIONS["seed"].word
 
 
 @pytest.mark.parametrize("name", sorted(TABLEAUX))

@@ -79,7 +79,7 @@ def response(checked: CheckedNetlist, node: str, f_hz: np.ndarray, channel: int 
     progress bar."""
     net = require_checked(checked, "ac.response").net
     if node not in net.nodes:
-        raise UsageError(f"unknown node '{node}'", hint=_near(net, node))
+        raise UsageError(f"unknown node '{node}'", hint=near(net, node))
     target = net.nodes.index(node)
     force = input_vector(net, channel)
     lin = linear.linearise(net)
@@ -91,7 +91,8 @@ def response(checked: CheckedNetlist, node: str, f_hz: np.ndarray, channel: int 
     return AcResult(node, channel, np.asarray(f_hz, dtype=np.float64), h)
 
 
-def _near(net: FlatNetlist, node: str) -> str:
+def near(net: FlatNetlist, node: str) -> str:
+    """A hint naming the nodes closest to a mistyped `node`."""
     import difflib
 
     close = difflib.get_close_matches(node, net.nodes, n=3, cutoff=0.5)

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from springc.errors import NetlistError, SourceLoc
-from springc.lang.ir import AcSpec, FlatNetlist, Instance, IRBuilder, Tran
+from springc.lang.ir import AcSpec, FlatNetlist, Instance, IRBuilder, NoiseSpec, Tran
 from springc.lang import ast, elements
 from springc.lang.elements import SPECS
 from springc.lang.expr import CONSTANTS, Env, closest, int_value, name_text, value
@@ -26,8 +26,8 @@ from springc.lang.options import KNOWN_OPTIONS, OptionSpec, OptionValueError
 GROUND = "0"
 MAX_LOOP = 10_000_000  # iterations of one .for; more is surely a mistake in the bounds
 DIRECTIVES = ("title", "param", "data", "include", "subckt", "ends", "for", "endfor", "probe",
-              "tran", "ac", "options", "end")
-TOP_ONLY = ("tran", "ac", "options")
+              "tran", "ac", "noise", "options", "end")
+TOP_ONLY = ("tran", "ac", "noise", "options")
 _FIRST = ("param", "data")  # directives run before the other statements of their scope
 
 
@@ -355,7 +355,8 @@ class _Elaborator:
     def _directive(self, stmt: ast.Directive, scope: _Scope) -> None:
         handler = {
             "param": self._param, "data": self._data, "probe": self._probe,
-            "tran": self._tran, "ac": self._ac, "options": self._options,
+            "tran": self._tran, "ac": self._ac, "noise": self._noise,
+            "options": self._options,
         }.get(stmt.name)
         if handler is None:
             raise _unknown_directive(stmt)
@@ -446,35 +447,45 @@ class _Elaborator:
         self.b.tran = Tran(tstep, tstop, stmt.loc)
 
     def _ac(self, stmt: ast.Directive, scope: _Scope) -> None:
+        self._sweep(stmt, scope, AcSpec, self.b.acs)
+
+    def _noise(self, stmt: ast.Directive, scope: _Scope) -> None:
+        self._sweep(stmt, scope, NoiseSpec, self.b.noises)
+
+    def _sweep(self, stmt: ast.Directive, scope: _Scope, kind: type, into: list) -> None:
+        """`.ac` or `.noise`: NODE FSTART FSTOP [points=] [input=], the node resolved once
+        every node exists."""
+        what = f".{stmt.name}"
         plain, keywords, calls, factors = elements.split_args(stmt.args)
         if len(plain) != 3 or calls or factors:
-            raise NetlistError(".ac takes a node, a start and a stop frequency", stmt.loc,
-                               "write .ac NODE FSTART FSTOP [points=200] [input=0]")
+            raise NetlistError(f"{what} takes a node, a start and a stop frequency", stmt.loc,
+                               f"write {what} NODE FSTART FSTOP [points=200] [input=0]")
         written, node = self._written(plain[0], scope.env), self._node(plain[0], scope)
         fstart, fstop = (value(v, scope.env) for v in plain[1:])
         if not 0 < fstart <= fstop:
-            raise NetlistError(f".ac needs 0 < fstart <= fstop, got {fstart:g} and {fstop:g}",
-                               plain[1].loc)
-        opts = self._ac_options(keywords, scope.env)
+            raise NetlistError(f"{what} needs 0 < fstart <= fstop, got {fstart:g} and "
+                               f"{fstop:g}", plain[1].loc)
+        opts = self._sweep_options(what, keywords, scope.env)
 
         def resolve() -> None:
             self._known_node(node, written, plain[0].loc)
-            self.b.acs.append(AcSpec(self.b.node(node), fstart, fstop, opts["points"],
-                                     opts["input"], stmt.loc))
+            into.append(kind(self.b.node(node, plain[0].loc), fstart, fstop, opts["points"],
+                             opts["input"], stmt.loc))
 
         self.deferred.append(resolve)
 
-    def _ac_options(self, keywords: list, env: Env) -> dict[str, int]:
+    def _sweep_options(self, what: str, keywords: list, env: Env) -> dict[str, int]:
         opts = {"points": 200, "input": 0}
         for kw in keywords:
             key = kw.key.lower()
             if key not in opts:
-                raise NetlistError(f".ac has no parameter '{kw.key}'", kw.loc,
+                raise NetlistError(f"{what} has no parameter '{kw.key}'", kw.loc,
                                    "it takes points= and input=")
             low = 1 if key == "points" else 0
             opts[key] = number = int_value(kw.value, env, kw.key)
             if number < low:
-                raise NetlistError(f".ac {kw.key} must be >= {low}, got {number}", kw.value.loc)
+                raise NetlistError(f"{what} {kw.key} must be >= {low}, got {number}",
+                                   kw.value.loc)
         return opts
 
     def _options(self, stmt: ast.Directive, scope: _Scope) -> None:

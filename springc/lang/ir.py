@@ -148,6 +148,18 @@ class AcSpec:
 
 
 @dataclass(frozen=True)
+class NoiseSpec:
+    """`.noise to-node fstart fstop points= input=`: thermal noise at rest."""
+
+    node: int
+    fstart: float
+    fstop: float
+    points: int
+    input: int
+    loc: SourceLoc
+
+
+@dataclass(frozen=True)
 class Instance:
     """One subcircuit instance: its full path (`X1.X2`), subcircuit name and where written."""
 
@@ -178,6 +190,7 @@ class FlatNetlist:
     options: dict[str, object]
     option_locs: dict[str, SourceLoc]
     instances: list[Instance]
+    noises: list[NoiseSpec] = field(default_factory=list)
 
     @property
     def n(self) -> int:
@@ -290,6 +303,11 @@ def _dump(net: FlatNetlist) -> str:
             f"ac {name(ac.node)} {_fmt(ac.fstart)} {_fmt(ac.fstop)} points={ac.points}"
             f" input={ac.input}"
         )
+    for ns in net.noises:
+        lines.append(
+            f"noise {name(ns.node)} {_fmt(ns.fstart)} {_fmt(ns.fstop)} points={ns.points}"
+            f" input={ns.input}"
+        )
     for key in sorted(net.options):
         lines.append(f"option {key}={net.options[key]}")
     for inst in net.instances:
@@ -355,6 +373,7 @@ class IRBuilder:
         self.probes: list[Probe] = []
         self.tran: Tran | None = None
         self.acs: list[AcSpec] = []
+        self.noises: list[NoiseSpec] = []
         self.options: dict[str, object] = {}
         self.option_locs: dict[str, SourceLoc] = {}
         self.instances: list[Instance] = []
@@ -437,4 +456,5 @@ class IRBuilder:
             options=dict(self.options),
             option_locs=dict(self.option_locs),
             instances=list(self.instances),
+            noises=list(self.noises),
         )

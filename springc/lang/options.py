@@ -6,6 +6,7 @@ An unknown key or a bad value is an error at its position, never ignored: a miss
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -72,6 +73,21 @@ def _outrate(raw: object) -> float:
     return value
 
 
+def temperature(raw: object) -> float:
+    """A temperature in kelvin: finite and >= 0 (0: no thermal noise)."""
+    value = float(raw)
+    if not (math.isfinite(value) and value >= 0):
+        raise OptionValueError(f"temp must be a finite temperature >= 0 K, not {value:g}")
+    return value
+
+
+def _seed(raw: object) -> int:
+    value = float(raw)
+    if not value.is_integer() or not 0 <= value < 2**63:
+        raise OptionValueError(f"seed must be an integer >= 0, not {value:g}")
+    return int(value)
+
+
 KNOWN_OPTIONS: dict[str, OptionSpec] = {
     spec.name: spec
     for spec in (
@@ -82,5 +98,9 @@ KNOWN_OPTIONS: dict[str, OptionSpec] = {
                    _substeps),
         OptionSpec("precision", True, "float32 or float64", _precision),
         OptionSpec("outrate", False, "probe output rate in Hz (> 0)", _outrate),
+        OptionSpec("temp", False, "temperature in kelvin of the dampers' thermal noise "
+                   "(finite, >= 0; default: no noise; .noise takes 300 K without it)",
+                   temperature),
+        OptionSpec("seed", False, "seed of the random draws (integer >= 0, default 0)", _seed),
     )
 }

@@ -24,7 +24,7 @@ from springc.kernels.lower import kernel_netlist
 from springc.lang import physics
 from springc.sim import reductions, sources
 from springc.sim.audio import resample
-from springc.errors import DivergedRuns, UsageError
+from springc.errors import DivergedRuns, NetlistError, UsageError
 from springc.kernels.integrators import DEFAULT_METHOD, TABLEAUX, get_tableau, max_stable_step
 from springc.check.checks import CheckedNetlist, require_checked
 from springc.lang.ir import FlatNetlist, Probe
@@ -37,6 +37,11 @@ CHECK_EVERY = 256  # steps between divergence checks
 # simulations (tests, one-off runs) keep the shared kernel; long ones repay the compile
 # (docs/performance.md#kernel-forms-shared-written-out-register).
 WRITE_OUT_FROM = 10_000_000
+# dofs x runs from which fewer runs than threads get a kernel with each step's node loops
+# split over the threads (`codegen.KernelOptions.parallel`): below it a step is too short to
+# repay the threads' start and join, several a stage
+# (docs/performance.md#one-run-on-every-core).
+NODE_THREADS_FROM = 20_000
 LIMITS = {"float64": 1e30, "float32": 1e15}  # |x| or |v| beyond this counts as divergence
 
 
@@ -175,7 +180,8 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
              probes=None, reductions: tuple[str, ...] | list[str] = (), batch: int | None = None,
              channel: int | None = None, progress: bool = False,
              chunk: int | None = None, write_out: bool | None = None,
-             record_into: np.ndarray | None = None, check_step: bool = True) -> SimResult:
+             record_into: np.ndarray | None = None, check_step: bool = True,
+             node_threads: bool | None = None) -> SimResult:
     """Simulate the checked netlist for every input signal (`springc.check.check(net)`).
 
     `inputs`: None (one run, no input), an array (runs, channels, samples) sampled at
@@ -191,8 +197,11 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
     views of it, are overwritten. A step above the stability limit of the method is refused
     before anything runs (`CheckError`, as `springc build` words it) unless `check_step` is
     False (experiments that confirm a limit: the divergence guard then stops the run), and so
-    are records that would not fit in memory."""
+    are records that would not fit in memory. `node_threads`: whether each step's node loops
+    are split over the threads (None: for fewer runs than threads of at least
+    `NODE_THREADS_FROM` dofs x runs; `split_nodes`)."""
     net = require_checked(checked, "simulate").net
+    _refuse_thermal_noise(net)
     tstep0 = tstep or (net.tran.tstep if net.tran else None)
     signals, names, seconds = _gather_inputs(net, inputs, input_rate, tstep0, channel)
     st = settings(net, tstep, tstop, substeps, method, precision, outrate, seconds)
@@ -210,7 +219,9 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
                                  record=bool(plist), work=rplan.work,
                                  dissipation=bool(rplan.damper_rows), msq=bool(rplan.msq),
                                  gram=bool(rplan.gram))
-    opts = kernel_form(knet, opts, coeffs, st, len(names), write_out)
+    opts = kernel_form(knet, opts, coeffs, st, len(names), write_out, node_threads)
+    if opts.parallel:
+        coeffs = {**coeffs, **terms.node_ends(coeffs, knet.n)}
     start = time.perf_counter()
     kernel = loader.load(kernel_source(knet, opts))
     rec = _records(len(plist), st.nsteps // st.rec_every + 1, len(names),
@@ -220,6 +231,16 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
     out.info.update(wall_s=time.perf_counter() - start, kernel=str(kernel.path),
                     compile_s=kernel.compile_s, settings=st, records=rec)
     return out
+
+
+def _refuse_thermal_noise(net: FlatNetlist) -> None:
+    """A netlist asking for thermal noise must not run noiseless without a word: the
+    transient noise forces are not generated yet (`.noise` analyses them at rest)."""
+    if float(net.options.get("temp", 0.0)) > 0:
+        raise NetlistError("transient thermal noise is not simulated yet: .options temp= "
+                           "is for the small-signal .noise analysis (springc noise)",
+                           net.option_locs.get("temp"),
+                           "remove temp= to simulate the noiseless network")
 
 
 def _records(probes: int, records: int, runs: int, dtype, reuse: np.ndarray | None
@@ -243,11 +264,15 @@ reductions_plan = reductions.plan
 
 
 def kernel_form(net: FlatNetlist, opts: codegen.KernelOptions, coeffs: dict, st: Settings,
-                runs: int, write_out: bool | None) -> codegen.KernelOptions:
-    """`opts` with the form of the force code: a register kernel (`springc.kernels.regkernel`) where
-    the force code would be written out (`written_out`), and for chunks of one run of a small
-    network (`REGISTER_ALWAYS`) unless `write_out` is False; else the per-node terms of
-    `written_out` (None: the shared kernel)."""
+                runs: int, write_out: bool | None, node_threads: bool | None = None
+                ) -> codegen.KernelOptions:
+    """`opts` with the form of the force code: the shared kernel with its nodes split over
+    threads where `split_nodes` says so (every run in one chunk); else a register kernel
+    (`springc.kernels.regkernel`) where the force code would be written out (`written_out`),
+    and for chunks of one run of a small network (`REGISTER_ALWAYS`) unless `write_out` is
+    False; else the per-node terms of `written_out` (None: the shared kernel)."""
+    if split_nodes(net, st, runs, node_threads):
+        return replace(opts, parallel=True, lanes=codegen.choose_lanes(runs))
     nodes = written_out(net, coeffs, st, runs, write_out)
     small = (opts.lanes == 1 and net.n <= regkernel.REGISTER_ALWAYS
              and write_out is not False)
@@ -256,6 +281,19 @@ def kernel_form(net: FlatNetlist, opts: codegen.KernelOptions, coeffs: dict, st:
         if regs is not None:
             return replace(opts, registers=regs)
     return replace(opts, nodes=nodes)
+
+
+def split_nodes(net: FlatNetlist, st: Settings, runs: int, want: bool | None) -> bool:
+    """Whether the kernel splits each step's node loops over the threads: as `want` says,
+    and when it is None, for fewer runs than `threads()` (their chunks would leave threads
+    idle) of at least `NODE_THREADS_FROM` dofs x runs. Never for splitting schemes
+    (`springc.kernels.expint` has no such form)."""
+    if expint.is_split(st.method):
+        return False
+    if want is not None:
+        return want
+    cores = threads()
+    return 1 < cores and runs < cores and net.n * runs >= NODE_THREADS_FROM
 
 
 def written_out(net: FlatNetlist, coeffs: dict, st: Settings, runs: int,
@@ -491,12 +529,17 @@ def _run_chunks(kernel, args: dict, runs: int, task: int) -> None:
     """Run the kernel's chunks (of `LANES` runs) as tasks of about `task` runs, each a
     contiguous range of chunks, on up to `threads()` threads (the kernel releases the GIL and
     each chunk writes only its own columns). A kernel without CHUNK_RANGE (a numba prange
-    kernel) runs all its chunks in one call."""
+    kernel) runs all its chunks in one call, and one with NODE_THREADS does so on
+    `threads()` of numba's threads."""
     nchunks = -(-runs // kernel.module.LANES)
+    fixed = {k: args[k] for k in kernel.args if k not in ("c0", "c1")}
+    if getattr(kernel.module, "NODE_THREADS", False):
+        with loader.numba_threads(threads()):
+            kernel.run(**fixed, c0=0, c1=nchunks)
+        return
     ntasks = min(nchunks, -(-runs // max(task, 1)))
     if not getattr(kernel.module, "CHUNK_RANGE", False):
         ntasks = 1
-    fixed = {k: args[k] for k in kernel.args if k not in ("c0", "c1")}
     bounds = [nchunks * t // ntasks for t in range(ntasks + 1)]
 
     def call(t: int) -> None:

@@ -46,7 +46,10 @@ class KernelOptions:
     per chunk, a compile-time constant (`choose_lanes`); `nodes`: each node's force terms
     (`terms.node_terms`) when the force code is written out per node, None for the shared kernel
     that loops over the runtime index arrays; `registers`: each node's terms
-    (`springc.kernels.terms.node_terms`) for a register kernel, each run's step in scalars."""
+    (`springc.kernels.terms.node_terms`) for a register kernel, each run's step in scalars;
+    `parallel`: the shared kernel with each step's node loops split over numba's threads
+    (`prange`), every node summing its own forces (`terms.node_ends`) in the serial
+    kernel's order, for one or a few runs of a large network."""
 
     method: str = "rk4"
     precision: str = "float64"
@@ -58,6 +61,7 @@ class KernelOptions:
     gram: bool = False
     nodes: tuple | None = None
     registers: tuple | None = None
+    parallel: bool = False
 
 
 @dataclass(frozen=True)
@@ -123,11 +127,19 @@ def accel_args(feat: Features) -> list[str]:
     return names
 
 
+def gather_args(feat: Features) -> list[str]:
+    """Names of the per-node end arrays (`terms.node_ends`) a parallel kernel takes."""
+    return [name for kind in terms.LOOP_ORDER if getattr(feat, kind.feature)
+            for name in terms.gather_args(kind)]
+
+
 def run_args(feat: Features, opts: KernelOptions) -> list[str]:
     """Names of all arguments of the generated `run`, in order."""
     names = ["x0", "v0", "u", "g", "nsteps", "substeps", "h", "chunk", "c0", "c1",
              "check_every", "limit"]
     names += accel_args(feat)
+    if opts.parallel:
+        names += gather_args(feat)
     if opts.record:
         names += ["rec_every", "rec_node", "rec_isv", "rec", "rec_col"]
     if opts.work:
@@ -168,10 +180,13 @@ def options_header(options: KernelOptions) -> list[str]:
     """Header lines naming the options (the per-node terms only by how the force code is
     written: they are in the body)."""
     # vars, not asdict, which deep-copies (a noticeable share of a short call)
-    shown = {k: v for k, v in vars(options).items() if k not in ("nodes", "registers")}
+    # `parallel` only where set: the serial kernels' text (and cache key) is unchanged by it
+    shown = {k: v for k, v in vars(options).items()
+             if k not in ("nodes", "registers") and (k != "parallel" or v)}
     how = ("written out per node, the state in registers (springc.kernels.regkernel)"
            if options.registers else "written out per node" if options.nodes
-           else "loops over the runtime index arrays")
+           else "per node over the runtime index arrays, nodes split over threads"
+           if options.parallel else "loops over the runtime index arrays")
     return [f"# options: {shown}", f"# force code: {how}"]
 
 
@@ -240,7 +255,8 @@ def _module_hash(module: str) -> str:
 def decorator(parallel: bool = False) -> str:
     """The njit decorator of every generated function."""
     if parallel:
-        return f'@nb.njit(parallel=True, cache=True, error_model="numpy", fastmath={FASTMATH})'
+        return ('@nb.njit(parallel=True, cache=True, error_model="numpy", nogil=True, '
+                f'fastmath={FASTMATH})')
     return f'@nb.njit(cache=True, error_model="numpy", nogil=True, fastmath={FASTMATH})'
 
 
@@ -263,6 +279,8 @@ def preamble(c: _Code, opts: KernelOptions, args: list[str], stages: int) -> Non
     if opts.record:
         c(f"RB = {record_block(opts.precision)}  # records staged per run, written by lines")
     c("CHUNK_RANGE = True  # run(c0, c1) integrates only chunks c0..c1-1: callers use threads")
+    if opts.parallel:
+        c("NODE_THREADS = True  # each step's node loops run on numba's threads: call it once")
 
 
 def _body(feat: Features, opts: KernelOptions, tab: Tableau) -> str:
@@ -321,13 +339,14 @@ def _lane_stmt(stmt: str, b: int, lane: str) -> str:
 def emit_stage_loop(c: _Code, feat: Features, tab: Tableau, width: LaneLayout,
                     prelude: Callable[[int], None],
                     after: Callable[[int], None] | None = None,
-                    nodes: tuple | None = None) -> None:
+                    nodes: tuple | None = None, parallel: bool = False) -> None:
     """The stages of one step as a loop whose body holds the force code once (a call per
     stage passes ~20 array arguments; the force code written out per stage compiles far
     slower: docs/performance.md#the-shared-kernels-shape). `prelude(s)` writes stage s's own
     code (its state xs, vs, its input); the force code then reads xa, va and writes ka;
     `after(s)`, when given, writes what follows stage s's forces; `nodes` (`terms.node_terms`), when
-    given, has the linear, input and quadratic-coupling forces written out per node."""
+    given, has the linear, input and quadratic-coupling forces written out per node;
+    `parallel`: the force code's node loop is a `prange` (`emit_linear`)."""
     c("for s_ in range(STAGES):")
     c.indent()
     for s in range(tab.stages):
@@ -339,7 +358,7 @@ def emit_stage_loop(c: _Code, feat: Features, tab: Tableau, width: LaneLayout,
         c(f"ka = kv{s}")
         c.dedent()
     c("grow = g[step, s_]" if feat.common_forces else "grow = g[0, 0]")
-    emit_accel_body(c, feat, width, nodes)
+    emit_accel_body(c, feat, width, nodes, parallel)
     if after is not None:
         for s in range(tab.stages):
             c(f"if s_ == {s}:")
@@ -353,12 +372,15 @@ def emit_stage_loop(c: _Code, feat: Features, tab: Tableau, width: LaneLayout,
 
 
 def emit_accel_body(c: _Code, feat: Features, width: LaneLayout,
-                    nodes: tuple | None = None) -> None:
+                    nodes: tuple | None = None, parallel: bool = False) -> None:
     """The force code: ka = M^-1 F(xa, va, uc, grow), from the term descriptions of
     `springc.kernels.terms`: with `nodes` (`terms.node_terms`) one sum per node, else the
-    linear rows and then a loop per element kind; monomials loop in both."""
+    linear rows and then a loop per element kind (`parallel`: each node gathers its
+    elements' ends instead, in the loops' order); monomials loop in all."""
     if nodes is not None:
         emit_nodes(c, nodes, width)
+    elif parallel:
+        emit_linear(c, feat, width, parallel=True)
     else:
         emit_linear(c, feat, width)
         for kind in terms.LOOP_ORDER:
@@ -417,16 +439,22 @@ def emit_nodes(c: _Code, nodes: tuple, width: LaneLayout) -> None:
         c(f"    ka[{i}, b] = {expr}")
 
 
-def emit_linear(c: _Code, feat: Features, width: LaneLayout) -> None:
+def node_loop(parallel: bool) -> str:
+    """The header of a loop over the nodes: split over numba's threads with `parallel`."""
+    return "for i in nb.prange(n):" if parallel else "for i in range(n):"
+
+
+def emit_linear(c: _Code, feat: Features, width: LaneLayout, parallel: bool = False) -> None:
     """Per node, all lanes in registers and one store: ka = -(bm v + km x), plus (with
     couplings) the node's off-diagonal stiffness row (`simulate.linear_rows`) and (with
     inputs) its input forces (`fi_ptr`: the node's range of the node-ordered inputs). Pushing
     each element into both ends' rows costs a load and a store per end, and the kernel is
     bound by that memory traffic. All lanes at once (no group loop): the FMAs into
     one accumulator are a chain, and only the lanes' independent chains keep the FMA units
-    busy."""
+    busy. `parallel`: the loop is a `prange`, and each node then adds its ends of the
+    element kinds (`_emit_gathers`) before its one store."""
     full = LaneLayout(width.width, width.width)
-    c("for i in range(n):")
+    c(node_loop(parallel))
     c.indent()
     c("bi = bm[i]")
     c("ki = km[i]")
@@ -448,8 +476,46 @@ def emit_linear(c: _Code, feat: Features, width: LaneLayout) -> None:
     if feat.in_forces:
         _gather(c, full, "fi_ptr", ("ch = fi_chan[e]", "gm = fi_gm[e]"), "uc[ch, {b}]",
                 terms.INPUT.format(gm="gm", u="Y{b}"))
+    if parallel:
+        _emit_gathers(c, feat, full)
     lanes(c, full, [], [], ["ka[i, {b}] = A{b}"])
     c.dedent()
+
+
+def _emit_gathers(c: _Code, feat: Features, full: LaneLayout) -> None:
+    """Node i's ends of every element kind (`terms.node_ends`), kind by kind in
+    `terms.LOOP_ORDER` and element by element, added to its accumulator: the additions
+    the element loops make to ka[i], in their order, so the sums round alike."""
+    for kind in terms.LOOP_ORDER:
+        if not getattr(feat, kind.feature):
+            continue
+        names = terms.gather_args(kind)
+        c(f"for k_ in range({names[0]}[i], {names[0]}[i + 1]):")
+        c.indent()
+        c(f"e = {names[1]}[k_]")
+        if kind.node_j is None:
+            _emit_element(c, full, terms.gather_end(kind, "i"))
+            c.dedent()
+            continue
+        c(f"o = {names[2]}[k_]")
+        c(f"if {names[3]}[k_] == 0:")
+        c.indent()
+        if kind.ground is not None:
+            c("if o < 0:  # to ground")
+            c.indent()
+            _emit_element(c, full, terms.gather_end(kind, "i", ground=True))
+            c.dedent()
+            c("else:")
+            c.indent()
+            _emit_element(c, full, terms.gather_end(kind, "i"))
+            c.dedent()
+        else:
+            _emit_element(c, full, terms.gather_end(kind, "i"))
+        c.dedent()
+        c("else:")
+        c.indent()
+        _emit_element(c, full, terms.gather_end(kind, "j"))
+        c.dedent(2)
 
 
 def _gather(c: _Code, full: LaneLayout, ptr: str, head: tuple[str, ...], row: str,
@@ -502,7 +568,7 @@ def _emit_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> No
 
     def prelude(s: int) -> None:
         if s > 0:
-            nystrom_stage_state(c, tab, s, ln)
+            nystrom_stage_state(c, tab, s, ln, parallel=opts.parallel)
         if feat.in_forces and (s == 0 or tab.c[s] != tab.c[s - 1]):
             # Linear interpolation of the input samples (grid step h * substeps) at the
             # stage time; a stage at the same time as the previous one reuses it.
@@ -513,8 +579,8 @@ def _emit_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> No
             emit_stage_reductions(c, feat, opts, s)
 
     emit_stage_loop(c, feat, tab, ln, prelude, after if opts.work or opts.dissipation else None,
-                    opts.nodes)
-    nystrom_combine(c, tab, ln)
+                    opts.nodes, opts.parallel)
+    nystrom_combine(c, tab, ln, parallel=opts.parallel)
     emit_step_end(c, opts, ln)
     c.dedent()
     emit_chunk_end(c, opts)
@@ -524,7 +590,7 @@ def _emit_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> No
 def emit_run_head(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> None:
     """The kernel function's decorator, signature and docstring, then its h-scaled
     coefficients (the body follows, indented)."""
-    emit_def(c, run_args(feat, opts), "nsteps steps of h", aligned_frame(opts))
+    emit_def(c, run_args(feat, opts), "nsteps steps of h", aligned_frame(opts), opts.parallel)
     _emit_coefficients(c, tab)
     emit_nystrom_coefficients(c, tab)
 
@@ -537,12 +603,15 @@ def aligned_frame(opts: KernelOptions) -> bool:
     return bool(opts.registers) and opts.lanes > 1
 
 
-def emit_def(c: _Code, args: list[str], steps: str, align: bool = False) -> None:
+def emit_def(c: _Code, args: list[str], steps: str, align: bool = False,
+             parallel: bool = False) -> None:
     """The kernel function's decorator, signature and docstring (integrating for `steps`),
-    and with `align`, the alignment of its frame."""
-    # Serial and nogil: the runtime runs chunks on threads (numba's parallel=True was no
-    # faster and compiles several times slower: docs/performance.md#measured-and-not-taken).
-    c(decorator())
+    and with `align`, the alignment of its frame; `parallel`: numba's parallel=True, for
+    the node loops' `prange`."""
+    # Serial and nogil: the runtime runs chunks on threads (numba's parallel=True over the
+    # chunks was no faster and compiles several times slower:
+    # docs/performance.md#measured-and-not-taken); over the nodes it serves a single run.
+    c(decorator(parallel))
     c(f"def run({', '.join(args)}):")
     c.indent()
     c(f'"""Integrate chunks c0..c1-1 of LANES runs (columns of x0) for {steps}."""')
@@ -704,19 +773,19 @@ def combine_terms(tab: Tableau, v: str, k: Callable[[int], str]) -> tuple[str, s
 
 
 def nystrom_stage_state(c: _Code, tab: Tableau, s: int, width: LaneLayout,
-                        frozen: str | None = None) -> None:
+                        frozen: str | None = None, parallel: bool = False) -> None:
     """xs = x + h c_s v + h^2 sum_k (A A)_sk kv_k and vs = v + h sum_j a_sj kv_j, row by row:
     the stage state from the force stages alone, so that the combine reads no stage
     velocities and one vs row serves every stage (8 state rows instead of 10 for RK4, three
     fewer reads per step). Rows flagged in `frz` (the exactly propagated blocks of
     `springc.kernels.expint`) are left to the block code with `frozen` 'skip', and keep xs = x
-    (their velocity kicked) with 'hold'."""
+    (their velocity kicked) with 'hold'. `parallel`: the rows split over threads."""
     row, sq = stage_reads(tab, s)
     xterm, vterm = stage_terms(tab, s, "V{b}", lambda k: f"K{k}_{{b}}")
     loads = ["X{b} = x[i, {b}]", "V{b} = v[i, {b}]"]
     xloads = loads + [f"K{k}_{{b}} = kv{k}[i, {{b}}]" for k in sq]
     loads += [f"K{k}_{{b}} = kv{k}[i, {{b}}]" for k in sorted(set(row) | set(sq))]
-    c("for i in range(n):")
+    c(node_loop(parallel))
     c.indent()
     if frozen:
         c("if frz[i]:")
@@ -759,15 +828,15 @@ def velocity_needed(c: _Code, feat: Features, opts: KernelOptions) -> None:
             c(f"    vneed[{index}[e]] = True")
 
 
-def nystrom_combine(c: _Code, tab: Tableau, width: LaneLayout, frozen: str | None = None
-                    ) -> None:
+def nystrom_combine(c: _Code, tab: Tableau, width: LaneLayout, frozen: str | None = None,
+                    parallel: bool = False) -> None:
     """x += h (sum b) v + h^2 sum_k (b A)_k kv_k; v += h sum_s b_s kv_s. Rows flagged in
     `frz` take xn, vn (their exact flow) with `frozen` 'exact', and keep x (their velocity
-    kicked) with 'hold'."""
+    kicked) with 'hold'. `parallel`: the rows split over threads."""
     loads = ["X{b} = x[i, {b}]", "V{b} = v[i, {b}]"]
     loads += [f"K{k}_{{b}} = kv{k}[i, {{b}}]" for k in sorted(set().union(*combine_reads(tab)))]
     xterm, vterm = combine_terms(tab, "V{b}", lambda k: f"K{k}_{{b}}")
-    c("for i in range(n):")
+    c(node_loop(parallel))
     c.indent()
     if frozen:
         c("if frz[i]:")

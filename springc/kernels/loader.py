@@ -51,6 +51,20 @@ def slp_vectorize() -> Iterator[None]:
                 config.SLP_VECTORIZE = _SLP_USERS[1]
 
 
+@contextlib.contextmanager
+def numba_threads(count: int) -> Iterator[None]:
+    """numba's threads for parallel kernels called from this thread: `count` (at most the
+    pool numba started with) while inside, then numba's setting before."""
+    import numba
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(count, numba.config.NUMBA_NUM_THREADS)))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
+
+
 def cache_dir() -> Path:
     """The kernel cache folder (created if missing)."""
     folder = Path(os.environ.get("SPRINGC_CACHE") or Path.home() / ".cache/springc/kernels")

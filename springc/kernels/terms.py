@@ -9,6 +9,9 @@ coefficient arrays it reads, the subexpressions both ends share, and the force o
     rendering            function        used by
     element loops        element_loop    the shared and exponential kernels
                                          (codegen.emit_accel_body): both ends in place
+    ends per node        gather_end      the shared kernel with its nodes split over
+                                         threads (codegen.emit_linear): each node sums
+                                         its own ends (`node_ends`), in the loops' order
     one sum per node     node_sum        the written-out kernels (codegen.emit_nodes) and
                                          the register kernels (regkernel): coefficients in
                                          scalars (`scalar_loads`), indices constants
@@ -23,6 +26,8 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
+
+import numpy as np
 
 STATE = ("xi", "xj", "vi", "vj")  # the template fields that read the state (per lane)
 
@@ -238,3 +243,65 @@ def _fill(template: str, state: dict[str, str], fields: dict[str, str]) -> str:
         out = out.replace("{" + key + "}", value)
     assert not re.search(r"\{(?!b\})", out), out  # every field filled
     return out
+
+
+def gather_args(kind: Kind) -> tuple[str, ...]:
+    """The arrays of `node_ends` for `kind`: each node's range of ends (`_ptr`), the
+    element of each (`_e`), and for two-node kinds its other node (`_o`, -1: the ground)
+    and which end the node is (`_end`: 0 for i, 1 for j)."""
+    names = (f"{kind.name}_ptr", f"{kind.name}_e")
+    return names if kind.node_j is None else names + (f"{kind.name}_o", f"{kind.name}_end")
+
+
+def node_ends(co: dict, n: int) -> dict[str, np.ndarray]:
+    """`gather_args` of every kind in `co` (`simulate.coefficient_arrays`): each node's ends
+    in element order, i before j within an element, the order in which the element loops
+    add them to the node's acceleration, so that a node's sum rounds as theirs does."""
+    out = {}
+    for kind in KINDS:
+        if kind.node_i not in co or kind is COMMON:
+            continue
+        first = co[kind.node_i].astype(np.int64)
+        # int64 throughout: numpy makes float64 of uint64 and int64 together
+        second = (co[kind.node_j].astype(np.int64) if kind.node_j
+                  else np.full(len(first), -1, np.int64))
+        two = second >= 0
+        elems = np.arange(len(first), dtype=np.int64)
+        node = np.concatenate([first, second[two]])
+        elem = np.concatenate([elems, elems[two]])
+        end = np.concatenate([np.zeros(len(first), np.uint8), np.ones(two.sum(), np.uint8)])
+        other = np.concatenate([second, first[two]])
+        order = np.lexsort((end, elem, node))
+        names = gather_args(kind)
+        out[names[0]] = np.searchsorted(node[order], np.arange(n + 1)).astype(np.uint64)
+        out[names[1]] = elem[order].astype(np.uint64)
+        if kind.node_j is not None:
+            out[names[2]] = np.ascontiguousarray(other[order])
+            out[names[3]] = np.ascontiguousarray(end[order])
+    return out
+
+
+def gather_end(kind: Kind, end: str, ground: bool = False) -> LoopCode:
+    """Node i's term as end `end` of element `e` of `kind` (its other node `o`), added to
+    the node's accumulator A{b}: `element_loop`'s arithmetic for that end, with the node's
+    running sum in place of its stored acceleration. `ground`: the other end is the
+    ground."""
+    template = kind.ground if ground else dict(kind.force)[end]
+    at = {"i": "i", "j": "o"} if end == "i" else {"i": "o", "j": "i"}
+    temps = [(name, t) for name, t in kind.temps if "{" + name + "}" in template]
+    used = " ".join([template] + [t for _, t in temps])
+    head = [f"{f} = {arr}[e]" for f, arr in kind.coefs if "{" + f + "}" in used]
+    fields = {f: f for f, _ in kind.coefs}
+    state = {s: s.upper() + "{b}" for s in STATE}
+    loads = [f"{s.upper()}{{b}} = {'xa' if s[0] == 'x' else 'va'}[{at[s[1]]}, {{b}}]"
+             for s in STATE if "{" + s + "}" in used]
+    arith = []
+    for name, temp in temps:
+        if any("{" + s + "}" in temp for s in STATE):
+            arith.append(f"{name}{{b}} = " + _fill(temp, state, fields))
+            fields[name] = name + "{b}"
+        else:  # per element, not per lane
+            head.append(f"{name} = " + _fill(temp, state, fields))
+            fields[name] = name
+    arith.append("A{b} = A{b} " + _fill(template, state, fields))
+    return LoopCode(head, loads, arith, [])

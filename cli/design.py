@@ -142,6 +142,42 @@ def lowpass_cmd(fc: float, k: float, bext: float, prefix: str, output: str) -> N
     _write_params(output, text, values, prefix)
 
 
+@design.command("scale")
+@click.argument("netlist", type=click.Path(dir_okay=False))
+@click.option("--mass", type=float, required=True,
+              help="kg per normalised mass unit (every mass, damping and stiffness x this).")
+@click.option("--length", type=float, required=True,
+              help="m per normalised displacement unit.")
+@click.option("--spl", type=float, default=None,
+              help="With --area: the in(k) forces become sound pressure at this level (dB "
+                   "SPL, re 20 uPa) on a membrane: a unit-RMS input is a force p A.")
+@click.option("--area", type=float, default=None, help="Membrane area (m^2), with --spl.")
+@OUT
+@run_user_errors
+def scale_cmd(netlist: str, mass: float, length: float, spl: float | None,
+              area: float | None, output: str) -> None:
+    """Rewrite NETLIST, designed in normalised units (unit masses, unit displacements), as
+    the same dynamics at a physical scale: every coefficient and source gain multiplied by
+    the factor of its degree (docs/language.md#physical-units); written as a flat .spr."""
+    import springc
+    from springc.design.scale import acoustic_gains, flat_text, scale_netlist
+    from springc.errors import UsageError
+
+    check_output_file(output, make_parents=True)
+    if (spl is None) != (area is None):
+        raise UsageError("--spl and --area go together (the acoustic force is p A)")
+    net = scale_netlist(springc.load(netlist).flat, mass, length)
+    if spl is not None:
+        net = acoustic_gains(net, spl, area)
+    note = (f"{netlist} at mass scale {mass:g} kg and length scale {length:g} m "
+            "(springc design scale)" + (f"; input: {spl:g} dB SPL on {area:g} m^2"
+                                       if spl is not None else ""))
+    text = flat_text(net, note)
+    springc.load(text)  # what is written must load and pass the checks
+    write_atomic(output, text)
+    click.echo(f"wrote {output}: {net.n} masses, mass x {mass:g}, length x {length:g}")
+
+
 def _write_params(output: str, text: str, values: dict[str, float], prefix: str) -> None:
     write_atomic(output, text)
     for key, value in values.items():

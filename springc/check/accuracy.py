@@ -59,37 +59,31 @@ def impulse_error(method: str, lam: np.ndarray, h: float, duration: float) -> np
     lam = np.atleast_1d(np.asarray(lam, dtype=complex))
     z = lam * h
     n = max(1, round(duration / h))
-    lr = log_ratio(method, z)
-    out = np.zeros(len(z))
-    for k in range(len(z)):
-        out[k] = _accumulated(complex(z[k]), complex(lr[k]), n)
+    return _accumulated(z, log_ratio(method, z), n)
+
+
+def _accumulated(z: np.ndarray, lr: np.ndarray, n: int) -> np.ndarray:
+    """The module docstring's e for every mode, in long double."""
+    lz = z.astype(np.clongdouble)
+    lrho = lr.astype(np.clongdouble)
+    a = 2 * lz.real  # log |exp(z)|^2
+    s_exact = _geometric(a, n)
+    s_num = _geometric(a + 2 * lrho.real, n)
+    s_cross = _geometric(a + lrho, n)
+    num = s_num + s_exact - 2 * s_cross.real
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # beyond a double: inf
+        out = np.sqrt(np.maximum(num.real, 0.0) / s_exact.real).astype(float)
+    out[~np.isfinite(num) | ~np.isfinite(s_exact)] = np.inf
+    out[~np.isfinite(lr.real)] = 1.0  # R = 0: the numerical mode vanishes after one step
+    out[(z == 0) | (lr == 0)] = 0.0
     return out
 
 
-def _accumulated(z: complex, lr: complex, n: int) -> float:
-    if z == 0 or lr == 0:
-        return 0.0
-    if not np.isfinite(lr.real):  # R = 0: the numerical mode vanishes after one step
-        return 1.0
-    ld = np.clongdouble
-    lz = ld(z)
-    lrho = ld(lr)
-    a = 2 * lz.real  # log |exp(z)|^2
-    s_exact = _geometric(ld(a), n)
-    s_num = _geometric(ld(a + 2 * lrho.real), n)
-    s_cross = _geometric(ld(a) + lrho, n)
-    num = s_num + s_exact - 2 * s_cross.real
-    if not np.isfinite(num) or not np.isfinite(s_exact):
-        return math.inf
-    return float(np.sqrt(max(num.real, 0.0) / s_exact.real))
-
-
-def _geometric(log_q, n: int):
+def _geometric(log_q: np.ndarray, n: int) -> np.ndarray:
     """sum_{k<n} q^k for q = exp(log_q), accurate near q = 1."""
-    if log_q == 0:
-        return np.clongdouble(n)
-    with np.errstate(over="ignore", invalid="ignore"):
-        return np.expm1(n * log_q) / np.expm1(log_q)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        out = np.expm1(n * log_q) / np.expm1(log_q)
+    return np.where(log_q == 0, n, out)
 
 
 @dataclass
@@ -105,6 +99,7 @@ class ModeError:
     error: float  # accumulated relative L2 error (module docstring)
     exact: bool  # integrated exactly (a block of a splitting scheme)
     nodes: list[tuple[str, float]]
+    oscillating: bool = True  # False: overdamped, a decay at `damping_rate` and no frequency
 
     @property
     def numerical_damping(self) -> float:
@@ -112,7 +107,8 @@ class ModeError:
         return -self.amplitude / self.h
 
     def to_json(self) -> dict:
-        return {"freq_hz": self.freq_hz, "damping_rate": self.damping_rate, "q": self.q,
+        return {"freq_hz": self.freq_hz if self.oscillating else None,
+                "oscillating": self.oscillating, "damping_rate": self.damping_rate, "q": self.q,
                 "amplitude_per_step": self.amplitude, "phase_per_step": self.phase,
                 "numerical_damping": self.numerical_damping,
                 "error": self.error if math.isfinite(self.error) else None,
@@ -123,21 +119,23 @@ class ModeError:
             f"relative error {self.error:.3g}, numerical damping {self.numerical_damping:.3g}/s "
             f"(physical {self.damping_rate:.3g}/s), phase {self.phase:+.3g} rad/step")
         nodes = ", ".join(n for n, _ in self.nodes)
+        if not self.oscillating:
+            return f"decay {self.damping_rate:9.5g} 1/s (overdamped) {what}; nodes {nodes}"
         return f"{self.freq_hz:9.5g} Hz (Q {self.q:.3g}) {what}; nodes {nodes}"
 
 
 def mode_errors(net: FlatNetlist, h: float, method: str, duration: float,
-                found: linear.Modes | None = None) -> list[ModeError]:
-    """Error estimates of every mode of the linearisation (see `linear.modes`) for `method` at
-    step `h` over `duration`, worst first."""
+                found: linear.Modes | None = None, count: int | None = None) -> list[ModeError]:
+    """Error estimates of the modes of the linearisation (see `linear.modes`) for `method` at
+    step `h` over `duration`, worst first: every mode's error is computed (vectorised), but
+    only the worst `count` (all if None) are described."""
     found = found if found is not None else linear.modes(net)
     exact = _exact_modes(net, found, method)
     inner = _inner(method)
-    err = impulse_error(inner, found.eigenvalues, h, duration)
-    out = [_mode_error(found, k, inner, h, 0.0 if exact[k] else float(err[k]), bool(exact[k]))
-           for k in range(len(found))]
-    out.sort(key=lambda m: -m.error if math.isfinite(m.error) else -math.inf)
-    return out
+    err = np.where(exact, 0.0, impulse_error(inner, found.eigenvalues, h, duration))
+    # worst first, an infinite error first of all; ties in mode order (a stable sort)
+    order = np.argsort(np.where(np.isfinite(err), -err, -np.inf), kind="stable")[:count]
+    return [_mode_error(found, int(k), inner, h, float(err[k]), bool(exact[k])) for k in order]
 
 
 def _inner(method: str) -> str:
@@ -150,7 +148,7 @@ def _mode_error(found: linear.Modes, k: int, inner: str, h: float, error: float,
     mode = found.mode(k)
     lr = log_ratio(inner, [mode.lam * h])[0]
     return ModeError(mode.freq_hz, mode.damping_rate, mode.q, float(lr.real), float(lr.imag),
-                     h, error, exact, mode.dominant(2))
+                     h, error, exact, mode.dominant(2), mode.oscillating)
 
 
 def _exact_modes(net: FlatNetlist, found: linear.Modes, method: str) -> np.ndarray:

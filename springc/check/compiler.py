@@ -6,6 +6,8 @@ The report is what `springc build` prints (text or one JSON object, docs/languag
 "Outputs"): degrees of freedom, element counts, instances, the fastest mode of the
 linearisation and the largest stable step of the configured integrator (for a splitting
 scheme, the blocks it integrates exactly and the mode of the rest that limits its step).
+With `.step` or `.mc` every point is checked and the report is the worst point's (the
+smallest stable step), with the number of points and of structures.
 """
 
 from __future__ import annotations
@@ -16,8 +18,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from springc.check import accuracy, checks
+from springc.check.points import check_points, worst
 from springc import lang
-from springc.lang import library
+from springc.lang import library, variation
 from springc.errors import Diagnostic
 from springc.lang.ir import FlatNetlist
 
@@ -46,6 +49,9 @@ class BuildReport:
     exact_blocks: list[list[str]] = field(default_factory=list)
     mode_errors: list[accuracy.ModeError] = field(default_factory=list)  # worst first
     net: FlatNetlist | None = field(default=None, repr=False)  # what was built
+    points: int = 1  # with .step/.mc: how many points, and the worst one (this report's)
+    structures: int = 1
+    worst_point: variation.Point | None = None
 
     @property
     def f_max_hz(self) -> float:
@@ -73,6 +79,9 @@ class BuildReport:
             "modes_complete": self.modes_complete,
             "exact_blocks": [list(b) for b in self.exact_blocks],
             "mode_errors": [m.to_json() for m in self.mode_errors],
+            "points": self.points,
+            "structures": self.structures,
+            "worst_point": self.worst_point.to_json() if self.worst_point else None,
             "diagnostics": [{"severity": d.severity, "message": d.message,
                              "loc": str(d.loc) if d.loc else None} for d in self.notes],
         }
@@ -90,6 +99,9 @@ class BuildReport:
                  f"  {limiting} {self.fastest_mode or '-'}",
                  f"  dt_max      {_seconds(self.dt_max)} ({self.method})",
                  f"  step        {_step(self)}"]
+        if self.worst_point is not None:
+            lines[1:1] = [f"  points      {self.points} ({self.structures} structure(s)); "
+                          f"worst {self.worst_point.describe()}, reported below"]
         if self.exact_blocks:
             lines.append(f"  exact       {len(self.exact_blocks)} block(s) by matrix "
                          f"exponential: {_blocks(self.exact_blocks)}")
@@ -151,12 +163,25 @@ def build(path: str | Path, *, lib_dirs: list[Path] | None = None,
     `NetlistError` (syntax, semantics) or `CheckError` (all failed checks)."""
     text = lang.read_source(path)
     tree = lang.parse(text, str(path))
-    net = lang.elaborate(tree, lib_dirs)
+    var = variation.read(tree, lib_dirs)
+    net = var.nominal()
     if net.n == 0:
         found = library.subckts(tree, text, lib_dirs)
         if found:
             return LibraryReport(net.file, net.title, found)
+    if var.varies:
+        return points_report(var.point_set(net), method)
     return report_for(net, method)
+
+
+def points_report(points: variation.PointSet, method: str | None = None) -> BuildReport:
+    """Check every point and summarise the worst (smallest stable step)."""
+    points = check_points(points, method)
+    index = worst(points)
+    report = summarise(points.checked[index])
+    report.points, report.structures = len(points), len(points.groups)
+    report.worst_point = points.points[index]
+    return report
 
 
 def report_for(net: FlatNetlist, method: str | None = None) -> BuildReport:
@@ -200,9 +225,8 @@ def _mode_errors(net: FlatNetlist, result: checks.CheckResult) -> list[accuracy.
     """The worst per-mode error estimates at the configured step (none without .tran)."""
     if result.tstep is None or net.tran is None or result.modes is None:
         return []
-    found = accuracy.mode_errors(net, result.tstep, result.method, net.tran.tstop,
-                                 result.modes)
-    return found[:WORST_MODES]
+    return accuracy.mode_errors(net, result.tstep, result.method, net.tran.tstop,
+                                result.modes, WORST_MODES)
 
 
 def kernel_source(report: BuildReport) -> str:

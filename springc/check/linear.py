@@ -4,8 +4,10 @@ components, modes and the largest stable integration step.
 The linearisation of m x'' + B x' + dV/dx = f at x = 0 is M x'' + B x' + K x = f with K the
 Hessian of V at rest. Everything here is sparse and works per connected component of the
 coupling graph: small components (up to `DENSE_MAX` dofs) are solved exactly with batched
-dense eigensolvers (components of equal size share one call), larger ones by sparse
-shift-invert Lanczos for the fastest modes only, which is all the step limit needs.
+dense eigensolvers (components of equal size share one call), larger ones in time about
+linear in their size (`sparse`): the top of the spectrum by Lanczos with an upper bound, zero
+modes from the inertia of one factorisation, and the fastest modes only, which is all the
+step limit needs.
 """
 
 from __future__ import annotations
@@ -15,9 +17,9 @@ from functools import cache
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as sla
 from scipy.sparse.csgraph import connected_components
 
+from springc.check import sparse
 from springc.kernels.integrators import (
     DEFAULT_METHOD,
     Tableau,
@@ -28,12 +30,7 @@ from springc.lang.ir import GROUND, FlatNetlist
 
 DENSE_MAX = 300  # largest component solved with dense eigensolvers
 ZERO_TOL = 1e-6  # |lambda| below this fraction of a component's largest counts as zero
-SPARSE_MODES = 6  # fastest modes computed per large component
-# ARPACK's convergence tolerance for those: machine precision (its default) costs twice the
-# iterations on the clustered top of a long chain's spectrum for no change in the step limit
-# (1e-10 and 0 agree to 1e-16 on the 10,000-element benchmark)
-ARPACK_TOL = 1e-10
-
+SPARSE_MODES = 6  # fastest (and zero) modes computed per large component
 
 @dataclass
 class Linearisation:
@@ -136,25 +133,50 @@ def component_labels(net: FlatNetlist) -> tuple[int, np.ndarray]:
 @dataclass
 class Mode:
     """One mode of the linearisation: eigenvalue `lam` of the first-order system (one of a
-    conjugate pair, Im >= 0), natural frequency |lam|, and its displacement shape."""
+    conjugate pair, Im >= 0), natural frequency |lam|, and its displacement shape (amplitudes
+    `amps` on the node indices `where`, the largest 1; `shape` names them)."""
 
     lam: complex
     omega: float  # |lam|, rad/s: the undamped frequency for a single oscillator
     freq_hz: float
     damping_rate: float  # -Re(lam), 1/s
     q: float  # |lam| / (2 damping_rate); 0.5 for an overdamped (real) eigenvalue
-    shape: dict[str, complex]  # node name -> amplitude, the largest is 1
+    where: np.ndarray = field(repr=False)
+    amps: np.ndarray = field(repr=False)
+    names: list[str] = field(repr=False)
+
+    @property
+    def oscillating(self) -> bool:
+        """False for an overdamped mode (a real eigenvalue: a decay, no frequency)."""
+        return self.lam.imag > 0
+
+    @property
+    def shape(self) -> dict[str, complex]:
+        """Node name -> amplitude (the largest is 1) for every node that moves."""
+        keep = np.nonzero(np.abs(self.amps) > 1e-12)[0]
+        return {self.names[int(self.where[j])]: complex(self.amps[j]) for j in keep}
 
     def dominant(self, count: int = 3) -> list[tuple[str, float]]:
-        """The `count` nodes with the largest amplitude, with |amplitude|."""
-        return _dominant(self.shape, count)
+        """The `count` nodes with the largest amplitude, with |amplitude| (ties in node
+        order)."""
+        size = np.abs(self.amps)
+        if len(size) > count:  # only the entries that can make the top `count` are sorted
+            cut = np.partition(size, len(size) - count)[len(size) - count]
+            pick = np.nonzero((size >= cut) & (size > 1e-12))[0]
+        else:
+            pick = np.nonzero(size > 1e-12)[0]
+        pick = pick[np.argsort(-size[pick], kind="stable")[:count]]
+        return [(self.names[int(self.where[j])], float(size[j])) for j in pick]
 
     def describe(self) -> str:
-        """One line for people: frequency, damping and dominant nodes."""
+        """One line for people: frequency (a decay rate if overdamped), damping and dominant
+        nodes."""
         nodes = ", ".join(f"{k} ({v:.2f})" for k, v in self.dominant())
-        kind = "oscillating" if self.lam.imag > 0 else "overdamped"
-        return (f"{kind} mode at {self.freq_hz:.6g} Hz ({self.omega:.6g} rad/s), damping rate "
-                f"{self.damping_rate:.6g} 1/s, Q {self.q:.4g}, dominant nodes {nodes}")
+        if not self.oscillating:
+            return (f"overdamped mode decaying at {self.damping_rate:.6g} 1/s, dominant "
+                    f"nodes {nodes}")
+        return (f"oscillating mode at {self.freq_hz:.6g} Hz ({self.omega:.6g} rad/s), damping "
+                f"rate {self.damping_rate:.6g} 1/s, Q {self.q:.4g}, dominant nodes {nodes}")
 
 
 @dataclass
@@ -164,7 +186,7 @@ class ZeroModes:
 
     count: int
     nodes: list[tuple[str, float]]
-    at_least: bool = False  # True when a large component was only searched for a few
+    at_least: bool = False  # always False: large components are counted exactly too
 
     def describe(self) -> str:
         more = "at least " if self.at_least else ""
@@ -176,7 +198,7 @@ class ZeroModes:
 @dataclass
 class Modes:
     """Modes of the linearisation, sorted by natural frequency. For components larger than
-    `DENSE_MAX` only the fastest `SPARSE_MODES` are computed (`complete` is False), with
+    `DENSE_MAX` only a few candidates for the fastest are computed (`complete` is False), with
     damping from the projection of B on the undamped modes (exact for proportional damping)."""
 
     eigenvalues: np.ndarray
@@ -188,22 +210,23 @@ class Modes:
     omega_max: float  # largest undamped eigenfrequency sqrt(eig(M^-1 K)), rad/s
     nodes: list[str] = field(default_factory=list)
     complete: bool = True
+    # certified relative overestimate of omega_max^2 (0: exact; see `sparse.TopBound`)
+    omega_margin: float = 0.0
 
     def __len__(self) -> int:
         return len(self.eigenvalues)
 
     def mode(self, k: int) -> Mode:
         lam = complex(self.eigenvalues[k])
-        return Mode(lam, abs(lam), float(self.freqs_hz[k]), float(self.damping_rates[k]),
-                    float(self.q_factors[k]), self.shape(k))
-
-    def shape(self, k: int) -> dict[str, complex]:
-        """Displacement shape of mode k by node name, scaled so its largest entry is 1."""
         nodes, amps = self.shapes[k]
         big = int(np.argmax(np.abs(amps)))
         amps = amps / amps[big] if amps[big] != 0 else amps
-        keep = np.nonzero(np.abs(amps) > 1e-12)[0]
-        return {self.nodes[int(nodes[j])]: complex(amps[j]) for j in keep}
+        return Mode(lam, abs(lam), float(self.freqs_hz[k]), float(self.damping_rates[k]),
+                    float(self.q_factors[k]), nodes, amps, self.nodes)
+
+    def shape(self, k: int) -> dict[str, complex]:
+        """Displacement shape of mode k by node name, scaled so its largest entry is 1."""
+        return self.mode(k).shape
 
     @property
     def zero_count(self) -> int:
@@ -228,6 +251,7 @@ class _Raw:
     shapes: list = field(default_factory=list)
     zero: list = field(default_factory=list)
     omega2_max: float = 0.0
+    margin: float = 0.0
     complete: bool = True
 
 
@@ -307,18 +331,20 @@ def _pair_roots(gamma: np.ndarray, omega2: np.ndarray) -> np.ndarray:
     return np.concatenate([-gamma / 2 + root, -gamma / 2 - root], axis=-1)
 
 
-def _record_zero(net, nodes, omega2, shapes, raw: _Raw, at_least: bool = False) -> None:
+def _record_zero(net, nodes, omega2, shapes, raw: _Raw) -> None:
     scale = float(np.max(np.abs(omega2), initial=0.0))
     zero = np.abs(omega2) <= ZERO_TOL**2 * scale if scale > 0 else np.ones(len(omega2), bool)
-    if not zero.any():
-        return
-    basis = shapes[:, zero]
+    if zero.any():
+        raw.zero.append(_zero_entry(net, nodes, shapes[:, zero], int(zero.sum())))
+
+
+def _zero_entry(net, nodes, basis: np.ndarray, count: int) -> ZeroModes:
+    """`count` zero modes whose dominant nodes are those of the columns of `basis`."""
     basis = basis / np.abs(basis).max(axis=0)
     weight = np.linalg.norm(basis, axis=1)
     weight = weight / weight.max()
     top = np.argsort(-weight, kind="stable")[:3]
-    raw.zero.append(ZeroModes(int(zero.sum()), [(net.nodes[nodes[t]], float(weight[t]))
-                                                 for t in top], at_least))
+    return ZeroModes(count, [(net.nodes[nodes[t]], float(weight[t])) for t in top])
 
 
 def _record_modes(nodes, lam, shapes, raw: _Raw) -> None:
@@ -331,38 +357,67 @@ def _record_modes(nodes, lam, shapes, raw: _Raw) -> None:
 
 
 def _sparse_component(net, lin: Linearisation, nodes: np.ndarray, raw: _Raw) -> None:
-    """Fastest modes of a large component. Candidates: the highest and the lowest undamped
-    modes (shift-invert Lanczos above a Gershgorin bound and just below zero) and the most
-    damped directions; each gives the eigenvalue pair of its modal mass, damping and
-    stiffness. Exact when damping does not couple the undamped modes (e.g. b = alpha m):
-    oscillating modes are fastest at the top of the spectrum, overdamped ones at the bottom."""
+    """Fastest modes of a large component, in time linear in its size for the common case.
+    Candidates: the top of the undamped spectrum (Lanczos, `sparse.top`; the top candidate
+    gets the upper bound of lambda_max, so that no step is judged against an underestimate),
+    the zero modes, the most damped directions and, where damping is strong enough for an
+    overdamped mode to be the fastest, the lowest modes; each gives the eigenvalue pair of its
+    modal mass, damping and stiffness. Exact when damping does not couple the undamped modes
+    (e.g. b = alpha m): oscillating modes are fastest at the top of the spectrum, overdamped
+    ones at the bottom."""
     m = net.mass()[nodes]
     isq = sp.diags(1.0 / np.sqrt(m))
-    kt = (isq @ lin.K[nodes][:, nodes] @ isq).tocsc()
-    bt = (isq @ lin.B[nodes][:, nodes] @ isq).tocsc()
-    kvals, kvecs = _top_eigs(kt)
-    _, lvecs = _sparse_zero_modes(net, kt, nodes, m, kvals, raw)
-    raw.omega2_max = max(raw.omega2_max, float(kvals.max(initial=0.0)))
+    kt = (isq @ lin.K[nodes][:, nodes] @ isq).tocsr()
+    bt = (isq @ lin.B[nodes][:, nodes] @ isq).tocsr()
+    top = sparse.top(kt, SPARSE_MODES)
+    raw.omega2_max = max(raw.omega2_max, top.bound)
+    raw.margin = max(raw.margin, top.margin)
     raw.complete = False
-    cand = np.hstack([kvecs, lvecs, _top_damping_vectors(bt)]).T
-    w2 = np.einsum("ij,ij->i", cand, (kt @ cand.T).T)
-    gamma = np.einsum("ij,ij->i", cand, (bt @ cand.T).T)
+    zero = _sparse_zero_modes(net, kt, nodes, m, top.bound, raw)
+    cand = np.hstack([top.vectors, zero, _top_damping_vectors(bt)]).T
+    w2, gamma = _rayleigh(kt, bt, cand)
+    w2[:min(1, top.vectors.shape[1])] = top.bound
+    if _overdamped_may_lead(bt, gamma, w2):
+        low = _lowest_modes(kt, top.bound, zero.shape[1])
+        more_w2, more_gamma = _rayleigh(kt, bt, low.T)
+        cand = np.vstack([cand, low.T])
+        w2, gamma = np.append(w2, more_w2), np.append(gamma, more_gamma)
     lam = _pair_roots(gamma, np.maximum(w2, 0.0))
     shapes = np.vstack([cand, cand]).T / np.sqrt(m)[:, None]
     _record_modes(nodes, lam, shapes, raw)
 
 
-def _top_eigs(mat: sp.csc_matrix) -> tuple[np.ndarray, np.ndarray]:
-    """Largest eigenvalues of a symmetric positive semidefinite sparse matrix."""
-    n = mat.shape[0]
-    bound = float(np.max(np.asarray(abs(mat).sum(axis=1)).ravel(), initial=0.0))
-    if bound == 0.0:
-        return np.zeros(0), np.zeros((n, 0))
-    k = min(SPARSE_MODES, n - 1)
-    return sla.eigsh(mat, k=k, sigma=bound * (1 + 1e-6), which="LM", tol=ARPACK_TOL)
+def _rayleigh(kt, bt, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Modal stiffness and damping (Rayleigh quotients) of unit candidate rows."""
+    w2 = np.einsum("ij,ij->i", cand, (kt @ cand.T).T)
+    gamma = np.einsum("ij,ij->i", cand, (bt @ cand.T).T)
+    return w2, gamma
 
 
-def _top_damping_vectors(bt: sp.csc_matrix) -> np.ndarray:
+# Real (overdamped) eigenvalues are at most the largest damping rate in size; along the
+# negative real axis every tableau's stability boundary is at least 0.91 of its farthest
+# point on any other ray of the left half-plane, so below half the fastest candidate's
+# |lambda| they cannot set the step, and the lowest modes are not needed.
+OVERDAMPED_SHARE = 0.5
+
+
+def _overdamped_may_lead(bt, gamma: np.ndarray, w2: np.ndarray) -> bool:
+    """Whether damping is strong enough that a slow overdamped mode may be the fastest."""
+    if bt.nnz == 0:
+        return False
+    fastest = float(np.abs(_pair_roots(gamma, np.maximum(w2, 0.0))).max(initial=0.0))
+    return float(sparse.gershgorin(bt)[1].max()) >= OVERDAMPED_SHARE * fastest
+
+
+def _lowest_modes(kt, scale: float, zeros: int) -> np.ndarray:
+    """The lowest `SPARSE_MODES` non-zero modes (and the zero modes below them), as unit
+    columns in mass-weighted coordinates."""
+    factor = sparse.Factor(kt, -ZERO_TOL**2 * scale)
+    count = min(kt.shape[0] - 1, min(zeros, SPARSE_MODES) + SPARSE_MODES)
+    return sparse.lowest(kt, factor, count)[1]
+
+
+def _top_damping_vectors(bt: sp.csr_matrix) -> np.ndarray:
     """Directions of strongest damping (unit vectors when damping is local only)."""
     if bt.nnz == 0 or not np.any(bt.data):
         return np.zeros((bt.shape[0], 0))
@@ -371,26 +426,58 @@ def _top_damping_vectors(bt: sp.csc_matrix) -> np.ndarray:
         out = np.zeros((bt.shape[0], len(top)))
         out[top, np.arange(len(top))] = 1.0
         return out
-    return _top_eigs(bt)[1]
+    return sparse.top(bt, SPARSE_MODES).vectors
 
 
-def _sparse_zero_modes(net, kt, nodes, m, kvals, raw: _Raw) -> tuple[np.ndarray, np.ndarray]:
-    """Record the zero modes of a large component; return its lowest modes (values, vectors
-    in mass-weighted coordinates)."""
+def _sparse_zero_modes(net, kt, nodes, m, scale: float, raw: _Raw) -> np.ndarray:
+    """Record the zero modes of a large component (|lambda| <= ZERO_TOL^2 of its largest, as
+    `_record_zero` counts them): counted by the inertia of one factorisation of the blocks
+    of the stiffness that Gershgorin's discs do not prove stiff, with a basis (of up to
+    `SPARSE_MODES`, in mass-weighted coordinates) from inverse iteration; return it."""
     n = len(nodes)
-    scale = float(kvals.max(initial=0.0))
     if scale == 0.0:  # no stiffness at all: every node moves freely
         weight = 1 / np.sqrt(m)
         top = np.argsort(-weight, kind="stable")[:3]
         names = [(net.nodes[nodes[t]], float(weight[t] / weight.max())) for t in top]
         raw.zero.append(ZeroModes(n, names))
-        return np.zeros(0), np.zeros((n, 0))
-    k = min(SPARSE_MODES, n - 1)
-    low, vecs = sla.eigsh(kt, k=k, sigma=-ZERO_TOL * scale, which="LM", tol=ARPACK_TOL)
-    zero = np.abs(low) <= ZERO_TOL**2 * scale
-    _record_zero(net, nodes, np.where(zero, 0.0, scale), vecs / np.sqrt(m)[:, None], raw,
-                 at_least=bool(zero.all()))
-    return low, vecs
+        return np.zeros((n, 0))
+    tau = ZERO_TOL**2 * scale
+    loose = _loose_blocks(kt, tau)
+    if len(loose) == 0:
+        return np.zeros((n, 0))
+    sub = kt[loose][:, loose]
+    count, factor = _count_zero(sub, tau)
+    if count == 0:
+        return np.zeros((n, 0))
+    basis = np.zeros((n, min(count, SPARSE_MODES)))
+    basis[loose] = sparse.lowest(sub, factor, basis.shape[1])[1]
+    raw.zero.append(_zero_entry(net, nodes, basis / np.sqrt(m)[:, None], count))
+    return basis
+
+
+def _loose_blocks(kt, tau: float) -> np.ndarray:
+    """Nodes of the connected blocks of the stiffness whose Gershgorin discs do not all lie
+    above `tau` (the others have no eigenvalue at or below it)."""
+    _, labels = connected_components(kt, directed=False)
+    low = sparse.gershgorin(kt)[0]
+    least = np.full(labels.max(initial=-1) + 1, np.inf)
+    np.minimum.at(least, labels, low)
+    return np.nonzero(least[labels] <= tau)[0]
+
+
+def _count_zero(sub, tau: float) -> tuple[int, sparse.Factor]:
+    """Eigenvalues of `sub` within [-tau, tau], and the factorisation of `sub - tau I`."""
+    factor = sparse.Factor(sub, tau)
+    below = factor.negative
+    if below is None:  # an off-diagonal pivot: shift a little further (no inertia else)
+        factor = sparse.Factor(sub, tau * (1 + 1e-3))
+        below = factor.negative
+    if below is None:
+        raise RuntimeError("INTERNAL ERROR: no symmetric factorisation of the stiffness; "
+                           "please report this netlist")
+    if below and sparse.gershgorin(sub)[0].min() < -tau:
+        below -= sparse.Factor(sub, -tau).negative or 0
+    return below, factor
 
 
 def _assemble(raw: _Raw, names: list[str]) -> Modes:
@@ -404,12 +491,7 @@ def _assemble(raw: _Raw, names: list[str]) -> Modes:
         q = np.where(rate > 0, omega / (2 * rate), np.inf)
     shapes = [raw.shapes[k] for k in order]
     return Modes(lam, omega / (2 * np.pi), rate, q, shapes, raw.zero,
-                 float(np.sqrt(raw.omega2_max)), list(names), raw.complete)
-
-
-def _dominant(shape: dict[str, complex], count: int) -> list[tuple[str, float]]:
-    items = sorted(shape.items(), key=lambda kv: -abs(kv[1]))
-    return [(k, abs(v)) for k, v in items[:count]]
+                 float(np.sqrt(raw.omega2_max)), list(names), raw.complete, raw.margin)
 
 
 def step_limit(found: Modes, method: str = DEFAULT_METHOD) -> StepLimit:

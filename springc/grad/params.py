@@ -20,30 +20,15 @@ from springc.lang import ast, elaborate, parse, read_source
 from springc.lang.expr import Env, closest, value
 from springc.lang.files import Includes
 from springc.lang.ir import FlatNetlist
+from springc.lang.variation import COEFFICIENTS, structure  # the coefficients a gradient covers
 from springc.grad.derive import tangent_tree
 
-# (table attribute, coefficient field) of every coefficient the gradient covers, in order
-COEFFICIENTS = (
-    ("masses", "m"), ("masses", "b"), ("masses", "x0"), ("masses", "v0"),
-    ("springs", "k"), ("duffings", "l"), ("couplings", "k"), ("couplings", "a"),
-    ("quads", "g"), ("quads", "a"), ("dashpots", "b"), ("monomials", "c"),
-    ("forces", "gain"),
-)
 PROBE = 1e-3  # relative change of a parameter that must leave the netlist's structure alone
 
 
 def coefficients(net: FlatNetlist) -> dict[tuple[str, str], np.ndarray]:
     """Every coefficient array of `net`, keyed as in `COEFFICIENTS`."""
     return {(t, f): np.asarray(getattr(getattr(net, t), f), np.float64) for t, f in COEFFICIENTS}
-
-
-def structure(net: FlatNetlist) -> str:
-    """`net`'s text dump with every coefficient left out: what a parameter must not change."""
-    blank = net
-    for table, name in COEFFICIENTS:
-        tab = getattr(blank, table)
-        blank = replace(blank, **{table: replace(tab, **{name: np.zeros(len(tab))})})
-    return blank.text()
 
 
 @dataclass

@@ -17,25 +17,28 @@ import numpy as np
 
 from springc.errors import NetlistError, SourceLoc
 from springc.lang.ir import AcSpec, FlatNetlist, Instance, IRBuilder, NoiseSpec, Tran
-from springc.lang import ast, elements
+from springc.lang import ast, draws, elements
 from springc.lang.elements import SPECS
-from springc.lang.expr import CONSTANTS, Env, closest, int_value, name_text, value
+from springc.lang.expr import CONSTANTS, Env, closest, int_value, keyed, name_text, value
 from springc.lang.files import Includes, beside, read_array
 from springc.lang.options import KNOWN_OPTIONS, OptionSpec, OptionValueError
 
 GROUND = "0"
 MAX_LOOP = 10_000_000  # iterations of one .for; more is surely a mistake in the bounds
 DIRECTIVES = ("title", "param", "data", "include", "subckt", "ends", "for", "endfor", "probe",
-              "tran", "ac", "noise", "options", "end")
-TOP_ONLY = ("tran", "ac", "noise", "options")
+              "tran", "ac", "noise", "options", "step", "mc", "end")
+TOP_ONLY = ("tran", "ac", "noise", "options", "step", "mc")
 _FIRST = ("param", "data")  # directives run before the other statements of their scope
 
 
-def elaborate(tree: ast.Netlist, lib_dirs: list[Path] | None = None) -> FlatNetlist:
-    """Flatten a parsed netlist (with its includes and subcircuits) into a `FlatNetlist`."""
+def elaborate(tree: ast.Netlist, lib_dirs: list[Path] | None = None,
+              sample: draws.Sample | None = None) -> FlatNetlist:
+    """Flatten a parsed netlist (with its includes and subcircuits) into a `FlatNetlist`;
+    random functions take their nominal values, or their draws in Monte Carlo `sample`.
+    `.step` and `.mc` are read by `springc.lang.variation`, which calls this per point."""
     _check_directive_names(tree.statements)
     try:
-        return _Elaborator(tree.file, lib_dirs).run(tree)
+        return _Elaborator(tree.file, lib_dirs, sample).run(tree)
     except RecursionError:
         raise NetlistError(f"{tree.file}: subcircuits or expressions are nested too deeply "
                            "to elaborate") from None
@@ -92,8 +95,12 @@ def _within(err: NetlistError, path: str) -> NetlistError:
 class _Elaborator:
     """The state of one elaboration: the IR being built and the names declared so far."""
 
-    def __init__(self, main_file: str, lib_dirs: list[Path] | None) -> None:
+    def __init__(self, main_file: str, lib_dirs: list[Path] | None,
+                 sample: draws.Sample | None = None) -> None:
         self.main = main_file
+        # where random calls draw: a site per element and instance, keyed per value (None
+        # outside a sample, so that a nominal elaboration makes no extra scopes)
+        self.site = draws.Site(sample, "") if sample is not None else None
         self.includes = Includes(lib_dirs)
         self.b = IRBuilder(title="", file=main_file)
         self.elements: dict[str, SourceLoc] = {}
@@ -105,7 +112,7 @@ class _Elaborator:
 
     def run(self, tree: ast.Netlist) -> FlatNetlist:
         body = self.includes.expand(tree)
-        env = Env()
+        env = Env(site=self.site)
         self._body(body, _Scope("", {}, env, self._defs(body, None, env), ()))
         for resolve in self.deferred:
             resolve()
@@ -215,7 +222,8 @@ class _Elaborator:
             return
         plain, keywords, calls, factors = elements.split_args(stmt.args)
         elements.check_kinds(name, letter, calls, factors)
-        p = elements.params(name, SPECS[letter], keywords, scope.env, stmt.loc)
+        p = elements.params(name, SPECS[letter], keywords, self._sited(scope.env, full),
+                            stmt.loc)
         if letter == "P":
             self._monomial(full, plain, factors, p["c"], loc, scope, stmt.loc)
         elif letter == "F":
@@ -286,17 +294,22 @@ class _Elaborator:
             raise NetlistError(f"{full}: subcircuit '{sub.name}' has {len(sub.ports)} port(s) "
                                f"({ports}) but {len(nodes)} node(s) were given", stmt.loc,
                                f"defined at {sub.loc}")
-        overrides = self._overrides(full, sub, keywords, scope.env)
+        overrides = self._overrides(full, sub, keywords, self._sited(scope.env, full))
         self.b.instances.append(Instance(full, sub.name, loc))
         ports = {p.parts[0]: n for p, n in zip(sub.ports, nodes)}
         self._alias(full, ports, stmt.loc)
         try:
-            env = self._instance_env(sub, overrides, defs.env)
+            env = self._instance_env(sub, overrides, self._sited(defs.env, full))
             inner = _Scope(full, ports, env, self._defs(sub.body, defs, env),
                            scope.stack + (sub,))
             self._body(sub.body, inner)
         except NetlistError as err:
             raise _within(err, full) from None
+
+    def _sited(self, env: Env, path: str) -> Env:
+        """`env` with a site of its own at `path` in a Monte Carlo sample (random calls in
+        the values of that element or instance draw there), else `env` itself."""
+        return env if self.site is None else Env({}, env, self.site.keyed(None, path))
 
     def _lookup_subckt(self, word: ast.Word, scope: _Scope) -> tuple[ast.Subckt, _Defs]:
         name = name_text(word, scope.env)
@@ -329,16 +342,17 @@ class _Elaborator:
                                    f"'{kw.key}'", kw.loc, hint)
             if kw.key in out:
                 raise NetlistError(f"{full}: parameter '{kw.key}' given twice", kw.loc)
-            out[kw.key] = value(kw.value, env)
+            out[kw.key] = value(kw.value, keyed(env, kw.key))
         return out
 
     def _instance_env(self, sub: ast.Subckt, overrides: dict, parent: Env) -> Env:
         """Parameters of one instance: overrides, else defaults (which may use earlier ones
         and the global parameters)."""
-        env = Env({}, parent)
+        env = Env({}, parent, parent.site)  # a default draws at the instance's site
         for param in sub.params:
             given = overrides.get(param.key)
-            env.vars[param.key] = given if given is not None else value(param.value, env)
+            env.vars[param.key] = (given if given is not None
+                                   else value(param.value, keyed(env, param.key)))
         return env
 
     def _alias(self, full: str, ports: dict[str, str], loc: SourceLoc) -> None:
@@ -356,7 +370,7 @@ class _Elaborator:
         handler = {
             "param": self._param, "data": self._data, "probe": self._probe,
             "tran": self._tran, "ac": self._ac, "noise": self._noise,
-            "options": self._options,
+            "options": self._options, "step": _variation, "mc": _variation,
         }.get(stmt.name)
         if handler is None:
             raise _unknown_directive(stmt)
@@ -375,7 +389,7 @@ class _Elaborator:
             if arg.key in CONSTANTS:
                 raise NetlistError(f"'{arg.key}' is a built-in constant and cannot be "
                                    "redefined", arg.loc)
-            scope.env.vars[arg.key] = value(arg.value, scope.env)
+            scope.env.vars[arg.key] = value(arg.value, keyed(scope.env, arg.key))
 
     def _data(self, stmt: ast.Directive, scope: _Scope) -> None:
         args = stmt.args
@@ -504,6 +518,11 @@ class _Elaborator:
                                    f"{self.b.option_locs[key]})", arg.loc)
             self.b.options[key] = _option_value(spec, arg.value, scope.env)
             self.b.option_locs[key] = arg.loc
+
+
+def _variation(stmt: ast.Directive, scope: _Scope) -> None:
+    """`.step` and `.mc` define the points (`springc.lang.variation`); one elaboration is one
+    point, so they set nothing here."""
 
 
 def _option_value(spec: OptionSpec, arg: ast.Value, env: Env) -> object:

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from springc.errors import NetlistError, SourceLoc
 from springc.lang.ir import Source
 from springc.lang import ast
-from springc.lang.expr import Env, closest, int_value, value
+from springc.lang.expr import Env, closest, int_value, keyed, value
 from springc.lang.files import beside
 
 
@@ -79,7 +79,8 @@ def check_kinds(name: str, letter: str, calls: list, factors: list) -> None:
 
 def params(name: str, spec: Spec, keywords: list, env: Env, loc: SourceLoc) -> dict:
     """The element's parameter values: defaults, then its `key=value` arguments (keys are
-    case-insensitive, as in SPICE); unknown, repeated or missing keys are errors."""
+    case-insensitive, as in SPICE); unknown, repeated or missing keys are errors. A random
+    call in a value draws at (`env`'s site, key) in a Monte Carlo sample."""
     values = dict(spec.optional)
     given: set[str] = set()
     for kw in keywords:
@@ -93,7 +94,7 @@ def params(name: str, spec: Spec, keywords: list, env: Env, loc: SourceLoc) -> d
         if key in given:
             raise NetlistError(f"{name}: parameter '{key}' given twice", kw.loc)
         given.add(key)
-        values[key] = value(kw.value, env)
+        values[key] = value(kw.value, keyed(env, key))
     for key in spec.required:
         if key not in given:
             raise NetlistError(f"{name}: missing parameter '{key}' of the {spec.what}", loc,

@@ -15,7 +15,7 @@ from decimal import Decimal
 import numpy as np
 
 from springc.errors import NetlistError, SourceLoc
-from springc.lang import ast
+from springc.lang import ast, draws
 
 # scale suffix -> power of ten (applied exactly, so that 20u is the double nearest 2e-5)
 SUFFIXES = {"t": 12, "g": 9, "meg": 6, "k": 3, "m": -3, "u": -6, "n": -9, "p": -12, "f": -15}
@@ -57,13 +57,17 @@ def bad_number(text: str, loc: SourceLoc) -> tuple[str, SourceLoc, str]:
 
 
 class Env:
-    """A scope of named values (floats or arrays) with a parent scope to fall back on."""
+    """A scope of named values (floats or arrays) with a parent scope to fall back on, and
+    where a Monte Carlo sample's random calls draw (`site`, the nearest one up the chain;
+    none: nominal values)."""
 
-    __slots__ = ("parent", "vars")
+    __slots__ = ("parent", "site", "vars")
 
-    def __init__(self, vars: dict[str, object] | None = None, parent: Env | None = None) -> None:
+    def __init__(self, vars: dict[str, object] | None = None, parent: Env | None = None,
+                 site: draws.Site | None = None) -> None:
         self.vars = vars if vars is not None else {}
         self.parent = parent
+        self.site = site
 
     def lookup(self, name: str) -> object | None:
         """The value bound to `name` here or in an enclosing scope, or None."""
@@ -75,6 +79,15 @@ class Env:
             env = env.parent
         return CONSTANTS.get(name)
 
+    def draw(self, func: str, args: list[float], loc: SourceLoc) -> float:
+        """A random call's value: drawn at the nearest site, else nominal."""
+        env: Env | None = self
+        while env is not None:
+            if env.site is not None:
+                return env.site.draw(func, args, loc)
+            env = env.parent
+        return draws.nominal(func, args, loc)
+
     def names(self) -> set[str]:
         """Every name visible from here (for suggestions)."""
         out = set(CONSTANTS)
@@ -83,6 +96,13 @@ class Env:
             out.update(env.vars)
             env = env.parent
         return out
+
+
+def keyed(env: Env, key: str) -> Env:
+    """The scope for the value of parameter or element key `key` in `env`: where `env` has a
+    site of its own (a Monte Carlo sample, see `draws`), its random calls draw at `key`."""
+    site = env.site
+    return env if site is None else Env({}, env, site.keyed(key))
 
 
 def closest(name: str, candidates) -> str | None:
@@ -118,6 +138,8 @@ def evaluate(expr: ast.Expr, env: Env) -> float | np.ndarray:
         case ast.Unary(op=op, operand=operand):
             value = scalar(operand, env)
             return -value if op == "-" else value
+        case ast.Call(func=func, args=args, loc=loc) if func in draws.FUNCTIONS:
+            return _finite(env.draw(func, [scalar(a, env) for a in args], loc), f"{func}()", loc)
         case ast.Call(func=func, args=args, loc=loc):
             return _finite(_call(func, [scalar(a, env) for a in args], loc), f"{func}()", loc)
         case ast.Index(name=name, indices=indices, loc=loc):
@@ -221,7 +243,7 @@ FUNCTIONS = {
 def _call(func: str, args: list[float], loc: SourceLoc) -> float:
     entry = FUNCTIONS.get(func)
     if entry is None:
-        guess = closest(func, FUNCTIONS)
+        guess = closest(func, [*FUNCTIONS, *draws.FUNCTIONS])
         hint = f"did you mean '{guess}'?" if guess else f"known: {', '.join(FUNCTIONS)}"
         raise NetlistError(f"unknown function '{func}'", loc, hint)
     impl, arity, domain = entry

@@ -1,0 +1,48 @@
+"""Every point of a `.step`/`.mc` netlist checked like a netlist of its own.
+
+`check_points(points, method)` runs `springc.check.check` on each point's netlist and returns
+the point set with the checked netlists; a point that fails is a `CheckError` whose every
+diagnostic names the point (step values, sample index, seed) beside the failed check. `worst`
+is the point with the smallest stable step, the one that sets the step of a run of them all.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+from springc.check.checks import CheckedNetlist, check
+from springc.errors import CheckError
+from springc.lang.variation import Point, PointSet
+
+
+def check_points(points: PointSet, method: str | None = None) -> PointSet:
+    """`points` with every point's `CheckedNetlist` (`method` overrides `.options method=`);
+    `CheckError` at the first point that fails, naming it."""
+    checked = []
+    for point, net in zip(points.points, points.nets):
+        try:
+            checked.append(check(net, method))
+        except CheckError as err:
+            raise _at_point(err, point, len(points)) from None
+    return replace(points, checked=tuple(checked))
+
+
+def _at_point(err: CheckError, point: Point, count: int) -> CheckError:
+    """`err` with the point named in each message (a single netlist's errors unchanged)."""
+    if count == 1 and not point.steps and point.sample is None:
+        return err
+    where = f" at {point.describe()} of {count}"
+    return CheckError([replace(d, message=d.message + where) for d in err.diagnostics])
+
+
+def worst(points: PointSet) -> int:
+    """The index of the checked point with the smallest stable step (then the fastest mode;
+    the first of equals)."""
+    def key(i: int) -> tuple[float, float, int]:
+        result: CheckedNetlist = points.checked[i]
+        omega = result.modes.omega_max if result.modes is not None else 0.0
+        dt = result.step.dt if result.step is not None else math.inf
+        return dt, -omega, i
+
+    return min(range(len(points.checked)), key=key)

@@ -21,9 +21,10 @@ import numpy as np
 
 from springc.check import CheckedNetlist, check
 from springc.check.compiler import BuildReport, summarise
+from springc.check.points import check_points
 from springc.errors import NetlistError
 from springc.grad.params import ParamNetlist
-from springc.lang import load_text, read_source
+from springc.lang import parse, read_source, variation
 from springc.lang.ir import FlatNetlist
 
 
@@ -38,8 +39,8 @@ def load(source: str | Path, *, params: Mapping[str, float] | None = None,
     dirs = list(lib_dirs) if lib_dirs else None
     if params:
         flat = ParamNetlist.from_text(text, filename, dirs).netlist(params)
-    else:
-        flat = load_text(text, filename, dirs)
+    else:  # .step/.mc and random functions are checked here; `Netlist.points` has the points
+        flat = variation.read(parse(text, filename), dirs).nominal()
     if flat.n == 0:
         raise NetlistError(f"{filename}: no top-level network (a library of subcircuits?)",
                            hint="instantiate a subcircuit in a netlist and load that")
@@ -78,6 +79,14 @@ class Netlist:
     def source(self) -> ParamNetlist:
         """The parsed netlist as a function of its top-level `.param` values."""
         return ParamNetlist.from_text(self.text, self.flat.file, self.lib_dirs)
+
+    @functools.cached_property
+    def points(self) -> variation.PointSet:
+        """The points of the file's `.step` and `.mc` lines (one, the nominal netlist,
+        without them), each elaborated and checked (`PointSet.checked`) with this netlist's
+        method; the file's `.param` values, not `params=` overrides."""
+        var = variation.read(parse(self.text, self.flat.file), self.lib_dirs)
+        return check_points(var.point_set(), self.checked.method)
 
     @property
     def params(self) -> dict[str, float]:

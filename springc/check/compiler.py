@@ -101,7 +101,7 @@ class BuildReport:
                  f"  step        {_step(self)}"]
         if self.worst_point is not None:
             lines[1:1] = [f"  points      {self.points} ({self.structures} structure(s)); "
-                          f"worst {self.worst_point.describe()}, reported below"]
+                          f"worst {self.worst_point.describe(self.points)}, reported below"]
         if self.exact_blocks:
             lines.append(f"  exact       {len(self.exact_blocks)} block(s) by matrix "
                          f"exponential: {_blocks(self.exact_blocks)}")

@@ -32,7 +32,7 @@ def _at_point(err: CheckError, point: Point, count: int) -> CheckError:
     """`err` with the point named in each message (a single netlist's errors unchanged)."""
     if count == 1 and not point.steps and point.sample is None:
         return err
-    where = f" at {point.describe()} of {count}"
+    where = f" at {point.describe(count)}"
     return CheckError([replace(d, message=d.message + where) for d in err.diagnostics])
 
 

@@ -9,7 +9,8 @@ evaluator then computes the derivatives: exact to rounding, no step size, no sec
 
 The rules are the calculus of each operator and function of the expression language:
 comparisons, `floor` and `ceil` have derivative 0; `abs`, `min`, `max` that of the branch
-they take (the same branch the value took).
+they take (the same branch the value took); a random function (`gauss(nom, ...)`), nominal
+outside a Monte Carlo sample, that of `nom`.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import math
 from dataclasses import replace
 
 from springc.errors import SourceLoc
-from springc.lang import ast
+from springc.lang import ast, draws
 from springc.lang.expr import CONSTANTS
 from springc.lang.elements import SPECS
 
@@ -171,6 +172,8 @@ class _Tangent:
         args, loc = e.args, e.loc
         if e.func in ("min", "max"):
             return self.extremum(e)
+        if e.func in draws.FUNCTIONS:  # elaborated without a sample: the nominal value
+            return self.expr(args[0]) if args else Zero
         if e.func in ("floor", "ceil") or len(args) != 1:
             return Zero  # a wrong arity is the elaborator's error to report
         u = args[0]

@@ -74,12 +74,13 @@ class Point:
     sample: int | None = None
     seed: int | None = None
 
-    def describe(self) -> str:
-        """'point 7 (w=2, sample 3, seed 1)' for messages and reports."""
+    def describe(self, count: int | None = None) -> str:
+        """'point 7 of 12 (w=2, sample 3, seed 1)' for messages and reports."""
         parts = [f"{name}={v:g}" for name, v in self.steps]
         if self.sample is not None:
             parts += [f"sample {self.sample}", f"seed {self.seed}"]
-        return f"point {self.index}" + (f" ({', '.join(parts)})" if parts else "")
+        of = f" of {count}" if count is not None else ""
+        return f"point {self.index}{of}" + (f" ({', '.join(parts)})" if parts else "")
 
     def to_json(self) -> dict:
         return {"index": self.index, "steps": dict(self.steps), "sample": self.sample,
@@ -140,13 +141,13 @@ class Variation:
         return out
 
     def netlist(self, point: Point) -> FlatNetlist:
-        """The elaborated netlist of `point`; its errors name the point."""
+        """The elaborated netlist of `point`; its errors name the point (of `count`)."""
         stmts = _set_params(self.statements, dict(point.steps))
         sample = None if point.sample is None else draws.Sample(point.sample, point.seed)
         try:
             return elaborate(ast.Netlist(self.file, tuple(stmts)), self.lib_dirs, sample)
         except NetlistError as err:
-            raise NetlistError(f"{err.message} at {point.describe()}", err.loc,
+            raise NetlistError(f"{err.message} at {point.describe(self.count)}", err.loc,
                                err.diagnostic.hint) from None
 
     def point_set(self, nominal: FlatNetlist | None = None) -> PointSet:
@@ -237,9 +238,10 @@ def _check_placement(statements, where: str) -> None:
             case ast.Directive(name="step" | "mc"):
                 if where:
                     inside = "a subcircuit" if where == "subckt" else "a .for loop"
+                    hint = ("step a top-level .param; it reaches every instance"
+                            if stmt.name == "step" else "write .mc at the top level")
                     raise NetlistError(f".{stmt.name} is only allowed at the top level, not "
-                                       f"inside {inside}", stmt.loc,
-                                       "step a top-level .param; it reaches every instance")
+                                       f"inside {inside}", stmt.loc, hint)
                 _refuse_random(stmt.args, f"a .{stmt.name} line", "step values are numbers")
             case ast.Directive(name="param") if where == "for":
                 _refuse_random(stmt.args, "a .param inside a .for loop",
@@ -365,7 +367,7 @@ def _linear(name: str, args: list, loc: SourceLoc) -> tuple[float, ...]:
     if span < 0:
         raise NetlistError(f".step {name}: an increment of {incr:g} never reaches {stop:g} "
                            f"from {start:g}", args[2].loc, f"write {-incr:g} or swap the ends")
-    count = math.floor(span + 1e-9) + 1
+    count = math.floor(span * (1 + 1e-12) + 1e-9) + 1  # the stop despite rounding
     _no_flood(name, count, args[2].loc)
     values = [start + k * incr for k in range(count)]
     if abs(values[-1] - stop) <= 1e-9 * abs(incr):
@@ -390,7 +392,7 @@ def _logarithmic(name: str, scale: str, args: list, loc: SourceLoc) -> tuple[flo
         raise NetlistError(f".step {name} {scale}: the stop {stop:g} is below the start "
                            f"{start:g}", args[1].loc, "swap the ends")
     base = 10.0 if scale == "dec" else 2.0
-    count = math.floor(per * math.log(stop / start, base) + 1e-9) + 1
+    count = math.floor(per * math.log(stop / start, base) * (1 + 1e-12) + 1e-9) + 1
     _no_flood(name, count, args[2].loc)
     values = [start * base ** (k / per) for k in range(count)]
     if abs(values[-1] - stop) <= 1e-9 * stop:

@@ -21,7 +21,7 @@ from click.testing import CliRunner
 from springc_cli.main import main
 
 from springc.check import compiler
-from springc.lang import elements, expr
+from springc.lang import draws, elements, expr
 from springc.lang.elaborate import DIRECTIVES
 from springc.lang.options import KNOWN_OPTIONS, known_methods
 
@@ -131,6 +131,7 @@ def test_page_names_every_source_option_method_function_and_suffix() -> None:
     assert _missing(f"{k}" for k in KNOWN_OPTIONS) == []
     assert _missing(known_methods()) == []
     assert _missing(expr.FUNCTIONS) == [] and _missing(expr.CONSTANTS) == []
+    assert _missing(f"{f}(" for f in draws.FUNCTIONS) == []
     assert [s for s in expr.SUFFIXES if f"| `{s}` |" not in TEXT] == []  # the suffix table
     for spec in elements.SPECS.values():
         assert _missing(f"{key}=" for key in (*spec.required, *spec.optional)) == []

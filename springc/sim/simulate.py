@@ -22,7 +22,7 @@ import numpy as np
 from springc.kernels import codegen, expint, loader, regkernel, terms
 from springc.kernels.lower import kernel_netlist
 from springc.lang import physics
-from springc.sim import reductions, sources
+from springc.sim import gpu, reductions, sources
 from springc.sim.audio import resample
 from springc.errors import DivergedRuns, NetlistError, UsageError
 from springc.kernels.integrators import DEFAULT_METHOD, TABLEAUX, get_tableau, max_stable_step
@@ -181,7 +181,7 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
              channel: int | None = None, progress: bool = False,
              chunk: int | None = None, write_out: bool | None = None,
              record_into: np.ndarray | None = None, check_step: bool = True,
-             node_threads: bool | None = None) -> SimResult:
+             node_threads: bool | None = None, device: str = "cpu") -> SimResult:
     """Simulate the checked netlist for every input signal (`springc.check.check(net)`).
 
     `inputs`: None (one run, no input), an array (runs, channels, samples) sampled at
@@ -199,7 +199,10 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
     False (experiments that confirm a limit: the divergence guard then stops the run), and so
     are records that would not fit in memory. `node_threads`: whether each step's node loops
     are split over the threads (None: for fewer runs than threads of at least
-    `NODE_THREADS_FROM` dofs x runs; `split_nodes`)."""
+    `NODE_THREADS_FROM` dofs x runs; `split_nodes`). `device`:
+    'cpu', 'cuda' (the CUDA kernel form, `springc.sim.gpu`; UsageError where no GPU is) or
+    'auto' (CUDA where a GPU is present); on CUDA every run is one batch unless `batch` is
+    given."""
     net = require_checked(checked, "simulate").net
     _refuse_thermal_noise(net)
     tstep0 = tstep or (net.tran.tstep if net.tran else None)
@@ -211,7 +214,10 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
     rplan = reductions_plan(list(reductions), net)
     require_memory(len(plist), st.nsteps // st.rec_every + 1, len(names), st.precision,
                    record_into)
-    batch = batch_size(batch)
+    dev = gpu.resolve(device)
+    if dev == "cuda":
+        gpu.require(net, st.method)
+    batch = batch_size(batch or (len(names) if dev == "cuda" else None))
     task = task_runs(len(names), batch, chunk)
     knet = kernel_netlist(net)  # the same forces, cheaper terms
     coeffs = kernel_arrays(knet, st, np.dtype(st.precision))
@@ -223,7 +229,9 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
     if opts.parallel:
         coeffs = {**coeffs, **terms.node_ends(coeffs, knet.n)}
     start = time.perf_counter()
-    kernel = loader.load(kernel_source(knet, opts))
+    kernel = (gpu.load(knet, gpu.options(knet, st.method, st.precision, coeffs, len(plist),
+                                         rplan))
+              if dev == "cuda" else loader.load(kernel_source(knet, opts)))
     rec = _records(len(plist), st.nsteps // st.rec_every + 1, len(names),
                    np.dtype(st.precision), record_into)
     out = _run_batches(net, kernel, st, coeffs, signals, names, plist, rplan, batch, task,
@@ -530,7 +538,10 @@ def _run_chunks(kernel, args: dict, runs: int, task: int) -> None:
     contiguous range of chunks, on up to `threads()` threads (the kernel releases the GIL and
     each chunk writes only its own columns). A kernel without CHUNK_RANGE (a numba prange
     kernel) runs all its chunks in one call, and one with NODE_THREADS does so on
-    `threads()` of numba's threads."""
+    `threads()` of numba's threads. A CUDA kernel runs them on the GPU (`gpu.run`)."""
+    if getattr(kernel.module, "CUDA", False):
+        gpu.run(kernel, args, runs)
+        return
     nchunks = -(-runs // kernel.module.LANES)
     fixed = {k: args[k] for k in kernel.args if k not in ("c0", "c1")}
     if getattr(kernel.module, "NODE_THREADS", False):

@@ -1,0 +1,415 @@
+"""The CUDA kernel form: one run per GPU thread, generated as numba.cuda source text from the
+same description of the step as the CPU kernels (this module never imports numba;
+`springc.kernels.loader` imports the text and `springc.sim.gpu` launches it).
+
+- Forces: the shared kernel's rendering of `springc.kernels.terms` for one run: the linear
+  rows and inputs per node (`terms.own_sum`, `ROW`, `INPUT`), then `terms.element_loop` per
+  kind in `LOOP_ORDER`, monomials, shared signals; or, with `CudaOptions.nodes`
+  (`terms.node_terms`), one sum per node (`terms.node_sum`) with every index a constant and
+  the coefficients read once per thread into scalars.
+- Stages: the Runge-Kutta-Nystrom stage and combine terms of `codegen.stage_terms` and
+  `combine_terms` over the tableau (any of `integrators.TABLEAUX`), the stages unrolled.
+- Inputs: linearly interpolated at each stage time as `codegen.emit_interp` does.
+- State: each thread's positions, velocities and stage forces in local arrays of the
+  network's size (a compile-time constant), read from and written back to device arrays
+  (n, runs) at each call, so that the host can integrate a long recording call by call over
+  ranges of steps, feeding each range's input samples (`springc.sim.gpu`).
+- Records and the reductions `work`, `dissipation`, `msq`, `gram` (and, on the host, `final`,
+  `energy`, `loss`) as the shared kernel accumulates them.
+
+Runge-Kutta only: the exponential and splitting schemes (`springc.kernels.expint`) and
+thermal noise have no CUDA form.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from springc.kernels import terms
+from springc.kernels.codegen import (Features, _Code, accel_args, combine_terms, features,
+                                     nystrom_coefficients, source_hash, stage_terms)
+from springc.kernels.integrators import Tableau, get_tableau
+from springc.lang.ir import FlatNetlist
+
+CUDA_VERSION = 1  # bump when the generated text or its calling convention changes
+BLOCK = 128  # threads per block (runs per block)
+# Networks up to this many nodes get their force code written out per node (constant
+# indices, coefficients in scalars); larger ones loop over the runtime index arrays.
+WRITE_OUT_MAX = terms.NODES_MAX
+
+
+@dataclass(frozen=True)
+class CudaOptions:
+    """Everything besides the element kinds that shapes a CUDA kernel's text: the tableau,
+    the precision, the sizes of the per-thread arrays (dofs, input channels, input and
+    shared-signal forces, probes, damper rows, mean-square rows, Gram groups; 0: not
+    accumulated), whether input work is summed, the nodes whose stage
+    velocity is read (`vneed`) and, for small networks, each node's terms (`nodes`)."""
+
+    method: str
+    precision: str
+    n: int
+    channels: int
+    inputs: int = 0
+    common: int = 0
+    probes: int = 0
+    work: bool = False
+    dampers: int = 0
+    msq: int = 0
+    gram: int = 0
+    vneed: tuple[bool, ...] = ()
+    nodes: tuple | None = None
+
+
+def run_args(feat: Features, opts: CudaOptions) -> list[str]:
+    """The generated `run`'s arguments, in order: the state (device arrays (n, runs)),
+    this call's input samples and shared signals, its range of steps, the coefficients, the
+    records and reductions (each (rows, runs)), the divergence status."""
+    names = ["xst", "vst", "u", "ubase", "g", "s0", "s1", "nsteps", "substeps", "h",
+             "check_every", "limit"]
+    names += accel_args(feat) + ["vneed"]
+    names += ["rec_every", "rec_node", "rec_isv", "rec", "rbase"]
+    names += ["work_in", "work_c", "ds_i", "ds_j", "ds_b", "diss"]
+    names += ["ms_node", "ms_isv", "ms_lo", "ms_hi", "msq"]
+    names += ["gr_i", "gr_j", "gr_g", "gr_w", "gr_decay", "gram", "status", "bad_node"]
+    return names
+
+
+def generate(net: FlatNetlist, opts: CudaOptions) -> str:
+    """numba.cuda source of the kernel for `net` (the kernel netlist, `lower.kernel_netlist`)
+    under `opts`, with a header naming the netlist and options."""
+    feat = features(net)
+    if getattr(feat, "thermal", False):
+        raise ValueError("thermal noise has no CUDA kernel form")
+    tab = get_tableau(opts.method)
+    body = _body(feat, opts, tab)
+    shown = {k: v for k, v in vars(opts).items() if k not in ("nodes", "vneed")}
+    header = [
+        "# springc generated CUDA kernel: do not edit (regenerated from the netlist)",
+        f"# netlist: {net.file}",
+        f"# title: {net.title}",
+        f"# options: {shown}",
+        "# force code: " + ("written out per node" if opts.nodes else "loops over the "
+                            "runtime index arrays"),
+        f"# integrator: {tab.name} ({tab.description})",
+        f"# dofs: {net.n}; elements: {net.element_counts()}",
+        f"# body-hash: {source_hash(f'cuda {CUDA_VERSION}' + body)}",
+        "",
+    ]
+    return "\n".join(header) + body
+
+
+def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
+    c = _Code()
+    c('"""Generated by springc.kernels.cuda; see the header. One run per thread."""')
+    c("import numpy as np")
+    c("from numba import cuda")
+    c("")
+    c(f"FT = np.{opts.precision}")
+    c(f"ARGS = {tuple(run_args(feat, opts))!r}")
+    c(f"N = {opts.n}")
+    c(f"NCH = {max(opts.channels, 1)}")
+    c(f"NFI = {opts.inputs}  # input forces")
+    c(f"NFC = {opts.common}  # shared-signal forces")
+    c(f"BLOCK = {BLOCK}")
+    c("CUDA = True")
+    c("LANES = 1  # runs per thread")
+    c(f"VNEED = {tuple(opts.vneed)!r}  # whether anything reads a node's stage velocity")
+    c("")
+    c("")
+    c("@cuda.jit")
+    c(f"def run({', '.join(run_args(feat, opts))}):")
+    c.indent()
+    c('"""Integrate steps s0..s1-1 of run cuda.grid(1) from its state in xst, vst."""')
+    c("r = cuda.grid(1)")
+    c("if r >= xst.shape[1] or status[r] != 0:")
+    c("    return")
+    _emit_coefficients(c, tab)
+    if opts.nodes is not None:
+        for i, node in enumerate(opts.nodes):
+            for line in terms.scalar_loads(i, node):
+                c(line)
+    _emit_state(c, feat, opts, tab)
+    _emit_counters(c)
+    c("for step in range(s0, s1):")
+    c.indent()
+    c("sub += 1")
+    c("if sub == substeps:")
+    c("    sub = 0")
+    c("    k0 += 1")
+    for s in range(tab.stages):
+        _emit_stage(c, feat, opts, tab, s)
+    _emit_combine(c, opts, tab)
+    _emit_step_end(c, opts)
+    c.dedent()
+    _emit_store(c, feat, opts)
+    return c.text()
+
+
+def _emit_coefficients(c: _Code, tab: Tableau) -> None:
+    """The h-scaled tableau and Nystrom constants, as `codegen` names them."""
+    for s, row in enumerate(tab.a):
+        for j, a in enumerate(row):
+            if a != 0.0:
+                c(f"ha{s}_{j} = FT(h * {a!r})")
+    for s, b in enumerate(tab.b):
+        if b != 0.0:
+            c(f"hb{s} = FT(h * {b!r})")
+            c(f"hbd{s} = h * {b!r}")
+    cs, aa, ba, bsum = nystrom_coefficients(tab)
+    for s in range(1, tab.stages):
+        c(f"hc{s} = FT(h * {float(cs[s])!r})")
+        for k in range(tab.stages):
+            if aa[s, k] != 0.0:
+                c(f"hh{s}_{k} = FT(h * h * {float(aa[s, k])!r})")
+    c(f"hbs = FT(h * {bsum!r})")
+    for k in range(tab.stages):
+        if ba[k] != 0.0:
+            c(f"hhb{k} = FT(h * h * {float(ba[k])!r})")
+
+
+def _emit_state(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau) -> None:
+    """The thread's local arrays, its state read from the device, its reductions' sums."""
+    for name in ["x", "v", "xs", "vs"] + [f"kv{s}" for s in range(tab.stages)]:
+        c(f"{name} = cuda.local.array(N, FT)")
+    c("uc = cuda.local.array(NCH, FT)")
+    c("for i in range(N):")
+    c("    x[i] = xst[i, r]")
+    c("    v[i] = vst[i, r]")
+    c("    vs[i] = FT(0.0)")
+    sums = _sums(feat, opts)
+    for local, out, size in sums:
+        c(f"{local} = cuda.local.array({size}, np.float64)")
+        c(f"for q in range({size}):")
+        c(f"    {local}[q] = {out}[q, r]")
+
+
+def _sums(feat: Features, opts: CudaOptions) -> list[tuple[str, str, int]]:
+    """(local array, device array, rows) of each reduction the kernel accumulates."""
+    out = []
+    if opts.work and feat.in_forces:
+        out.append(("w_in", "work_in", "fi_node.shape[0]"))
+    if opts.work and feat.common_forces:
+        out.append(("w_c", "work_c", "fc_node.shape[0]"))
+    out += [(loc, dev, size) for loc, dev, size in (("dsacc", "diss", opts.dampers),
+                                                  ("msacc", "msq", opts.msq),
+                                                  ("gracc", "gram", opts.gram)) if size]
+    # local arrays need compile-time sizes: the force counts are the netlist's
+    fixed = {"fi_node.shape[0]": "NFI", "fc_node.shape[0]": "NFC"}
+    return [(loc, dev, fixed.get(size, size)) for loc, dev, size in out]
+
+
+def _emit_counters(c: _Code) -> None:
+    """The step counters of `codegen.emit_step_start` at step s0 (sub, k0: the step's
+    position on the input grid, before its increment), the record counter."""
+    c("k0 = s0 // substeps")
+    c("sub = s0 - k0 * substeps - 1")
+    c("if sub < 0:")
+    c("    sub = substeps - 1")
+    c("    k0 -= 1")
+    c("rc_ = s0 % rec_every")
+    c("rn_ = s0 // rec_every")
+
+
+def _emit_stage(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau, s: int) -> None:
+    """Stage s: its state (Nystrom form), its input, its forces, its reductions."""
+    c(f"# stage {s} (c = {tab.c[s]!r})")
+    if s > 0:
+        _emit_stage_state(c, opts, tab, s)
+    if feat.in_forces and (s == 0 or tab.c[s] != tab.c[s - 1]):
+        c(f"pos = (sub + {tab.c[s]!r}) / substeps")
+        c("kk = k0 + int(pos) - ubase")
+        c("fr = FT(pos - int(pos))")
+        c("gr = FT(1.0) - fr")
+        c(f"for ch in range({max(opts.channels, 1)}):")
+        c("    uc[ch] = gr * u[ch, kk, r] + fr * u[ch, kk + 1, r]")
+    xa, va = ("x", "v") if s == 0 else ("xs", "vs")
+    if feat.common_forces:
+        c(f"grow = g[step - s0, {s}]")
+    text = force_code(feat, opts)
+    for line in text:
+        c(_rename(line, xa, va, f"kv{s}"))
+    if tab.b[s] != 0.0:
+        _emit_stage_reductions(c, feat, opts, s, va)
+
+
+def _rename(line: str, xa: str, va: str, ka: str) -> str:
+    """A force-code line with the stage's arrays in place of xa, va, ka."""
+    line = re.sub(r"\bxa\[", f"{xa}[", line)
+    line = re.sub(r"\bva\[", f"{va}[", line)
+    return re.sub(r"\bka\[", f"{ka}[", line)
+
+
+def _emit_stage_state(c: _Code, opts: CudaOptions, tab: Tableau, s: int) -> None:
+    """xs = x + h c_s v + h^2 sum (A A)_sk kv_k, vs = v + h sum a_sj kv_j (where read)."""
+    xterm, vterm = stage_terms(tab, s, "v[i]", lambda k: f"kv{k}[i]")
+    for i, line in _per_node(opts):
+        c(line)
+        if i is None:
+            c("    xs[i] = x[i] + (" + xterm + ")")
+            c("    if vneed[i]:")
+            c(f"        vs[i] = v[i] + {vterm}")
+            continue
+        c(f"xs[{i}] = x[{i}] + (" + _at(xterm, i) + ")")
+        if opts.vneed[i]:
+            c(f"vs[{i}] = v[{i}] + " + _at(vterm, i))
+
+
+def _per_node(opts: CudaOptions) -> list[tuple[int | None, str]]:
+    """A loop over the nodes (`(None, 'for i ...')`) or, written out, each node i."""
+    if opts.nodes is None:
+        return [(None, "for i in range(N):")]
+    return [(i, f"# node {i}") for i in range(opts.n)]
+
+
+def _at(expr: str, i: int) -> str:
+    return expr.replace("[i]", f"[{i}]")
+
+
+def force_code(feat: Features, opts: CudaOptions) -> list[str]:
+    """ka = M^-1 F(xa, va, uc, grow) for one run, as lines (relative indentation)."""
+    out: list[str] = []
+    if opts.nodes is not None:
+        for i, node in enumerate(opts.nodes):
+            expr = terms.node_sum(i, node, lambda j: f"xa[{j}]", lambda j: f"va[{j}]",
+                                  lambda ch: f"uc[{ch}]", lambda e: f"grow[{e}]")
+            out.append(f"ka[{i}] = {expr}")
+    else:
+        out += _linear(feat)
+        for kind in terms.LOOP_ORDER:
+            if getattr(feat, kind.feature):
+                out += _kind_loop(kind)
+    if feat.monomials:
+        out += _monomials()
+    if feat.common_forces and opts.nodes is None:
+        out += _kind_loop(terms.COMMON)
+    return out
+
+
+def _linear(feat: Features) -> list[str]:
+    """Each node's own terms, stiffness row and inputs, stored once (`codegen.emit_linear`)."""
+    own = terms.own_sum(True, True, "bi", "ki", "va[i]", "xa[i]")
+    spring = terms.own_sum(False, True, "bi", "ki", "va[i]", "xa[i]")
+    out = ["for i in range(N):", "    bi = bm[i]", "    ki = km[i]", "    if bi != 0.0:",
+           f"        A = {own}", "    else:", f"        A = {spring}"]
+    if feat.couplings:
+        out += ["    for e in range(l_ptr[i], l_ptr[i + 1]):",
+                "        A = A " + terms.ROW.format(w="l_val[e]", xj="xa[l_col[e]]")]
+    if feat.in_forces:
+        out += ["    for e in range(fi_ptr[i], fi_ptr[i + 1]):",
+                "        A = A " + terms.INPUT.format(gm="fi_gm[e]", u="uc[fi_chan[e]]")]
+    return out + ["    ka[i] = A"]
+
+
+def _one_lane(stmt: str) -> str:
+    """A lane statement of `terms.element_loop` for the thread's one run."""
+    return re.sub(r", \{b\}\]", "]", stmt).replace("{b}", "")
+
+
+def _kind_loop(kind: terms.Kind) -> list[str]:
+    """The loop over the elements of `kind` (`codegen._emit_kind` for one run)."""
+    def element(code: terms.LoopCode, pad: str) -> list[str]:
+        lines = code.head + code.loads + code.arith + code.stores
+        return [pad + _one_lane(line) for line in lines]
+
+    out = [f"for e in range({kind.node_i}.shape[0]):"]
+    if kind.ground is None:
+        return out + element(terms.element_loop(kind), "    ")
+    out += [f"    j = {kind.node_j}[e]", "    if j < 0:"]
+    out += element(terms.element_loop(kind, ground=True), "        ")
+    out += ["    else:"] + element(terms.element_loop(kind), "        ")
+    return out
+
+
+def _monomials() -> list[str]:
+    """The monomials' loop (`codegen._emit_monomials` for one run): each factor's partial
+    derivative, summed over the factors (the product rule)."""
+    return ["for e in range(p_c.shape[0]):", "    lo = p_ptr[e]", "    hi = p_ptr[e + 1]",
+            "    for kf in range(lo, hi):", "        i = p_var[kf]", "        ex = p_exp[kf]",
+            "        cm = p_c[e] * ex * minv[i]", "        term = cm * xa[i] ** (ex - 1)",
+            "        for ko in range(lo, hi):", "            if ko != kf:",
+            "                term *= xa[p_var[ko]] ** p_exp[ko]", "        ka[i] -= term"]
+
+
+def _emit_stage_reductions(c: _Code, feat: Features, opts: CudaOptions, s: int,
+                           va: str) -> None:
+    """Stage s's share of the input work and dissipation (`codegen.emit_stage_reductions`)."""
+    if opts.work and feat.in_forces:
+        c("for e in range(NFI):")
+        c(f"    fw = hbd{s} * (fi_gm[e] / minv[fi_node[e]])")
+        c(f"    w_in[e] += fw * uc[fi_chan[e]] * {va}[fi_node[e]]")
+    if opts.work and feat.common_forces:
+        c("for e in range(NFC):")
+        c(f"    fv = fc_gm[e] / minv[fc_node[e]] * g[step - s0, {s}, e]")
+        c(f"    w_c[e] += hbd{s} * fv * {va}[fc_node[e]]")
+    if opts.dampers:
+        c(f"for d in range({opts.dampers}):")
+        c("    i = ds_i[d]")
+        c("    j = ds_j[d]")
+        c(f"    dv = {va}[i] - ({va}[j] if j >= 0 else 0.0)")
+        c(f"    dsacc[d] += hbd{s} * ds_b[d] * dv * dv")
+
+
+def _emit_combine(c: _Code, opts: CudaOptions, tab: Tableau) -> None:
+    xterm, vterm = combine_terms(tab, "V", lambda k: f"kv{k}[i]")
+    for i, line in _per_node(opts):
+        c(line)
+        pad = "    " if i is None else ""
+        fix = (lambda e: e) if i is None else (lambda e: _at(e, i))
+        idx = "i" if i is None else str(i)
+        c(f"{pad}V = v[{idx}]")
+        c(f"{pad}x[{idx}] = x[{idx}] + (" + fix(xterm) + ")")
+        c(f"{pad}v[{idx}] = V + (" + fix(vterm) + ")")
+
+
+def _emit_step_end(c: _Code, opts: CudaOptions) -> None:
+    """Mean squares, Gram sums, the record when due and the divergence guard
+    (`codegen.emit_step_end`); a diverged run stops, its state and sums stored."""
+    c("k1 = step + 1")
+    if opts.msq:
+        c(f"for m in range({opts.msq}):")
+        c("    if ms_lo[m] <= k1 and k1 <= ms_hi[m]:")
+        c("        q = v[ms_node[m]] if ms_isv[m] else x[ms_node[m]]")
+        c("        msacc[m] += q * q")
+    if opts.gram:
+        c(f"for gq in range({opts.gram}):")
+        c("    gracc[gq] *= gr_decay[gq]")
+        c("for p in range(gr_i.shape[0]):")
+        c("    gracc[gr_g[p]] += gr_w[p] * x[gr_i[p]] * x[gr_j[p]]")
+    if opts.probes:
+        c("rc_ += 1")
+        c("if rc_ == rec_every:")
+        c("    rc_ = 0")
+        c("    rn_ += 1")
+        c(f"    for p in range({opts.probes}):")
+        c("        q = rec_node[p]")
+        c("        rec[p, rn_ - rbase, r] = v[q] if rec_isv[p] else x[q]")
+    c("if k1 % check_every == 0 or k1 == nsteps:")
+    c.indent()
+    c("worst = 0.0")
+    c("wi = -1")
+    c("for i in range(N):")
+    c("    ax = abs(x[i])")
+    c("    if not (ax <= limit and abs(v[i]) <= limit):")
+    c("        ax = np.inf")
+    c("    if wi < 0 or ax > worst:")
+    c("        worst = ax")
+    c("        wi = i")
+    c("if not worst <= limit:")
+    c("    status[r] = k1")
+    c("    bad_node[r] = wi")
+    c("    break")
+    c.dedent()
+
+
+def _emit_store(c: _Code, feat: Features, opts: CudaOptions) -> None:
+    """The state and the sums back to the device arrays."""
+    c("for i in range(N):")
+    c("    xst[i, r] = x[i]")
+    c("    vst[i, r] = v[i]")
+    for local, out, size in _sums(feat, opts):
+        c(f"for q in range({size}):")
+        c(f"    {out}[q, r] = {local}[q]")
+
+

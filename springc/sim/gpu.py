@@ -1,0 +1,199 @@
+"""The CUDA runtime: which device a simulation runs on, and the launches of the CUDA kernel
+form (`springc.kernels.cuda`) over the arrays `springc.sim.simulate` prepares for the CPU
+kernels (the same names, so that simulate finishes the reductions and checks divergence the
+same way).
+
+One run per thread; the state stays on the device between calls, each call integrating
+`STEPS_PER_CALL` steps, so only that range's input samples, shared signals and records are
+on the device at a time: a recording of any length fits. numba's CUDA simulator
+(`NUMBA_ENABLE_CUDASIM=1`) runs the same kernels on the CPU, for the tests.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from springc.errors import UsageError
+from springc.kernels import cuda as cudagen
+from springc.kernels import expint, loader, terms
+from springc.kernels.codegen import features
+from springc.lang.ir import FlatNetlist
+from springc.sim import sources
+
+DEVICES = ("cpu", "cuda", "auto")
+STEPS_PER_CALL = 4096  # steps per kernel call: the input, signals and records on the device
+
+
+def cuda_present(simulator: bool = True) -> bool:
+    """Whether numba can launch CUDA kernels here (`simulator`: numba's CUDA simulator
+    counts)."""
+    try:
+        from numba import config, cuda
+    except ImportError:
+        return False
+    if config.ENABLE_CUDASIM:
+        return simulator
+    try:
+        return bool(cuda.is_available())
+    except Exception:  # a broken driver reads as no GPU
+        return False
+
+
+def resolve(device: str) -> str:
+    """'cpu' or 'cuda' for `device` ('auto': CUDA where a GPU is present, not the
+    simulator); UsageError for 'cuda' where none is."""
+    match device:
+        case "cpu":
+            return "cpu"
+        case "auto":
+            return "cuda" if cuda_present(simulator=False) else "cpu"
+        case "cuda":
+            if not cuda_present():
+                raise UsageError("--device cuda: no CUDA GPU is available here (numba.cuda "
+                                 "found none, or numba-cuda is not installed)",
+                                 hint="install springc[cuda] on a machine with an NVIDIA "
+                                      "GPU, or use --device cpu")
+            return "cuda"
+        case _:
+            raise UsageError(f"unknown device {device!r}", hint="cpu, cuda or auto")
+
+
+def require(net: FlatNetlist, method: str) -> None:
+    """Refuse what the CUDA form does not run: splitting schemes and thermal noise."""
+    if expint.is_split(method):
+        raise UsageError(f"--device cuda runs Runge-Kutta tableaux only, not {method}",
+                         hint="use --method rk4 (or another tableau) or --device cpu")
+    if float(net.options.get("temp", 0.0)) > 0:
+        raise UsageError("--device cuda does not simulate thermal noise (.options temp=)",
+                         hint="use --device cpu")
+
+
+def vneed(net: FlatNetlist, coeffs: dict, work: bool) -> tuple[bool, ...]:
+    """Whether anything reads each node's stage velocity (`codegen.velocity_needed`)."""
+    out = coeffs["bm"] != 0.0
+    feat = features(net)
+    for kind in terms.KINDS:
+        if getattr(feat, kind.feature) and kind.reads_velocity():
+            for index in (kind.node_i, kind.node_j):
+                if index:
+                    nodes = coeffs[index].astype(np.int64)
+                    out[nodes[nodes >= 0]] = True
+    if work:
+        for index in ("fi_node", "fc_node"):
+            if index in coeffs and getattr(feat, {"fi_node": "in_forces",
+                                                  "fc_node": "common_forces"}[index]):
+                out[coeffs[index].astype(np.int64)] = True
+    return tuple(bool(b) for b in out)
+
+
+def options(net: FlatNetlist, method: str, precision: str, coeffs: dict, probes: int,
+            rplan) -> cudagen.CudaOptions:
+    """The CUDA kernel's options for the kernel netlist `net` and a reduction plan."""
+    nodes = terms.node_terms(coeffs, net.n) if net.n <= cudagen.WRITE_OUT_MAX else None
+    feat = features(net)
+    return cudagen.CudaOptions(
+        method, precision, net.n, sources.channels_used(net),
+        inputs=len(sources.input_forces(net)) if feat.in_forces else 0,
+        common=len(sources.common_forces(net)) if feat.common_forces else 0,
+        probes=probes, work=rplan.work, dampers=len(rplan.damper_rows),
+        msq=len(rplan.msq), gram=sum(r.gram.groups for r in rplan.gram),
+        vneed=vneed(net, coeffs, rplan.work), nodes=nodes)
+
+
+def load(net: FlatNetlist, opts: cudagen.CudaOptions) -> loader.Kernel:
+    """The CUDA kernel for `net` under `opts`, written to the kernel cache and imported
+    (compiled by numba.cuda at its first launch)."""
+    return loader.load(cudagen.generate(net, opts))
+
+
+_STATE = ("x0", "v0")
+_CONST = ("vneed", "rec_node", "rec_isv", "ds_i", "ds_j", "ds_b", "ms_node", "ms_isv",
+          "ms_lo", "ms_hi", "gr_i", "gr_j", "gr_g", "gr_w", "gr_decay")
+_SUMS = ("work_in", "work_c", "diss", "msq", "gram")
+
+
+def run(kernel: loader.Kernel, args: dict, runs: int) -> None:
+    """Integrate `runs` runs of the arrays `simulate` prepared (`args`: the CPU kernels'
+    argument names) on the GPU, STEPS_PER_CALL steps a call, filling args' records
+    (`rec`, from column `rec_col`), reductions, final state (`xf`, `vf`) and status as the
+    CPU kernels do."""
+    from numba import cuda
+
+    mod = kernel.module
+    nsteps, sub, every = int(args["nsteps"]), int(args["substeps"]), int(args["rec_every"])
+    dtype = args["x0"].dtype
+    dev = {name: _to_device(args[name]) for name in mod.ARGS if name in args
+           and name not in ("u", "g", "rec") and isinstance(args[name], np.ndarray)}
+    dev["vneed"] = cuda.to_device(np.array(mod.VNEED, np.bool_))
+    dev["xst"], dev["vst"] = (cuda.to_device(np.ascontiguousarray(args[k])) for k in _STATE)
+    for name in _SUMS:
+        dev[name] = cuda.to_device(_rows(args[name]))
+    _record_start(args, runs)
+    threads = min(cudagen.BLOCK, runs)
+    blocks = -(-runs // threads)
+    for s0 in range(0, nsteps, STEPS_PER_CALL):
+        s1 = min(nsteps, s0 + STEPS_PER_CALL)
+        a, b = s0 // sub, (s1 - 1) // sub + 3
+        call = {**dev, "u": _inputs(args["u"], a, b), "ubase": a, "g": _signals(args["g"], s0, s1),
+                "s0": s0, "s1": s1, "rbase": s0 // every + 1}
+        count = s1 // every - s0 // every
+        call["rec"] = cuda.device_array((max(args["rec"].shape[0], 1), max(count, 1), runs),
+                                        dtype)
+        for name in ("nsteps", "substeps", "h", "check_every", "limit", "rec_every"):
+            call[name] = args[name]
+        mod.run[blocks, threads](*[call[name] for name in mod.ARGS])
+        if args["rec"].shape[0] and count:
+            col = int(args["rec_col"])
+            got = call["rec"].copy_to_host()
+            args["rec"][:, col:col + runs, s0 // every + 1:s1 // every + 1] = got.transpose(0, 2, 1)
+    cuda.synchronize()
+    args["xf"][...] = dev["xst"].copy_to_host()
+    args["vf"][...] = dev["vst"].copy_to_host()
+    for name in _SUMS:
+        rows = args[name].shape[0]
+        args[name][...] = dev[name].copy_to_host()[:rows]
+    args["status"][...] = dev["status"].copy_to_host()
+    args["bad_node"][...] = dev["bad_node"].copy_to_host()
+
+
+def _to_device(a: np.ndarray):
+    """A constant array on the device (an empty one as one zero: no zero-size launches)."""
+    from numba import cuda
+
+    a = np.ascontiguousarray(a)
+    return cuda.to_device(a if a.size else np.zeros((1,) * max(a.ndim, 1), a.dtype))
+
+
+def _rows(a: np.ndarray) -> np.ndarray:
+    """A (rows, runs) sum array with at least one row."""
+    return np.ascontiguousarray(a if a.shape[0] else np.zeros((1, a.shape[1]), a.dtype))
+
+
+def _record_start(args: dict, runs: int) -> None:
+    """Record 0 (the initial state), which the CPU kernels write at their start."""
+    rec = args["rec"]
+    if not rec.shape[0]:
+        return
+    col = int(args["rec_col"])
+    for p, (q, isv) in enumerate(zip(args["rec_node"], args["rec_isv"])):
+        rec[p, col:col + runs, 0] = (args["v0"] if isv else args["x0"])[int(q)]
+
+
+def _inputs(u: np.ndarray, a: int, b: int):
+    """Input samples a..b-1 of every run, laid out (channel, sample, run): neighbouring
+    threads read neighbouring words."""
+    from numba import cuda
+
+    part = u[:, :, a:min(b, u.shape[2])]
+    if not part.size:
+        return cuda.to_device(np.zeros((1, 1, 1), u.dtype))
+    return cuda.to_device(np.ascontiguousarray(part.transpose(1, 2, 0)))
+
+
+def _signals(g: np.ndarray, s0: int, s1: int):
+    """The shared signals of steps s0..s1-1 (step, stage, force)."""
+    from numba import cuda
+
+    part = g[s0:s1] if g.shape[2] else g
+    return cuda.to_device(np.ascontiguousarray(part if part.size else np.zeros((1, 1, 1),
+                                                                               g.dtype)))

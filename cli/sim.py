@@ -57,9 +57,13 @@ REDUCE_HELP = (
                    "up to 8, else one kernel shared by every netlist of the same element "
                    "kinds; written-out: always where it serves (compiled once per netlist "
                    "structure: for sweeps of short runs); shared: never.")
+@click.option("--device", type=click.Choice(["cpu", "cuda", "auto"]), default="cpu",
+              help="cpu: the CPU kernels; cuda: the CUDA kernel form, one run per GPU thread "
+                   "(Runge-Kutta methods; needs springc[cuda] and an NVIDIA GPU); auto: cuda "
+                   "where a GPU is present, else cpu.")
 @run_user_errors
 def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precision, method,
-            outrate, reduce_, channel, batch, tolerance, kernel_form):
+            outrate, reduce_, channel, batch, tolerance, kernel_form, device):
     """Simulate NETLIST for every input signal and write the probes and reductions.
 
     Runs are integrated together in lockstep by a kernel generated for the netlist; inputs
@@ -80,7 +84,7 @@ def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precisio
     res = net.simulate(list(inputs) or None, tstep=tstep, tstop=tstop, substeps=substeps,
                        method=method, tolerance=tolerance, precision=precision,
                        outrate=outrate, reduce=list(reduce_), batch=batch, channel=channel,
-                       progress=True, kernel=kernel_form)
+                       progress=True, kernel=kernel_form, device=device)
     if res.choice:
         click.echo(res.choice)
     res.save(output)

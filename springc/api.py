@@ -116,7 +116,8 @@ class Netlist:
                  reduce: Sequence[str] = (), probes: Sequence[str] | None = None,
                  outrate: float | None = None, channel: int | None = None,
                  input_rate: float | None = None, batch: int | None = None,
-                 kernel: str = "auto", progress: bool = False) -> Result:
+                 kernel: str = "auto", device: str = "cpu",
+                 progress: bool = False) -> Result:
         """Simulate every input (None: one run without input; an array (runs, channels,
         samples) at `input_rate`; or sound files and folders, one run per file).
 
@@ -124,7 +125,8 @@ class Netlist:
         where neither names them, the cheapest whose estimated error is at most `tolerance`
         (default `springc.sim.plan.DEFAULT_TOLERANCE`), reported in `Result.choice`.
         `reduce`: streaming reductions (`springc sim --reduce` specs). `kernel`: auto,
-        written-out or shared (`springc sim --kernel`)."""
+        written-out or shared (`springc sim --kernel`). `device`:
+        cpu, cuda or auto (`springc sim --device`)."""
         from springc.sim import plan
         from springc.sim.simulate import simulate
 
@@ -137,7 +139,8 @@ class Netlist:
                        substeps=steps.substeps, method=steps.method, precision=precision,
                        outrate=outrate, probes=list(probes) if probes else None,
                        reductions=list(reduce), batch=batch, channel=channel,
-                       progress=progress, write_out=plan.KERNEL_FORMS[kernel])
+                       progress=progress, device=device,
+                       write_out=plan.KERNEL_FORMS[kernel])
         return Result(res.t, res.probes, res.reductions, list(res.runs),
                       res.info["settings"], steps.choice, res.info)
 

@@ -24,7 +24,7 @@ from springc.check.compiler import BuildReport, summarise
 from springc.check.points import check_points
 from springc.errors import NetlistError
 from springc.grad.params import ParamNetlist
-from springc.lang import parse, read_source, variation
+from springc.lang import load_text, parse, read_source, variation
 from springc.lang.ir import FlatNetlist
 
 
@@ -39,8 +39,8 @@ def load(source: str | Path, *, params: Mapping[str, float] | None = None,
     dirs = list(lib_dirs) if lib_dirs else None
     if params:
         flat = ParamNetlist.from_text(text, filename, dirs).netlist(params)
-    else:  # .step/.mc and random functions are checked here; `Netlist.points` has the points
-        flat = variation.read(parse(text, filename), dirs).nominal()
+    else:
+        flat = load_text(text, filename, dirs)
     if flat.n == 0:
         raise NetlistError(f"{filename}: no top-level network (a library of subcircuits?)",
                            hint="instantiate a subcircuit in a netlist and load that")

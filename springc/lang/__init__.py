@@ -28,16 +28,19 @@ from springc.lang.ir import FlatNetlist
 from springc.lang.elaborate import elaborate
 from springc.lang.files import STDLIB_DIR, search_dirs
 from springc.lang.parser import parse
+from springc.lang.variation import read as read_variation
 
 __all__ = ["STDLIB_DIR", "elaborate", "load_file", "load_text", "parse", "read_source",
-           "search_dirs"]
+           "read_variation", "search_dirs"]
 
 
 def load_text(text: str, filename: str = "<text>",
               lib_dirs: list[Path] | None = None) -> FlatNetlist:
     """Parse and elaborate netlist source `text`; relative paths are taken from the folder
-    of `filename` (the working directory for `<text>`)."""
-    return elaborate(parse(text, filename), lib_dirs)
+    of `filename` (the working directory for `<text>`). With `.step` or `.mc` this is the
+    nominal netlist (`.param` values as written, random functions nominal), their lines
+    checked; `read_variation` gives the points."""
+    return read_variation(parse(text, filename), lib_dirs).nominal()
 
 
 def read_source(path: str | Path) -> str:

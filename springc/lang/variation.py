@@ -224,8 +224,17 @@ def _random_calls(node) -> Iterator[ast.Call]:
             raise TypeError(f"not an argument or expression: {node!r}")
 
 
+def _plain(node) -> bool:
+    """A number, string or plain name: nothing to walk (most arguments, checked quickly)."""
+    cls = node.__class__
+    return cls is ast.Num or cls is ast.Str or (
+        cls is ast.Word and len(node.parts) == 1 and node.parts[0].__class__ is str)
+
+
 def _refuse_random(nodes, what: str, hint: str = RANDOM_WHERE) -> None:
     for node in nodes:
+        if _plain(node):
+            continue
         for call in _random_calls(node):
             raise NetlistError(f"{call.func}() cannot be used in {what}", call.loc, hint)
 
@@ -254,12 +263,12 @@ def _check_placement(statements, where: str) -> None:
                 _refuse_random(stmt.args, f"a .{stmt.name} line")
             case ast.Element():
                 _refuse_random([stmt.name], "an element name")
-                _refuse_random([a for a in stmt.args if isinstance(a, ast.CallArg)],
-                               "a source's arguments",
-                               "sources are not values: vary the force's gain= instead")
-                _refuse_random([a for a in stmt.args
-                                if not isinstance(a, (ast.Keyword, ast.CallArg))],
-                               "a node, exponent or subcircuit name")
+                for arg in stmt.args:
+                    if arg.__class__ is ast.CallArg:
+                        _refuse_random([arg], "a source's arguments",
+                                       "sources are not values: vary the force's gain= instead")
+                    elif arg.__class__ is not ast.Keyword:
+                        _refuse_random([arg], "a node, exponent or subcircuit name")
             case ast.Subckt():
                 _check_placement(stmt.body, "subckt")
             case ast.For():

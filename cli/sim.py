@@ -61,9 +61,15 @@ REDUCE_HELP = (
               help="cpu: the CPU kernels; cuda: the CUDA kernel form, one run per GPU thread "
                    "(Runge-Kutta methods; needs springc[cuda] and an NVIDIA GPU); auto: cuda "
                    "where a GPU is present, else cpu.")
+@click.option("--temp", type=float, default=None,
+              help="Temperature in kelvin of every damper's thermal noise force, drawn per "
+                   "integration step (overrides .options temp=; 0: no noise).")
+@click.option("--seed", type=int, default=None,
+              help="Seed of the noise draws (overrides .options seed=; default 0). A run's "
+                   "noise depends on the seed and its index only, not on --batch or --kernel.")
 @run_user_errors
 def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precision, method,
-            outrate, reduce_, channel, batch, tolerance, kernel_form, device):
+            outrate, reduce_, channel, batch, tolerance, kernel_form, temp, seed, device):
     """Simulate NETLIST for every input signal and write the probes and reductions.
 
     Runs are integrated together in lockstep by a kernel generated for the netlist; inputs
@@ -84,7 +90,7 @@ def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precisio
     res = net.simulate(list(inputs) or None, tstep=tstep, tstop=tstop, substeps=substeps,
                        method=method, tolerance=tolerance, precision=precision,
                        outrate=outrate, reduce=list(reduce_), batch=batch, channel=channel,
-                       progress=True, kernel=kernel_form, device=device)
+                       progress=True, kernel=kernel_form, device=device, temp=temp, seed=seed)
     if res.choice:
         click.echo(res.choice)
     res.save(output)

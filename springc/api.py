@@ -117,7 +117,8 @@ class Netlist:
                  outrate: float | None = None, channel: int | None = None,
                  input_rate: float | None = None, batch: int | None = None,
                  kernel: str = "auto", device: str = "cpu",
-                 progress: bool = False) -> Result:
+                 progress: bool = False, temp: float | None = None,
+                 seed: int | None = None) -> Result:
         """Simulate every input (None: one run without input; an array (runs, channels,
         samples) at `input_rate`; or sound files and folders, one run per file).
 
@@ -126,9 +127,12 @@ class Netlist:
         (default `springc.sim.plan.DEFAULT_TOLERANCE`), reported in `Result.choice`.
         `reduce`: streaming reductions (`springc sim --reduce` specs). `kernel`: auto,
         written-out or shared (`springc sim --kernel`). `device`:
-        cpu, cuda or auto (`springc sim --device`)."""
-        from springc.sim import plan
+        cpu, cuda or auto (`springc sim --device`). `temp` (kelvin) and `seed`: the
+        dampers' thermal noise, overriding `.options temp=`/`seed=` (`springc sim --temp`)."""
+        from springc.sim import plan, thermal
         from springc.sim.simulate import simulate
+
+        thermal.with_overrides(self.flat, temp, seed)  # a bad value fails before any work
 
         if isinstance(inputs, (str, Path)):
             inputs = [inputs]
@@ -140,7 +144,8 @@ class Netlist:
                        outrate=outrate, probes=list(probes) if probes else None,
                        reductions=list(reduce), batch=batch, channel=channel,
                        progress=progress, device=device,
-                       write_out=plan.KERNEL_FORMS[kernel])
+                       write_out=plan.KERNEL_FORMS[kernel], temp=temp,
+                       seed=seed)
         return Result(res.t, res.probes, res.reductions, list(res.runs),
                       res.info["settings"], steps.choice, res.info)
 

@@ -108,11 +108,3 @@ def test_bad_noise_requests_are_user_errors(tmp_path, text, args, message) -> No
     assert res.exit_code == 1, res.output
     assert message in res.output and "Traceback" not in res.output
     assert not list(tmp_path.glob("*out.csv*"))
-
-
-def test_sim_refuses_a_temperature_it_would_ignore(tmp_path) -> None:
-    (tmp_path / "n.spr").write_text(OSC + ".tran 1m 0.01\n.options temp=300\n")
-    res = CliRunner().invoke(main, ["sim", str(tmp_path / "n.spr"), "-o",
-                                    str(tmp_path / "o.npz")])
-    assert res.exit_code == 1 and "4:10: error: transient thermal noise" in res.output
-    assert not list(tmp_path.glob("*o.npz*"))

@@ -24,7 +24,7 @@ import scipy.linalg
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from springc.kernels import codegen
+from springc.kernels import codegen, thermal
 from springc.kernels.codegen import KernelOptions, _Code
 from springc.errors import UsageError
 from springc.kernels.integrators import Tableau, get_tableau
@@ -321,6 +321,8 @@ def generate(rest: FlatNetlist, options: KernelOptions) -> str:
     codegen.preamble(c, options, run_args(feat, options), tab.stages)
     c(f"MAX_BLOCK = {MAX_BLOCK}")
     c("")
+    if feat.thermal:
+        thermal.emit_helpers(c, codegen.decorator())
     _emit_blocks(c)
     c("")
     _emit_run(c, feat, options, tab)
@@ -379,6 +381,8 @@ def _emit_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab: Tablea
     c("for ci in range(c0, c1):")
     c.indent()
     codegen.emit_chunk_start(c, opts, ["xs", "vs"] + [f"kv{s}" for s in range(tab.stages)])
+    if feat.thermal:
+        thermal.emit_chunk_init(c)
     c("zt = np.empty((2 * MAX_BLOCK, LANES), FT)")
     c("zn = np.empty((2 * MAX_BLOCK, LANES), FT)")
     for name in ("ua", "um", "ub"):
@@ -386,6 +390,8 @@ def _emit_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab: Tablea
     c("for step in range(nsteps):")
     c.indent()
     codegen.emit_step_start(c, True)
+    if feat.thermal:
+        thermal.emit_draw(c)
     codegen.emit_interp(c, "ua", "sub / substeps", ln)
     codegen.emit_interp(c, "um", f"(sub + {scheme.half!r}) / substeps", ln)
     codegen.emit_interp(c, "ub", "(sub + 1.0) / substeps", ln)
@@ -483,6 +489,8 @@ def generate_lawson(rest: FlatNetlist, options: KernelOptions, sizes: list[int],
       '(n_dof, lanes)."""')
     codegen.preamble(c, options, lawson_args(feat, options, sizes), tab.stages)
     c("")
+    if feat.thermal:
+        thermal.emit_helpers(c, codegen.decorator())
     lw = _Lawson(tab, fracs, ufracs, sizes, max(nch, 1), ln)
     _emit_lawson_run(c, feat, options, tab, lw)
     return _header(rest, options, scheme, tab, c.text(),
@@ -578,11 +586,15 @@ def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab:
     c.indent()
     codegen.emit_chunk_start(c, opts, ["xs", "vs", "xn", "vn"]
                              + [f"kv{s}" for s in range(tab.stages)])
+    if feat.thermal:
+        thermal.emit_chunk_init(c)
     for k in range(len(lw.ufracs)):  # every channel: the rest's forces read them too
         c(f"ut{k} = np.zeros((max(nch, {lw.nch}), LANES), FT)")
     c("for step in range(nsteps):")
     c.indent()
     codegen.emit_step_start(c, True)
+    if feat.thermal:
+        thermal.emit_draw(c)
     for k, frac in enumerate(lw.ufracs):
         codegen.emit_interp(c, f"ut{k}", f"(sub + {frac!r}) / substeps", lw.ln)
     power = opts.work or opts.dissipation

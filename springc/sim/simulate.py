@@ -22,9 +22,9 @@ import numpy as np
 from springc.kernels import codegen, expint, loader, regkernel, terms
 from springc.kernels.lower import kernel_netlist
 from springc.lang import physics
-from springc.sim import gpu, reductions, sources
+from springc.sim import gpu, reductions, sources, thermal
 from springc.sim.audio import resample
-from springc.errors import DivergedRuns, NetlistError, UsageError
+from springc.errors import DivergedRuns, UsageError
 from springc.kernels.integrators import DEFAULT_METHOD, TABLEAUX, get_tableau, max_stable_step
 from springc.check.checks import CheckedNetlist, require_checked
 from springc.lang.ir import FlatNetlist, Probe
@@ -181,7 +181,8 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
              channel: int | None = None, progress: bool = False,
              chunk: int | None = None, write_out: bool | None = None,
              record_into: np.ndarray | None = None, check_step: bool = True,
-             node_threads: bool | None = None, device: str = "cpu") -> SimResult:
+             node_threads: bool | None = None, temp: float | None = None,
+             seed: int | None = None, device: str = "cpu") -> SimResult:
     """Simulate the checked netlist for every input signal (`springc.check.check(net)`).
 
     `inputs`: None (one run, no input), an array (runs, channels, samples) sampled at
@@ -199,12 +200,13 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
     False (experiments that confirm a limit: the divergence guard then stops the run), and so
     are records that would not fit in memory. `node_threads`: whether each step's node loops
     are split over the threads (None: for fewer runs than threads of at least
-    `NODE_THREADS_FROM` dofs x runs; `split_nodes`). `device`:
+    `NODE_THREADS_FROM` dofs x runs; `split_nodes`). `temp` (kelvin) and `seed` override
+    `.options temp=`/`seed=`: above 0 K every damper's thermal noise force is drawn per step
+    (`springc.sim.thermal`), run r's the same whatever the batch or kernel form. `device`:
     'cpu', 'cuda' (the CUDA kernel form, `springc.sim.gpu`; UsageError where no GPU is) or
     'auto' (CUDA where a GPU is present); on CUDA every run is one batch unless `batch` is
     given."""
-    net = require_checked(checked, "simulate").net
-    _refuse_thermal_noise(net)
+    net = thermal.with_overrides(require_checked(checked, "simulate").net, temp, seed)
     tstep0 = tstep or (net.tran.tstep if net.tran else None)
     signals, names, seconds = _gather_inputs(net, inputs, input_rate, tstep0, channel)
     st = settings(net, tstep, tstop, substeps, method, precision, outrate, seconds)
@@ -221,6 +223,8 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
     task = task_runs(len(names), batch, chunk)
     knet = kernel_netlist(net)  # the same forces, cheaper terms
     coeffs = kernel_arrays(knet, st, np.dtype(st.precision))
+    if thermal.temperature(net) > 0:
+        coeffs.update(thermal.noise_arrays(net, st.h, np.dtype(st.precision)))
     opts = codegen.KernelOptions(st.method, st.precision, codegen.choose_lanes(task),
                                  record=bool(plist), work=rplan.work,
                                  dissipation=bool(rplan.damper_rows), msq=bool(rplan.msq),
@@ -239,16 +243,6 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
     out.info.update(wall_s=time.perf_counter() - start, kernel=str(kernel.path),
                     compile_s=kernel.compile_s, settings=st, records=rec)
     return out
-
-
-def _refuse_thermal_noise(net: FlatNetlist) -> None:
-    """A netlist asking for thermal noise must not run noiseless without a word: the
-    transient noise forces are not generated yet (`.noise` analyses them at rest)."""
-    if float(net.options.get("temp", 0.0)) > 0:
-        raise NetlistError("transient thermal noise is not simulated yet: .options temp= "
-                           "is for the small-signal .noise analysis (springc noise)",
-                           net.option_locs.get("temp"),
-                           "remove temp= to simulate the noiseless network")
 
 
 def _records(probes: int, records: int, runs: int, dtype, reuse: np.ndarray | None
@@ -450,6 +444,7 @@ def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rec, col, r
         check_every=CHECK_EVERY, limit=LIMITS[st.precision],
         xf=np.zeros((net.n, runs), dtype), vf=np.zeros((net.n, runs), dtype),
         status=np.zeros(runs, np.int64), bad_node=np.zeros(runs, np.int64),
+        run0=col,  # the global index of this call's first run: its noise streams
     )
     args.update(rec_every=st.rec_every, rec_node=np.array([p.node for p in plist], np.uint64),
                 rec_isv=np.array([p.quantity == "v" for p in plist], np.bool_),

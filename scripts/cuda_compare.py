@@ -1,0 +1,178 @@
+"""The CUDA kernel form against the CPU kernels: the same probes and reductions.
+
+    NUMBA_ENABLE_CUDASIM=1 python scripts/cuda_compare.py tiny     # numba's CUDA simulator
+    python scripts/cuda_compare.py bench --json out.json          # a GPU: every bench network
+
+`tiny`: a four-mass network of every term kind (M K D C Q B P F; sine and in() inputs) with
+every reduction the CUDA form computes, under RK4 and Heun3 in float64 and RK4 in float32,
+each with the force code written out per node and looped over the index arrays, and with
+the steps split over many kernel calls (the streamed inputs). `bench`: the bench suite's
+networks (`springc.bench.networks`, `springc.bench.suite`) on speech-like inputs. Each
+comparison is max |cuda - cpu| over max |cpu| per probe or reduction; the tolerance is
+1e-12 in float64 and 1e-5 in float32. Prints one line per case and, with --json, writes
+every error; exits 1 if any exceeds its tolerance.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+import numpy as np
+
+from springc.check import check
+from springc.kernels import cuda as cudagen
+from springc.lang.ir import IRBuilder, Source, Tran
+from springc.sim import gpu
+from springc.sim import simulate as sm
+
+TOLERANCE = {"float64": 1e-12, "float32": 1e-5}
+REDUCE = ["final:x(c)", "final:v(b)", "msq:x(a)", "msq:v(d):0.002:0.006", "work:in",
+          "dissipated:all", "energy", "gram:0.005:a,c,d"]
+
+
+def every_kind():
+    """Four masses: a, b damped, c, d undamped; springs; a coupling a-b; quadratic couplings
+    a->c, b->c; a Duffing term on d; a dashpot b-d; a monomial a^2 b^2 and one c^4 (P); inputs
+    on a (in(0)), b (in(1)), c (in(0), twice); a sine drive on d."""
+    w = 2 * np.pi * 80.0
+    b = IRBuilder("every term kind", "<cuda_compare.every_kind>")
+    for name, node, m, damp in (("1", "a", 1.0, 30.0), ("2", "b", 2.0, 10.0),
+                                ("3", "c", 0.5, 0.0), ("4", "d", 1.0, 0.0)):
+        b.mass(f"M{name}", node, m, damp)
+        b.spring(f"K{name}", node, w**2 * m)
+    b.coupling("C1", "a", "b", 0.3 * w**2, a=1.5)
+    b.quad("Q1", "a", "c", 2e3, a=0.5)
+    b.quad("Q2", "b", "c", 1e3, a=2.0)
+    b.duffing("D1", "d", 1e7)
+    b.dashpot("B1", "b", "d", 5.0)
+    b.monomial("P1", 1e6, [("a", 2), ("b", 2)])
+    b.monomial("P2", 1e7, [("c", 4)])
+    b.force("F1", "a", Source("in", channel=0), 1e3)
+    b.force("F2", "b", Source("in", channel=1), 2e3)
+    b.force("F3", "c", Source("in", channel=0), 5e2)
+    b.force("F4", "c", Source("in", channel=0), -2e2)
+    b.force("F5", "d", Source("sin", (50.0, 60.0)))
+    for node in "abcd":
+        b.probe("x", node)
+    b.probe("v", "b")
+    b.tran = Tran(1e-4, 0.008, None)
+    return b.finish()
+
+
+def smooth_inputs(runs: int, channels: int, samples: int, seed: int) -> np.ndarray:
+    """(runs, channels, samples) sums of three random sines at 1e-4 s a sample."""
+    t = np.arange(samples) * 1e-4
+    f = np.random.default_rng(seed).uniform(20.0, 120.0, (runs, channels, 3))
+    return np.sin(2 * np.pi * f[..., None] * t).sum(axis=2) * 1e-3
+
+
+def errors(cpu, cuda) -> dict[str, float]:
+    """max |cuda - cpu| / max |cpu| of every probe and reduction."""
+    out = {}
+    for group in ("probes", "reductions"):
+        for key, want in getattr(cpu, group).items():
+            got = getattr(cuda, group)[key]
+            scale = float(np.abs(want).max()) or 1.0
+            out[key] = float(np.abs(np.asarray(got) - want).max() / scale)
+    return out
+
+
+def compare(name: str, net, inputs, precision: str, **kw) -> dict:
+    """One case: the CPU kernels' result and the CUDA form's, their errors and times."""
+    checked = check(net)
+    start = time.perf_counter()
+    cpu = sm.simulate(checked, inputs, precision=precision, **kw)
+    mid = time.perf_counter()
+    cuda = sm.simulate(checked, inputs, precision=precision, device="cuda", **kw)
+    end = time.perf_counter()
+    errs = errors(cpu, cuda)
+    worst = max(errs.values())
+    ok = worst <= TOLERANCE[precision]
+    print(f"{'ok  ' if ok else 'FAIL'} {name:48s} {precision} worst {worst:.2e} "
+          f"(cpu {mid - start:.1f} s, cuda {end - mid:.1f} s)", flush=True)
+    return {"case": name, "precision": precision, "worst": worst, "ok": ok, "errors": errs,
+            "cpu_s": mid - start, "cuda_s": end - mid}
+
+
+def tiny() -> list[dict]:
+    """The every-kind network in both force forms, two tableaux, both precisions, with its
+    steps streamed over many calls."""
+    net = every_kind()
+    u = smooth_inputs(3, 2, 90, seed=0)
+    out = []
+    written = cudagen.WRITE_OUT_MAX
+    for form, limit in (("written out", written), ("loops", 0)):
+        cudagen.WRITE_OUT_MAX = limit
+        for method, precision, sub in (("rk4", "float64", 1), ("heun3", "float64", 2),
+                                       ("rk4", "float32", 1)):
+            gpu.STEPS_PER_CALL = 13  # many calls: the inputs and records streamed
+            out.append(compare(f"every kind, {form}, {method} x{sub}", net, u, precision,
+                               method=method, substeps=sub, reductions=REDUCE,
+                               outrate=5e3, write_out=False))
+    cudagen.WRITE_OUT_MAX = written
+    return out
+
+
+def bench_cases(seconds: float, runs: int) -> list[tuple[str, object, np.ndarray | None, float]]:
+    """(name, network, inputs, tstep) of every bench network, `seconds` long."""
+    from springc.bench import networks as bn
+    from springc.bench import suite
+
+    rate = bn.KWS_RATE
+    level = suite.SPEECH_LEVEL
+    line = bn.long_delay_line()
+    return [
+        ("feature extractor", suite.feature_extractor(),
+         suite.speech_like(seconds, rate, runs), 1 / rate),
+        ("564-dof kws network", bn.kws_network(), suite.speech_like(seconds, rate, runs, 1),
+         1 / rate),
+        ("long delay line", line, suite.speech_like(seconds, 1 / line.tran.tstep, runs, 2),
+         line.tran.tstep),
+        ("stiff block", suite.stiff_block(), suite.speech_like(seconds, rate, runs, 3),
+         1 / rate),
+        ("duffing resonator", bn.duffing_resonator(amp=suite.DUFFING_HARD), None,
+         bn.duffing_resonator().tran.tstep),
+        ("pipeline features 8x3", bn.pipeline_features(),
+         level * suite.speech_like(seconds, 16000.0, runs, 4), 1 / 16000.0),
+        ("pipeline classifier 8x3", bn.pipeline_classifier(),
+         level * suite.speech_like(seconds, 16000.0, runs, 5), 1 / 16000.0),
+    ]
+
+
+BENCH_SUBSTEPS = {"stiff block": 32, "pipeline features 8x3": 8,
+                  "pipeline classifier 8x3": 8, "duffing resonator": 2}
+
+
+def bench(seconds: float, runs: int) -> list[dict]:
+    """Every bench network, RK4 in float64 and float32, its final state and energy too."""
+    out = []
+    for name, net, u, tstep in bench_cases(seconds, runs):
+        sub = BENCH_SUBSTEPS.get(name, 1)
+        for precision in ("float64", "float32"):
+            if name == "pipeline classifier 8x3" and precision == "float32":
+                continue  # its multipliers' cancellation: float32 is not used for it
+            out.append(compare(name, net, u, precision, method="rk4", substeps=sub,
+                               tstep=tstep, tstop=seconds, reductions=["energy"],
+                               check_step=False))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("which", choices=["tiny", "bench"])
+    parser.add_argument("--seconds", type=float, default=0.02, help="bench: simulated time")
+    parser.add_argument("--runs", type=int, default=64, help="bench: runs per network")
+    parser.add_argument("--json", help="write every case's errors here")
+    args = parser.parse_args(argv)
+    cases = tiny() if args.which == "tiny" else bench(args.seconds, args.runs)
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(cases, fh, indent=1)
+    return 0 if all(c["ok"] for c in cases) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,96 @@
+"""The CUDA kernel form (`springc.kernels.cuda`, launched by `springc.sim.gpu`) against the CPU
+kernels, under numba's CUDA simulator on a machine without a GPU, and `--device` without one.
+
+numba reads NUMBA_ENABLE_CUDASIM when it is imported, so the comparison runs in a child
+process (`scripts/cuda_compare.py tiny`, the script a GPU machine runs on the bench networks).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from springc.errors import UsageError
+from springc.kernels import cuda as cudagen
+from springc.lang.ir import IRBuilder, Tran
+from springc.sim import gpu
+from springc_cli.main import main
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "scripts" / "cuda_compare.py"
+TOLERANCE = {"float64": 1e-12, "float32": 1e-5}
+NO_GPU = pytest.mark.skipif(gpu.cuda_present(simulator=False), reason="a GPU is present")
+
+
+def test_cuda_form_gives_the_cpu_kernels_probes_and_reductions(tmp_path):
+    """Every term kind, every reduction the CUDA form sums, RK4 and Heun3 (its stage of weight
+    0), float64 and float32, both force forms, the steps streamed over many kernel calls."""
+    out = tmp_path / "cases.json"
+    env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1"}
+    proc = subprocess.run([sys.executable, str(SCRIPT), "tiny", "--json", str(out)], env=env,
+                          capture_output=True, text=True, timeout=900, cwd=ROOT)
+    assert out.exists(), proc.stdout + proc.stderr
+    cases = json.loads(out.read_text())
+    assert len(cases) == 6
+    for case in cases:
+        assert set(case["errors"]) >= {"x(a)", "x(d)", "v(b)", "work:in", "dissipated:all",
+                                       "energy", "gram:0.005:a,c,d", "msq:v(d):0.002:0.006"}
+        assert case["worst"] <= TOLERANCE[case["precision"]], case
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def _one_mass():
+    b = IRBuilder("one mass", "<test>")
+    b.mass("M1", "a", 1.0, 1.0)
+    b.spring("K1", "a", 100.0)
+    b.probe("x", "a")
+    b.tran = Tran(1e-3, 0.01, None)
+    return b.finish()
+
+
+def test_generated_text_is_specialised_to_the_network():
+    """The per-node form reads the coefficients into scalars once and indexes by constants;
+    the loop form loops over the index arrays."""
+    from springc.kernels.lower import kernel_netlist
+    from springc.sim import reductions
+    from springc.sim.simulate import coefficient_arrays
+
+    net = kernel_netlist(_one_mass())
+    co = coefficient_arrays(net, "float64")
+    opts = gpu.options(net, "rk4", "float64", co, 1, reductions.plan([], net))
+    text = cudagen.generate(net, opts)
+    assert "bm0 = bm[0]" in text and "kv0[0] = - (bm0 * v[0] + km0 * x[0])" in text
+    loops = cudagen.generate(net, cudagen.CudaOptions("rk4", "float64", 1, 0, probes=1,
+                                                      vneed=(True,)))
+    assert "for i in range(N):" in loops and "bm0 = bm[0]" not in loops
+
+
+def test_split_schemes_are_refused():
+    with pytest.raises(UsageError, match="Runge-Kutta tableaux only"):
+        gpu.require(_one_mass(), "exp-rk4")
+
+
+@NO_GPU
+def test_device_cuda_without_a_gpu_exits_1_with_the_reason(tmp_path):
+    spr = tmp_path / "osc.spr"
+    spr.write_text("Ma a m=1 b=3\nKa a k=100\n.probe x(a)\n.tran 1e-3 0.01\n")
+    res = CliRunner().invoke(main, ["sim", str(spr), "-o", str(tmp_path / "x.npz"),
+                                    "--method", "rk4", "--substeps", "1", "--device", "cuda"])
+    assert res.exit_code == 1, res.output
+    assert "--device cuda: no CUDA GPU is available here" in res.output
+    assert "Traceback" not in res.output
+    assert not (tmp_path / "x.npz").exists()
+
+
+@NO_GPU
+def test_auto_is_the_cpu_without_a_gpu():
+    assert gpu.resolve("auto") == "cpu"
+    assert gpu.resolve("cpu") == "cpu"
+    with pytest.raises(UsageError, match="unknown device"):
+        gpu.resolve("tpu")

@@ -31,4 +31,7 @@ stages and combine of the tableau in `codegen.stage_terms`/`combine_terms`. All 
 kernels keep the state in scalars, the exponential ones add their block updates.
 docs/architecture.md#kernel-forms.
 `streamstore` and `stackalign` are the numba intrinsics the generated kernels call.
+`thermal` writes the dampers' noise forces (`.options temp=`) into every form above: drawn
+once per step into rows that each stage's force code adds (the register forms add them to
+their sums); a netlist without a temperature gets none of that text.
 """

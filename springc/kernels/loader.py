@@ -51,18 +51,31 @@ def slp_vectorize() -> Iterator[None]:
                 config.SLP_VECTORIZE = _SLP_USERS[1]
 
 
+_PARALLEL_LOCK = threading.Lock()
+# numba's threading layer for the node-split kernels unless NUMBA_THREADING_LAYER names one:
+# its own work queue. OpenMP's threads spin at each of a step's eight joins, and on a busy
+# machine a spinning thread holds the core its peer waits for (a step 20-70 times slower);
+# the work queue is not safe for launches from two threads at once, which `numba_threads`
+# rules out (docs/performance.md#one-run-on-every-core).
+THREADING_LAYER = "workqueue"
+
+
 @contextlib.contextmanager
 def numba_threads(count: int) -> Iterator[None]:
-    """numba's threads for parallel kernels called from this thread: `count` (at most the
-    pool numba started with) while inside, then numba's setting before."""
+    """Inside: numba's threads for a parallel kernel called from this thread, `count` of
+    them (at most the pool numba starts with), one such call at a time in the process;
+    then numba's setting before."""
     import numba
 
-    before = numba.get_num_threads()
-    numba.set_num_threads(max(1, min(count, numba.config.NUMBA_NUM_THREADS)))
-    try:
-        yield
-    finally:
-        numba.set_num_threads(before)
+    with _PARALLEL_LOCK:
+        if numba.config.THREADING_LAYER == "default":
+            numba.config.THREADING_LAYER = THREADING_LAYER  # read at the first launch
+        before = numba.get_num_threads()
+        numba.set_num_threads(max(1, min(count, numba.config.NUMBA_NUM_THREADS)))
+        try:
+            yield
+        finally:
+            numba.set_num_threads(before)
 
 
 def cache_dir() -> Path:

@@ -36,9 +36,13 @@ CASE_NAMES = ("feature", "kws", "delay", "stiff", "duffing", "kws-features", "kw
 @click.option("--json", "json_path", type=click.Path(dir_okay=False),
               default="bench-out/bench.json", show_default=True,
               help="--issue3: where to write JSON.")
+@click.option("--scaling", is_flag=True,
+              help="Instead: time of each stage for chains and lattices of 10^3 to 10^6 "
+                   "masses, and ngspice on the chain (springc.bench.scaling); writes "
+                   "OUT/scaling.md, .json and .png. With --quick: 10^3 and 10^4, 100 steps.")
 @run_user_errors
 def bench_cmd(case_names, outdir, quick, render_from, issue3, seconds, batch, stretch,
-              json_path):
+              json_path, scaling):
     """Speed against error: on each reference network (feature extractor, 8x3 keyword
     spotter, long delay line, stiff all-to-all block, hard-driven Duffing resonator) every
     integrator at several steps and float64/float32, and the peers (scipy RK45/DOP853 at rtol
@@ -48,6 +52,9 @@ def bench_cmd(case_names, outdir, quick, render_from, issue3, seconds, batch, st
     prints the Markdown. With --render, writes the same from a stored bench.json instead."""
     if issue3:
         _issue3(seconds, batch, stretch, json_path)
+        return
+    if scaling:
+        _scaling(Path(outdir), quick)
         return
     from springc.bench import report
     from springc.bench import suite as benchsuite
@@ -80,3 +87,13 @@ def _issue3(seconds, batch, stretch, json_path) -> None:
     write_json(result, json_path)
     click.echo(markdown(result))
     click.echo(f"\n(JSON: {json_path})")
+
+
+def _scaling(outdir: Path, quick: bool) -> None:
+    from springc.bench import scaling
+
+    sizes = scaling.SIZES[:2] if quick else scaling.SIZES
+    result = scaling.run_scaling(sizes, 100 if quick else scaling.STEPS,
+                                 thread_sizes=sizes[-1:] if quick else scaling.THREAD_SIZES,
+                                 progress=lambda m: click.echo(m, err=True))
+    _echo(scaling.write_report(result, outdir))

@@ -20,7 +20,7 @@ import scipy.sparse.linalg as sla
 from scipy.optimize import minimize
 
 from springc.kernels import expint
-from springc.check import linear
+from springc.check import linear, sparse
 from springc.errors import CheckError, Diagnostic, SourceLoc
 from springc.kernels.integrators import DEFAULT_METHOD
 from springc.lang.ir import FlatNetlist
@@ -248,10 +248,10 @@ def _component_potential(net, lin, labels: np.ndarray, comp: int) -> tuple[str, 
     """(message, hint) if the potential restricted to this component is not acceptable."""
     nodes = np.nonzero(labels == comp)[0]
     hess = lin.K[nodes][:, nodes]
-    vals, vecs = _lowest_stiffness(hess)
-    if vals[0] < -1e-9 * max(abs(vals).max(), 1e-300):
+    negative = _negative_curvature(hess)
+    if negative is not None:
         msg = (f"the stiffness matrix at rest is not positive semidefinite: curvature "
-               f"{vals[0]:.6g} along {_direction(net, nodes, vecs[:, 0])}")
+               f"{negative[0]:.6g} along {_direction(net, nodes, negative[1])}")
         return msg, "the rest state would be unstable; check the signs of the P coefficients"
     if _visibly_bounded(net, hess, labels, comp, nodes):
         return None
@@ -279,8 +279,7 @@ def _visibly_bounded(net, hess, labels: np.ndarray, comp: int, nodes: np.ndarray
     mine = labels[q.j] == comp
     share = np.zeros(len(nodes))
     np.add.at(share, local[q.j[mine]], q.g[mine] * q.a[mine])
-    vals, _ = _lowest_stiffness((hess - sp.diags(share)).tocsr())
-    return bool(vals[0] >= -1e-9 * max(abs(vals).max(), 1e-300))
+    return _negative_curvature((hess - sp.diags(share)).tocsr()) is None
 
 
 def _escape(net, hess, labels: np.ndarray, comp: int) -> np.ndarray | None:
@@ -330,9 +329,35 @@ def _schur(hess, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return kss - kys.T @ solved, lift
 
 
-# Components up to this size get every eigenvalue (dense, about 1 s at 2000): shift-invert
-# Lanczos does not converge on the many zero modes of the keyword-spotting classifier
+# Components up to this size get every eigenvalue when refused (dense, about 1 s at 2000):
+# shift-invert Lanczos does not converge on the many zero modes of the keyword-spotting
+# classifier
 PSD_DENSE_MAX = 2500
+# Above this size a component is first tested sparsely (the measured crossover against dense
+# eigenvalues: docs/performance.md, "Large networks")
+PSD_SPARSE_FROM = 100
+PSD_TOL = 1e-9  # eigenvalues below -PSD_TOL times the largest |eigenvalue| are negative
+
+
+def _negative_curvature(hess) -> tuple[float, np.ndarray] | None:
+    """The lowest eigenvalue of the Hessian at rest and its vector if it is negative beyond
+    `PSD_TOL` of the largest |eigenvalue|, else None. A component above `PSD_SPARSE_FROM` is
+    first tested for positive semidefiniteness by Gershgorin's discs, then by the inertia of
+    one sparse LDL^T of the Hessian shifted by the tolerance (no negative pivot); only one
+    that fails is solved for its lowest mode (`_lowest_stiffness`), which decides and gives
+    the message."""
+    n = hess.shape[0]
+    if n > PSD_SPARSE_FROM:
+        high = sparse.top(hess, 0, work=0).bound  # the scale of the tolerance only
+        tol = PSD_TOL * max(high, 1e-300)
+        if sparse.gershgorin(hess)[0].min() >= -tol:
+            return None
+        if sparse.Factor(hess, -tol).negative == 0:
+            return None
+    vals, vecs = _lowest_stiffness(hess)
+    if vals[0] < -PSD_TOL * max(abs(vals).max(), 1e-300):
+        return float(vals[0]), vecs[:, 0]
+    return None
 
 
 def _lowest_stiffness(hess) -> tuple[np.ndarray, np.ndarray]:
@@ -343,9 +368,8 @@ def _lowest_stiffness(hess) -> tuple[np.ndarray, np.ndarray]:
     if n <= PSD_DENSE_MAX:
         return np.linalg.eigh(hess.toarray())
     hess = hess.tocsc()
-    diag = hess.diagonal()
-    radius = np.asarray(abs(hess).sum(axis=1)).ravel() - np.abs(diag)
-    low, high = float((diag - radius).min()), float((diag + radius).max())
+    low, high = (float(end) for end in (sparse.gershgorin(hess)[0].min(),
+                                        sparse.gershgorin(hess)[1].max()))
     span = max(high - low, 1e-300)
     vals, vecs = sla.eigsh(hess, k=min(linear.SPARSE_MODES, n - 1),
                            sigma=min(low, 0.0) - 1e-6 * span, which="LM")

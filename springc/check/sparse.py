@@ -53,23 +53,24 @@ class TopBound:
         return self.bound / self.ritz - 1.0 if self.ritz > 0 else 0.0
 
 
-def top(a: sp.spmatrix, count: int) -> TopBound:
-    """Largest eigenvalue of a symmetric positive semidefinite sparse matrix, as `TopBound`,
-    from at most `LANCZOS_STEPS` products with `a`, and its `count` top Ritz vectors."""
+def top(a: sp.spmatrix, count: int, work: int = LANCZOS_WORK) -> TopBound:
+    """Largest eigenvalue of a symmetric sparse matrix, as `TopBound`, and its `count` top
+    Ritz vectors, from `LANCZOS_STEPS` products with `a`, or more while their number times
+    the size stays within `work`."""
     a = sp.csr_matrix(a)
     n = a.shape[0]
     high = float(gershgorin(a)[1].max(initial=0.0))
     if high <= 0.0 or a.nnz == 0:
         return TopBound(0.0, 0.0, np.zeros((n, 0)))
     start = _start(a)
-    steps = min(n, max(LANCZOS_STEPS, LANCZOS_WORK // n))
+    steps = min(n, max(LANCZOS_STEPS, work // n))
     alpha, beta = _lanczos(a, start, steps, high)
     vals, coeffs = scipy.linalg.eigh_tridiagonal(alpha, beta[:-1])
     # |beta_m s_m|: the residual norm of each Ritz pair of the tridiagonal projection
     residual = abs(beta[-1] * coeffs[-1])
     bound = min(high, float(vals[-1] + residual[-1]))
     pick = np.arange(len(vals))[::-1][:count]
-    vectors = _ritz_vectors(a, start, alpha, beta, coeffs[:, pick])
+    vectors = _ritz_vectors(a, start, alpha, beta, coeffs[:, pick]) if count else np.zeros((n, 0))
     return TopBound(max(bound, float(vals[-1])), float(vals[-1]), vectors)
 
 
@@ -102,6 +103,7 @@ def _lanczos(a: sp.csr_matrix, start: np.ndarray, steps: int,
     prev = np.zeros_like(q)
     alpha, beta = [], []
     b = 0.0
+    check = 20  # steps at which convergence is tested: 20, 30, 45, ... (cost linear in all)
     for j in range(steps):
         w = a @ q - b * prev
         alpha.append(float(q @ w))
@@ -111,8 +113,10 @@ def _lanczos(a: sp.csr_matrix, start: np.ndarray, steps: int,
         if b <= 1e-14 * high:  # an invariant subspace: the Ritz values are exact
             break
         prev, q = q, w / b
-        if j % 20 == 19 and _settled(alpha, beta):
-            break
+        if j + 1 == check:
+            if _settled(alpha, beta):
+                break
+            check = check * 3 // 2
     return np.array(alpha), np.array(beta)
 
 

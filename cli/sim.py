@@ -67,18 +67,30 @@ REDUCE_HELP = (
 @click.option("--seed", type=int, default=None,
               help="Seed of the noise draws (overrides .options seed=; default 0). A run's "
                    "noise depends on the seed and its index only, not on --batch or --kernel.")
+@click.option("--stats", is_flag=True,
+              help="With .mc and --reduce: per reduction the mean, standard deviation, "
+                   "5/50/95% quantiles, min and max over the samples, beside the first-order "
+                   "prediction of the deviation from the gradient at the nominal design; "
+                   "--plot then writes their histograms.")
 @run_user_errors
 def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precision, method,
-            outrate, reduce_, channel, batch, tolerance, kernel_form, temp, seed, device):
+            outrate, reduce_, channel, batch, tolerance, kernel_form, temp, seed, device,
+            stats):
     """Simulate NETLIST for every input signal and write the probes and reductions.
 
     Runs are integrated together in lockstep by a kernel generated for the netlist; inputs
     are resampled to 1/tstep and interpolated linearly at the integrator's stage times.
     Without --method/--substeps (here or in the netlist's .options), springc chooses the
-    cheapest integrator whose estimated error is at most 1e-3 (--tolerance) and prints it."""
+    cheapest integrator whose estimated error is at most 1e-3 (--tolerance) and prints it.
+
+    With .step/.mc every point is simulated: probes (points, runs, T), reductions
+    (points, runs) and the points' table in the output."""
     import springc
+    from springc.errors import UsageError
     from springc.sim import results
 
+    if stats and not reduce_:
+        raise UsageError("--stats needs --reduce SPEC: the statistics are of reductions")
     results.check_output_path(output)
     for path in (output, plot_path):  # a failed command leaves no output: check both first
         if path:
@@ -87,14 +99,23 @@ def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precisio
     # a step springc chooses is judged when it is taken; one the user names, at load
     net = springc.load(netlist, method=method, tstep=tstep, substeps=substeps,
                        judge_step=not chosen)
+    if stats and net.variation.samples is None:
+        raise UsageError(f"--stats: {netlist} has no .mc line, so no samples",
+                         hint="add .mc N [seed=S] and random functions (gauss, agauss, ...)")
     res = net.simulate(list(inputs) or None, tstep=tstep, tstop=tstop, substeps=substeps,
                        method=method, tolerance=tolerance, precision=precision,
                        outrate=outrate, reduce=list(reduce_), batch=batch, channel=channel,
                        progress=True, kernel=kernel_form, device=device, temp=temp, seed=seed)
     if res.choice:
         click.echo(res.choice)
+    report = res.stats() if stats else None  # its errors come before any output
     res.save(output)
-    if plot_path:
+    if plot_path and report is not None:
+        results.save_figure(report.figure(), plot_path)
+    elif plot_path:
         res.plot(plot_path)
-    click.echo(f"{len(res.runs)} run(s), {len(res.t)} samples, {len(res.probes)} probe(s) "
-               f"-> {output}" + (f", plot {plot_path}" if plot_path else ""))
+    if report is not None:
+        click.echo(report.text())
+    points = f"{len(res.points)} point(s) x " if res.points else ""
+    click.echo(f"{points}{len(res.runs)} run(s), {len(res.t)} samples, {len(res.probes)} "
+               f"probe(s) -> {output}" + (f", plot {plot_path}" if plot_path else ""))

@@ -22,7 +22,7 @@ import numpy as np
 from springc.check import CheckedNetlist, check
 from springc.check.compiler import BuildReport, summarise
 from springc.check.points import check_points
-from springc.errors import NetlistError
+from springc.errors import NetlistError, UsageError
 from springc.grad.params import ParamNetlist
 from springc.lang import load_text, parse, read_source, variation
 from springc.lang.ir import FlatNetlist
@@ -44,8 +44,9 @@ def load(source: str | Path, *, params: Mapping[str, float] | None = None,
     if flat.n == 0:
         raise NetlistError(f"{filename}: no top-level network (a library of subcircuits?)",
                            hint="instantiate a subcircuit in a netlist and load that")
-    checked = check(flat, method, tstep=tstep, substeps=substeps, judge_step=judge_step)
-    return Netlist(checked, text, dirs, dict(params or {}))
+    options = dict(tstep=tstep, substeps=substeps, judge_step=judge_step)
+    checked = check(flat, method, **options)
+    return Netlist(checked, text, dirs, dict(params or {}), options)
 
 
 def _source(source: str | Path) -> tuple[str, str]:
@@ -66,6 +67,7 @@ class Netlist:
     text: str = field(repr=False)
     lib_dirs: list[Path] | None = field(default=None, repr=False)
     overrides: dict[str, float] = field(default_factory=dict)
+    check_options: dict = field(default_factory=dict, repr=False)  # load's tstep, substeps...
 
     @property
     def flat(self) -> FlatNetlist:
@@ -81,12 +83,17 @@ class Netlist:
         return ParamNetlist.from_text(self.text, self.flat.file, self.lib_dirs)
 
     @functools.cached_property
+    def variation(self) -> variation.Variation:
+        """The file's `.step` and `.mc` lines (`Variation.varies`: whether it has any)."""
+        return variation.read(parse(self.text, self.flat.file), self.lib_dirs)
+
+    @functools.cached_property
     def points(self) -> variation.PointSet:
         """The points of the file's `.step` and `.mc` lines (one, the nominal netlist,
-        without them), each elaborated and checked (`PointSet.checked`) with this netlist's
-        method; the file's `.param` values, not `params=` overrides."""
-        var = variation.read(parse(self.text, self.flat.file), self.lib_dirs)
-        return check_points(var.point_set(), self.checked.method)
+        without them), each elaborated and checked (`PointSet.checked`) as this netlist was
+        (its method, step options); the file's `.param` values, not `params=` overrides."""
+        return check_points(self.variation.point_set(), self.checked.method,
+                            **self.check_options)
 
     @property
     def params(self) -> dict[str, float]:
@@ -128,26 +135,49 @@ class Netlist:
         `reduce`: streaming reductions (`springc sim --reduce` specs). `kernel`: auto,
         written-out or shared (`springc sim --kernel`). `device`:
         cpu, cuda or auto (`springc sim --device`). `temp` (kelvin) and `seed`: the
-        dampers' thermal noise, overriding `.options temp=`/`seed=` (`springc sim --temp`)."""
+        dampers' thermal noise, overriding `.options temp=`/`seed=` (`springc sim --temp`).
+
+        With `.step`/`.mc` every point is simulated (`springc.sim.points`: one call per
+        point, the points of one structure sharing one compiled kernel; the integrator
+        chosen on the worst point): probes (points, runs, T), reductions (points, runs),
+        `Result.points` the points' step values, samples and seeds."""
+        from springc.check.points import worst
         from springc.sim import plan, thermal
+        from springc.sim.points import simulate_points
         from springc.sim.simulate import simulate
 
         thermal.with_overrides(self.flat, temp, seed)  # a bad value fails before any work
 
         if isinstance(inputs, (str, Path)):
             inputs = [inputs]
-
-        steps = plan.integration(self.checked, tolerance, method, substeps, tstep, tstop,
+        pointset = self._points_to_run()
+        checked = self.checked if pointset is None else pointset.checked[worst(pointset)]
+        steps = plan.integration(checked, tolerance, method, substeps, tstep, tstop,
                                  inputs, channel, input_rate)
-        res = simulate(self.checked, inputs, input_rate, tstep=tstep, tstop=tstop,
-                       substeps=steps.substeps, method=steps.method, precision=precision,
-                       outrate=outrate, probes=list(probes) if probes else None,
-                       reductions=list(reduce), batch=batch, channel=channel,
-                       progress=progress, device=device,
-                       write_out=plan.KERNEL_FORMS[kernel], temp=temp,
-                       seed=seed)
+        options = dict(tstep=tstep, tstop=tstop, substeps=steps.substeps, method=steps.method,
+                       precision=precision, outrate=outrate,
+                       probes=list(probes) if probes else None, reductions=list(reduce),
+                       batch=batch, channel=channel, progress=progress, device=device,
+                       write_out=plan.KERNEL_FORMS[kernel], temp=temp, seed=seed)
+        if pointset is None:
+            res = simulate(self.checked, inputs, input_rate, **options)
+        else:
+            res = simulate_points(pointset, inputs, input_rate, **options)
         return Result(res.t, res.probes, res.reductions, list(res.runs),
-                      res.info["settings"], steps.choice, res.info)
+                      res.info["settings"], steps.choice, res.info,
+                      getattr(res, "points", None), self,
+                      dict(inputs=inputs, input_rate=input_rate, channel=channel))
+
+    def _points_to_run(self) -> variation.PointSet | None:
+        """The checked points where the file has `.step`/`.mc` (None: the nominal netlist
+        alone); `params=` overrides cannot be combined with them."""
+        if not self.variation.varies:
+            return None
+        if self.overrides:
+            raise UsageError(f"{self.flat.file}: params= overrides and .step/.mc together",
+                             hint="step the parameter with .step instead, or load without "
+                                  "params=")
+        return self.points
 
     def ac(self, node: str | None = None, *, input: int | None = None,
            fmin: float | None = None, fmax: float | None = None, points: int | None = None,
@@ -201,7 +231,8 @@ class Netlist:
 class Result:
     """A simulation: `t` (T,) in seconds, `probes[label]` (runs, T), `reductions[spec]`
     (runs,), `runs` (names), the integration `settings` and, where springc chose the
-    integrator, `choice` (why)."""
+    integrator, `choice` (why). With `.step`/`.mc`, `points` (each point's step values,
+    sample and seed), probes (points, runs, T) and reductions (points, runs)."""
 
     t: np.ndarray
     probes: dict[str, np.ndarray]
@@ -210,6 +241,9 @@ class Result:
     settings: object
     choice: str | None = None
     info: dict = field(default_factory=dict, repr=False)
+    points: tuple | None = None
+    netlist: Netlist | None = field(default=None, repr=False)  # simulated, for `stats`
+    inputs: dict = field(default_factory=dict, repr=False)  # as simulated, for `stats`
 
     def __getitem__(self, name: str) -> np.ndarray:
         """A probe or reduction by its written name (`x(X1.out)`, `work:in`)."""
@@ -222,32 +256,64 @@ class Result:
 
     def to_xarray(self):
         """An `xarray.Dataset`: each probe over (point, run, time), each reduction over
-        (point, run); one point until the netlist is stepped."""
+        (point, run); the points' step values, samples and seeds are coordinates along
+        `point` (one point, 0, without `.step`/`.mc`)."""
         import xarray as xr
 
-        data = {k: (("point", "run", "time"), v[None]) for k, v in self.probes.items()}
-        data |= {k: (("point", "run"), v[None]) for k, v in self.reductions.items()}
-        coords = {"point": [0], "run": list(self.runs), "time": self.t}
+        from springc.sim.points import points_table
+
+        one = self.points is None
+        data = {k: (("point", "run", "time"), v[None] if one else v)
+                for k, v in self.probes.items()}
+        data |= {k: (("point", "run"), v[None] if one else v)
+                 for k, v in self.reductions.items()}
+        coords = {"point": list(range(1 if one else len(self.points))),
+                  "run": list(self.runs), "time": self.t}
+        if not one:
+            coords |= {k.removeprefix("points_"): ("point", v)
+                       for k, v in points_table(self.points).items()}
         return xr.Dataset(data, coords=coords, attrs={"method": self.settings.method,
                                                       "substeps": self.settings.substeps})
 
     def plot(self, path: str | Path | None = None, max_runs: int = 4):
-        """Every probe against time for the first `max_runs` runs: the matplotlib figure,
-        also written as a PNG where `path` is given."""
-        from springc.sim import results
+        """Every probe against time for the first `max_runs` runs (with points: the first
+        run of the first `2 max_runs` points): the matplotlib figure, also written as a PNG
+        where `path` is given."""
+        from springc.sim import points, results
 
-        fig = results.figure(self._sim(), max_runs)
+        if self.points is None:
+            fig = results.figure(self._sim(), max_runs)
+        else:
+            fig = results.figure(points.figure_result(self._sim(), 2 * max_runs),
+                                 2 * max_runs)
         if path is not None:
             results.save_figure(fig, path)
         return fig
 
     def save(self, path: str | Path) -> None:
-        """Write `.npz` or `.csv` as `springc sim -o` does."""
-        from springc.sim import results
+        """Write `.npz` or `.csv` as `springc sim -o` does (with points: their table in the
+        `.npz`, their columns in the `.csv`, `springc.sim.points.write`)."""
+        from springc.sim import points, results
 
-        results.write(self._sim(), path)
+        if self.points is None:
+            results.write(self._sim(), path)
+        else:
+            points.write(self._sim(), path)
+
+    def stats(self, predict: bool = True):
+        """Per reduction, over the Monte Carlo samples of each step point and run: mean,
+        standard deviation, 5/50/95% quantiles, min and max, and (`predict`) the first-order
+        prediction of the deviation from the gradient at the nominal design
+        (`springc.sim.stats`, `springc sim --stats`)."""
+        from springc.sim import stats
+
+        return stats.population(self, predict)
 
     def _sim(self):
+        from springc.sim.points import PointsResult
         from springc.sim.simulate import SimResult
 
+        if self.points is not None:
+            return PointsResult(self.t, self.probes, self.reductions, self.runs, self.points,
+                                self.info)
         return SimResult(self.t, self.probes, self.reductions, self.runs, self.info)

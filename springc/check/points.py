@@ -16,19 +16,20 @@ from springc.errors import CheckError
 from springc.lang.variation import Point, PointSet
 
 
-def check_points(points: PointSet, method: str | None = None) -> PointSet:
-    """`points` with every point's `CheckedNetlist` (`method` overrides `.options method=`);
-    `CheckError` at the first point that fails, naming it."""
+def check_points(points: PointSet, method: str | None = None, **options) -> PointSet:
+    """`points` with every point's `CheckedNetlist` (`method` overrides `.options method=`,
+    `options` are `check`'s tstep, substeps and judge_step); `CheckError` at the first point
+    that fails, naming it."""
     checked = []
     for point, net in zip(points.points, points.nets):
         try:
-            checked.append(check(net, method))
+            checked.append(check(net, method, **options))
         except CheckError as err:
-            raise _at_point(err, point, len(points)) from None
+            raise at_point(err, point, len(points)) from None
     return replace(points, checked=tuple(checked))
 
 
-def _at_point(err: CheckError, point: Point, count: int) -> CheckError:
+def at_point(err: CheckError, point: Point, count: int) -> CheckError:
     """`err` with the point named in each message (a single netlist's errors unchanged)."""
     if count == 1 and not point.steps and point.sample is None:
         return err

@@ -201,3 +201,16 @@ def test_the_method_section_says_when_the_machine_was_busy(start, end, busy):
     assert text.startswith(f"Machine: 2 CPU(s) available, load average {start} at the start"
                            + (f" and {end} at the end, then." if end else ", then."))
     assert ("The machine was busy with other work" in text) == busy
+
+
+def test_the_committed_page_is_its_stored_numbers_rendered(tmp_path):
+    """docs/bench.md is `springc bench --render docs/bench/bench.json --out docs` of the
+    committed numbers: run that after changing the report (the PNGs beside it depend on the
+    matplotlib version, so only their presence is checked)."""
+    docs = Path(__file__).resolve().parents[1] / "docs"
+    got = report.render(docs / "bench" / "bench.json", tmp_path)
+    assert got["md"].read_text() == (docs / "bench.md").read_text()
+    assert got["json"].read_text() == (docs / "bench" / "bench.json").read_text()
+    for name in set(got) - {"md", "json"}:
+        assert (docs / "bench" / f"{name}.png").is_file(), name
+        assert f"]({report.SUBDIR}/{name}.png)" in got["md"].read_text()

@@ -280,8 +280,11 @@ def _machine_md(machine: dict) -> str:
             + (f"; the whole suite took {took / 60:.1f} min" if took else "") + "."
             + (" The machine was busy with other work while the suite ran (a load average "
                "of half its CPUs or more): every wall time is the least of repeated calls, "
-               "which removes much of that load but not all of it, so the throughputs and "
-               "speed-ups are, if anything, on the low side." if busy else ""))
+               "which removes much of that load but not all of it. Throughputs are, if "
+               "anything, on the low side; ratios of timings taken at different moments "
+               "(speed-ups against the peers, fractions of the ceiling and of the FMA peak, "
+               "whose own measurements the load slows too) can be off either way: compare "
+               "with a run on a quiet machine before relying on them." if busy else ""))
 
 
 def _method_items() -> list[str]:

@@ -216,9 +216,25 @@ def test_cli_stats_prints_the_table_and_plots_the_histograms(tmp_path):
          "(sample 34, seed 2)"),
     (".param k0=1\nM1 a m=1 b=0.1\nK1 a k={k0}\n.step k0 list 1 1e6\n.tran 10m 1\n"
      ".options method=rk4 substeps=1\n", [], "at point 1 of 2 (k0=1e+06)"),
+    (".param ts=10m\nM1 a m=1 b=0.1\nK1 a k=1\n.step ts list 10m 20m\n.tran {ts} 1\n"
+     ".options method=rk4 substeps=1\n", [],
+     "n.spr:5:1: error: the .tran of point 1 of 2 (ts=0.02) differs from point 0's"),
 ])
 def test_cli_refuses_with_a_located_message_and_no_output(tmp_path, text, args, message):
     result, out = _sim(tmp_path, text, *args)
     assert result.exit_code == 1, result.output
     assert message in result.output and "Traceback" not in result.output
+    assert not out.exists()
+
+
+def test_cli_memory_check_counts_the_points(tmp_path, monkeypatch):
+    from springc.sim import simulate
+
+    # one point's records (1 probe x 1 run x 10,001 samples) fit; 50 points' do not
+    monkeypatch.setattr(simulate, "available_memory", lambda: 2_000_000)
+    text = ".param m0={gauss(1, 0.01)}\nM1 a m={m0}\nK1 a k=1\n.probe x(a)\n.mc 50\n" \
+           ".tran 1m 10\n.options method=rk4 substeps=1\n"
+    result, out = _sim(tmp_path, text)
+    assert result.exit_code == 1, result.output
+    assert "records would take" in result.output and "50 point(s) x 1 run(s)" in result.output
     assert not out.exists()

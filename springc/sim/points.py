@@ -74,8 +74,13 @@ def simulate_points(points: PointSet, inputs=None, input_rate: float | None = No
     st = settings(first, tstep, tstop, substeps, method, precision, outrate, seconds)
     plist = resolve_probes(first, probes)
     records = st.nsteps // st.rec_every + 1
-    # the stacked output and one point's record buffer
-    require_memory(len(plist), records, len(names) * (len(points) + 1), st.precision, None)
+    try:  # the stacked output and one point's record buffer
+        require_memory(len(plist), records, len(names) * (len(points) + 1), st.precision,
+                       None)
+    except UsageError as err:
+        raise UsageError(f"{err.message}; the runs counted are {len(points)} point(s) x "
+                         f"{len(names)} run(s), and one point's buffer",
+                         hint=err.diagnostic.hint) from None
     if signals is not None:
         input_rate = 1.0 / tstep0  # read once at the input grid rate, not again per point
     out = _Stack(len(points))
@@ -202,9 +207,3 @@ def figure_result(result: PointsResult, max_points: int = 8) -> SimResult:
     probes = {k: v[:len(shown), 0] for k, v in result.probes.items()}
     names = [p.describe() for p in shown]
     return SimResult(result.t, probes, {}, names, result.info)
-
-
-def sizes(result: PointsResult) -> str:
-    """'6 point(s) x 1 run(s)' for the command's summary."""
-    return f"{len(result.points)} point(s) x {len(result.runs)} run(s)"
-

@@ -87,8 +87,8 @@ def test_the_page_opens_with_one_table_per_case_then_the_verdicts_then_the_metho
         tmp_path, stored):
     md = _page(tmp_path, stored)
     order = ["## feature: the feature network", "## delay: the delay network",
-             "## Issue 7's must-show figures: met or missed", "## How it was measured",
-             "### The issue's figures in full", "### feature in full", "### delay in full"]
+             "## The targets: met or missed", "## How it was measured",
+             "### Every figure in full", "### feature in full", "### delay in full"]
     at = [md.index(h + "\n") for h in order]
     assert at == sorted(at)
     first = md[:at[2]]
@@ -131,7 +131,7 @@ def test_the_table_rates_each_row_against_each_peer_at_equal_error(tmp_path, sto
 
 def test_the_verdicts_are_one_line_each_with_their_figures(tmp_path, stored):
     md = _page(tmp_path, stored)
-    block = md.split("## Issue 7's must-show figures: met or missed\n\n")[1].split("\n\n")[0]
+    block = md.split("## The targets: met or missed\n\n")[1].split("\n\n")[0]
     lines = block.splitlines()
     assert len(lines) == 5 and all(line.startswith("- **") for line in lines)
     # 0.01 / 0.008 = 1.25x RK4 x1's wall; float32 has no row within 1e-3

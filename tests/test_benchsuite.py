@@ -197,7 +197,7 @@ def test_verdicts_say_met_missed_and_partly_met_with_the_numbers():
     assert not by[("ceiling_70", "feature float64")]["met"]
     assert by[("ceiling_70", "one float64")]["met"] is None
     md = report._verdicts_md(found["verdicts"])
-    assert md[0] == "## Issue 7's must-show figures: met or missed"
+    assert md[0] == "## The targets: met or missed"
     assert len(md) == 2 + 5 + 1 and md[-1] == ""  # one line per must-show
     assert md[2].startswith("- **MET**: Feature extractor")
     assert md[2].endswith(": float64 1.25x with exp-rk4 x1 float64.")
@@ -231,7 +231,7 @@ def test_run_case_writes_the_report_with_reference_and_ladder(tmp_path):
     data = json.loads(paths["json"].read_text())
     assert data["cases"][0]["reference"]["substeps"] == 256
     md = paths["md"].read_text()
-    assert "## Issue 7's must-show figures: met or missed" in md
+    assert "## The targets: met or missed" in md
     assert "Reference: rk4 x256 and x128, Richardson-extrapolated" in md
     assert "the whole suite took 1.0 min" in md
     assert "Plot: [speed against error](bench/osc.png)" in md

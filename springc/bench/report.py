@@ -136,7 +136,7 @@ def _lead(results: list[CaseResult], machine: dict) -> str:
     took = machine.get("suite_wall_s")
     return (f"springc's kernels against their peers (scipy, numpy, ngspice) on {len(results)} "
             "reference networks: one table per network with its speed-against-error plot, "
-            "then the must-show verdicts, then [how it was measured](#how-it-was-measured). "
+            "then the targets, met or missed, then [how it was measured](#how-it-was-measured). "
             f"Measured {machine.get('when')} on {machine.get('cpus')} CPUs (load average "
             f"{machine.get('load')} at the start"
             + (f"; the suite took {took / 60:.1f} min" if took else "") + "). "
@@ -218,7 +218,7 @@ _CLAIM_TEXT = {
                      "than 1.5x the wall time of classic RK4 at 32 kHz"),
     "ceiling_70": "Throughput of the batched RK4 x1 kernels at least 70% of the measured ceiling",
     "speedup_DOP853": (f"At least {MUST_SPEEDUP['DOP853']:.0f}x faster than scipy DOP853 "
-                       "(rtol 1e-6, scipy's free step size, as issue 7 measured it) at equal "
+                       "(rtol 1e-6, scipy's free step size, as the target was set) at equal "
                        "or better error"),
     "speedup_DOP853 tstep/8": (f"At least {MUST_SPEEDUP['DOP853 tstep/8']:.0f}x faster than "
                                "DOP853 rtol 1e-6 held to max_step tstep/8 (far more accurate "
@@ -230,7 +230,7 @@ _CLAIM_TEXT = {
 
 def _verdicts_md(found: list[dict]) -> list[str]:
     """One line per must-show: met, missed or partly met, and the figure per scope."""
-    lines = ["## Issue 7's must-show figures: met or missed", ""]
+    lines = ["## The targets: met or missed", ""]
     for claim, text in _CLAIM_TEXT.items():
         mine = [v for v in found if v["claim"] == claim]
         if not mine:
@@ -319,7 +319,7 @@ def _method_items() -> list[str]:
         "flops can pass it (informative, decides nothing).",
         "- **No probes**: rows run by the same kernel recording nothing (timing only): what "
         "recording the probes costs, memory traffic the ceiling does not do.",
-        "- **Peers**: scipy DOP853 twice, as issue 7 measured it (rtol 1e-6, atol 1e-12, "
+        "- **Peers**: scipy DOP853 twice, as the target was set (rtol 1e-6, atol 1e-12, "
         "scipy's free step size) and held to max_step tstep/8 (`springc.bench.reference`'s "
         "default: the linearly interpolated input has a kink at every sample, which step "
         "control alone steps over with a visible error); RK45 held to tstep/8; plain numpy "
@@ -348,7 +348,7 @@ def _first_touch_md(touch: dict[str, dict[str, float]]) -> str:
 
 
 def _claims_md(found: dict) -> list[str]:
-    lines = ["### The issue's figures in full", ""]
+    lines = ["### Every figure in full", ""]
     for precision in ("float64", "float32"):
         fe = found.get(f"feature_1e-3_{precision}")
         if fe:

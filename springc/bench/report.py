@@ -139,6 +139,7 @@ def _lead(results: list[CaseResult], machine: dict) -> str:
             "then the targets, met or missed, then [how it was measured](#how-it-was-measured). "
             f"Measured {machine.get('when')} on {machine.get('cpus')} CPUs (load average "
             f"{machine.get('load')} at the start"
+            + (f" and {machine['load_end']} at the end" if "load_end" in machine else "")
             + (f"; the suite took {took / 60:.1f} min" if took else "") + "). "
             f"Render this page again from its stored numbers: `{RENDER_COMMAND}`; measure "
             "again: `make bench`.")

@@ -80,6 +80,10 @@ def errors(cpu, cuda) -> dict[str, float]:
     return out
 
 
+PROGRESS: list[dict] = []  # every case so far, written to --json after each one
+JSON_PATH: list[str] = []
+
+
 def compare(name: str, net, inputs, precision: str, **kw) -> dict:
     """One case: the CPU kernels' result and the CUDA form's, their errors and times."""
     checked = check(net)
@@ -93,8 +97,13 @@ def compare(name: str, net, inputs, precision: str, **kw) -> dict:
     ok = worst <= TOLERANCE[precision]
     print(f"{'ok  ' if ok else 'FAIL'} {name:48s} {precision} worst {worst:.2e} "
           f"(cpu {mid - start:.1f} s, cuda {end - mid:.1f} s)", flush=True)
-    return {"case": name, "precision": precision, "worst": worst, "ok": ok, "errors": errs,
-            "cpu_s": mid - start, "cuda_s": end - mid}
+    row = {"case": name, "precision": precision, "worst": worst, "ok": ok, "errors": errs,
+           "cpu_s": mid - start, "cuda_s": end - mid}
+    PROGRESS.append(row)
+    for path in JSON_PATH:  # a run stopped at its time limit keeps the cases done
+        with open(path, "w") as fh:
+            json.dump(PROGRESS, fh, indent=1)
+    return row
 
 
 def tiny() -> list[dict]:
@@ -167,6 +176,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs", type=int, default=64, help="bench: runs per network")
     parser.add_argument("--json", help="write every case's errors here")
     args = parser.parse_args(argv)
+    if args.json:
+        JSON_PATH.append(args.json)
     cases = tiny() if args.which == "tiny" else bench(args.seconds, args.runs)
     if args.json:
         with open(args.json, "w") as fh:

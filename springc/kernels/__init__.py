@@ -22,6 +22,10 @@ cache and compiles it. `springc.sim.simulate` picks the form (`kernel_form`, `ke
       and Strang splitting    (generate_lawson,           strang-rk4: driven linear blocks
                               generate)                   exact, the rest in the shared form;
                                                           work and dissipation: Lawson only
+    CUDA: one run per GPU     cuda.generate               --device cuda (springc.sim.gpu):
+      thread                  (numba.cuda source)         Runge-Kutta tableaux, every term
+                                                          kind, records, work, dissipation,
+                                                          msq and gram sums
 
 Every form is generated for `lower.kernel_netlist` (P c x^2 terms as linear springs), from
 one description of the step: the force of every term kind in `terms` (rendered as element

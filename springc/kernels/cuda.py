@@ -33,7 +33,7 @@ from springc.kernels.integrators import Tableau, get_tableau
 from springc.lang.ir import FlatNetlist
 
 CUDA_VERSION = 1  # bump when the generated text or its calling convention changes
-BLOCK = 128  # threads per block (runs per block)
+BLOCK = 32  # threads (runs) per block: 10,000 runs make 313 blocks, every SM busy
 # Networks up to this many nodes get their force code written out per node (constant
 # indices, coefficients in scalars); larger ones loop over the runtime index arrays.
 WRITE_OUT_MAX = terms.NODES_MAX

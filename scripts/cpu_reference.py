@@ -1,0 +1,93 @@
+"""Runs per second of the bench networks and the keyword-spotting pipeline's 8x3 feature and
+classifier networks, on the CPU kernels (the reference) or the CUDA form.
+
+    python scripts/cpu_reference.py --json cpu.json                     # this machine's cores
+    python scripts/cpu_reference.py --device cuda --runs 10000 --json gpu.json
+
+Each network runs RK4 (the substeps of `cuda_compare.BENCH_SUBSTEPS`) for `--seconds` of
+speech-like input (`springc.bench.suite.speech_like`), recording nothing and summing the final
+energy, in float64 and float32 (the classifier float64 only). A first call compiles the
+kernel and is not timed; the best of `--repeat` timed calls gives runs per second. The CPU
+uses every core this process may use (`springc.sim.simulate.threads`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import numpy as np  # noqa: E402
+from cuda_compare import BENCH_SUBSTEPS, bench_cases  # noqa: E402
+
+from springc.check import check  # noqa: E402
+from springc.sim import simulate as sm  # noqa: E402
+
+
+def measure(name: str, net, inputs, tstep: float, seconds: float, precision: str,
+            device: str, repeat: int) -> dict:
+    """Runs per second of one network (best of `repeat` calls after a compiling one)."""
+    checked = check(net)
+    kw = dict(method="rk4", substeps=BENCH_SUBSTEPS.get(name, 1), tstep=tstep, tstop=seconds,
+              precision=precision, probes=[], reductions=["energy"], device=device,
+              check_step=False)
+    runs = len(inputs)
+    sm.simulate(checked, inputs[:2], **kw)  # compile
+    best = float("inf")
+    for _ in range(repeat):
+        start = time.perf_counter()
+        sm.simulate(checked, inputs, **kw)
+        best = min(best, time.perf_counter() - start)
+    row = {"network": name, "dofs": net.n, "precision": precision, "device": device,
+           "runs": runs, "seconds": seconds, "substeps": kw["substeps"], "wall_s": best,
+           "runs_per_s": runs / best, "run_seconds_per_s": runs * seconds / best}
+    print(f"{name:28s} {precision} {device}: {runs} runs of {seconds} s in {best:.3f} s = "
+          f"{runs / best:,.0f} runs/s", flush=True)
+    return row
+
+
+def info(device: str, rows: list[dict]) -> dict:
+    """The rows with the machine they ran on."""
+    return {"machine": platform.processor() or platform.machine(), "cores": sm.threads(),
+            "cpu_count": os.cpu_count(), "device": device, "rows": rows}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
+    parser.add_argument("--runs", type=int, default=None,
+                        help="runs per network (default: 8 per core on cpu, 10000 on cuda)")
+    parser.add_argument("--seconds", type=float, default=0.05, help="simulated time per run")
+    parser.add_argument("--repeat", type=int, default=2)
+    parser.add_argument("--only", nargs="*", help="network names to run (default: all)")
+    parser.add_argument("--json", help="write the rows here")
+    args = parser.parse_args(argv)
+    runs = args.runs or (10000 if args.device == "cuda" else 8 * sm.threads())
+    rows = []
+    for name, net, u, tstep in bench_cases(args.seconds, runs):
+        if args.only and name not in args.only:
+            continue
+        if u is None:  # the Duffing resonator's drive is its own: runs of no input
+            u = np.zeros((runs, 1, int(round(args.seconds / tstep)) + 1))
+        for precision in ("float64", "float32"):
+            if name == "pipeline classifier 8x3" and precision == "float32":
+                continue
+            try:
+                rows.append(measure(name, net, u, tstep, args.seconds, precision, args.device,
+                                    args.repeat))
+            except Exception as err:  # report and go on: one network must not stop the rest
+                print(f"{name} {precision}: FAILED {type(err).__name__}: {err}", flush=True)
+                rows.append({"network": name, "precision": precision, "error": str(err)})
+            if args.json:  # after every row: a stage stopped at its time limit keeps them
+                Path(args.json).write_text(json.dumps(info(args.device, rows), indent=1))
+    return 0 if all("error" not in r for r in rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

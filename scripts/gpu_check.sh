@@ -1,0 +1,102 @@
+#!/usr/bin/env bash
+# The CUDA kernel form on a machine with an NVIDIA GPU (no network there): its results against
+# the CPU kernels on every bench network, runs per second of the bench and pipeline networks
+# against the machine's CPU cores and JAX/diffrax on the same GPU, and the keyword-spotting
+# feature pass. Sized to finish in under 8 minutes; each stage is timed and bounded, a failed
+# stage is reported and the later ones still run. Everything printed goes to $OUT/gpu_check.log
+# and each stage's JSON to $OUT (the folder given as the first argument, else $OUT, else
+# ./gpu_check_out).
+#
+# The wheels the GPU image lacks (lark, soundfile, dask and theirs) travel in .whl/:
+#   python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 \
+#     --implementation cp --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 \
+#     --platform manylinux2014_x86_64 --platform manylinux1_x86_64 -d .whl \
+#     lark==1.3.1 soundfile==0.14.0 cffi==2.1.1 pycparser==3.12 dask==2026.8.0 \
+#     distributed==2026.8.0 partd==1.4.2 locket==1.0.0 tblib==3.2.2 tornado==6.6.1 zict==3.0.0
+set -euo pipefail
+
+cd "$(dirname "$0")/.."
+OUT_DIR="${1:-${OUT:-gpu_check_out}}"
+mkdir -p "$OUT_DIR"
+LOG="$OUT_DIR/gpu_check.log"
+: >"$LOG"
+export PYTHONUNBUFFERED=1
+export SPRINGC_CACHE="${SPRINGC_CACHE:-/tmp/springc_kernels}"
+PY=python3
+FAILED=()
+
+say() { echo "$*" | tee -a "$LOG"; }
+
+# stage NAME SECONDS COMMAND...: run it under a time limit, log it, keep going on failure
+stage() {
+    local name=$1 limit=$2
+    shift 2
+    say ""
+    say "=== $name (limit ${limit} s): $*"
+    local start=$SECONDS rc=0
+    timeout --kill-after=10 "$limit" "$@" 2>&1 | tee -a "$LOG" || rc=${PIPESTATUS[0]}
+    say "=== $name: exit $rc after $((SECONDS - start)) s"
+    if [ "$rc" != 0 ]; then FAILED+=("$name (exit $rc)"); fi
+}
+
+say "gpu_check: $(date -u +%Y-%m-%dT%H:%M:%SZ), commit $(git rev-parse --short HEAD 2>/dev/null || echo unknown)"
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>&1 | tee -a "$LOG" || true
+say "cpu: $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2)"
+
+if [ -d .whl ]; then
+    $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
+        --target /tmp/site .whl/*.whl 2>&1 | tee -a "$LOG"
+    export PYTHONPATH="/tmp/site:$PWD${PYTHONPATH:+:$PYTHONPATH}"
+else
+    export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
+fi
+$PY - <<'EOF' 2>&1 | tee -a "$LOG" || true
+import numba, numpy
+from numba import cuda
+print("numba", numba.__version__, "numpy", numpy.__version__, "cuda available", cuda.is_available())
+try:
+    import numba_cuda
+    print("numba-cuda", getattr(numba_cuda, "__version__", "?"))
+except ImportError:
+    print("numba-cuda: not importable")
+try:
+    import jax, diffrax
+    print("jax", jax.__version__, jax.devices(), "diffrax", diffrax.__version__)
+except Exception as err:
+    print("jax/diffrax:", err)
+EOF
+
+# 1. GPU-only stages first: the runs per second of the CUDA form, 10,000 runs per network
+stage "cuda throughput" 110 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
+    --seconds 0.02 --repeat 2 --json "$OUT_DIR/cuda_throughput.json"
+# 2. the peers on the same GPU and network, at the same scheme and step (equal error)
+stage "peers: pipeline features" 80 $PY scripts/gpu_peers.py --network "pipeline features 8x3" \
+    --runs 10000 --seconds 0.02 --json "$OUT_DIR/peers_features.json"
+stage "peers: 564-dof kws network" 50 $PY scripts/gpu_peers.py --network "564-dof kws network" \
+    --runs 10000 --seconds 0.02 --json "$OUT_DIR/peers_kws.json"
+# 3. the keyword-spotting feature pass: clips per second, scaled to a 20,000-clip corpus
+stage "kws feature pass" 70 $PY scripts/kws_feature_pass.py --device cuda --clips 20000 \
+    --seconds 0.1 --corpus 20000 --check 4 --json "$OUT_DIR/kws_pass.json"
+# 4. the CUDA form against the CPU kernels on every bench network (compiles the CPU kernels)
+stage "cuda vs cpu kernels" 110 $PY scripts/cuda_compare.py bench --seconds 0.02 --runs 64 \
+    --json "$OUT_DIR/compare.json"
+# 5. the CPU kernels on this machine's cores, the same networks and settings (fewer runs:
+#    runs per second does not depend on the count once every core has a full batch)
+stage "cpu throughput" 60 $PY scripts/cpu_reference.py --device cpu --seconds 0.02 \
+    --repeat 1 --json "$OUT_DIR/cpu_throughput.json"
+
+say ""
+if [ ${#FAILED[@]} -eq 0 ]; then
+    say "gpu_check: every stage passed"
+else
+    say "gpu_check: failed stages: ${FAILED[*]}"
+fi
+$PY - "$OUT_DIR" <<'EOF' 2>&1 | tee -a "$LOG" || true
+import json, pathlib, sys
+out = pathlib.Path(sys.argv[1])
+summary = {p.stem: json.loads(p.read_text()) for p in sorted(out.glob("*.json"))
+           if p.name != "summary.json"}
+(out / "summary.json").write_text(json.dumps(summary, indent=1))
+print("summary:", out / "summary.json", "holds", ", ".join(summary))
+EOF
+[ ${#FAILED[@]} -eq 0 ]

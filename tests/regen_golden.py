@@ -1,12 +1,19 @@
-"""Regenerate the golden trajectories of the example netlists (`netlists/examples/*.spr`).
+"""Regenerate the golden files of the tests.
 
-    python tests/regen_golden.py
+    python tests/regen_golden.py               # both groups
+    python tests/regen_golden.py examples      # the example netlists only
+    python tests/regen_golden.py references    # the DOP853 references only (about 2 min)
 
-writes `tests/golden/<example>.npz` (`t` and one array per probe, as `springc sim` writes
-them). Examples that read `in(0)` get `golden_inputs`: a deterministic chirp. Run it only when
-a change of the numbers is intended (a new integrator default, a corrected example), and say
-so in the commit message; `tests/test_simulate.py::test_golden_trajectories` compares against
-these files.
+`examples`: the trajectories of the example netlists (`netlists/examples/*.spr`) in
+`tests/golden/<example>.npz` (`t` and one array per probe, as `springc sim` writes them).
+Examples that read `in(0)` get `golden_inputs`: a deterministic chirp. Run it only when a change
+of the numbers is intended (a new integrator default, a corrected example), and say so in the
+commit message; `tests/test_simulate.py::test_golden_trajectories` compares against these
+files.
+
+`references`: the scipy DOP853 trajectories of the integrator tests' filter networks
+(`tests/filter_refs.py`), which `tests/test_golden_refs.py` checks for staleness. Run it when
+that module's networks, inputs or tolerances change.
 """
 
 from __future__ import annotations
@@ -47,8 +54,8 @@ def simulate_example(path: Path):
     return simulate(check(net), inputs, tstop=tstop, outrate=1.0 / (every * st.h))
 
 
-def main() -> None:
-    GOLDEN.mkdir(exist_ok=True)
+def examples() -> None:
+    """Write the example netlists' golden trajectories."""
     for path in sorted(EXAMPLES.glob("*.spr")):
         res = simulate_example(path)
         out = GOLDEN / f"{path.stem}.npz"
@@ -57,5 +64,23 @@ def main() -> None:
               file=sys.stderr)
 
 
+def references() -> None:
+    """Write the DOP853 references of `filter_refs.REFERENCES`."""
+    import filter_refs
+
+    for name in filter_refs.REFERENCES:
+        out = filter_refs.save(name)
+        print(f"{out.relative_to(ROOT)}: {filter_refs.REFERENCES[name]}", file=sys.stderr)
+
+
+def main(groups: list[str]) -> None:
+    GOLDEN.mkdir(exist_ok=True)
+    known = {"examples": examples, "references": references}
+    for group in groups or list(known):
+        if group not in known:
+            sys.exit(f"regen_golden.py: unknown group {group!r} (choose from {', '.join(known)})")
+        known[group]()
+
+
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

@@ -3,23 +3,19 @@ exp-heun3)."""
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+import filter_refs
+from filter_refs import filter_net as _filter_net
 from springc.bench import networks as bn
 from springc.bench import suite as benchsuite
 from springc.kernels import expint
 from springc.lang import physics
 from springc.errors import UsageError
-from springc.lang.ir import IRBuilder, Tran
-from springc.bench.reference import solve_ivp_reference
 from springc.sim.simulate import simulate
 from springc.check import check
-
-RATE = 32000.0
 
 
 def _rel(got: np.ndarray, want: np.ndarray) -> float:
@@ -70,33 +66,12 @@ def test_split_is_a_partition_of_the_forces():
     assert np.allclose(part, full, rtol=1e-12, atol=1e-9 * np.abs(full).max())
 
 
-def _filter_net(fa: float, lowpass: bool) -> tuple:
-    b = IRBuilder("one band", "<test>")
-    out = bn.filter_pair(b, "f", fa)
-    b.probe("x", out)
-    if lowpass:
-        wl = 2 * np.pi * 30.0
-        b.mass("Mlp", "lp", 1.0, 1.4 * wl)
-        b.spring("Klp", "lp", wl**2)
-        b.quad("Qlp", out, "lp", 1e3)
-        b.probe("x", "lp")
-    b.tran = Tran(1 / RATE, 0.05, None)
-    return b.finish(), benchsuite.speech_like(0.05, RATE, 2, seed=5)
-
-
-@functools.cache
-def _filter_reference(freq: float, lowpass: bool, rtol: float, atol: float) -> dict:
-    """DOP853 on `_filter_net` (the suite's costliest reference: computed once per module)."""
-    net, u = _filter_net(freq, lowpass)
-    return solve_ivp_reference(net, u[:1], tstep=1 / RATE, tstop=0.05, rtol=rtol, atol=atol)[1]
-
-
 @pytest.mark.parametrize("method", ["exp-rk4", "exp-heun3"])
 def test_lawson_schemes_are_exact_for_a_driven_linear_filter(method):
     """An 8 kHz, Q 126 filter pair at 32 kHz: RK4 is far off, the Lawson schemes match
     DOP853 (the block is all there is: no stage sees a force of the rest)."""
     net, u = _filter_net(8000.0, lowpass=False)
-    ref = _filter_reference(8000.0, False, 1e-11, 1e-13)
+    ref = filter_refs.load("filter_8000")  # DOP853 at rtol 1e-11
     label = net.probes[0].label
     exp = simulate(check(net), u, method=method).probes[label]
     rk4 = simulate(check(net), u, method="rk4").probes[label]
@@ -123,8 +98,7 @@ def test_exp_heun3_converges_at_third_order_or_better():
     third order; wrong flow fractions or weights would leave an O(h) error or none at all
     converging), measured 2^5.1 and 2^4.5."""
     net, u = _filter_net(7500.0, lowpass=True)
-    _, ref, _ = solve_ivp_reference(net, u[:1], tstep=1 / RATE, tstop=0.05, rtol=1e-12,
-                                    atol=1e-14)
+    ref = filter_refs.load("filter_7500_lowpass")  # DOP853 at rtol 1e-12
     err = []
     for sub in (1, 2, 4):
         got = simulate(check(net), u[:1], method="exp-heun3", substeps=sub).probes

@@ -6,14 +6,17 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from springc_cli.main import main as cli
+
+import filter_refs
+from filter_refs import RATE
+from filter_refs import filter_net as _filter_net
 from test_accuracy import TWOMODE
-from test_integrators_expint import RATE, _filter_net, _rel
+from test_integrators_expint import _rel
 
 from springc.check import accuracy
 from springc.sim import stepcheck
 from springc.errors import UsageError
 from springc.lang import load_file
-from springc.bench.reference import solve_ivp_reference
 from springc.sim.simulate import simulate
 from springc.check import check
 
@@ -29,8 +32,7 @@ def test_step_doubling_raises_the_substeps_until_the_true_error_meets_the_tolera
     linear = accuracy.choose(net, 1 / RATE, 0.05, TOL)
     assert linear.substeps == 1 and linear.error < TOL
     got = stepcheck.verify(check(net), linear, 1 / RATE, 0.05, TOL, u[:1])
-    _, ref, _ = solve_ivp_reference(net, u[:1], tstep=1 / RATE, tstop=0.05, rtol=1e-12,
-                                    atol=1e-14)
+    ref = filter_refs.load("filter_7500_lowpass")  # DOP853 at rtol 1e-12
 
     def true_error(sub: int) -> float:
         out = simulate(check(net), u[:1], method=got.method, substeps=sub).probes

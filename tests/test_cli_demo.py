@@ -4,16 +4,13 @@ stage runs, the table and the plots are written; a bad corpus is a user error.""
 from __future__ import annotations
 
 import json
-import tempfile
-from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
 from test_kws_train import make_corpus
 
 from springc_cli.main import main
-
-KERNELS = Path(tempfile.gettempdir()) / "springc-test-kernels"
+from shared_cache import KERNELS
 
 
 @pytest.fixture(autouse=True)

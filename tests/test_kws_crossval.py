@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import tempfile
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,8 +14,7 @@ from test_kws_train import make_corpus
 from springc.errors import UsageError
 from springc.kws.evaluation import crossval
 from springc.kws.features.digital import FeatureSettings
-
-KERNELS = Path(tempfile.gettempdir()) / "springc-test-kernels"  # shared compiled kernels
+from shared_cache import KERNELS
 
 
 def test_folds_keep_each_speaker_in_one_fold_and_are_nearly_equal():

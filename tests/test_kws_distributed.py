@@ -3,7 +3,6 @@ single-process run, in order, and worker failures reach the caller as the user e
 
 from __future__ import annotations
 
-import tempfile
 import time
 from functools import partial
 from pathlib import Path
@@ -14,8 +13,8 @@ import pytest
 from springc.errors import SimulationError
 from springc.kws.features import massspring as msp
 from springc.kws.features.distributed import map_batches
+from shared_cache import KERNELS
 
-KERNELS = Path(tempfile.gettempdir()) / "springc-test-kernels"
 S = msp.MassSpringSettings(bins=2, delays=2)
 
 

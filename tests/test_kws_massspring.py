@@ -4,9 +4,6 @@ the linearised network, and the simulated features against the digital realisati
 
 from __future__ import annotations
 
-import tempfile
-from pathlib import Path
-
 import numpy as np
 import pytest
 from scipy.signal import chirp
@@ -20,9 +17,8 @@ from springc.kws.features.phi import group_index, n_features, readout_weights
 from springc.sim.reductions import gram_reduction
 from springc.sim.simulate import simulate
 from springc.check import check
+from shared_cache import KERNELS
 
-# Kernels are content-addressed: one shared cache keeps repeated test runs from recompiling.
-KERNELS = Path(tempfile.gettempdir()) / "springc-test-kernels"
 SMALL = msp.MassSpringSettings(bins=2, delays=2)
 
 

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import math
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -28,8 +27,8 @@ from springc.kws.training.transfer import model_heads
 from springc.lang import load_file
 from springc_cli.main import main
 from test_kws_train import RATE, _sound, make_corpus
+from shared_cache import KERNELS
 
-KERNELS = Path(tempfile.gettempdir()) / "springc-test-kernels"  # shared with the kws tests
 WORDS = ("yes", "cat", "no", "yes", "no")  # cat is _unknown_: never a detection
 GAP = 0.7  # s of near-silence before, between and after the clips
 

@@ -4,9 +4,6 @@ squaring error), scored exactly like the digital decisions."""
 
 from __future__ import annotations
 
-import tempfile
-from pathlib import Path
-
 import numpy as np
 import pytest
 from scipy.signal import chirp
@@ -22,8 +19,8 @@ from springc.kws.features.phi import n_features, spread
 from springc.kws.training.report import score
 from springc.kws.training.svm import LinearModel
 from springc.lang import load_text
+from shared_cache import KERNELS
 
-KERNELS = Path(tempfile.gettempdir()) / "springc-test-kernels"
 S = msp.MassSpringSettings(bins=2, delays=2)
 N = n_features(2, 2)
 

@@ -22,7 +22,7 @@ LOG="$OUT_DIR/gpu_check.log"
 : >"$LOG"
 export PYTHONUNBUFFERED=1
 export SPRINGC_CACHE="${SPRINGC_CACHE:-/tmp/springc_kernels}"
-PY=python3
+PY=${PY:-python3}
 FAILED=()
 
 say() { echo "$*" | tee -a "$LOG"; }
@@ -45,7 +45,7 @@ say "cpu: $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2)"
 
 if [ -d .whl ]; then
     $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
-        --target /tmp/site .whl/*.whl 2>&1 | tee -a "$LOG"
+        --target /tmp/site .whl/*.whl 2>&1 | tee -a "$LOG" || say "wheel install FAILED"
     export PYTHONPATH="/tmp/site:$PWD${PYTHONPATH:+:$PYTHONPATH}"
 else
     export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"

@@ -24,6 +24,17 @@ DEVICES = ("cpu", "cuda", "auto")
 STEPS_PER_CALL = 4096  # steps per kernel call: the input, signals and records on the device
 
 
+def _numpy_compat() -> None:
+    """numba-cuda 0.30 registers an overload of `np.row_stack`, which numpy 2.4 removed: its
+    first kernel compile fails with AttributeError there unless the old name (an alias of
+    `np.vstack`) exists."""
+    if not hasattr(np, "row_stack"):
+        np.row_stack = np.vstack
+
+
+_numpy_compat()
+
+
 def cuda_present(simulator: bool = True) -> bool:
     """Whether numba can launch CUDA kernels here (`simulator`: numba's CUDA simulator
     counts)."""

@@ -10,6 +10,9 @@ every node exists. Physics (signs, masses, stability) is left to `springc.check.
 
 from __future__ import annotations
 
+import itertools
+import sys
+import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -17,14 +20,15 @@ import numpy as np
 
 from springc.errors import NetlistError, SourceLoc
 from springc.lang.ir import AcSpec, FlatNetlist, Instance, IRBuilder, NoiseSpec, Tran
-from springc.lang import ast, draws, elements
+from springc.lang import ast, draws, elements, loops
 from springc.lang.elements import SPECS
 from springc.lang.expr import CONSTANTS, Env, closest, int_value, keyed, name_text, value
 from springc.lang.files import Includes, beside, read_array
 from springc.lang.options import KNOWN_OPTIONS, OptionSpec, OptionValueError
 
 GROUND = "0"
-MAX_LOOP = 10_000_000  # iterations of one .for; more is surely a mistake in the bounds
+MAX_LOOP = loops.MAX_LOOP
+SHOW_PROGRESS_AFTER = 3.0  # s: a general .for running longer shows a progress bar
 DIRECTIVES = ("title", "param", "data", "include", "subckt", "ends", "for", "endfor", "probe",
               "tran", "ac", "noise", "options", "step", "mc", "end")
 TOP_ONLY = ("tran", "ac", "noise", "options", "step", "mc")
@@ -109,6 +113,7 @@ class _Elaborator:
         self.deferred: list = []  # probes and .ac, resolved once every node exists
         self.title_loc: SourceLoc | None = None
         self.data: dict[str, np.ndarray] = {}
+        self.progress: _Progress | None = None  # of the outermost general .for running
 
     def run(self, tree: ast.Netlist) -> FlatNetlist:
         body = self.includes.expand(tree)
@@ -174,9 +179,97 @@ class _Elaborator:
         if last - first + 1 > MAX_LOOP:
             raise NetlistError(f".for {stmt.var} runs {last - first + 1} times "
                                f"(more than {MAX_LOOP})", stmt.loc, "check the bounds")
-        for i in range(first, last + 1):  # last < first: no iteration (libraries rely on it)
-            env = Env({stmt.var: float(i)}, scope.env)
-            self._body(stmt.body, _Scope(scope.path, scope.ports, env, scope.defs, scope.stack))
+        if self.site is None and self._loop_rows(stmt, scope):
+            return  # a Monte Carlo sample draws per element: only the general path does that
+        progress = None if self.progress else _Progress(stmt, last - first + 1)
+        self.progress = self.progress or progress
+        try:
+            for i in range(first, last + 1):  # last < first: no iteration (libraries rely on it)
+                env = Env({stmt.var: float(i)}, scope.env)
+                self._body(stmt.body,
+                           _Scope(scope.path, scope.ports, env, scope.defs, scope.stack))
+                if progress is not None:
+                    progress.update(i - first + 1)
+        finally:
+            if progress is not None:
+                progress.close()
+                self.progress = None
+
+    def _loop_rows(self, stmt: ast.For, scope: _Scope) -> bool:
+        """Elaborate a regular loop as arrays (`loops.expand`): False, with nothing changed,
+        where the general path must do it (irregular, or an error to report)."""
+        block = loops.expand(stmt, scope.env)
+        if block is None:
+            return False
+        if not block:
+            return True  # no iteration
+        full, columns = [], []
+        for rows in block:
+            nodes = [None if c is None else self._resolve(c, scope) for c in rows.nodes]
+            if rows.letter == "B" and nodes[0] is None:
+                nodes.reverse()  # the dashpot is symmetric; the IR wants ground second
+            for k, column in enumerate(nodes):
+                # ground where it is not allowed (the general path says so), or a port bound
+                # to ground (rare: left to the general path, as `node_rows` takes no '0')
+                if (column is None and (rows.letter != "B" or k == 0)
+                        or column is not None and "0" in column):
+                    return False
+            full.append([scope.prefix + n for n in rows.names] if scope.path else rows.names)
+            columns.append(nodes)
+        locs = [self._loc(rows.stmt.loc, scope) for rows in block]
+        if not self._declare_rows(full, locs):
+            return False
+        self._add_rows(block, full, columns, locs)
+        return True
+
+    def _declare_rows(self, full: list[list[str]], locs: list[SourceLoc]) -> bool:
+        """`_declare` for a loop's elements; False, with nothing declared, for a duplicate
+        name (the general path reports the first one)."""
+        before = len(self.elements)
+        if not all(self.elements.keys().isdisjoint(names) for names in full):
+            return False
+        for names, loc in zip(full, locs):
+            self.elements.update(zip(names, itertools.repeat(loc)))
+        if len(self.elements) == before + sum(map(len, full)):
+            return True
+        for name in itertools.chain.from_iterable(full):  # each new: they were disjoint
+            self.elements.pop(name, None)
+        return False
+
+    def _resolve(self, names: list[str], scope: _Scope) -> list[str]:
+        """`_node` of each name written in `scope`."""
+        ports, prefix, aliases = scope.ports, scope.prefix, self.aliases
+        if not ports and not aliases:
+            return [prefix + n for n in names] if prefix else names
+        out = []
+        for name in names:
+            bound = ports.get(name)
+            if bound is None:
+                bound = aliases.get(prefix + name, prefix + name)
+            out.append(bound)
+        return out
+
+    def _add_rows(self, block: list[loops.Rows], full: list[list[str]], columns: list[list],
+                  locs: list[SourceLoc]) -> None:
+        """Add a loop's rows as the general path would: nodes met iteration by iteration,
+        and within each kind the lines of one iteration after those of the one before."""
+        flat = [c for nodes in columns for c in nodes]
+        indices, new = self.b.node_rows(flat, [loc for loc, nodes in zip(locs, columns)
+                                               for _ in nodes])
+        self.nodes.update(new)
+        index = iter(indices)
+        tables: dict[str, list] = {}
+        for rows, names, loc, nodes in zip(block, full, locs, columns):
+            spec = SPECS[rows.letter]
+            values = [rows.values[key] for key in (*spec.required, *spec.optional)]
+            tables.setdefault(rows.letter, []).append(
+                (names, loc, [next(index) for _ in nodes] + values))
+        for letter, lines in tables.items():
+            names = (lines[0][0] if len(lines) == 1 else
+                     list(itertools.chain.from_iterable(zip(*(line[0] for line in lines)))))
+            lineloc = [line[1] for line in lines]
+            arrays = [np.stack(c, axis=1).ravel() for c in zip(*(line[2] for line in lines))]
+            self.b.rows(letter, names, lineloc * len(lines[0][0]), *arrays)
 
     # --- names ---------------------------------------------------------------------------
 
@@ -518,6 +611,30 @@ class _Elaborator:
                                    f"{self.b.option_locs[key]})", arg.loc)
             self.b.options[key] = _option_value(spec, arg.value, scope.env)
             self.b.option_locs[key] = arg.loc
+
+
+class _Progress:
+    """A tqdm bar on stderr (iterations per second, time left) for a general `.for` that has
+    run `SHOW_PROGRESS_AFTER` seconds; nothing for a shorter one."""
+
+    def __init__(self, loop: ast.For, total: int) -> None:
+        self.loop, self.total = loop, total
+        self.start = time.monotonic()
+        self.bar = None
+
+    def update(self, done: int) -> None:
+        if self.bar is not None:
+            self.bar.update(done - self.bar.n)
+        elif time.monotonic() - self.start > SHOW_PROGRESS_AFTER:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=self.total, initial=done, file=sys.stderr, unit="it",
+                            desc=f"elaborating .for {self.loop.var} ({self.loop.loc})",
+                            leave=False)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
 
 
 def _variation(stmt: ast.Directive, scope: _Scope) -> None:

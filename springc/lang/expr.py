@@ -148,6 +148,18 @@ def evaluate(expr: ast.Expr, env: Env) -> float | np.ndarray:
             raise TypeError(f"not an expression node: {expr!r}")
 
 
+def operate(op: str, a: float, b: float, loc: SourceLoc) -> float:
+    """`a op b` as a binary expression evaluates it (errors and overflow checked)."""
+    return _finite(_binary(op, a, b, loc), op, loc)
+
+
+def call(func: str, args: list[float], env: Env, loc: SourceLoc) -> float:
+    """`func(args)` as a call expression evaluates it in `env` (random functions draw there)."""
+    if func in draws.FUNCTIONS:
+        return _finite(env.draw(func, args, loc), f"{func}()", loc)
+    return _finite(_call(func, args, loc), f"{func}()", loc)
+
+
 def _finite(value: float, what: str, loc: SourceLoc) -> float:
     # float arithmetic overflows to inf silently (1e200*1e200); inf would reach the kernels
     if not math.isfinite(value):

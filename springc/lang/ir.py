@@ -8,6 +8,8 @@ only read it. `text()` is a deterministic dump for golden tests; `validate()` ch
 
 from __future__ import annotations
 
+import itertools
+from collections import defaultdict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -17,6 +19,10 @@ from springc.errors import SourceLoc
 GROUND = -1  # node index of ground ('0'), allowed only as the second node of a dashpot
 
 SOURCE_KINDS = ("in", "sin", "gauss", "step", "pwl", "wav")
+# the argument columns of each kind `IRBuilder.rows` takes (i: node index, f: value)
+_COLUMNS = {"M": (np.int64,) + (np.float64,) * 4, "K": (np.int64, np.float64),
+            "D": (np.int64, np.float64), "C": (np.int64,) * 2 + (np.float64,) * 2,
+            "Q": (np.int64,) * 2 + (np.float64,) * 2, "B": (np.int64,) * 2 + (np.float64,)}
 
 
 @dataclass
@@ -367,9 +373,12 @@ class IRBuilder:
 
     def __init__(self, title: str = "", file: str = "<built>") -> None:
         self.title, self.file = title, file
-        self._nodes: dict[str, int] = {}
+        # a defaultdict only so that `node_rows` can number new nodes in one pass
+        self._nodes: defaultdict[str, int] = defaultdict()
         self._node_locs: list[SourceLoc] = []
         self._rows: dict[str, list[tuple]] = {k: [] for k in "MKDCQBPF"}
+        # whole tables' worth of rows of the column letters, in order (see `rows`)
+        self._chunks: dict[str, list[tuple[list, list, tuple]]] = {k: [] for k in _COLUMNS}
         self.probes: list[Probe] = []
         self.tran: Tran | None = None
         self.acs: list[AcSpec] = []
@@ -392,6 +401,56 @@ class IRBuilder:
 
     def _add(self, letter: str, name: str, loc: SourceLoc | None, *row) -> None:
         self._rows[letter].append((name, self._loc(loc), *row))
+
+    def node_rows(self, columns: list[list[str] | None],
+                  locs: list[SourceLoc]) -> tuple[list[np.ndarray], list[str]]:
+        """Indices of the nodes named in `columns` (lists of names other than '0', or None for
+        ground), met row by row as `node` would meet them one element at a time, a new node
+        located at the `locs` entry of the column that first names it; and the new nodes."""
+        named = [(c, loc) for c, loc in zip(columns, locs) if c is not None]
+        count, width = len(named[0][0]), len(named)
+        table = self._nodes
+        before = len(table)
+        table.default_factory = itertools.count(before).__next__  # numbers in order met
+        try:
+            flat = np.fromiter(map(table.__getitem__,
+                                   itertools.chain.from_iterable(zip(*(c for c, _ in named)))),
+                               dtype=np.int64, count=count * width)
+        finally:
+            table.default_factory = None
+        new = list(itertools.islice(table, before, None))
+        if new:
+            fresh = np.flatnonzero(flat >= before)
+            _, first = np.unique(flat[fresh], return_index=True)  # in order of their index
+            self._node_locs.extend(named[p % width][1] for p in fresh[first].tolist())
+        index = iter(flat[c::width] for c in range(width))
+        ground = np.full(count, GROUND, dtype=np.int64)
+        return [ground if c is None else next(index) for c in columns], new
+
+    def rows(self, letter: str, names: list[str], locs: list[SourceLoc], *columns) -> None:
+        """Many elements of kind `letter` (`M K D C Q B`) at once: their names, locations and
+        one array per argument of `mass`, `spring`, ... (node indices from `node_rows`)."""
+        self._flush(letter)
+        self._chunks[letter].append((names, locs, columns))
+
+    def _flush(self, letter: str) -> None:
+        """The rows added one at a time, as a chunk of columns after the earlier chunks."""
+        rows = self._rows[letter]
+        if rows:
+            columns = tuple(np.array([row[2 + c] for row in rows], dtype=kind)
+                            for c, kind in enumerate(_COLUMNS[letter]))
+            self._chunks[letter].append(([r[0] for r in rows], [r[1] for r in rows], columns))
+            self._rows[letter] = []
+
+    def _table(self, letter: str) -> tuple[dict, list[np.ndarray]]:
+        """Names and locations (as `Table` keywords) and the columns of kind `letter`."""
+        self._flush(letter)
+        chunks = self._chunks[letter]
+        prov = dict(names=list(itertools.chain.from_iterable(c[0] for c in chunks)),
+                    locs=list(itertools.chain.from_iterable(c[1] for c in chunks)))
+        columns = [np.concatenate([np.asarray(c[2][k], dtype=kind) for c in chunks])
+                   if chunks else np.zeros(0, kind) for k, kind in enumerate(_COLUMNS[letter])]
+        return prov, columns
 
     def mass(self, name, node, m, b=0.0, x0=0.0, v0=0.0, loc=None) -> None:
         self._add("M", name, loc, self.node(node, loc), m, b, x0, v0)
@@ -424,11 +483,12 @@ class IRBuilder:
 
     def finish(self) -> FlatNetlist:
         """The flat netlist built so far."""
-        r = self._rows
-        ints = lambda rows, c: np.array([row[c] for row in rows], dtype=np.int64)  # noqa: E731
-        flts = lambda rows, c: np.array([row[c] for row in rows], dtype=np.float64)  # noqa: E731
+        (pm, (mn, mm, mb, mx, mv)), (pk, (kn, kk)), (pd, (dn, dl)) = (
+            self._table("M"), self._table("K"), self._table("D"))
+        (pc, (ci, cj, ck, ca)), (pq, (qi, qj, qg, qa)), (pb, (bi, bj, bb)) = (
+            self._table("C"), self._table("Q"), self._table("B"))
+        P, F = self._rows["P"], self._rows["F"]
         prov = lambda rows: dict(names=[x[0] for x in rows], locs=[x[1] for x in rows])  # noqa: E731
-        M, K, D, C, Q, B, P, F = (r[k] for k in "MKDCQBPF")
         factors = [f for row in P for f in row[3]]
         ptr = np.cumsum([0] + [len(row[3]) for row in P]).astype(np.int64)
         return FlatNetlist(
@@ -436,19 +496,18 @@ class IRBuilder:
             file=self.file,
             nodes=list(self._nodes),
             node_locs=list(self._node_locs),
-            masses=Masses(**prov(M), node=ints(M, 2), m=flts(M, 3), b=flts(M, 4),
-                          x0=flts(M, 5), v0=flts(M, 6)),
-            springs=Springs(**prov(K), node=ints(K, 2), k=flts(K, 3)),
-            duffings=Duffings(**prov(D), node=ints(D, 2), l=flts(D, 3)),
-            couplings=Couplings(**prov(C), i=ints(C, 2), j=ints(C, 3), k=flts(C, 4),
-                                a=flts(C, 5)),
-            quads=QuadCouplings(**prov(Q), i=ints(Q, 2), j=ints(Q, 3), g=flts(Q, 4),
-                                a=flts(Q, 5)),
-            dashpots=Dashpots(**prov(B), i=ints(B, 2), j=ints(B, 3), b=flts(B, 4)),
-            monomials=Monomials(**prov(P), c=flts(P, 2), ptr=ptr,
+            masses=Masses(**pm, node=mn, m=mm, b=mb, x0=mx, v0=mv),
+            springs=Springs(**pk, node=kn, k=kk),
+            duffings=Duffings(**pd, node=dn, l=dl),
+            couplings=Couplings(**pc, i=ci, j=cj, k=ck, a=ca),
+            quads=QuadCouplings(**pq, i=qi, j=qj, g=qg, a=qa),
+            dashpots=Dashpots(**pb, i=bi, j=bj, b=bb),
+            monomials=Monomials(**prov(P), c=np.array([row[2] for row in P], dtype=np.float64),
+                                ptr=ptr,
                                 var=np.array([f[0] for f in factors], dtype=np.int64),
                                 exp=np.array([f[1] for f in factors], dtype=np.int64)),
-            forces=Forces(**prov(F), node=ints(F, 2), gain=flts(F, 3),
+            forces=Forces(**prov(F), node=np.array([row[2] for row in F], dtype=np.int64),
+                          gain=np.array([row[3] for row in F], dtype=np.float64),
                           source=[row[4] for row in F]),
             probes=list(self.probes),
             tran=self.tran,

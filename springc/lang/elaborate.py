@@ -1,7 +1,8 @@
 """AST to flat IR: `elaborate(tree, lib_dirs) -> FlatNetlist`.
 
 One pass over the statements, in order, with a scope per subcircuit instance (parameters,
-port bindings, visible definitions) and a child scope per `.for` iteration. Includes are
+port bindings, visible definitions) and a child scope per `.for` iteration; a regular loop
+of element lines is expanded over all its iterations at once (`loops`). Includes are
 spliced in first (`files.Includes`), so subcircuits may be used before they are defined. Local
 nodes and element names get the instance path as prefix (`X1.X2.a`); a port name resolves to
 the node the instance line bound it to. Probes and `.ac` outputs are resolved at the end, once

@@ -219,7 +219,9 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
     dev = gpu.resolve(device)
     if dev == "cuda":
         gpu.require(net, st.method)
-    batch = batch_size(batch or (len(names) if dev == "cuda" else None))
+    if batch is None and dev == "cuda":  # the GPU takes every run in one launch
+        batch = len(names)
+    batch = batch_size(batch)
     task = task_runs(len(names), batch, chunk)
     knet = kernel_netlist(net)  # the same forces, cheaper terms
     coeffs = kernel_arrays(knet, st, np.dtype(st.precision))

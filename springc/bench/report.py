@@ -142,7 +142,8 @@ def _lead(results: list[CaseResult], machine: dict) -> str:
             + (f" and {machine['load_end']} at the end" if "load_end" in machine else "")
             + (f"; the suite took {took / 60:.1f} min" if took else "") + "). "
             f"Render this page again from its stored numbers: `{RENDER_COMMAND}`; measure "
-            "again: `make bench`.")
+            "again: `make bench`. The CUDA kernel form on a GPU, against these CPU kernels and "
+            "JAX: [bench-gpu.md](bench-gpu.md).")
 
 
 def _legend() -> str:

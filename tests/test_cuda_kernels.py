@@ -94,3 +94,21 @@ def test_auto_is_the_cpu_without_a_gpu():
     assert gpu.resolve("cpu") == "cpu"
     with pytest.raises(UsageError, match="unknown device"):
         gpu.resolve("tpu")
+
+
+def test_auto_runs_on_the_cpu_what_the_cuda_form_does_not(monkeypatch):
+    """With a GPU, `auto` still takes the CPU for a splitting scheme or thermal noise (`cuda`
+    refuses them): the run equals the plain CPU run."""
+    import numpy as np
+
+    import springc
+
+    net = springc.load("Ma a m=1 b=3\nKa a k=100\nFa a in(0)\n.probe x(a)\n.tran 1e-3 0.02\n")
+    assert not gpu.serves(net.flat, "exp-rk4") and gpu.serves(net.flat, "rk4")
+    u = np.ones((2, 1, 21))
+    cpu = net.simulate(u, method="exp-rk4", substeps=1)
+    monkeypatch.setattr(gpu, "resolve", lambda device: "cuda")
+    auto = net.simulate(u, method="exp-rk4", substeps=1, device="auto")
+    np.testing.assert_array_equal(auto["x(a)"], cpu["x(a)"])
+    with pytest.raises(UsageError, match="Runge-Kutta tableaux only"):
+        net.simulate(u, method="exp-rk4", substeps=1, device="cuda")

@@ -69,6 +69,11 @@ def resolve(device: str) -> str:
             raise UsageError(f"unknown device {device!r}", hint="cpu, cuda or auto")
 
 
+def serves(net: FlatNetlist, method: str) -> bool:
+    """Whether the CUDA form runs `method` with `net`'s options (`require`'s refusals)."""
+    return not expint.is_split(method) and float(net.options.get("temp", 0.0)) == 0
+
+
 def require(net: FlatNetlist, method: str) -> None:
     """Refuse what the CUDA form does not run: splitting schemes and thermal noise."""
     if expint.is_split(method):

@@ -217,6 +217,8 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
     require_memory(len(plist), st.nsteps // st.rec_every + 1, len(names), st.precision,
                    record_into)
     dev = gpu.resolve(device)
+    if dev == "cuda" and device == "auto" and not gpu.serves(net, st.method):
+        dev = "cpu"  # auto: the CPU where the CUDA form does not run the method or the noise
     if dev == "cuda":
         gpu.require(net, st.method)
     if batch is None and dev == "cuda":  # the GPU takes every run in one launch

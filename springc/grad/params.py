@@ -10,7 +10,7 @@ elaborating the tangent netlists of `springc.grad.derive`.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +20,7 @@ from springc.lang import ast, elaborate, parse, read_source
 from springc.lang.expr import Env, closest, value
 from springc.lang.files import Includes
 from springc.lang.ir import FlatNetlist
-from springc.lang.variation import COEFFICIENTS, structure  # the coefficients a gradient covers
+from springc.lang.variation import COEFFICIENTS, set_params, structure  # COEFFICIENTS: covered
 from springc.grad.derive import tangent_tree
 
 PROBE = 1e-3  # relative change of a parameter that must leave the netlist's structure alone
@@ -75,7 +75,7 @@ class ParamNetlist:
         """The elaborated netlist with `values` replacing those parameters' definitions."""
         values = dict(values or {})
         self.require(list(values), "parameter")
-        return elaborate(self._tree(self._set(self.statements, values)), self.lib_dirs)
+        return elaborate(self._tree(set_params(self.statements, values)), self.lib_dirs)
 
     def jacobian(self, values: Mapping[str, float] | None, wrt: Sequence[str]
                  ) -> dict[str, dict[tuple[str, str], np.ndarray]]:
@@ -85,7 +85,7 @@ class ParamNetlist:
         arguments, a time, a loop bound, a node name), is a `UsageError`."""
         self.require(list(wrt))
         values = dict(values or {})
-        base_stmts = self._set(self.statements, values)
+        base_stmts = set_params(self.statements, values)
         if any(name not in self.probed for name in wrt):
             base = elaborate(self._tree(base_stmts), self.lib_dirs)
         out = {}
@@ -108,14 +108,14 @@ class ParamNetlist:
             self.tangents[seed] = list(tangent_tree(self.statements, self.file, seed,
                                                     self._prefix()).statements)
         companions = {self._prefix() + k: float(k == seed) for k in values}
-        return self._tree(self._set(self.tangents[seed], {**values, **companions}))
+        return self._tree(set_params(self.tangents[seed], {**values, **companions}))
 
     def _probe(self, base: FlatNetlist, stmts: list, name: str) -> None:
         """Elaborate with `name` nudged: the structure must stay, some coefficient must move."""
         current = _top_params(stmts)[0][name]
         nudged = current * (1 + PROBE) + PROBE
         try:
-            moved = elaborate(self._tree(self._set(stmts, {name: nudged})), self.lib_dirs)
+            moved = elaborate(self._tree(set_params(stmts, {name: nudged})), self.lib_dirs)
         except NetlistError:
             return  # a domain error at the nudged value: the tangent pass reports its own
         where = self.locs[name]
@@ -132,18 +132,6 @@ class ParamNetlist:
     def _tree(self, statements: list) -> ast.Netlist:
         return ast.Netlist(self.file, tuple(statements))
 
-    def _set(self, statements: list, values: dict[str, float]) -> list:
-        """`statements` with each top-level `.param name=...` of `values` set to the number."""
-        if not values:
-            return statements
-        out = []
-        for stmt in statements:
-            if isinstance(stmt, ast.Directive) and stmt.name == "param":
-                args = tuple(_set_keyword(a, values) for a in stmt.args)
-                stmt = replace(stmt, args=args)
-            out.append(stmt)
-        return out
-
     def _prefix(self) -> str:
         """A name prefix for the derivative companions that no name of the netlist uses
         (found once: the text of the whole tree is long)."""
@@ -153,13 +141,6 @@ class ParamNetlist:
             while self.prefix in text:
                 self.prefix = "_" + self.prefix
         return self.prefix
-
-
-def _set_keyword(arg, values: dict[str, float]):
-    if isinstance(arg, ast.Keyword) and arg.key in values:
-        number = float(values[arg.key])
-        return replace(arg, value=ast.Num(number, repr(number), arg.value.loc))
-    return arg
 
 
 def _top_params(statements: list) -> tuple[dict[str, float], dict[str, SourceLoc]]:

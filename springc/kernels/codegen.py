@@ -602,7 +602,7 @@ def emit_run_head(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -
     """The kernel function's decorator, signature and docstring, then its h-scaled
     coefficients (the body follows, indented)."""
     emit_def(c, run_args(feat, opts), "nsteps steps of h", aligned_frame(opts), opts.parallel)
-    _emit_coefficients(c, tab)
+    emit_coefficients(c, tab)
     emit_nystrom_coefficients(c, tab)
 
 
@@ -714,7 +714,7 @@ def emit_chunk_end(c: _Code, opts: KernelOptions) -> None:
         c("store_fence()")
 
 
-def _emit_coefficients(c: _Code, tab: Tableau) -> None:
+def emit_coefficients(c: _Code, tab: Tableau) -> None:
     """h-scaled tableau coefficients as typed constants (keeps float32 kernels in float32)."""
     for s, row in enumerate(tab.a):
         for j, a in enumerate(row):

@@ -27,8 +27,9 @@ import re
 from dataclasses import dataclass
 
 from springc.kernels import terms
-from springc.kernels.codegen import (Features, _Code, accel_args, combine_terms, features,
-                                     nystrom_coefficients, source_hash, stage_terms)
+from springc.kernels.codegen import (Features, _Code, accel_args, combine_terms,
+                                     emit_coefficients, features, nystrom_coefficients,
+                                     source_hash, stage_terms)
 from springc.kernels.integrators import Tableau, get_tableau
 from springc.lang.ir import FlatNetlist
 
@@ -125,7 +126,7 @@ def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
     c("r = cuda.grid(1)")
     c("if r >= xst.shape[1] or status[r] != 0:")
     c("    return")
-    _emit_coefficients(c, tab)
+    _emit_constants(c, tab)
     if opts.nodes is not None:
         for i, node in enumerate(opts.nodes):
             for line in terms.scalar_loads(i, node):
@@ -147,16 +148,10 @@ def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
     return c.text()
 
 
-def _emit_coefficients(c: _Code, tab: Tableau) -> None:
-    """The h-scaled tableau and Nystrom constants, as `codegen` names them."""
-    for s, row in enumerate(tab.a):
-        for j, a in enumerate(row):
-            if a != 0.0:
-                c(f"ha{s}_{j} = FT(h * {a!r})")
-    for s, b in enumerate(tab.b):
-        if b != 0.0:
-            c(f"hb{s} = FT(h * {b!r})")
-            c(f"hbd{s} = h * {b!r}")
+def _emit_constants(c: _Code, tab: Tableau) -> None:
+    """The h-scaled tableau (`codegen.emit_coefficients`) and Nystrom constants, as `codegen`
+    names them."""
+    emit_coefficients(c, tab)
     cs, aa, ba, bsum = nystrom_coefficients(tab)
     for s in range(1, tab.stages):
         c(f"hc{s} = FT(h * {float(cs[s])!r})")

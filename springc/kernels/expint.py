@@ -375,7 +375,7 @@ def _emit_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab: Tablea
     ln = codegen.lane_layout(opts)
     bk_args = ", ".join(BLOCK_ARGS[1:])
     codegen.emit_def(c, run_args(feat, opts), "nsteps split steps")
-    codegen._emit_coefficients(c, tab)
+    codegen.emit_coefficients(c, tab)
     codegen.emit_nystrom_coefficients(c, tab)
     codegen.velocity_needed(c, feat, opts)
     c("for ci in range(c0, c1):")
@@ -578,7 +578,7 @@ class _Lawson:
 def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab: Tableau,
                      lw: _Lawson) -> None:
     codegen.emit_def(c, lawson_args(feat, opts, lw.sizes), "nsteps exponential RK steps of h")
-    codegen._emit_coefficients(c, tab)
+    codegen.emit_coefficients(c, tab)
     codegen.emit_nystrom_coefficients(c, tab)
     codegen.velocity_needed(c, feat, opts)
     c("hh = FT(h)")

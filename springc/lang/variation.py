@@ -142,7 +142,7 @@ class Variation:
 
     def netlist(self, point: Point) -> FlatNetlist:
         """The elaborated netlist of `point`; its errors name the point (of `count`)."""
-        stmts = _set_params(self.statements, dict(point.steps))
+        stmts = set_params(self.statements, dict(point.steps))
         sample = None if point.sample is None else draws.Sample(point.sample, point.seed)
         try:
             return elaborate(ast.Netlist(self.file, tuple(stmts)), self.lib_dirs, sample)
@@ -438,7 +438,7 @@ def _mc(stmt: ast.Directive) -> tuple[int, int | None]:
     return count, seed
 
 
-def _set_params(statements: list, values: dict[str, float]) -> list:
+def set_params(statements: list, values: dict[str, float]) -> list:
     """`statements` with each top-level `.param name=...` of `values` set to the number."""
     if not values:
         return statements

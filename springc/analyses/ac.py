@@ -8,6 +8,7 @@ frequency.
 
 from __future__ import annotations
 
+import math
 import os
 import tempfile
 from dataclasses import dataclass
@@ -35,9 +36,12 @@ class Sweep:
     points: int
 
     def frequencies(self) -> np.ndarray:
-        if not (0 < self.fmin < self.fmax) or self.points < 2:
-            raise UsageError(f"bad sweep: need 0 < fmin < fmax and points >= 2 (got fmin="
-                             f"{self.fmin:g}, fmax={self.fmax:g}, points={self.points})")
+        # what `.ac` accepts: a band of points >= 2, or one frequency (fmin = fmax)
+        if not (0 < self.fmin <= self.fmax < math.inf) or self.points < 1 or (
+                self.fmin < self.fmax and self.points < 2):
+            raise UsageError(f"bad sweep: need 0 < fmin < fmax and points >= 2, or one "
+                             f"frequency fmin = fmax (got fmin={self.fmin:g}, fmax="
+                             f"{self.fmax:g}, points={self.points})")
         return np.geomspace(self.fmin, self.fmax, self.points)
 
 
@@ -140,8 +144,14 @@ def target(net: FlatNetlist, node: str | None, channel: int | None) -> tuple[str
 def sweep(net: FlatNetlist, fmin: float | None = None, fmax: float | None = None,
           points: int | None = None) -> Sweep:
     """`default_sweep` with any of its bounds or its count replaced."""
-    base = default_sweep(net)
-    return Sweep(fmin or base.fmin, fmax or base.fmax, points or base.points)
+    return override(default_sweep(net), fmin, fmax, points)
+
+
+def override(base: Sweep, fmin: float | None, fmax: float | None,
+             points: int | None) -> Sweep:
+    """`base` with the bounds and count that are given (0 is given, and refused)."""
+    return Sweep(base.fmin if fmin is None else fmin, base.fmax if fmax is None else fmax,
+                 base.points if points is None else points)
 
 
 def default_sweep(net: FlatNetlist) -> Sweep:

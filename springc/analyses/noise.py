@@ -147,7 +147,7 @@ def sweep(net: FlatNetlist, fmin: float | None, fmax: float | None,
     """The band: as given, else the `.noise` directive's, else `springc ac`'s default."""
     spec = net.noises[0] if net.noises else None
     base = ac.Sweep(spec.fstart, spec.fstop, spec.points) if spec else ac.default_sweep(net)
-    return ac.Sweep(fmin or base.fmin, fmax or base.fmax, points or base.points)
+    return ac.override(base, fmin, fmax, points)
 
 
 def target(net: FlatNetlist, node: str | None, channel: int | None) -> tuple[str, int | None]:

@@ -103,7 +103,7 @@ def require_checked(value: object, who: str) -> CheckedNetlist:
 def diagnose(net: FlatNetlist, method: str | None = None, *, tstep: float | None = None,
              substeps: int | None = None, judge_step: bool = True) -> CheckResult:
     """Run every check and return all diagnostics without raising (arguments as `check`)."""
-    diags = element_signs(net) + massless_nodes(net)
+    diags = element_signs(net) + massless_nodes(net) + noise_sources(net)
     if diags:
         return CheckResult(diags)
     diags = whole_potential(net)
@@ -198,6 +198,23 @@ def massless_nodes(net: FlatNetlist) -> list[Diagnostic]:
         msg = f"node '{node_name}' has no mass (named by {name}, but no M element declares it)"
         hint = f"add an M element on '{node_name}', e.g. 'M_{node_name} {node_name} m=1'"
         out.append(Diagnostic("error", msg, loc, hint))
+    return out
+
+
+# --- thermal noise -----------------------------------------------------------------------
+
+def noise_sources(net: FlatNetlist) -> list[Diagnostic]:
+    """An error where the netlist asks for thermal noise (`.noise`, `.options temp=` above
+    0 K) but has no damper with b > 0 to make it."""
+    if (net.masses.b > 0).any() or (net.dashpots.b > 0).any():
+        return []
+    hint = "give a mass a damping b= or add a B dashpot: thermal noise comes from dissipation"
+    out = [Diagnostic("error", ".noise: the netlist has no damper, so no thermal noise",
+                      spec.loc, hint) for spec in net.noises]
+    if float(net.options.get("temp", 0.0)) > 0:
+        out.append(Diagnostic("error", f"temp={net.options['temp']:g} K turns on thermal "
+                              "noise, but the netlist has no damper",
+                              net.option_locs.get("temp"), hint))
     return out
 
 

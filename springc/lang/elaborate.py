@@ -574,6 +574,10 @@ class _Elaborator:
             raise NetlistError(f"{what} needs 0 < fstart <= fstop, got {fstart:g} and "
                                f"{fstop:g}", plain[1].loc)
         opts = self._sweep_options(what, keywords, scope.env)
+        if fstart < fstop and opts["points"] < 2:  # a band has two ends
+            raise NetlistError(f"{what} from {fstart:g} to {fstop:g} Hz needs points >= 2, got "
+                               f"{opts['points']}", stmt.loc,
+                               "a single frequency is written with fstart = fstop")
 
         def resolve() -> None:
             self._known_node(node, written, plain[0].loc)

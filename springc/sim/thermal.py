@@ -32,6 +32,12 @@ def with_overrides(net: FlatNetlist, temp: float | None, seed: int | None) -> Fl
             options[key] = KNOWN_OPTIONS[key].convert(value)
         except (OptionValueError, ValueError, TypeError) as exc:
             raise UsageError(str(exc)) from None
+    if options.get("temp", 0.0) > 0 and not ((net.masses.b > 0).any()
+                                             or (net.dashpots.b > 0).any()):
+        raise UsageError(f"temp={options['temp']:g} K asks for thermal noise, but "
+                         f"{net.file} has no damper",
+                         hint="give a mass a damping b= or add a B dashpot: thermal noise "
+                              "comes from dissipation")
     return replace(net, options=options)
 
 

@@ -21,8 +21,9 @@ from springc.errors import UsageError
 def figures_cmd(outdir: str, only: tuple[str, ...]) -> None:
     """Run the building-block experiments and write OUTDIR/<name>.png for: melbank (paper
     Fig. 4), dispersion (Fig. 3d), pulse (delay per site), mvm (zero modes and x_out = Q x_in),
-    energetics (Fig. 5b), readout (Fig. 6b), features (Fig. 7: filter, squarer, low-pass and
-    delayed copies); the measured numbers go to OUTDIR/figures.json."""
+    energetics (Fig. 5b), readout (Fig. 6b), squaring (Fig. 6c-d: energy transfer and
+    distortion of one quadratic coupling against eps), features (Fig. 7: filter, squarer,
+    low-pass and delayed copies); the measured numbers go to OUTDIR/figures.json."""
     from tqdm import tqdm
 
     if Path(outdir).exists() and not Path(outdir).is_dir():

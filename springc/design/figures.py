@@ -26,6 +26,7 @@ from springc.design.emit import num
 from springc.design.filters import mel_triangles
 from springc.design.melbank import Melbank, design_melbank, fitting_grid
 from springc.design.mvm import MvmDesign, design_mvm, write_mvm
+from springc.design import squaring
 from springc.lang.ir import FlatNetlist
 from springc.check import check
 from springc.lang import load_text
@@ -540,7 +541,31 @@ def plot_features(c: Features, path: str | Path) -> Path:
     return _save(fig, path)
 
 
-FIGURES = ("melbank", "dispersion", "pulse", "mvm", "energetics", "readout", "features")
+def plot_squaring(sw: squaring.Sweep, path: str | Path) -> Path:
+    """Paper Fig. 6c-d: energy transfer and distortion of the squaring unit against eps; the
+    peak-normalised readouts at the eps of `squaring.SHOWN` against the ideal."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(1, 2, figsize=(12, 4), gridspec_kw={"wspace": 0.45})
+    ax[0].semilogx(sw.epsilon, np.log10(sw.transfer), "o-", color="C0")
+    ax[0].set(xlabel="squaring error eps = A^2 gamma / (alpha kc)",
+              ylabel="log10 energy transfer (E_out / E_in)", title="(c) energy and distortion")
+    twin = ax[0].twinx()
+    twin.semilogx(sw.epsilon, sw.distortion, "s-", color="C3")
+    twin.set_ylabel("distortion (RMS, peak-normalised)", color="C3")
+    ms = 1e3 * (sw.t - sw.unit.arrival)
+    ax[1].plot(ms, sw.ideal, "k--", label="leaky-integrated square of the pulse")
+    for eps, color in zip(squaring.SHOWN, ("brown", "gray", "hotpink")):
+        k = int(np.argmin(np.abs(np.log(sw.epsilon / eps))))
+        ax[1].plot(ms, sw.x_r[k] / sw.x_r[k].max(), color=color,
+                   label=f"eps = {sw.epsilon[k]:.3g}: distortion {sw.distortion[k]:.3g}")
+    ax[1].set(xlabel="t - pulse arrival (ms)", ylabel="peak-normalised x_r",
+              title="(d) readout trajectories")
+    ax[1].legend(fontsize=8)
+    return _save(fig, path)
+
+
+FIGURES = ("melbank", "dispersion", "pulse", "mvm", "energetics", "readout", "squaring",
+           "features")
 
 
 def write_figures(outdir: str | Path,
@@ -594,6 +619,17 @@ def _run_readout(path: Path) -> dict[str, float]:
     return {"tau_measured_s": r.tau_measured, "tau_design_s": r.tau_design}
 
 
+def _run_squaring(path: Path) -> dict[str, float]:
+    sw = squaring.sweep()
+    plot_squaring(sw, path)
+    numbers = {}
+    for eps in squaring.SHOWN:
+        k = int(np.argmin(np.abs(np.log(sw.epsilon / eps))))
+        numbers[f"log10_transfer_eps_{eps:.3g}"] = float(np.log10(sw.transfer[k]))
+        numbers[f"distortion_eps_{eps:.3g}"] = float(sw.distortion[k])
+    return numbers
+
+
 def _run_features(path: Path) -> dict[str, float]:
     c = experiment_features()
     plot_features(c, path)
@@ -603,4 +639,4 @@ def _run_features(path: Path) -> dict[str, float]:
 
 _RUNNERS = {"melbank": _run_melbank, "dispersion": _run_dispersion, "pulse": _run_pulse,
             "mvm": _run_mvm, "energetics": _run_energetics, "readout": _run_readout,
-            "features": _run_features}
+            "squaring": _run_squaring, "features": _run_features}

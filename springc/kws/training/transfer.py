@@ -13,7 +13,8 @@ The readout integrates sum_k gamma_k y_k^2 = s_c phi^T C_c phi with the kernel e
 D = sqrt(b_r^2 - 4 m_r k_r) (the readout's Green's function past its fast pole): the scale
 s_c / D is a design number, never fitted. Squaring error: the paper's eps = A^2 gamma / alpha
 with A the peak feature amplitude (terminal displacement) and stiffness in units of the delay
-line's kc (the paper's "stiffness scale of the delay line"): eps = A^2 gamma / (alpha kc).
+line's kc (the paper's "stiffness scale of the delay line"): eps = A^2 gamma / (alpha kc), the
+definition of `springc.design.squaring` (whose unit, Fig. 6c-d, has kc = 1).
 The zero modes that carry the features are held only by the lines' impedance (t_s kc w, about
 kc / 100 at the features' few-Hz envelopes), so the couplings' cubic stiffness and the
 readout's parametric back-action distort the features from eps ~ 1e-4 on (measured; see
@@ -36,6 +37,7 @@ import numpy as np
 from springc.design.blocks import readout_params
 from springc.design.emit import SprWriter, num
 from springc.design.mvm import design_mvm, mvm_text
+from springc.design.squaring import leverage_for
 from springc.errors import UsageError
 from springc.kws.features import integration
 from springc.kws.features import massspring as msp
@@ -95,7 +97,7 @@ def couplings_for(lam: np.ndarray, s: msp.MassSpringSettings, amplitude: float,
     k_t = stiffness_scale(s)
     scale = math.sqrt(FILL * k_total * epsilon * k_t / (amplitude**2 * np.sum(lam**2)))
     gamma = scale * lam
-    alpha = amplitude**2 * gamma / (epsilon * k_t)
+    alpha = leverage_for(amplitude, gamma, epsilon, k_t)
     return gamma, alpha, scale / readout_scale()
 
 

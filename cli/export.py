@@ -25,7 +25,8 @@ from springc.export.ngspice import CrossCheck, cross_check, plot_cross_check
     "--output",
     type=click.Path(),
     required=True,
-    help="Circuit file to write (e.g. out.cir); written atomically.",
+    help="Circuit file to write (e.g. out.cir); written atomically. With .step/.mc, one "
+    "file per point: out.p0.cir, out.p1.cir, ...",
 )
 @click.option("--tstep", type=float, default=None, help="Output step, s (default: .tran).")
 @click.option("--tstop", type=float, default=None, help="Stop time, s (default: .tran).")
@@ -77,7 +78,11 @@ def export_cmd(
 ) -> None:
     """Export NETLIST (.spr) to another simulator's format; with --spice, an ngspice circuit:
     velocities are node voltages, masses capacitors, springs inductors, dampers resistors,
-    nonlinear forces B-sources. Run it with `ngspice -b OUT`; probes go to springc_probes.txt."""
+    nonlinear forces B-sources. Run it with `ngspice -b OUT`; probes go to springc_probes.txt.
+
+    With .step/.mc, one circuit per point with its values written in (ngspice's .step-free
+    form), OUT's name with the point index before the suffix (out.cir: out.p0.cir,
+    out.p1.cir, ...), each headed by a comment naming the point; not with --compare."""
     if not spice:
         raise UsageError("choose the output format: --spice (ngspice) is the one available")
     import springc
@@ -88,16 +93,35 @@ def export_cmd(
     if plot_path and not compare:  # before any work, so nothing is written
         raise UsageError("--plot shows the comparison: add --compare")
     net = springc.load(netlist)
+    if net.variation.varies and compare:
+        raise UsageError("--compare runs one circuit: not with .step/.mc",
+                         hint="export without --compare (one circuit per point)")
     options = SpiceOptions(tstop=tstop, tstep=tstep, tmax=tmax, reltol=reltol)
     options = _bind_inputs(net.flat, options, input_path, channel)
-    write_atomic(output, net.export_spice(**vars(options)))
-    click.echo(f"wrote {output}", err=True)
+    circuits = net.export_spice(**vars(options))  # all of them before any file is written
+    if isinstance(circuits, str):
+        write_atomic(output, circuits)
+        click.echo(f"wrote {output}", err=True)
+    else:
+        paths = point_paths(output, len(circuits))
+        for path in paths:
+            check_output_file(path)
+        for path, text in zip(paths, circuits):
+            write_atomic(path, text)
+        click.echo(f"wrote {len(paths)} circuits, one per point: {paths[0]} ... {paths[-1]}",
+                   err=True)
     if compare:
         compared = cross_check(net.checked, options, substeps)
         click.echo(_summary(compared))
         if plot_path:
             plot_cross_check(compared, plot_path)
             click.echo(f"wrote {plot_path}", err=True)
+
+
+def point_paths(output: str | Path, count: int) -> list[Path]:
+    """The file of each point: OUT's name with `.p<index>` before its suffix."""
+    out = Path(output)
+    return [out.with_name(f"{out.stem}.p{i}{out.suffix}") for i in range(count)]
 
 
 def _summary(check: CrossCheck) -> str:

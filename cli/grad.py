@@ -21,7 +21,8 @@ from springc.kernels.integrators import TABLEAUX
 @click.option("--input", "-i", "inputs", multiple=True, metavar="FILE-OR-DIR",
               help="Sound file for in(k), or a folder of them; each file is one run.")
 @click.option("--json", "as_json", is_flag=True,
-              help='Print {"of": SPEC, "value": v, "grad": {PARAM: dv/dPARAM}}.')
+              help='Print {"of": SPEC, "value": v, "grad": {PARAM: dv/dPARAM}} (with .step '
+                   'or --per-run, a list of them, with "point" and "run" keys).')
 @click.option("--per-run", is_flag=True,
               help="One row per input (JSON: a list of such objects with a \"run\" key) "
                    "instead of the sum over runs.")
@@ -37,35 +38,48 @@ def grad_cmd(netlist, spec, params, inputs, as_json, per_run, tstep, tstop, subs
              channel):
     """d SPEC / d PARAM for NETLIST, exact for the simulated (float64) computation: the
     discrete adjoint of the integrator's step. With several inputs, the value and gradient
-    are summed over the runs unless --per-run."""
-    from springc.grad import ParamNetlist, gradient
+    are summed over the runs unless --per-run.
 
-    pn = ParamNetlist.load(netlist)
-    pn.require(list(params))
-    res = gradient(pn, spec, list(params), list(inputs) or None, tstep=tstep, tstop=tstop,
+    With .step, at every point (its step values set): one row per point (JSON: a list of
+    rows, each with a "point" key: index and step values). Monte Carlo samples (.mc) are
+    refused: the derivative of a random function at its draw is not computed."""
+    import springc
+
+    net = springc.load(netlist, method=method, tstep=tstep, substeps=substeps)
+    net.variation  # a misused .step/.mc is the first error
+    net.source.require(list(params))
+    res = net.grad(spec, list(params), list(inputs) or None, tstep=tstep, tstop=tstop,
                    substeps=substeps, method=method, channel=channel)
-    rows = _rows(res, spec, per_run)
+    if res.points is None:
+        rows = _rows(res.values[spec], res.grad, res.wrt, res.runs, spec, per_run)
+    else:
+        rows = [{"point": p.to_json(), **row} for i, p in enumerate(res.points)
+                for row in _rows(res.values[spec][i], res.grad[i], res.wrt, res.runs, spec,
+                                 per_run)]
     if as_json:
-        click.echo(json.dumps(rows if per_run else rows[0]))
+        click.echo(json.dumps(rows if per_run or res.points is not None else rows[0]))
         return
     for row in rows:
         click.echo(_text(row))
 
 
-def _rows(res, spec: str, per_run: bool) -> list[dict]:
-    """JSON-ready rows: one per run, or one summed over the runs."""
-    value = res.values[spec]
+def _rows(value, grad, wrt: list[str], runs: list[str], spec: str,
+          per_run: bool) -> list[dict]:
+    """JSON-ready rows of one point: one per run, or one summed over the runs."""
     if not per_run:
         total = value.sum(axis=0)
         return [{"of": spec, "value": total.tolist(),
-                 "grad": dict(zip(res.wrt, res.grad.sum(axis=0).tolist()))}]
+                 "grad": dict(zip(wrt, grad.sum(axis=0).tolist()))}]
     return [{"run": run, "of": spec, "value": value[r].tolist(),
-             "grad": dict(zip(res.wrt, res.grad[r].tolist()))}
-            for r, run in enumerate(res.runs)]
+             "grad": dict(zip(wrt, grad[r].tolist()))}
+            for r, run in enumerate(runs)]
 
 
 def _text(row: dict) -> str:
     head = f"{row['run']}: " if "run" in row else ""
+    if "point" in row:
+        steps = ", ".join(f"{k}={v:g}" for k, v in row["point"]["steps"].items())
+        head = f"point {row['point']['index']} ({steps}) {head}"
     value = row["value"]
     shown = f"{value:.10g}" if isinstance(value, float) else str(value)
     lines = [f"{head}{row['of']} = {shown}"]

@@ -24,7 +24,7 @@ from springc.check.compiler import BuildReport, summarise
 from springc.check.points import check_points
 from springc.errors import NetlistError, UsageError
 from springc.grad.params import ParamNetlist
-from springc.lang import load_text, parse, read_source, variation
+from springc.lang import ast, load_text, parse, read_source, variation
 from springc.lang.ir import FlatNetlist
 
 
@@ -184,9 +184,14 @@ class Netlist:
            progress: bool = False):
         """Frequency response X(f)/U(f) of the linearisation at rest at `node` (default: the
         `.ac` directive's) to input channel `input`: a `springc.analyses.ac.AcResult`
-        (`f_hz`, complex `h`, `mag`, `phase`)."""
-        from springc.analyses import ac
+        (`f_hz`, complex `h`, `mag`, `phase`). With `.step`/`.mc`, every point's on one
+        grid: a `springc.analyses.family.AcFamily` (`h`, `mag`, `phase` (points, F),
+        `points`; `family[i]` point i's `AcResult`)."""
+        from springc.analyses import ac, family
 
+        pointset = self._points_to_run()
+        if pointset is not None:
+            return family.ac_family(pointset, node, input, fmin, fmax, points, progress)
         node, channel = ac.target(self.flat, node, input)
         f_hz = ac.sweep(self.flat, fmin, fmax, points).frequencies()
         return ac.response(self.checked, node, f_hz, channel, progress=progress)
@@ -196,35 +201,62 @@ class Netlist:
               points: int | None = None):
         """Thermal noise at rest at `node` (default: the `.noise` directive's): a
         `springc.analyses.noise.NoiseResult` (`f_hz`, `psd` in m^2/Hz, `sources`, `rms`,
-        `input_referred`). `temp` in kelvin (default `.options temp=`, else 300 K)."""
+        `input_referred`). `temp` in kelvin (default `.options temp=`, else 300 K). A
+        netlist with `.step`/`.mc` has every point checked, then is refused (`UsageError`):
+        the noise analysis takes one netlist."""
         from springc.analyses import noise
 
+        if self._points_to_run() is not None:
+            first = next(s for s in self.variation.statements if isinstance(s, ast.Directive)
+                         and s.name in ("step", "mc"))
+            raise UsageError("springc noise analyses one netlist, not the points of "
+                             ".step/.mc", first.loc,
+                             "remove the .step/.mc lines, or write the point's values in")
         node, channel = noise.target(self.flat, node, input)
         f_hz = noise.sweep(self.flat, fmin, fmax, points).frequencies()
         return noise.noise(self.checked, node, f_hz, temp, channel)
 
     def modes(self, count: int | None = None) -> dict:
         """Eigenfrequencies, damping rates, Q factors, dominant nodes and zero modes of the
-        linearisation (`springc modes --json`), the `count` slowest (all if None)."""
+        linearisation (`springc modes --json`), the `count` slowest (all if None). With
+        `.step`/`.mc`, `{"file", "points": [{"point": {index, steps, sample, seed}, ...}]}`:
+        each point's report under its point."""
+        from springc.analyses.family import modes_family
         from springc.analyses.modes import mode_report
 
+        pointset = self._points_to_run()
+        if pointset is not None:
+            return modes_family(pointset, count)
         return mode_report(self.checked, count)
 
     def grad(self, of: str | Sequence[str], wrt: str | Sequence[str], inputs=None, **settings):
         """d(reduction `of`)/d(top-level `.param` `wrt`) per run, exact for the simulated
         float64 computation (the discrete adjoint): a `springc.grad.GradResult` (`values`,
-        `grad[run, k]`). `settings`: tstep, tstop, substeps, method, channel."""
+        `grad[run, k]`). `settings`: tstep, tstop, substeps, method, channel. With `.step`,
+        at every point: `values[spec]` (points, runs), `grad[point, run, k]`, `points`
+        (`.mc` samples are refused: `springc.grad.gradient.at_points`)."""
         from springc.grad import gradient
+        from springc.grad.gradient import at_points
 
         names = [wrt] if isinstance(wrt, str) else list(wrt)
+        pointset = self._points_to_run()
+        if pointset is not None:
+            return at_points(self.source, pointset, of, names, inputs, **settings)
         return gradient(self.source, of, names, inputs, values=self.overrides, **settings)
 
-    def export_spice(self, **options) -> str:
+    def export_spice(self, **options) -> str | list[str]:
         """The netlist as an ngspice circuit (`springc export --spice`); `options` are
-        `springc.export.spice.SpiceOptions` fields (tstop, tstep, tmax, reltol, inputs)."""
+        `springc.export.spice.SpiceOptions` fields (tstop, tstep, tmax, reltol, inputs).
+        With `.step`/`.mc`, a list: one circuit per point, its values written in (ngspice's
+        `.step`-free form), headed by a comment naming the point."""
         from springc.export.spice import SpiceOptions, export_spice
 
-        return export_spice(self.checked, SpiceOptions(**options))
+        pointset = self._points_to_run()
+        if pointset is None:
+            return export_spice(self.checked, SpiceOptions(**options))
+        return [f"* {point.describe(len(pointset))}\n"
+                + export_spice(checked, SpiceOptions(**options))
+                for point, checked in zip(pointset.points, pointset.checked)]
 
 
 @dataclass

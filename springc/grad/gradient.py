@@ -15,12 +15,15 @@ import numpy as np
 
 from springc.check import check
 from springc.check.checks import CheckedNetlist, require_checked
-from springc.errors import UsageError
+from springc.check.points import at_point
+from springc.errors import CheckError, UsageError
 from springc.grad import lanes, model, seeds, written
 from springc.grad.params import ParamNetlist
 from springc.kernels import expint
 from springc.kernels.integrators import get_tableau
+from springc.lang import ast
 from springc.lang.ir import FlatNetlist
+from springc.lang.variation import PointSet
 from springc.sim import simulate as sim
 from springc.sim import sources
 
@@ -48,6 +51,7 @@ class GradResult:
     runs: list[str]
     params: dict[str, float]
     info: dict = field(default_factory=dict)
+    points: tuple | None = None  # with .step: each point's step values (`at_points`)
 
 
 def gradient(source: ParamNetlist | str | Path, of: str | Sequence[str], wrt: Sequence[str],
@@ -73,6 +77,39 @@ def gradient(source: ParamNetlist | str | Path, of: str | Sequence[str], wrt: Se
     params = {**pn.values, **dict(values or {})}
     info = dict(cg.info, elaborate_s=t1 - t0)
     return GradResult(specs, list(wrt), cg.values, grad, cg.runs, params, info)
+
+
+def at_points(source: ParamNetlist, points: PointSet, of: str | Sequence[str],
+              wrt: Sequence[str], inputs=None, input_rate: float | None = None,
+              **settings) -> GradResult:
+    """`gradient` at every point of a `.step` netlist (each point's step values set, the
+    other parameters as the file sets them): `values[spec]` (points, runs), `grad[point,
+    run, k]`, `points` the points. An error at one point names it. Monte Carlo samples are
+    refused (`UsageError`): a relative draw (`gauss`, `unif`) scales with its nominal value,
+    and that derivative at a sample is not computed."""
+    if points.points[0].sample is not None:
+        mc = next(s.loc for s in source.statements
+                  if isinstance(s, ast.Directive) and s.name == "mc")
+        raise UsageError("no gradient at Monte Carlo samples: the derivative of a random "
+                         "function at its draw is not computed", mc,
+                         hint="remove .mc to differentiate at every .step point, or use "
+                              "springc sim --reduce SPEC --stats for the first-order spread")
+    results = []
+    for point in points.points:
+        try:
+            results.append(gradient(source, of, wrt, inputs, input_rate,
+                                    values=dict(point.steps), **settings))
+        except CheckError as err:
+            raise at_point(err, point, len(points)) from None
+        except UsageError as err:
+            raise UsageError(f"{err.message} at {point.describe(len(points))}", err.loc,
+                             err.diagnostic.hint) from None
+    first = results[0]
+    values = {k: np.stack([r.values[k] for r in results]) for k in first.values}
+    grad = np.stack([r.grad for r in results])
+    info = dict(first.info, points=[r.info for r in results])
+    return GradResult(first.of, first.wrt, values, grad, first.runs, dict(source.values), info,
+                      points.points)
 
 
 def _chain(dcoef: dict, dparam: dict) -> np.ndarray:

@@ -13,6 +13,11 @@
    that is not a model) for every command that writes one. Each exits 1 with a message naming
    the file, or (an existing folder given for an output file) 2 from click's own check, before
    any work; never a traceback, never a partial output.
+4. Broken `.step`/`.mc` netlists and thermal-noise misuse (issues 38 and 39, `POPULATION`)
+   through every command that reads a netlist (build, sim, ac, modes, noise, grad, export):
+   each exits 1 with the same located first line, the point named where a point fails,
+   no output file, and no kernel compiled (the errors come before any). `--temp` and the
+   noise band given on the command line (`OPTION_MISUSE`) are refused by name likewise.
 """
 
 from __future__ import annotations
@@ -534,3 +539,144 @@ def test_broken_input_is_a_named_user_error(kit, case):
     for path in absent:
         assert not path.exists(), output
     assert (kit.not_model / "thesis.tex").is_file()  # a folder not a model is never replaced
+
+
+# -- 4. populations and thermal noise ----------------------------------------------------------
+
+BASE = """* a driven resonator
+.param k0=4
+M1 a m=1 b=0.5
+K1 a k={k0}
+F1 a in(0) gain=1
+.probe x(a)
+.tran 10m 1
+"""
+PAIR = """.subckt pair p q kc=1
+C1 p q k={kc}
+.ends
+M2 c m=1 b=0.5
+X1 a c pair
+"""
+# name -> (lines added to BASE, line:col of the error, words the message holds)
+POPULATION = {
+    "step-unknown-param": (".step kx list 1 2\n", "8:7", "unknown parameter 'kx'"),
+    "step-subckt-param": (PAIR + ".step kc list 1 2\n", "13:7",
+                          "'kc' is not a top-level parameter"),
+    "step-loop-variable": (".for i 1 2\nM{i}x n{i} m=1\n.endfor\n.step i list 1 2\n",
+                           "11:7", "'i' is not a top-level parameter"),
+    "step-inside-subckt": (".subckt s p\n.step k0 list 1 2\n.ends\n", "9:1",
+                           ".step is only allowed at the top level"),
+    "step-empty-list": (".step k0 list\n", "8:1", ".step k0 list has no values"),
+    "step-zero-increment": (".step k0 1 2 0\n", "8:14", "the increment is zero"),
+    "step-wrong-way": (".step k0 1 2 -1\n", "8:14", "never reaches 2"),
+    "step-log-from-zero": (".step k0 dec 0 10 2\n", "8:14", "the start must be > 0"),
+    "step-twice": (".step k0 list 1 2\n.step k0 list 3\n", "9:1", "given twice"),
+    "step-random-value": (".step k0 list {gauss(1, 0.1)} 2\n", "8:16", "cannot be used in "
+                          "a .step line"),
+    "mc-negative-count": (".mc -3\n", "8:5", "the .mc count must be >= 1, got -3"),
+    "mc-zero-count": (".mc 0\n", "8:5", "the .mc count must be >= 1, got 0"),
+    "mc-twice": (".mc 2\n.mc 3\n", "9:1", "a second .mc"),
+    "mc-negative-seed": (".mc 2 seed=-1\n", "8:12", "seed must be an integer >= 0"),
+    "random-in-tran": (".param t1={gauss(1, 0.1)}\n.tran 10m {unif(1, 0.1)}\n.mc 2\n",
+                       "9:12", "unif() cannot be used in a .tran line"),
+    "random-negative-spread": (".param m0={gauss(1, -0.1)}\nM9 z m={m0}\n", "8:12",
+                               "gauss(): rvar must be >= 0"),
+    "mc-spread-breaks-a-sign": (
+        ".param m0={gauss(1, 0.8)}\nM9 z m={m0}\n.mc 50 seed=2\n", "9:1",
+        "M9: mass m=-0.905171 must be > 0 at point 34 of 50 (sample 34, seed 2)"),
+    "step-breaks-a-sign": (".step k0 list 1 -2\n", "4:1",
+                           "K1: stiffness k=-2 must be >= 0 at point 1 of 2 (k0=-2)"),
+    "step-and-mc-break-a-sign": (
+        ".param g={agauss(0, 1)}\nK2 a k={k0 * g}\n.step k0 list 1 2\n.mc 3 seed=1\n",
+        "9:1", "K2: stiffness k=-0.266159 must be >= 0 at point 0 of 6 (k0=1, sample 0, "
+               "seed 1)"),
+    "temp-negative": (".options temp=-1\n", "8:15", "temp must be a finite temperature"),
+    "temp-overflow": (".options temp={1e308*10}\n", "8:21", "the result is inf"),
+    "noise-unknown-node": (".noise zz 1 100\n", "8:8", "node 'zz' has no mass"),
+    "noise-band-reversed": (".noise a 10 1\n", "8:10", "needs 0 < fstart <= fstop"),
+    "noise-band-from-zero": (".noise a 0 100\n", "8:10", "needs 0 < fstart <= fstop"),
+    "noise-band-one-point": (".noise a 1 10 points=1\n", "8:1", "needs points >= 2"),
+    "noise-no-damper": (".noise a 1 10\n", "8:1", "the netlist has no damper"),
+    "temp-no-damper": (".options temp=300\n", "8:10", "but the netlist has no damper"),
+}
+UNDAMPED = ("noise-no-damper", "temp-no-damper")
+POPULATION_COMMANDS = ("build", "sim", "ac", "modes", "noise", "grad", "export")
+
+
+def population_args(command: str, netlist: Path, out: Path) -> tuple[list, list[Path]]:
+    """A command's arguments on `netlist` and every file it could write."""
+    table = {
+        "build": (["build", netlist, "--emit-kernel", out / "k.py"], [out / "k.py"]),
+        "sim": (["sim", netlist, "-o", out / "o.npz"], [out / "o.npz"]),
+        "ac": (["ac", netlist, "--node", "a", "-o", out / "o.csv", "--plot", out / "a.png"],
+               [out / "o.csv", out / "a.png"]),
+        "modes": (["modes", netlist, "--plot", out / "m.png"], [out / "m.png"]),
+        "noise": (["noise", netlist, "--node", "a", "-o", out / "n.csv"], [out / "n.csv"]),
+        "grad": (["grad", netlist, "--of", "final:x(a)", "--wrt", "k0"], []),
+        "export": (["export", netlist, "--spice", "-o", out / "o.cir"],
+                   [out / "o.cir", out / "o.p0.cir"]),
+    }
+    return table[command]
+
+
+@pytest.fixture
+def empty_cache(tmp_path, monkeypatch) -> Path:
+    """A kernel cache that must stay empty: nothing is compiled before these errors."""
+    cache = tmp_path / "kernels"
+    monkeypatch.setenv("SPRINGC_CACHE", str(cache))
+    return cache
+
+
+def _undamped(text: str) -> str:
+    return text.replace("M1 a m=1 b=0.5", "M1 a m=1")
+
+
+@pytest.mark.parametrize("command", POPULATION_COMMANDS)
+@pytest.mark.parametrize("case", sorted(POPULATION))
+def test_population_and_noise_misuse_is_located(case, command, tmp_path, empty_cache):
+    lines, where, words = POPULATION[case]
+    text = BASE + lines
+    netlist = tmp_path / f"{case}.spr"
+    netlist.write_text(_undamped(text) if case in UNDAMPED else text)
+    args, written = population_args(command, netlist, tmp_path)
+    code, output = run(args)
+    assert code == 1, output
+    assert first_line(output).startswith(f"{netlist}:{where}: error: "), output
+    assert words in first_line(output), output
+    assert not [p for p in written if p.exists()], output
+    assert not empty_cache.exists() or not any(empty_cache.iterdir()), output
+
+
+# (command, extra arguments, words of the message): refused by name before any work
+OPTION_MISUSE = {
+    "sim-temp-negative": ("sim", ["--temp", "-1"], "temp must be a finite temperature"),
+    "sim-temp-nan": ("sim", ["--temp", "nan"], "temp must be a finite temperature"),
+    "sim-temp-inf": ("sim", ["--temp", "inf"], "temp must be a finite temperature"),
+    "sim-temp-no-damper": ("sim", ["--temp", "300"], "has no damper"),
+    "noise-temp-negative": ("noise", ["--temp", "-1"], "temp must be a finite temperature"),
+    "noise-temp-nan": ("noise", ["--temp", "nan"], "temp must be a finite temperature"),
+    "noise-temp-inf": ("noise", ["--temp", "inf"], "temp must be a finite temperature"),
+    "noise-temp-zero": ("noise", ["--temp", "0"], "temperature 0 K"),
+    "noise-no-damper": ("noise", [], "has no damper"),
+    "noise-unknown-node": ("noise", ["--node", "zz"], "unknown node 'zz'"),
+    "noise-fmin-zero": ("noise", ["--fmin", "0"], "bad sweep"),
+    "noise-band-reversed": ("noise", ["--fmin", "10", "--fmax", "1"], "bad sweep"),
+    "noise-one-point": ("noise", ["--points", "1", "--fmin", "1", "--fmax", "10"],
+                        "bad sweep"),
+    "ac-fmin-zero": ("ac", ["--fmin", "0"], "bad sweep"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(OPTION_MISUSE))
+def test_noise_options_misuse_is_named(case, tmp_path, empty_cache):
+    command, extra, words = OPTION_MISUSE[case]
+    netlist = tmp_path / "n.spr"
+    netlist.write_text(_undamped(BASE) if "no-damper" in case else BASE)
+    args, written = population_args(command, netlist, tmp_path)
+    if "--node" in extra:
+        args = [a for a in args if a not in ("--node", "a")]
+    code, output = run([*args, *extra])
+    assert code == 1, output
+    assert first_line(output).startswith("error: ") and words in output, output
+    assert not [p for p in written if p.exists()], output
+    assert not empty_cache.exists() or not any(empty_cache.iterdir()), output

@@ -137,10 +137,11 @@ class Netlist:
         cpu, cuda or auto (`springc sim --device`). `temp` (kelvin) and `seed`: the
         dampers' thermal noise, overriding `.options temp=`/`seed=` (`springc sim --temp`).
 
-        With `.step`/`.mc` every point is simulated (`springc.sim.points`: one call per
-        point, the points of one structure sharing one compiled kernel; the integrator
-        chosen on the worst point): probes (points, runs, T), reductions (points, runs),
-        `Result.points` the points' step values, samples and seeds."""
+        With `.step`/`.mc` every point is simulated (`springc.sim.points`: the points of
+        one structure in the lanes of one kernel call, or where that form cannot take them
+        one call each, sharing the compiled kernel; the integrator chosen on the worst
+        point): probes (points, runs, T), reductions (points, runs), `Result.points` the
+        points' step values, samples and seeds."""
         from springc.check.points import worst
         from springc.sim import plan, thermal
         from springc.sim.points import simulate_points

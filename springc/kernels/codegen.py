@@ -49,7 +49,11 @@ class KernelOptions:
     (`springc.kernels.terms.node_terms`) for a register kernel, each run's step in scalars;
     `parallel`: the shared kernel with each step's node loops split over numba's threads
     (`prange`), every node summing its own forces (`terms.node_ends`) in the serial
-    kernel's order, for one or a few runs of a large network."""
+    kernel's order, for one or a few runs of a large network; `per_run`: coefficient arrays
+    passed with a column per run, (entries, runs), sorted (the points of a `.step`/`.mc`
+    group in the lanes of one call, `springc.sim.simulate.simulate_lanes`): each chunk
+    copies its lanes' columns (`emit_lane_coefficients`) and the force code reads them per
+    lane. Empty: every run shares the arrays (and the text is the one without points)."""
 
     method: str = "rk4"
     precision: str = "float64"
@@ -62,6 +66,7 @@ class KernelOptions:
     nodes: tuple | None = None
     registers: tuple | None = None
     parallel: bool = False
+    per_run: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -113,6 +118,16 @@ _ACCEL_ARGS = {
     "common_forces": ("fc_node", "fc_gm"),
     "thermal": thermal.NOISE_ARGS,
 }
+
+
+def coefficient_names() -> frozenset[str]:
+    """The force coefficient arrays a kernel may take with a column per run
+    (`KernelOptions.per_run`): every feature's arguments but the index arrays and the
+    thermal noise's."""
+    names = {name for key, args in _ACCEL_ARGS.items() if key != "thermal" for name in args}
+    return frozenset(names - {"d_node", "l_ptr", "l_col", "q_i", "q_j", "b_i", "b_j",
+                              "p_ptr", "p_var", "p_exp", "fi_node", "fi_chan", "fi_ptr",
+                              "fc_node"}) | {"minv"}
 
 
 def choose_lanes(runs_per_task: int) -> int:
@@ -184,8 +199,9 @@ def options_header(options: KernelOptions) -> list[str]:
     written: they are in the body)."""
     # vars, not asdict, which deep-copies (a noticeable share of a short call)
     # `parallel` only where set: the serial kernels' text (and cache key) is unchanged by it
+    # `per_run` likewise: a kernel without points keeps its text
     shown = {k: v for k, v in vars(options).items()
-             if k not in ("nodes", "registers") and (k != "parallel" or v)}
+             if k not in ("nodes", "registers") and (k not in ("parallel", "per_run") or v)}
     how = ("written out per node, the state in registers (springc.kernels.regkernel)"
            if options.registers else "written out per node" if options.nodes
            else "per node over the runtime index arrays, nodes split over threads"
@@ -344,14 +360,16 @@ def _lane_stmt(stmt: str, b: int, lane: str) -> str:
 def emit_stage_loop(c: _Code, feat: Features, tab: Tableau, width: LaneLayout,
                     prelude: Callable[[int], None],
                     after: Callable[[int], None] | None = None,
-                    nodes: tuple | None = None, parallel: bool = False) -> None:
+                    nodes: tuple | None = None, parallel: bool = False,
+                    per_run: tuple[str, ...] = ()) -> None:
     """The stages of one step as a loop whose body holds the force code once (a call per
     stage passes ~20 array arguments; the force code written out per stage compiles far
     slower: docs/performance.md#the-shared-kernels-shape). `prelude(s)` writes stage s's own
     code (its state xs, vs, its input); the force code then reads xa, va and writes ka;
     `after(s)`, when given, writes what follows stage s's forces; `nodes` (`terms.node_terms`), when
     given, has the linear, input and quadratic-coupling forces written out per node;
-    `parallel`: the force code's node loop is a `prange` (`emit_linear`)."""
+    `parallel`: the force code's node loop is a `prange` (`emit_linear`); `per_run`: the
+    coefficient arrays read per lane (`KernelOptions.per_run`)."""
     c("for s_ in range(STAGES):")
     c.indent()
     for s in range(tab.stages):
@@ -363,7 +381,7 @@ def emit_stage_loop(c: _Code, feat: Features, tab: Tableau, width: LaneLayout,
         c(f"ka = kv{s}")
         c.dedent()
     c("grow = g[step, s_]" if feat.common_forces else "grow = g[0, 0]")
-    emit_accel_body(c, feat, width, nodes, parallel)
+    emit_accel_body(c, feat, width, nodes, parallel, per_run)
     if after is not None:
         for s in range(tab.stages):
             c(f"if s_ == {s}:")
@@ -377,29 +395,34 @@ def emit_stage_loop(c: _Code, feat: Features, tab: Tableau, width: LaneLayout,
 
 
 def emit_accel_body(c: _Code, feat: Features, width: LaneLayout,
-                    nodes: tuple | None = None, parallel: bool = False) -> None:
+                    nodes: tuple | None = None, parallel: bool = False,
+                    per_run: tuple[str, ...] = ()) -> None:
     """The force code: ka = M^-1 F(xa, va, uc, grow), from the term descriptions of
     `springc.kernels.terms`: with `nodes` (`terms.node_terms`) one sum per node, else the
     linear rows and then a loop per element kind (`parallel`: each node gathers its
-    elements' ends instead, in the loops' order); monomials loop in all."""
+    elements' ends instead, in the loops' order); monomials loop in all. `per_run`: the
+    coefficient arrays read per lane (not with `parallel`)."""
+    lane = frozenset(per_run)
     if nodes is not None:
-        emit_nodes(c, nodes, width)
+        emit_nodes(c, nodes, width, lane)
     elif parallel:
+        assert not lane, "per-run coefficients are not written for split nodes"
         emit_linear(c, feat, width, parallel=True)
     else:
-        emit_linear(c, feat, width)
+        emit_linear(c, feat, width, per_run=lane)
         for kind in terms.LOOP_ORDER:
             if getattr(feat, kind.feature):
-                _emit_kind(c, width, kind)
+                _emit_kind(c, width, kind, lane)
     if feat.monomials:
-        _emit_monomials(c, width)
+        _emit_monomials(c, width, lane)
     if feat.common_forces and nodes is None:
-        _emit_kind(c, width, terms.COMMON)
+        _emit_kind(c, width, terms.COMMON, lane)
     if feat.thermal:
         thermal.emit_add(c)
 
 
-def _emit_kind(c: _Code, width: LaneLayout, kind: terms.Kind) -> None:
+def _emit_kind(c: _Code, width: LaneLayout, kind: terms.Kind,
+               per_run: frozenset[str] = frozenset()) -> None:
     """The loop over the elements of `kind` (`terms.element_loop`), with a branch for a
     second end at the ground where the kind has one. Each element's lanes are straight-line
     code, its rows indexed in place (a row view would cost a reference-count update per
@@ -407,16 +430,16 @@ def _emit_kind(c: _Code, width: LaneLayout, kind: terms.Kind) -> None:
     c(f"for e in range({kind.node_i}.shape[0]):")
     c.indent()
     if kind.ground is None:
-        _emit_element(c, width, terms.element_loop(kind))
+        _emit_element(c, width, terms.element_loop(kind, per_run=per_run))
     else:
         c(f"j = {kind.node_j}[e]")
         c("if j < 0:  # to ground")
         c.indent()
-        _emit_element(c, width, terms.element_loop(kind, ground=True))
+        _emit_element(c, width, terms.element_loop(kind, ground=True, per_run=per_run))
         c.dedent()
         c("else:")
         c.indent()
-        _emit_element(c, width, terms.element_loop(kind))
+        _emit_element(c, width, terms.element_loop(kind, per_run=per_run))
         c.dedent()
     c.dedent()
 
@@ -427,22 +450,26 @@ def _emit_element(c: _Code, width: LaneLayout, code: terms.LoopCode) -> None:
     lanes(c, width, code.loads, code.arith, code.stores)
 
 
-def emit_nodes(c: _Code, nodes: tuple, width: LaneLayout) -> None:
+def emit_nodes(c: _Code, nodes: tuple, width: LaneLayout,
+               per_run: frozenset[str] = frozenset()) -> None:
     """The force code written out node by node (`terms.node_sum`): the node's coefficients
     read into scalars, then one lane loop ka[i] = its terms, with every row index a
     constant (faster than the shared kernel's loops over index arrays for small networks).
     The scalars are read before the loop so that the loop reads no coefficient array (LLVM
     cannot prove they do not alias ka, and each one added a runtime alias check). A node
-    without any force keeps its rows of zeros."""
+    without any force keeps its rows of zeros. Coefficients of `per_run` arrays are read in
+    the lane loop, each lane its own."""
     for i, node in enumerate(nodes):
         if not (node.damped or node.sprung or node.row or node.ins or node.ends
                 or node.looped):
             continue  # its force rows stay zero
-        for line in terms.scalar_loads(i, node):
+        for line in terms.scalar_loads(i, node, per_run):
             c(line)
         expr = terms.node_sum(i, node, lambda j: f"xa[{j}, b]", lambda j: f"va[{j}, b]",
                               lambda ch: f"uc[{ch}, b]", lambda e: f"grow[{e}]")
         c(f"for b in range({width.width}):")
+        for line in terms.scalar_loads(i, node, per_run, "b"):
+            c(f"    {line}")
         c(f"    ka[{i}, b] = {expr}")
 
 
@@ -451,7 +478,8 @@ def node_loop(parallel: bool) -> str:
     return "for i in nb.prange(n):" if parallel else "for i in range(n):"
 
 
-def emit_linear(c: _Code, feat: Features, width: LaneLayout, parallel: bool = False) -> None:
+def emit_linear(c: _Code, feat: Features, width: LaneLayout, parallel: bool = False,
+                per_run: frozenset[str] = frozenset()) -> None:
     """Per node, all lanes in registers and one store: ka = -(bm v + km x), plus (with
     couplings) the node's off-diagonal stiffness row (`simulate.linear_rows`) and (with
     inputs) its input forces (`fi_ptr`: the node's range of the node-ordered inputs). Pushing
@@ -459,10 +487,15 @@ def emit_linear(c: _Code, feat: Features, width: LaneLayout, parallel: bool = Fa
     bound by that memory traffic. All lanes at once (no group loop): the FMAs into
     one accumulator are a chain, and only the lanes' independent chains keep the FMA units
     busy. `parallel`: the loop is a `prange`, and each node then adds its ends of the
-    element kinds (`_emit_gathers`) before its one store."""
+    element kinds (`_emit_gathers`) before its one store. `per_run`: the coefficient
+    arrays read per lane (`_emit_linear_lanes`)."""
     full = LaneLayout(width.width, width.width)
     c(node_loop(parallel))
     c.indent()
+    if per_run & {"bm", "km", "l_val", "fi_gm"}:
+        _emit_linear_lanes(c, feat, full, per_run)
+        c.dedent()
+        return
     c("bi = bm[i]")
     c("ki = km[i]")
     # an undamped node's force reads no velocity (its stage velocity is not even computed,
@@ -487,6 +520,50 @@ def emit_linear(c: _Code, feat: Features, width: LaneLayout, parallel: bool = Fa
         _emit_gathers(c, feat, full)
     lanes(c, full, [], [], ["ka[i, {b}] = A{b}"])
     c.dedent()
+
+
+def _emit_linear_lanes(c: _Code, feat: Features, full: LaneLayout,
+                       per_run: frozenset[str]) -> None:
+    """Node i's linear and input terms (`emit_linear`) with the `per_run` arrays' coefficients
+    read per lane. A per-run damping is always read (a run of another point may be damped
+    where this one is not: b/m = 0 then adds nothing)."""
+    def coef(array: str, entry: str, name: str) -> tuple[list[str], str]:
+        if array in per_run:
+            return [f"{name}{{b}} = {terms.lane_array(array)}[{entry}, {{b}}]"], f"{name}{{b}}"
+        c(f"{name} = {array}[{entry}]")
+        return [], name
+
+    bload, bname = coef("bm", "i", "BI")
+    kload, kname = coef("km", "i", "KI")
+    loads = kload + ["X{b} = xa[i, {b}]"]
+    if "bm" in per_run:
+        own = terms.own_sum(True, True, bname, kname, "V{b}", "X{b}")
+        lanes(c, full, bload + ["V{b} = va[i, {b}]"] + loads, [f"A{{b}} = {own}"], [])
+    else:
+        c(f"if {bname} != 0.0:")
+        own = terms.own_sum(True, True, bname, kname, "V{b}", "X{b}")
+        c.indent()
+        lanes(c, full, ["V{b} = va[i, {b}]"] + loads, [f"A{{b}} = {own}"], [])
+        c.dedent()
+        c("else:")
+        c.indent()
+        own = terms.own_sum(False, True, bname, kname, "V{b}", "X{b}")
+        lanes(c, full, loads, [f"A{{b}} = {own}"], [])
+        c.dedent()
+    for on, ptr, head, array, row, term in (
+            (feat.couplings, "l_ptr", "j = l_col[e]", "l_val", "xa[j, {b}]", terms.ROW),
+            (feat.in_forces, "fi_ptr", "ch = fi_chan[e]", "fi_gm", "uc[ch, {b}]",
+             terms.INPUT)):
+        if not on:
+            continue
+        c(f"for e in range({ptr}[i], {ptr}[i + 1]):")
+        c.indent()
+        c(head)
+        wload, wname = coef(array, "e", "W")
+        text = term.format(w=wname, xj="Y{b}", gm=wname, u="Y{b}")
+        lanes(c, full, wload + [f"Y{{b}} = {row}"], [f"A{{b}} = A{{b}} {text}"], [])
+        c.dedent()
+    lanes(c, full, [], [], ["ka[i, {b}] = A{b}"])
 
 
 def _emit_gathers(c: _Code, feat: Features, full: LaneLayout) -> None:
@@ -537,10 +614,14 @@ def _gather(c: _Code, full: LaneLayout, ptr: str, head: tuple[str, ...], row: st
     c.dedent()
 
 
-def _emit_monomials(c: _Code, width: LaneLayout) -> None:
+def _emit_monomials(c: _Code, width: LaneLayout,
+                    per_run: frozenset[str] = frozenset()) -> None:
     # Each factor position contributes its partial derivative; summing them over positions is
     # the product rule, so repeated variables need no special case. Rare and irregular: a
     # plain lane loop.
+    lane = bool(per_run & {"p_c", "minv"})
+    pc = f"{terms.lane_array('p_c')}[e, b]" if "p_c" in per_run else "p_c[e]"
+    mi = f"{terms.lane_array('minv')}[i, b]" if "minv" in per_run else "minv[i]"
     c("for e in range(p_c.shape[0]):")
     c.indent()
     c("lo = p_ptr[e]")
@@ -549,9 +630,12 @@ def _emit_monomials(c: _Code, width: LaneLayout) -> None:
     c.indent()
     c("i = p_var[kf]")
     c("ex = p_exp[kf]")
-    c("cm = p_c[e] * ex * minv[i]")
+    if not lane:
+        c(f"cm = {pc} * ex * {mi}")
     c(f"for b in range({width.width}):")
     c.indent()
+    if lane:  # each lane its own point's coefficient
+        c(f"cm = {pc} * ex * {mi}")
     c("term = cm * xa[i, b] ** (ex - 1)")
     c("for ko in range(lo, hi):")
     c.indent()
@@ -590,7 +674,7 @@ def _emit_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> No
             emit_stage_reductions(c, feat, opts, s)
 
     emit_stage_loop(c, feat, tab, ln, prelude, after if opts.work or opts.dissipation else None,
-                    opts.nodes, opts.parallel)
+                    opts.nodes, opts.parallel, opts.per_run)
     nystrom_combine(c, tab, ln, parallel=opts.parallel)
     emit_step_end(c, opts, ln)
     c.dedent()
@@ -641,6 +725,7 @@ def emit_chunk_start(c: _Code, opts: KernelOptions, scratch: list[str]) -> None:
     c("nb_ = LANES")
     for name in ["x", "v"] + scratch:
         c(f"{name} = np.zeros((n, LANES), FT)")
+    emit_lane_coefficients(c, opts.per_run)
     c("uc = np.zeros((max(nch, 1), LANES), FT)")
     c("ustg = np.zeros((STAGE_BLOCK + 2, max(nch, 1), LANES), FT)")
     c("ubase = -2 * STAGE_BLOCK")
@@ -664,6 +749,17 @@ def emit_chunk_start(c: _Code, opts: KernelOptions, scratch: list[str]) -> None:
     c("rc_ = 0")
     c("rn_ = 0")
     c("cc_ = 0")
+
+
+def emit_lane_coefficients(c: _Code, per_run: tuple[str, ...]) -> None:
+    """The chunk's columns of each per-run coefficient array (`KernelOptions.per_run`) into
+    its `terms.lane_array`, (entries, LANES): padding lanes take the chunk's last run's."""
+    for name in per_run:
+        local = terms.lane_array(name)
+        c(f"{local} = np.empty(({name}.shape[0], LANES), {name}.dtype)")
+        c(f"for k_ in range({name}.shape[0]):")
+        c("    for b in range(LANES):")
+        c(f"        {local}[k_, b] = {name}[k_, lo_ + min(b, nv_ - 1)]")
 
 
 def emit_step_start(c: _Code, inputs: bool) -> None:
@@ -824,7 +920,11 @@ def velocity_needed(c: _Code, feat: Features, opts: KernelOptions) -> None:
     skipped."""
     c("vneed = np.zeros(x0.shape[0], np.bool_)")
     c("for i in range(x0.shape[0]):")
-    c("    vneed[i] = bm[i] != 0.0")
+    if "bm" in opts.per_run:  # damped in any run of the call
+        c("    for r_ in range(bm.shape[1]):")
+        c("        vneed[i] = vneed[i] or bm[i, r_] != 0.0")
+    else:
+        c("    vneed[i] = bm[i] != 0.0")
     ends = [index for kind in terms.KINDS if getattr(feat, kind.feature)
             and kind.reads_velocity() for index in (kind.node_i, kind.node_j) if index]
     ends += (["fi_node"] if opts.work and feat.in_forces else [])

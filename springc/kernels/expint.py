@@ -404,7 +404,7 @@ def _emit_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab: Tablea
         if feat.in_forces and (s == 0 or tab.c[s] != tab.c[s - 1]):
             codegen.emit_interp(c, "uc", f"(sub + {tab.c[s]!r}) / substeps", ln)
 
-    codegen.emit_stage_loop(c, feat, tab, ln, prelude)
+    codegen.emit_stage_loop(c, feat, tab, ln, prelude, per_run=opts.per_run)
     codegen.nystrom_combine(c, tab, ln, frozen="hold")
     c(f"blocks(x, v, zt, zn, um, ub, {bk_args})")
     codegen.emit_step_end(c, opts, ln)
@@ -614,7 +614,8 @@ def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab:
         if tab.b[s] != 0.0:
             codegen.emit_stage_reductions(c, feat, opts, s, gains="fi_w")
 
-    codegen.emit_stage_loop(c, feat, tab, lw.ln, prelude, after if power else None)
+    codegen.emit_stage_loop(c, feat, tab, lw.ln, prelude, after if power else None,
+                            per_run=opts.per_run)
     lw.emit_inline(c, None, "xn", "vn")
     codegen.nystrom_combine(c, tab, lw.ln, frozen="exact")
     codegen.emit_step_end(c, opts, lw.ln)

@@ -20,7 +20,8 @@ import functools
 
 from springc.kernels import terms, thermal
 from springc.kernels.codegen import (Features, KernelOptions, LaneLayout, _Code, combine_terms,
-                                     emit_chunk_end, emit_chunk_start, emit_record,
+                                     emit_chunk_end, emit_chunk_start, emit_lane_coefficients,
+                                     emit_record,
                                      decorator, emit_run_head, emit_step_end, emit_step_start,
                                      features, lane_layout, preamble, run_args, source_hash,
                                      stage_terms, with_header)
@@ -59,7 +60,7 @@ def _body(feat: Features, opts: KernelOptions) -> tuple[str, str]:
     if feat.thermal:
         thermal.emit_helpers(c, decorator())
     emit_run_head(c, feat, opts, tab)
-    _emit_scalars(c, opts.registers)
+    _emit_scalars(c, opts.registers, frozenset(opts.per_run))
     if opts.lanes == 1:
         _emit_one_run(c, feat, opts, tab)
     else:
@@ -78,6 +79,8 @@ def _emit_one_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -
     c.indent()
     c("lo_ = ci")
     c("nv_ = 1")
+    emit_lane_coefficients(c, opts.per_run)
+    _emit_scalars(c, nodes, frozenset(opts.per_run), "0")
     if feat.thermal:
         thermal.emit_chunk_init(c)
     for i in range(len(nodes)):
@@ -128,6 +131,7 @@ def _emit_lanes(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> 
     _emit_input_positions(c, tab, nodes, "k0 - ubase")
     c(f"for b in range({opts.lanes}):")
     c.indent()
+    _emit_scalars(c, nodes, frozenset(opts.per_run), "b")
     for i in range(len(nodes)):
         c(f"X{i} = x[{i}, b]")
         c(f"V{i} = v[{i}, b]")
@@ -144,12 +148,16 @@ def _emit_lanes(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> 
     c.dedent()
 
 
-def _emit_scalars(c: _Code, nodes: tuple[NodeTerms, ...]) -> None:
+def _emit_scalars(c: _Code, nodes: tuple[NodeTerms, ...],
+                  per_run: frozenset[str] = frozenset(), lane: str | None = None) -> None:
     """Every coefficient the force code reads, into a scalar before the loops (once: both
-    ends of an element read some)."""
+    ends of an element read some); those of `per_run` arrays left out, or with `lane` (in
+    the chunk or lane loop) only those, each lane's own (`terms.scalar_loads`)."""
+    if lane is not None and not per_run:
+        return
     seen: set[str] = set()
     for i, node in enumerate(nodes):
-        for line in terms.scalar_loads(i, node):
+        for line in terms.scalar_loads(i, node, per_run, lane):
             if line not in seen:
                 seen.add(line)
                 c(line)

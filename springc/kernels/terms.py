@@ -133,8 +133,9 @@ def node_terms(co: dict, n: int) -> tuple[NodeTerms, ...] | None:
             return None
         # sorted by kind order, then element: each kind's loop visits a node in that order
         order = sorted(ends[i], key=lambda t: (KINDS.index(BY_NAME[t[0]]), t[1]))
-        out.append(NodeTerms(bool(co["bm"][i] != 0.0), bool(co["km"][i] != 0.0), row, ins,
-                             tuple(order), i in looped))
+        # any run's coefficient: a per-run array (`lane_array`) has a column per run
+        out.append(NodeTerms(bool(np.any(co["bm"][i] != 0.0)), bool(np.any(co["km"][i] != 0.0)),
+                             row, ins, tuple(order), i in looped))
     return tuple(out)
 
 
@@ -143,18 +144,28 @@ def scalar(array: str, e: int) -> str:
     return f"{array}{e}"
 
 
-def scalar_loads(i: int, node: NodeTerms) -> list[str]:
-    """`name = array[entry]` for every coefficient node i's sum reads (`node_sum`)."""
-    lines = ([f"bm{i} = bm[{i}]"] if node.damped else []) + (
-        [f"km{i} = km[{i}]"] if node.sprung else [])
-    lines += [f"{scalar('l_val', e)} = l_val[{e}]" for e, _ in node.row]
-    lines += [f"{scalar('fi_gm', e)} = fi_gm[{e}]" for e, _ in node.ins]
+def lane_array(array: str) -> str:
+    """The chunk's copy of a per-run coefficient array, (entries, LANES): each lane's run's
+    coefficients (`codegen.emit_lane_coefficients`)."""
+    return f"{array}_l"
+
+
+def scalar_loads(i: int, node: NodeTerms, per_run: frozenset[str] = frozenset(),
+                 lane: str | None = None) -> list[str]:
+    """`name = array[entry]` for every coefficient node i's sum reads (`node_sum`). With
+    `per_run` (arrays with a column per run) these are left out, and with `lane` only they
+    are loaded, as `name = lane_array(array)[entry, lane]`."""
+    entries = ([("bm", i)] if node.damped else []) + ([("km", i)] if node.sprung else [])
+    entries += [("l_val", e) for e, _ in node.row]
+    entries += [("fi_gm", e) for e, _ in node.ins]
     for name, e, end, other in node.ends:
         kind = BY_NAME[name]
         text = _end_template(kind, end, other)
-        lines += [f"{scalar(arr, e)} = {arr}[{e}]" for field, arr in kind.coefs
-                  if "{" + field + "}" in text]
-    return lines
+        entries += [(arr, e) for field, arr in kind.coefs if "{" + field + "}" in text]
+    if lane is None:
+        return [f"{scalar(arr, e)} = {arr}[{e}]" for arr, e in entries if arr not in per_run]
+    return [f"{scalar(arr, e)} = {lane_array(arr)}[{e}, {lane}]" for arr, e in entries
+            if arr in per_run]
 
 
 Names = Callable[[int], str]
@@ -200,11 +211,13 @@ class LoopCode:
     stores: list[str]
 
 
-def element_loop(kind: Kind, ground: bool = False) -> LoopCode:
+def element_loop(kind: Kind, ground: bool = False,
+                 per_run: frozenset[str] = frozenset()) -> LoopCode:
     """One element of `kind` in the shared kernel: its nodes and coefficients into scalars,
     the ends' state and accelerations loaded per lane, the shared subexpressions, then each
     end's acceleration stored. A kind with a `ground` force is rendered twice, inside a
-    branch on `j = node_j[e]` (the caller's): `ground` True for a second end at the ground."""
+    branch on `j = node_j[e]` (the caller's): `ground` True for a second end at the ground.
+    Coefficient arrays in `per_run` are loaded per lane from their `lane_array`."""
     two = kind.node_j is not None and not ground
     ends = ["i", "j"] if two else ["i"]
     forces = {"i": kind.ground} if ground else dict(kind.force)
@@ -212,19 +225,24 @@ def element_loop(kind: Kind, ground: bool = False) -> LoopCode:
     head = [f"i = {kind.node_i}[e]"]
     if two and kind.ground is None:
         head.append(f"j = {kind.node_j}[e]")
-    head += [f"{f} = {arr}[e]" for f, arr in kind.coefs if "{" + f + "}" in used]
+    coefs = [(f, arr) for f, arr in kind.coefs if "{" + f + "}" in used]
+    head += [f"{f} = {arr}[e]" for f, arr in coefs if arr not in per_run]
     if kind.signal:
         head.append("gv = grow[e]")  # not `g`: the kernel's argument of that name
     fields = {f: f for f, _ in kind.coefs} | {"g": "gv"}
+    lane_fields = {f: f"C{f}{{b}}" for f, arr in coefs if arr in per_run}
+    fields |= lane_fields
     state = {s: s.upper() + "{b}" for s in STATE}
     loads = [f"{s.upper()}{{b}} = {'xa' if s[0] == 'x' else 'va'}[{s[1]}, {{b}}]"
              for s in STATE if "{" + s + "}" in used and s[1] in ends]
+    loads += [f"{lane_fields[f]} = {lane_array(arr)}[e, {{b}}]" for f, arr in coefs
+              if f in lane_fields]
     loads += [f"O{e.upper()}{{b}} = ka[{e}, {{b}}]" for e in ends]
     arith = []
     for name, temp in kind.temps:
         if "{" + name + "}" not in used:
             continue
-        if any("{" + s + "}" in temp for s in STATE):
+        if any("{" + s + "}" in temp for s in (*STATE, *lane_fields)):
             arith.append(f"{name}{{b}} = " + _fill(temp, state, fields))
             fields[name] = name + "{b}"
         else:  # per element, not per lane

@@ -4,11 +4,14 @@ table (step values, sample index, seed) beside them.
 
     simulate_points(checked PointSet, inputs, **settings) -> PointsResult -> write(path)
 
-Each point is one `simulate` call on its own checked netlist, all with the same settings
-and the same inputs (read once). The kernel takes its coefficients as runtime arrays, so
-the points of one structure share one compiled kernel: the first call compiles it (or loads
-it from the cache), the others find it loaded. Running all the points in the lanes of one
-kernel call is not done here: N points are N calls.
+The points of one structure (`PointSet.groups`) run in the lanes of one kernel call
+(`springc.sim.simulate.simulate_lanes`): N points x R inputs are N*R runs, the coefficients
+that differ between the points passed with a column per run, in the shared, written-out,
+register and Runge-Kutta-part-of-exponential kernels alike. Where a group cannot share a call
+(`LanesRefused`: the CUDA form, thermal noise, input-work and dissipation sums, an
+exponential scheme whose exact blocks differ between the points) each of its points is one
+`simulate` call, the calls sharing the structure's compiled kernel; `info["per_point"]` says
+why. Every run has the same settings and the same inputs (read once).
 """
 
 from __future__ import annotations
@@ -23,7 +26,8 @@ from springc.check.points import at_point
 from springc.errors import CheckError, DivergedRuns, UsageError
 from springc.lang.variation import Point, PointSet
 from springc.sim import results
-from springc.sim.simulate import SimResult, require_memory, resolve_probes, settings, simulate
+from springc.sim.simulate import (LanesRefused, SimResult, require_memory, resolve_probes,
+                                  settings, simulate, simulate_lanes)
 from springc.sim.simulate import _gather_inputs
 
 
@@ -62,10 +66,11 @@ def simulate_points(points: PointSet, inputs=None, input_rate: float | None = No
                     outrate=None, probes=None, reductions=(), channel: int | None = None,
                     progress: bool = False, **options) -> PointsResult:
     """Simulate every point of the checked point set (`springc.check.points.check_points`)
-    for every input, one `simulate` call per point with these settings (`options`: its
-    other keywords: batch, write_out, temp, seed, device, ...). The records of all the points
-    are checked to fit in memory before anything runs. A point whose step is unstable, or
-    whose runs diverge, is an error naming the point."""
+    for every input with these settings (`options`: `simulate`'s other keywords: batch,
+    write_out, temp, seed, device, ...): the points of one structure in the lanes of one
+    call (`simulate_lanes`), else one `simulate` call per point (see the module docstring).
+    The records of all the points are checked to fit in memory before anything runs. A point
+    whose step is unstable, or whose runs diverge, is an error naming the point."""
     if not points.checked:
         raise TypeError("simulate_points takes a checked PointSet: call check_points first")
     first = points.checked[0].net
@@ -74,30 +79,54 @@ def simulate_points(points: PointSet, inputs=None, input_rate: float | None = No
     st = settings(first, tstep, tstop, substeps, method, precision, outrate, seconds)
     plist = resolve_probes(first, probes)
     records = st.nsteps // st.rec_every + 1
-    try:  # the stacked output and one point's record buffer
-        require_memory(len(plist), records, len(names) * (len(points) + 1), st.precision,
-                       None)
+    largest = max(len(g) for g in points.groups)
+    try:  # the stacked output and the largest group's record buffer
+        require_memory(len(plist), records, len(names) * (len(points) + largest),
+                       st.precision, None)
     except UsageError as err:
         raise UsageError(f"{err.message}; the runs counted are {len(points)} point(s) x "
-                         f"{len(names)} run(s), and one point's buffer",
+                         f"{len(names)} run(s), and the buffer of {largest} point(s)",
                          hint=err.diagnostic.hint) from None
     if signals is not None:
         input_rate = 1.0 / tstep0  # read once at the input grid rate, not again per point
+    for point, checked in zip(points.points, points.checked):
+        _same_grid(checked.net, first, point, len(points))
+    call = dict(tstep=tstep, tstop=tstop, substeps=substeps, method=method,
+                precision=precision, outrate=outrate, probes=probes,
+                reductions=list(reductions), channel=channel, **options)
     out = _Stack(len(points))
     bar = _progress(len(points), progress)
-    for i, (point, checked) in enumerate(zip(points.points, points.checked)):
-        _same_grid(checked.net, first, point, len(points))
-        res = _one_point(point, len(points), checked, signals, input_rate, out.records,
-                         dict(tstep=tstep, tstop=tstop, substeps=substeps,
-                              method=method, precision=precision, outrate=outrate,
-                              probes=probes, reductions=list(reductions), channel=channel,
-                              **options))
-        out.add(i, res)
-        if bar is not None:
-            bar.update(1)
+    for group in points.groups:
+        if len(group) > 1:
+            try:
+                out.add_group(group, _lanes(points, group, signals, input_rate, call))
+                _tick(bar, len(group))
+                continue
+            except LanesRefused as why:
+                out.info["per_point"].append(str(why))
+        for i in group:
+            res = _one_point(points.points[i], len(points), points.checked[i], signals,
+                             input_rate, out.records, call)
+            out.add(i, res)
+            _tick(bar, 1)
     if bar is not None:
         bar.close()
     return PointsResult(out.t, out.probes, out.reductions, names, points.points, out.info)
+
+
+def _tick(bar, count: int) -> None:
+    if bar is not None:
+        bar.update(count)
+
+
+def _lanes(points: PointSet, group: tuple[int, ...], signals, input_rate,
+           call: dict) -> SimResult:
+    """One group's points in the lanes of one call (`simulate_lanes`), each named by its
+    point (a diverged run is '<input> at point ...')."""
+    count = len(points)
+    return simulate_lanes([points.checked[i] for i in group],
+                          [points.points[i].describe(count) for i in group], signals,
+                          input_rate, **call)
 
 
 class _Stack:
@@ -109,23 +138,46 @@ class _Stack:
         self.probes: dict[str, np.ndarray] = {}
         self.reductions: dict[str, np.ndarray] = {}
         self.records = None  # the record buffer each point records into after the first
-        self.info: dict = {"kernels": [], "compile_s": []}
+        # per point its kernel and the compile time of its call (0 for the other points
+        # of a call); the calls made; why a group ran point by point
+        self.info: dict = {"kernels": [""] * count, "compile_s": [0.0] * count, "calls": 0,
+                           "per_point": []}
+
+    def _first(self, res: SimResult, runs: int) -> None:
+        """The output arrays, shaped from the first result (`runs` of its runs per point)."""
+        if self.info.get("settings") is not None:
+            return
+        self.t = res.t
+        self.probes = {k: np.empty((self.count, runs, *v.shape[1:]), v.dtype)
+                       for k, v in res.probes.items()}
+        self.reductions = {k: np.empty((self.count, runs, *v.shape[1:]), v.dtype)
+                           for k, v in res.reductions.items()}
+        self.info["settings"] = res.info["settings"]
+
+    def add_group(self, group: tuple[int, ...], res: SimResult) -> None:
+        """A lanes call's result: run p*R + r is input r at the group's point p."""
+        runs = len(res.runs) // len(group)
+        self._first(res, runs)
+        idx = list(group)
+        for k, v in res.probes.items():
+            self.probes[k][idx] = v.reshape(len(group), runs, *v.shape[1:])
+        for k, v in res.reductions.items():
+            self.reductions[k][idx] = v.reshape(len(group), runs, *v.shape[1:])
+        for i in idx:
+            self.info["kernels"][i] = res.info["kernel"]
+        self.info["compile_s"][idx[0]] = res.info["compile_s"]
+        self.info["calls"] += 1
 
     def add(self, i: int, res: SimResult) -> None:
-        if i == 0:
-            self.t = res.t
-            self.probes = {k: np.empty((self.count, *v.shape), v.dtype)
-                           for k, v in res.probes.items()}
-            self.reductions = {k: np.empty((self.count, *v.shape), v.dtype)
-                               for k, v in res.reductions.items()}
-            self.info["settings"] = res.info["settings"]
+        self._first(res, len(res.runs))
         for k, v in res.probes.items():
             self.probes[k][i] = v  # copied out: the next point records into the same buffer
         for k, v in res.reductions.items():
             self.reductions[k][i] = v
         self.records = res.info["records"]
-        self.info["kernels"].append(res.info["kernel"])
-        self.info["compile_s"].append(res.info["compile_s"])
+        self.info["kernels"][i] = res.info["kernel"]
+        self.info["compile_s"][i] = res.info["compile_s"]
+        self.info["calls"] += 1
 
 
 def _one_point(point: Point, count: int, checked, signals, input_rate, records,

@@ -11,7 +11,7 @@ each, recording into one shared buffer); inside a batch, chunks of runs go to a 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -24,7 +24,7 @@ from springc.kernels.lower import kernel_netlist
 from springc.lang import physics
 from springc.sim import gpu, reductions, sources, thermal
 from springc.sim.audio import resample
-from springc.errors import DivergedRuns, UsageError
+from springc.errors import CheckError, DivergedRuns, UsageError
 from springc.kernels.integrators import DEFAULT_METHOD, TABLEAUX, get_tableau, max_stable_step
 from springc.check.checks import CheckedNetlist, require_checked
 from springc.lang.ir import FlatNetlist, Probe
@@ -206,12 +206,55 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
     'cpu', 'cuda' (the CUDA kernel form, `springc.sim.gpu`; UsageError where no GPU is) or
     'auto' (CUDA where a GPU is present); on CUDA every run is one batch unless `batch` is
     given."""
-    net = thermal.with_overrides(require_checked(checked, "simulate").net, temp, seed)
+    options = {k: v for k, v in locals().items() if k not in ("checked", "inputs",
+                                                               "input_rate")}
+    return _simulate([require_checked(checked, "simulate")], None, inputs, input_rate,
+                     **options)
+
+
+class LanesRefused(Exception):
+    """Netlists that one kernel call cannot take in its lanes (the reason in words): the
+    caller simulates them one call each."""
+
+
+def simulate_lanes(members: Sequence[CheckedNetlist], labels: Sequence[str], inputs=None,
+                   input_rate: float | None = None, **options) -> SimResult:
+    """Every input on every member netlist in the lanes of one kernel call per batch: the
+    members (the points of one structure of a `.step`/`.mc` netlist) differ in element
+    coefficients only. Run p*R + r is input r on member p, named '<input> at <label p>'
+    (`labels`: how messages name the members; a member's step-limit error names it too).
+    The coefficient arrays that differ between members are passed with a column per run
+    (`codegen.KernelOptions.per_run`), the others shared, so the kernel is that of the
+    members' structure and nothing is compiled per member. The lane width comes from the
+    number of runs and a batch is rounded up to whole chunks, so that each run's lane, and
+    its result to the bit, is the same whatever the batch and the threads. `options`:
+    `simulate`'s. Raises `LanesRefused` (before any work) where the members cannot share a
+    call: the CUDA form, thermal noise (its streams are numbered by run), input-work and
+    dissipation reductions (the kernel reads the coefficients in them), and an exponential
+    scheme whose exact blocks differ between members."""
+    if len(members) != len(labels):
+        raise ValueError("one label per member")
+    nets = [require_checked(m, "simulate_lanes") for m in members]
+    return _simulate(nets, list(labels), inputs, input_rate, **options)
+
+
+def _simulate(group: list[CheckedNetlist], labels: list[str] | None, inputs, input_rate, *,
+              tstep=None, tstop=None, substeps=None, method=None, precision=None, outrate=None,
+              probes=None, reductions=(), batch=None, channel=None, progress=False,
+              chunk=None, write_out=None, record_into=None, check_step=True,
+              node_threads=None, temp=None, seed=None, device="cpu") -> SimResult:
+    """`simulate` of the first netlist of `group` or, with `labels`, `simulate_lanes` of
+    them all."""
+    nets = [thermal.with_overrides(c.net, temp, seed) for c in group]
+    net = nets[0]
     tstep0 = tstep or (net.tran.tstep if net.tran else None)
     signals, names, seconds = _gather_inputs(net, inputs, input_rate, tstep0, channel)
     st = settings(net, tstep, tstop, substeps, method, precision, outrate, seconds)
     if check_step:
-        checked.require_stable(st.method, st.h, st.substeps)
+        _require_stable(group, labels, st)
+    reps = len(names)
+    if labels is not None:
+        names = [f"{name} at {label}" for label in labels for name in names]
     plist = resolve_probes(net, probes)
     rplan = reductions_plan(list(reductions), net)
     require_memory(len(plist), st.nsteps // st.rec_every + 1, len(names), st.precision,
@@ -219,20 +262,32 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
     dev = gpu.resolve(device)
     if dev == "cuda" and device == "auto" and not gpu.serves(net, st.method):
         dev = "cpu"  # auto: the CPU where the CUDA form does not run the method or the noise
+    if labels is not None:
+        _lanes_serve(net, rplan, dev)
     if dev == "cuda":
         gpu.require(net, st.method)
     if batch is None and dev == "cuda":  # the GPU takes every run in one launch
         batch = len(names)
     batch = batch_size(batch)
     task = task_runs(len(names), batch, chunk)
+    width = codegen.choose_lanes(task)
+    if labels is not None:
+        # a run's lane, and so its rounding, whatever the batch and the threads: the width
+        # from all the runs, and batches of whole chunks
+        width = codegen.choose_lanes(len(names))
+        batch = -(-batch // width) * width
     knet = kernel_netlist(net)  # the same forces, cheaper terms
     coeffs = kernel_arrays(knet, st, np.dtype(st.precision))
+    lanes = None if labels is None else lane_arrays(nets, coeffs, st, reps)
+    if lanes is not None:
+        coeffs = {**coeffs, **lanes.per_run}
     if thermal.temperature(net) > 0:
         coeffs.update(thermal.noise_arrays(net, st.h, np.dtype(st.precision)))
-    opts = codegen.KernelOptions(st.method, st.precision, codegen.choose_lanes(task),
+    opts = codegen.KernelOptions(st.method, st.precision, width,
                                  record=bool(plist), work=rplan.work,
                                  dissipation=bool(rplan.damper_rows), msq=bool(rplan.msq),
-                                 gram=bool(rplan.gram))
+                                 gram=bool(rplan.gram),
+                                 per_run=tuple(sorted(lanes.per_run)) if lanes else ())
     opts = kernel_form(knet, opts, coeffs, st, len(names), write_out, node_threads)
     if opts.parallel:
         coeffs = {**coeffs, **terms.node_ends(coeffs, knet.n)}
@@ -243,10 +298,73 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
     rec = _records(len(plist), st.nsteps // st.rec_every + 1, len(names),
                    np.dtype(st.precision), record_into)
     out = _run_batches(net, kernel, st, coeffs, signals, names, plist, rplan, batch, task,
-                       progress, rec)
+                       progress, rec, lanes)
     out.info.update(wall_s=time.perf_counter() - start, kernel=str(kernel.path),
                     compile_s=kernel.compile_s, settings=st, records=rec)
     return out
+
+
+def _require_stable(group: list[CheckedNetlist], labels: list[str] | None,
+                    st: Settings) -> None:
+    """Every netlist's step within its stability limit; a member's error names its label."""
+    for k, member in enumerate(group):
+        try:
+            member.require_stable(st.method, st.h, st.substeps)
+        except CheckError as err:
+            if labels is None:
+                raise
+            raise CheckError([replace(d, message=f"{d.message} at {labels[k]}")
+                              for d in err.diagnostics]) from None
+
+
+def _lanes_serve(net: FlatNetlist, rplan, dev: str) -> None:
+    """Raise `LanesRefused` where the members cannot share a kernel call (`simulate_lanes`)."""
+    if dev == "cuda":
+        raise LanesRefused("the CUDA form takes no per-run coefficients")
+    if thermal.temperature(net) > 0:
+        raise LanesRefused("thermal noise: its draws are numbered by the run")
+    if rplan.work or rplan.damper_rows:
+        raise LanesRefused("input work and dissipation sums read the element coefficients")
+
+
+@dataclass
+class Lanes:
+    """The runs of several netlists of one structure in one call: run p*reps + r is input r on
+    netlist p. `per_run`: the coefficient arrays that differ between the netlists, a column
+    per run (entries, runs); `x0`, `v0`: every run's initial state (n, runs)."""
+
+    nets: list[FlatNetlist]
+    reps: int
+    per_run: dict[str, np.ndarray]
+    x0: np.ndarray
+    v0: np.ndarray
+
+    def members(self, lo: int, hi: int) -> np.ndarray:
+        """The netlist of each run lo..hi-1."""
+        return np.arange(lo, hi) // self.reps
+
+
+def lane_arrays(nets: list[FlatNetlist], coeffs: dict, st: Settings, reps: int) -> Lanes:
+    """The per-run arrays of `nets` (the first's kernel arrays `coeffs`): each coefficient
+    array equal in every netlist stays shared, the others get a column per run. Arrays other
+    than the force coefficients (an exponential scheme's blocks, the index arrays) must be
+    equal (`LanesRefused`)."""
+    dtype = np.dtype(st.precision)
+    others = [kernel_arrays(kernel_netlist(n), st, dtype) for n in nets[1:]]
+    allowed = codegen.coefficient_names()
+    per_run = {}
+    for key, first in coeffs.items():
+        columns = [first] + [o[key] for o in others]
+        if key == "fi_w" or all(np.array_equal(first, col) for col in columns[1:]):
+            continue  # (fi_w: the Lawson work sums' gains; work runs point by point)
+        if key not in allowed:
+            why = ("the exponential scheme's exact blocks differ between points"
+                   if expint.is_split(st.method) else f"the kernel array {key} differs")
+            raise LanesRefused(why)
+        per_run[key] = np.ascontiguousarray(np.repeat(np.stack(columns, 1), reps, 1))
+    x0, v0 = (np.repeat(np.stack(s, 1), reps, 1)
+              for s in zip(*(n.initial_state() for n in nets)))
+    return Lanes(nets, reps, per_run, x0, v0)
 
 
 def _records(probes: int, records: int, runs: int, dtype, reuse: np.ndarray | None
@@ -277,7 +395,7 @@ def kernel_form(net: FlatNetlist, opts: codegen.KernelOptions, coeffs: dict, st:
     (`springc.kernels.regkernel`) where the force code would be written out (`written_out`),
     and for chunks of one run of a small network (`REGISTER_ALWAYS`) unless `write_out` is
     False; else the per-node terms of `written_out` (None: the shared kernel)."""
-    if split_nodes(net, st, runs, node_threads):
+    if not opts.per_run and split_nodes(net, st, runs, node_threads):
         return replace(opts, parallel=True, lanes=codegen.choose_lanes(runs))
     nodes = written_out(net, coeffs, st, runs, write_out)
     small = (opts.lanes == 1 and net.n <= regkernel.REGISTER_ALWAYS
@@ -388,10 +506,10 @@ def threads() -> int:
 
 
 def _run_batches(net, kernel, st: Settings, coeffs, signals, names, plist, rplan, batch, task,
-                 progress, rec: np.ndarray) -> SimResult:
+                 progress, rec: np.ndarray, lanes: Lanes | None = None) -> SimResult:
     """The kernel calls, batch by batch, all recording into `rec` (one record for all the
     calls, each writing its own runs' rows: no copy at the end, a recording at every step is
-    hundreds of MB)."""
+    hundreds of MB). With `lanes`, run r reads input r % reps."""
     runs = len(names)
     dtype = np.dtype(st.precision)
     tab = stage_tableau(st.method)
@@ -401,9 +519,9 @@ def _run_batches(net, kernel, st: Settings, coeffs, signals, names, plist, rplan
     bar = _progress(runs, progress)
     for lo in range(0, runs, batch):
         hi = min(runs, lo + batch)
-        part = None if signals is None else signals[lo:hi]
+        part = None if signals is None else _batch_inputs(signals, lo, hi)
         chunks.append(_run_one_batch(net, kernel, st, part, hi - lo, coeffs, g, plist, rec, lo,
-                                     rplan, task, names[lo:hi]))
+                                     rplan, task, names[lo:hi], lanes))
         if bar is not None:
             bar.update(hi - lo)
     if bar is not None:
@@ -413,6 +531,14 @@ def _run_batches(net, kernel, st: Settings, coeffs, signals, names, plist, rplan
     join = (lambda parts: parts[0]) if len(chunks) == 1 else np.concatenate
     reds = {k: join([c[k] for c in chunks]) for k in chunks[0]}
     return SimResult(t, probes, reds, list(names))
+
+
+def _batch_inputs(signals: np.ndarray, lo: int, hi: int) -> np.ndarray:
+    """The inputs of runs lo..hi-1, run r reading input r % len(signals) (the members of
+    `simulate_lanes` share the inputs)."""
+    if hi <= len(signals):
+        return signals[lo:hi]
+    return signals[np.arange(lo, hi) % len(signals)]
 
 
 def batch_size(batch: int | None) -> int:
@@ -431,17 +557,23 @@ def _progress(runs: int, enabled: bool):
 
 
 def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rec, col, rplan, task,
-                   names):
+                   names, lanes: Lanes | None = None):
     """Simulate `runs` runs in one kernel call (their probes into rows col.. of `rec`);
-    returns the reductions."""
+    returns the reductions. With `lanes`, runs col.. of its per-run arrays."""
     dtype = np.dtype(st.precision)
-    x0, v0 = net.initial_state()
+    if lanes is None:
+        x0, v0 = (np.repeat(s[:, None], runs, 1) for s in net.initial_state())
+    else:
+        x0, v0 = lanes.x0[:, col:col + runs], lanes.v0[:, col:col + runs]
     nch = sources.channels_used(net)
     nsamples = st.nsteps // st.substeps + 1
     args = dict(coeffs)
+    if lanes is not None:
+        args.update({k: np.ascontiguousarray(v[:, col:col + runs])
+                     for k, v in lanes.per_run.items()})
     args.update(
-        x0=np.repeat(x0[:, None], runs, 1).astype(dtype),
-        v0=np.repeat(v0[:, None], runs, 1).astype(dtype),
+        x0=np.ascontiguousarray(x0, dtype),
+        v0=np.ascontiguousarray(v0, dtype),
         u=sources.kernel_inputs(signals, runs, nch, nsamples, dtype), g=g,
         nsteps=st.nsteps, substeps=st.substeps, h=st.h,
         chunk=kernel.module.LANES,
@@ -473,7 +605,9 @@ def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rec, col, r
     work[sources.input_forces(net)] = args["work_in"]
     work[sources.common_forces(net)] = args["work_c"]
     with np.errstate(all="ignore"):  # a diverged run's sums are NaN; the others are kept
-        out = _finish_reductions(net, rplan, args, work, wins, st)
+        out = _finish_reductions(net, rplan, args, work, wins, st,
+                                 None if lanes is None else lanes.members(col, col + runs),
+                                 None if lanes is None else lanes.nets)
     _check_divergence(net, st, args, names, out)
     return out
 
@@ -570,7 +704,8 @@ def on_threads(count: int, call: Callable[[int], None]) -> None:
         list(pool.map(call, range(count)))
 
 
-def _finish_reductions(net, rplan, args, work, wins, st) -> dict[str, np.ndarray]:
+def _finish_reductions(net, rplan, args, work, wins, st, members=None,
+                       nets=None) -> dict[str, np.ndarray]:
     xf, vf = args["xf"].astype(np.float64), args["vf"].astype(np.float64)
     out: dict[str, np.ndarray] = {}
     msq_rows = {r.spec: k for k, r in enumerate(rplan.msq)}
@@ -589,6 +724,11 @@ def _finish_reductions(net, rplan, args, work, wins, st) -> dict[str, np.ndarray
                 diss = _dissipated(args, rplan, r.spec, xf.shape[-1])
                 with np.errstate(divide="ignore", invalid="ignore"):
                     out[r.spec] = -10.0 * np.log10(diss / work.sum(axis=0))
+            case "energy" if members is not None:  # each run's own netlist
+                out[r.spec] = np.empty(xf.shape[-1])
+                for m in np.unique(members):
+                    cols = members == m
+                    out[r.spec][cols] = physics.energy(nets[m], xf[:, cols], vf[:, cols])
             case "energy":
                 out[r.spec] = physics.energy(net, xf, vf)
             case "gram":

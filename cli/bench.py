@@ -40,9 +40,14 @@ CASE_NAMES = ("feature", "kws", "delay", "stiff", "duffing", "kws-features", "kw
               help="Instead: time of each stage for chains and lattices of 10^3 to 10^6 "
                    "masses, and ngspice on the chain (springc.bench.scaling); writes "
                    "OUT/scaling.md, .json and .png. With --quick: 10^3 and 10^4, 100 steps.")
+@click.option("--population", is_flag=True,
+              help="Instead: 256 Monte Carlo samples of a 500-mass chain in the lanes of one "
+                   "call against 256 runs of the nominal chain, and scipy per sample "
+                   "(springc.bench.population); writes OUT/bench-population.md and "
+                   "OUT/bench/population.json. With --quick: 50 masses, 32 samples.")
 @run_user_errors
 def bench_cmd(case_names, outdir, quick, render_from, issue3, seconds, batch, stretch,
-              json_path, scaling):
+              json_path, scaling, population):
     """Speed against error: on each reference network (feature extractor, 8x3 keyword
     spotter, long delay line, stiff all-to-all block, hard-driven Duffing resonator) every
     integrator at several steps and float64/float32, and the peers (scipy RK45/DOP853 at rtol
@@ -55,6 +60,9 @@ def bench_cmd(case_names, outdir, quick, render_from, issue3, seconds, batch, st
         return
     if scaling:
         _scaling(Path(outdir), quick)
+        return
+    if population:
+        _population(Path(outdir), quick)
         return
     from springc.bench import report
     from springc.bench import suite as benchsuite
@@ -87,6 +95,14 @@ def _issue3(seconds, batch, stretch, json_path) -> None:
     write_json(result, json_path)
     click.echo(markdown(result))
     click.echo(f"\n(JSON: {json_path})")
+
+
+def _population(outdir: Path, quick: bool) -> None:
+    from springc.bench import population
+
+    sizes = dict(masses=50, samples=32, tstop=0.1, scipy_samples=1) if quick else {}
+    result = population.run_population(**sizes, progress=lambda m: click.echo(m, err=True))
+    _echo(population.write_report(result, outdir))
 
 
 def _scaling(outdir: Path, quick: bool) -> None:

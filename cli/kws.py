@@ -9,6 +9,7 @@ import click
 from springc_cli.common import run_user_errors
 
 from springc.kws.data.dataset import PROTOCOLS
+from springc.kws.evaluation.device import SPREAD_KINDS, STAGES
 from springc.kws.features.digital import FILTERBANKS, FeatureSettings
 from springc.kws.training.report import counts_table, majority_rate
 from springc.kws.data.task import TASKS
@@ -134,14 +135,59 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
 @click.option("--budget", type=click.IntRange(min=1), default=None, metavar="N",
               help="Mass-spring models: instead, print where the input work goes (energy "
                    "dissipated per stage) over the first N test clips.")
+@click.option("--mc", "devices", type=int, default=None, metavar="N",
+              help="Mass-spring models: instead, the accuracy of N fabricated devices, every "
+                   "element coefficient of the whole network times (1 + S gauss).")
+@click.option("--spread", type=float, default=None, metavar="S",
+              help="With --mc: relative standard deviation of the coefficients (0.01: 1%).")
+@click.option("--spread-kind", type=click.Choice(SPREAD_KINDS), default=None,
+              help="With --mc: local mismatch (a draw per element) or global (one draw per "
+                   "kind of coefficient).  [default: local]")
+@click.option("--stage", type=click.Choice(STAGES + ("all",)), default=None,
+              help="With --mc: spread only this stage's coefficients.  [default: all]")
+@click.option("--temp", type=float, default=None, metavar="K",
+              help="Mass-spring models: instead, the network at physical scale (with --mass, "
+                   "--spl, --area) with thermal noise on every damper at K kelvin.")
+@click.option("--mass", type=float, default=None, metavar="KG",
+              help="With --temp: kg per normalised mass unit.")
+@click.option("--spl", type=float, default=None, metavar="DB",
+              help="With --temp: sound level of the clips, dB SPL re 20 uPa.")
+@click.option("--area", type=float, default=None, metavar="M2",
+              help="With --temp: membrane area in m^2 (input force = pressure x area).")
+@click.option("--seed", type=int, default=None,
+              help="Seed of the --mc devices or the --temp noise.  [default: 0]")
+@click.option("--clips", type=click.IntRange(min=1), default=None, metavar="N",
+              help="With --mc or --temp: N test clips spread evenly over the split.")
 @_SCHEDULER
 @run_user_errors
 def eval_cmd(model_dir, data, realisation, protocol, as_json, jobs, no_cache, scheduler,
-             budget) -> None:
+             budget, devices, spread, spread_kind, stage, temp, mass, spl, area, seed,
+             clips) -> None:
     """Evaluate a trained model on the test split of a labelled folder in the GSCD layout:
-    the clips testing_list.txt names, or every clip where the folder has no such list."""
+    the clips testing_list.txt names, or every clip where the folder has no such list.
+    --mc/--spread: a population of fabricated devices; --temp/--mass/--spl/--area: the
+    device at physical scale with thermal noise."""
+    from springc.errors import UsageError
+    from springc.kws.evaluation import device
     from springc.kws.evaluation.evaluate import evaluate
 
+    which = device.study(devices, spread, spread_kind, stage, seed, temp, mass, spl, area)
+    if which is not None or clips is not None:
+        if which is None or budget:
+            raise UsageError("--clips goes with --mc or --temp" if which is None else
+                             "--budget is a study of its own; drop --mc/--temp or --budget")
+        if realisation not in (None, "mass-spring"):
+            raise UsageError("a device is a mass-spring network: --realisation mass-spring")
+        setup = device.load_setup(model_dir, data, clips, protocol)
+        if isinstance(which, device.Spread):
+            report = device.evaluate_spread(setup, devices, which, scheduler=scheduler,
+                                            jobs=jobs, progress=lambda s: click.echo(s, err=True))
+            lines = device.spread_lines(report, which)
+        else:
+            report = device.evaluate_physical(setup, which, scheduler=scheduler, jobs=jobs)
+            lines = device.physical_lines(report, which)
+        click.echo(json.dumps(report) if as_json else "\n".join(lines))
+        return
     if budget:
         from springc.kws.evaluation import energy
         from springc.kws.evaluation.evaluate import budget_signals

@@ -1,0 +1,189 @@
+"""The keyword spotter as a fabricated device (`springc.kws.evaluation.device`): the spread
+transform at netlist level (zero spread is the design, seeds reproduce, the factors have the
+requested statistics and are the language's draws), the physical-scale transform (without
+noise the features and decisions of the normalised network, after converting units), and
+`springc eval`'s refusals of bad options."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from scipy.signal import chirp
+
+from springc.errors import UsageError
+from springc.kws.evaluation import device as dv
+from springc.kws.features import integration
+from springc.kws.features import massspring as msp
+from springc.kws.training import transfer as tr
+from springc.lang import load_text, parse, read_variation
+from springc_cli.main import main
+from shared_cache import KERNELS
+
+S = msp.MassSpringSettings(bins=2, delays=1)
+
+
+@pytest.fixture(scope="module")
+def heads():
+    return tr.stand_in_heads(S, rows=2)
+
+
+@pytest.fixture(scope="module")
+def net(heads):
+    return load_text(tr.classifier_text(heads, S, epsilon=tr.DEFAULT_EPSILON), "<classifier>")
+
+
+def coefficients(net) -> dict[tuple[str, str], np.ndarray]:
+    return {(t, k): getattr(getattr(net, t), k) for t, k in dv.FABRICATED}
+
+
+def test_every_element_of_the_classifier_has_a_stage(net):
+    seen = set()
+    for table, _ in dv.FABRICATED:
+        found = dv.stages(net, table)
+        assert "" not in found
+        seen |= set(found)
+    assert seen == set(dv.STAGES)
+    assert dv.stage_of("Xh3.Xm.M2") == "couplings" and dv.stage_of("Xh0.Qy1") == "couplings"
+    assert dv.stage_of("Xh1.Xr.Mr") == "readouts" and dv.stage_of("Xd1_0.Min") == "delays"
+    assert dv.stage_of("Xq0.Qsq") == "compressors" and dv.stage_of("Mstray") is None
+
+
+def test_zero_spread_is_the_nominal_design_bit_for_bit(net):
+    assert dv.fabricate(net, dv.Spread(0.0, seed=3), 5).text() == net.text()
+    for (t, k), v in coefficients(dv.fabricate(net, dv.Spread(0.0, "global"), 2)).items():
+        assert np.array_equal(v, getattr(getattr(net, t), k))
+
+
+def test_one_stage_spreads_its_own_coefficients_only(net):
+    device = dv.fabricate(net, dv.Spread(0.05, stage="readouts"), 1)
+    changed = 0
+    for (t, k), v in coefficients(device).items():
+        inside = dv.stages(net, t) == "readouts"
+        nominal = getattr(getattr(net, t), k)
+        assert np.array_equal(v[~inside], nominal[~inside])
+        changed += int(np.sum(v[inside] != nominal[inside]))
+    assert changed > 0
+
+
+def test_the_same_seed_makes_the_same_devices(net):
+    spread = dv.Spread(0.01, seed=11)
+    a, b = dv.fabricate(net, spread, 4), dv.fabricate(net, spread, 4)
+    assert a.text() == b.text()
+    assert dv.fabricate(net, spread, 5).text() != a.text()
+    assert dv.fabricate(net, dv.Spread(0.01, seed=12), 4).text() != a.text()
+
+
+def test_local_factors_have_the_requested_mean_and_deviation(net):
+    sigma = 0.003
+    f = np.concatenate([v.ravel() for v in
+                        dv.factors(net, dv.Spread(sigma), np.arange(300)).values()])
+    n = f.size
+    assert n > 30000
+    assert abs(f.mean() - 1) < 3 * sigma / math.sqrt(n)
+    assert abs(f.std() - sigma) < 3 * sigma / math.sqrt(2 * n)
+    # independent per element: two elements' factors over the devices are uncorrelated
+    m = dv.factors(net, dv.Spread(sigma), np.arange(300))[("masses", "m")]
+    assert abs(np.corrcoef(m[:, 0], m[:, 1])[0, 1]) < 3 / math.sqrt(300)
+
+
+def test_global_factors_draw_once_per_kind(net):
+    sigma = 0.02
+    table = dv.factors(net, dv.Spread(sigma, "global"), np.arange(3000))
+    springs, masses = table[("springs", "k")], table[("masses", "m")]
+    assert np.all(springs == springs[:, :1]) and np.all(masses == masses[:, :1])
+    assert not np.array_equal(springs[:, 0], masses[:, 0])
+    z = springs[:, 0]
+    assert abs(z.mean() - 1) < 3 * sigma / math.sqrt(len(z))
+    assert abs(z.std() - sigma) < 3 * sigma / math.sqrt(2 * len(z))
+
+
+def test_a_device_is_gauss_written_in_every_element_value():
+    """Device k's coefficient is what `.mc` sample k draws for gauss(nom, S) written in the
+    same element's value (nom (1 + S z) against nom + |nom| S z: round-off apart)."""
+    text = "X1 a cell\n.subckt cell a\nM1 a m={{{m}}} b=0.5\nK1 a k=3\n.ends cell\n.tran 1m 10m\n"
+    random = read_variation(parse(text.format(m="gauss(2, 0.05)") + ".mc 4 seed=7\n", "<r>"))
+    nominal = load_text(text.format(m="2"), "<n>")
+    for point in random.points():
+        want = random.netlist(point).masses.m
+        got = dv.fabricate(nominal, dv.Spread(0.05, seed=7), point.sample).masses.m
+        np.testing.assert_allclose(got, want, rtol=1e-14)
+        assert got[0] != 2.0
+
+
+def test_a_spread_too_wide_for_a_factor_is_refused(net):
+    with pytest.raises(UsageError, match="too wide"):
+        dv.fabricate(net, dv.Spread(1.0), 0)
+
+
+def test_physical_scale_sets_the_acoustic_force_and_every_mass(net):
+    phys = dv.Physical(temp=300.0, mass=1e-9, spl=60.0, area=1e-6)
+    scaled, lam = dv.physical_network(net, phys)
+    driven = np.array([s.kind == "in" for s in net.forces.source])
+    gains = scaled.forces.gain[driven]
+    assert np.isclose(np.abs(gains).max(), 20e-6 * 1e3 * 1e-6, rtol=1e-12)  # p A at 60 dB
+    np.testing.assert_allclose(scaled.masses.m, 1e-9 * net.masses.m, rtol=1e-15)
+    # the in gains are the scaled ones: the displacement scale is what the force implies
+    np.testing.assert_allclose(gains, net.forces.gain[driven] * 1e-9 * lam, rtol=1e-12)
+
+
+def words() -> np.ndarray:
+    """Two 0.12 s chirps at 16 kHz, at the level of the corpus's clips."""
+    t = np.arange(1920) / 16000
+    env = np.sin(np.pi * t / 0.12) ** 2
+    return np.stack([0.3 * env * chirp(t, 300, 0.12, 2500, method="logarithmic"),
+                     0.5 * env * chirp(t, 2500, 0.12, 300, method="logarithmic")])
+
+
+@pytest.fixture(scope="module")
+def _kernel_cache():
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("SPRINGC_CACHE", str(KERNELS))
+        yield
+
+
+def test_without_noise_the_physical_network_is_the_normalised_one(net, heads, _kernel_cache):
+    setup = dv.Setup(None, S, heads, net, integration.Integration("exp-rk4", 2, "float64"),
+                     words(), np.array(["c0", "c1"]))
+    ref = dv.outputs(setup, net, phi=True, jobs=1)
+    phys = dv.Physical(temp=0.0, mass=1e-9, spl=60.0, area=1e-6)
+    scaled, lam = dv.physical_network(net, phys)
+    got = dv.outputs(setup, scaled, lam=lam, temp=phys.temp, phi=True, jobs=1)
+    assert lam < 1e-9 and np.abs(ref["phi"]).max() > 0
+    for key in ("phi", "decisions"):
+        err = np.abs(got[key] - ref[key]).max() / np.abs(ref[key]).max()
+        assert err < 1e-9, (key, err)
+
+
+def test_the_snr_of_the_features():
+    clean = np.array([[1.0, 2.0], [3.0, -4.0]])
+    snr = dv.phi_snr_db(clean, clean * 1.1)  # noise a tenth of the signal: 20 dB everywhere
+    assert snr == pytest.approx({"median": 20.0, "worst": 20.0, "pooled": 20.0})
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--temp", "-1", "--mass", "1e-9", "--spl", "60", "--area", "1e-6"],
+     "--temp must be a finite temperature >= 0 K, not -1"),
+    (["--temp", "nan", "--mass", "1e-9", "--spl", "60", "--area", "1e-6"], "not nan"),
+    (["--temp", "300", "--mass", "0", "--spl", "60", "--area", "1e-6"],
+     "--mass must be a positive finite number of kg, not 0"),
+    (["--temp", "300", "--mass", "1e-9", "--spl", "inf", "--area", "1e-6"],
+     "--spl must be a finite level in dB"),
+    (["--temp", "300", "--mass", "1e-9", "--spl", "60", "--area", "-1e-6"],
+     "--area must be a positive finite number of m^2"),
+    (["--temp", "300"], "--temp also needs --mass and --spl and --area"),
+    (["--mc", "4"], "--mc also needs --spread"),
+    (["--spread", "0.01"], "--spread also needs --mc"),
+    (["--mc", "4", "--spread", "-0.01"], "--spread must be a finite relative deviation >= 0"),
+    (["--mc", "0", "--spread", "0.01"], "--mc must be at least 1 device, not 0"),
+    (["--mc", "2", "--spread", "0.01", "--seed", "-1"], "--seed must be an integer from 0"),
+    (["--mc", "2", "--spread", "0.01", "--temp", "300"], "are separate studies"),
+    (["--seed", "3"], "--seed draws the devices of --mc or the noise of --temp"),
+    (["--clips", "3"], "--clips goes with --mc or --temp"),
+])
+def test_bad_options_exit_1_with_a_clear_message(tmp_path, args, message):
+    result = CliRunner().invoke(main, ["eval", str(tmp_path / "model"), *args])
+    assert result.exit_code == 1, result.output
+    assert message in result.output and "Traceback" not in result.output

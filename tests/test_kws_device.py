@@ -13,6 +13,7 @@ import pytest
 from click.testing import CliRunner
 from scipy.signal import chirp
 
+from springc.check import check
 from springc.errors import UsageError
 from springc.kws.evaluation import device as dv
 from springc.kws.features import integration
@@ -144,17 +145,24 @@ def _kernel_cache():
         yield
 
 
-def test_without_noise_the_physical_network_is_the_normalised_one(net, heads, _kernel_cache):
-    setup = dv.Setup(None, S, heads, net, integration.Integration("exp-rk4", 2, "float64"),
-                     words(), np.array(["c0", "c1"]))
-    ref = dv.outputs(setup, net, phi=True, jobs=1)
+def test_without_noise_the_physical_network_is_the_normalised_one(_kernel_cache):
+    """Phi of the feature network (2 x 1) at physical scale, divided by lambda^2, is Phi of
+    the normalised network (the kernel of test_kws_integration's RK4 x16 reference)."""
+    net = msp.feature_network(S)
+    plan = integration.Integration("rk4", 16, "float64")
+    sig = words()
+    items = np.column_stack([np.arange(len(sig)), sig])
+    tstop = msp.horizon(S, sig.shape[1] / msp.INPUT_RATE)
+
+    def phi(network, temp=None):
+        return dv.network_batch(items, check(network), [msp.phi_reduction(network, S)],
+                                tstop, plan, S, temp=temp)["phi"]
+
     phys = dv.Physical(temp=0.0, mass=1e-9, spl=60.0, area=1e-6)
     scaled, lam = dv.physical_network(net, phys)
-    got = dv.outputs(setup, scaled, lam=lam, temp=phys.temp, phi=True, jobs=1)
-    assert lam < 1e-9 and np.abs(ref["phi"]).max() > 0
-    for key in ("phi", "decisions"):
-        err = np.abs(got[key] - ref[key]).max() / np.abs(ref[key]).max()
-        assert err < 1e-9, (key, err)
+    ref, got = phi(net), phi(scaled, phys.temp) / lam**2
+    assert lam < 1e-6 and np.abs(ref).max() > 0
+    assert np.abs(got - ref).max() < 1e-9 * np.abs(ref).max()
 
 
 def test_the_snr_of_the_features():

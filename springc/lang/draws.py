@@ -13,7 +13,7 @@ is the vectorised one at one sample, so the two agree bitwise.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -90,10 +90,13 @@ def values(func: str, args: list[float], seed: int, samples, path: str, key: str
 
 @dataclass(frozen=True, slots=True)
 class Sample:
-    """One Monte Carlo sample: its index and the seed of the population."""
+    """One Monte Carlo sample: its index and the seed of the population; `log`, where given,
+    collects every draw's (path, key, n, func, args) in the order drawn (for
+    `springc.lang.variation`, which draws a whole population of an elaboration at once)."""
 
     index: int
     seed: int
+    log: list | None = field(default=None, compare=False)
 
 
 class Site:
@@ -120,6 +123,8 @@ class Site:
             raise TypeError(f"internal error: {func}() at {loc} evaluated outside a value")
         n, self.count = self.count, self.count + 1
         s = self.sample
+        if s.log is not None:
+            s.log.append((self.path, self.key, n, func, tuple(args)))
         return float(values(func, args, s.seed, [s.index], self.path, self.key, n)[0])
 
 

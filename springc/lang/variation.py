@@ -159,11 +159,127 @@ class Variation:
         if nominal is None:
             nominal = self.nominal()
         points = self.points(int(nominal.options.get("seed", 0)))
-        nets = tuple(self.netlist(p) for p in points)
+        direct = self.samples is not None and direct_draws(self.statements)
+        nets: list[FlatNetlist] = []
         groups: dict[str, list[int]] = {}
-        for i, net in enumerate(nets):
-            groups.setdefault(structure(net), []).append(i)
-        return PointSet(tuple(points), nets, tuple(tuple(g) for g in groups.values()))
+        for run in _runs(points):
+            made = self._population(run) if direct else None
+            if made is None:  # each point elaborated alone
+                made = [self.netlist(p) for p in run]
+                shapes = [structure(net) for net in made]
+            else:  # the samples of one elaboration: its structure
+                shapes = [structure(made[0])] * len(made)
+            for point, net, shape in zip(run, made, shapes):
+                nets.append(net)
+                groups.setdefault(shape, []).append(point.index)
+        return PointSet(tuple(points), tuple(nets), tuple(tuple(g) for g in groups.values()))
+
+    def _population(self, run: list[Point]) -> list[FlatNetlist] | None:
+        """The netlists of `run` (the samples of one step point) from one elaboration: the
+        first sample elaborated with its draws logged, every logged draw then drawn for all
+        the samples at once (`draws.values`, the function a sample's own elaboration calls)
+        and written into its coefficient. Only for netlists whose every random call is the
+        whole value of an element's key (`direct_draws`), so that a draw is the coefficient;
+        None where a draw is not finite (the point's own elaboration says where)."""
+        first = run[0]
+        log: list = []
+        sample = draws.Sample(first.sample, first.seed, log)
+        stmts = set_params(self.statements, dict(first.steps))
+        try:
+            net = elaborate(ast.Netlist(self.file, tuple(stmts)), self.lib_dirs, sample)
+        except NetlistError as err:
+            raise NetlistError(f"{err.message} at {first.describe(self.count)}", err.loc,
+                               err.diagnostic.hint) from None
+        samples = np.array([p.sample for p in run], np.int64)
+        columns = _drawn_columns(net, log, first.seed, samples)
+        if columns is None:
+            return None
+        return [_with_columns(net, columns, s) for s in range(len(run))]
+
+
+def _runs(points: list[Point]) -> Iterator[list[Point]]:
+    """The points in runs of equal step values (the samples of one step point)."""
+    for _, run in itertools.groupby(points, key=lambda p: p.steps):
+        yield list(run)
+
+
+# element letter -> FlatNetlist table attribute
+_TABLES = {"M": "masses", "K": "springs", "D": "duffings", "C": "couplings", "Q": "quads",
+           "B": "dashpots", "P": "monomials", "F": "forces"}
+
+
+def _drawn_columns(net: FlatNetlist, log: list, seed: int,
+                   samples: np.ndarray) -> dict | None:
+    """(table, field) -> (samples, elements) coefficients with every logged draw drawn for
+    all `samples`; None where a draw is not finite (an overflow error of that sample)."""
+    rows: dict[str, dict[str, int]] = {}
+    columns: dict[tuple[str, str], np.ndarray] = {}
+    for path, key, n, func, args in log:
+        letter = path.rsplit(".", 1)[-1][0].upper()
+        table = _TABLES[letter]
+        tab = getattr(net, table)
+        if table not in rows:
+            rows[table] = {name: e for e, name in enumerate(tab.names)}
+        if (table, key) not in columns:
+            columns[table, key] = np.repeat(getattr(tab, key)[None, :], len(samples), 0)
+        drawn = draws.values(func, list(args), seed, samples, path, key, n)
+        if not np.isfinite(drawn).all():
+            return None
+        columns[table, key][:, rows[table][path]] = drawn
+    return columns
+
+
+def _with_columns(net: FlatNetlist, columns: dict, s: int) -> FlatNetlist:
+    """`net` with sample `s`'s row of every drawn coefficient column."""
+    tables: dict[str, dict[str, np.ndarray]] = {}
+    for (table, key), values in columns.items():
+        tables.setdefault(table, {})[key] = values[s]
+    return replace(net, **{table: replace(getattr(net, table), **fields)
+                           for table, fields in tables.items()})
+
+
+def direct_draws(statements) -> bool:
+    """Whether every random call is the whole `{...}` value of an element's key (not of an
+    instance, a `.param` or a subcircuit parameter) with no random call in its arguments:
+    then each draw is an element coefficient and nothing else depends on it."""
+    for stmt in statements:
+        match stmt:
+            case ast.Element():
+                if not all(_direct(arg, stmt) for arg in stmt.args):
+                    return False
+            case ast.Subckt():
+                if _has_random(stmt.params) or not direct_draws(stmt.body):
+                    return False
+            case ast.For():
+                if not direct_draws(stmt.body):
+                    return False
+            case ast.Directive():
+                if _has_random(stmt.args):
+                    return False
+            case ast.Title():
+                pass
+            case _:
+                raise TypeError(f"unknown statement {stmt!r}")
+    return True
+
+
+def _direct(arg, element: ast.Element) -> bool:
+    """An element argument without random calls, or `key={f(...)}` of a non-instance with a
+    random function `f` whose arguments have none."""
+    if _plain(arg) or not _has_random([arg]):
+        return True
+    first = element.name.parts[0] if element.name.parts else ""
+    if not isinstance(first, str) or not first or first[0].upper() == "X":
+        return False
+    if arg.__class__ is not ast.Keyword or arg.value.__class__ is not ast.Brace:
+        return False
+    call = arg.value.expr
+    return (call.__class__ is ast.Call and call.func in draws.FUNCTIONS
+            and not _has_random(call.args))
+
+
+def _has_random(nodes) -> bool:
+    return any(True for node in nodes if not _plain(node) for _ in _random_calls(node))
 
 
 def read(tree: ast.Netlist, lib_dirs: list[Path] | None = None) -> Variation:

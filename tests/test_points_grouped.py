@@ -1,0 +1,102 @@
+"""A population elaborated and checked by structure group (springc.lang.variation.PointSet,
+springc.check.points.check_points) gives every point exactly what elaborating and checking
+that point's netlist alone gives: the same coefficients bit for bit, the same diagnostics,
+modes and step limit, and the same refusal naming the same point."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from springc.check import check
+from springc.check.points import check_points
+from springc.errors import CheckError
+from springc.lang import parse, variation
+
+# local draws on every coefficient kind, in a subcircuit and in a loop, under a .step
+DIRECT = """\
+.param k0=30
+.subckt cell p q kk=4
+M1 p m={gauss(1, 0.05)} b={unif(0.2, 0.1)} x0={agauss(0.01, 0.002)}
+C1 p q k={gauss(kk, 0.05)} a={gauss(1.5, 0.02)}
+.ends
+.for i 0 2
+M{i} n{i} m={unif(1, 0.05)} b=0.3
+K{i} n{i} k={gauss(k0*(i+1), 0.05)}
+.endfor
+X1 n0 n1 cell kk=6
+D1 n2 l={gauss(5, 0.1)}
+Q1 n1 n2 g={gauss(1.5, 0.1)} a=1
+B1 n0 n2 b={gauss(0.25, 0.1)}
+P1 c={gauss(0.01, 0.1)} n0^1 n2^1
+F1 n0 in gain={gauss(1, 0.1)}
+.step k0 list 30 45
+.mc 4 seed=3
+.tran 1m 0.1
+"""
+# a global draw (a .param) reaches several elements: each point is elaborated alone
+GLOBAL = """\
+.param kc={gauss(20, 0.1)}
+M1 a m=1 b=0.1
+M2 b m=1 b=0.1
+K1 a k={kc}
+C1 a b k={2*kc}
+.mc 3 seed=5
+.tran 1m 0.1
+"""
+
+
+def _variation(text: str) -> variation.Variation:
+    return variation.read(parse(text, "pop.spr"))
+
+
+def _same_netlist(a, b) -> None:
+    assert a.text() == b.text()
+    for table, key in variation.COEFFICIENTS:
+        x, y = getattr(getattr(a, table), key), getattr(getattr(b, table), key)
+        assert x.dtype == y.dtype and x.tobytes() == y.tobytes(), (table, key)
+
+
+@pytest.mark.parametrize("text, direct", [(DIRECT, True), (GLOBAL, False)])
+def test_each_point_is_its_own_netlist(text: str, direct: bool) -> None:
+    var = _variation(text)
+    assert variation.direct_draws(var.statements) is direct
+    points = var.point_set()
+    assert len(points) == var.count
+    for point in points.points:
+        _same_netlist(points.nets[point.index], var.netlist(point))
+    assert len({p.sample for p in points.points}) == var.samples  # the samples do differ
+    springs = np.array([net.springs.k for net in points.nets])
+    assert np.unique(springs, axis=0).shape[0] == len(points)
+
+
+def test_grouped_check_equals_each_point_alone() -> None:
+    var = _variation(DIRECT)
+    points = check_points(var.point_set(), "rk4")
+    for point in points.points:
+        alone = check(var.netlist(point), "rk4")
+        got = points.checked[point.index]
+        assert got.step.dt == alone.step.dt
+        assert got.modes.omega_max == alone.modes.omega_max
+        assert np.array_equal(got.modes.eigenvalues, alone.modes.eigenvalues)
+        assert got.step.mode.describe() == alone.step.mode.describe()
+        assert [d.message for d in got.diagnostics] == [d.message for d in alone.diagnostics]
+
+
+def test_failing_point_is_named_as_alone() -> None:
+    # sample 2 of k0=45 draws a negative spring (a spread of 60%): the first point that fails
+    text = DIRECT.replace("k={gauss(k0*(i+1), 0.05)}", "k={gauss(k0*(i+1), 0.6)}")
+    var = _variation(text)
+    first = None
+    for point in var.points():
+        try:
+            check(var.netlist(point), "rk4")
+        except CheckError as err:
+            first = (point, err)
+            break
+    assert first is not None, "the spread must break a sign rule at some point"
+    with pytest.raises(CheckError) as got:
+        check_points(var.point_set(), "rk4")
+    message = got.value.diagnostics[0].message
+    assert message.startswith(first[1].diagnostics[0].message)
+    assert message.endswith(f"at {first[0].describe(var.count)}")

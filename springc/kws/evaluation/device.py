@@ -16,9 +16,10 @@ mass scale mu = KG with the `in` force of a unit-RMS clip the sound pressure p =
 lambda = p A / (mu g), g the largest `in` gain, so that without noise the physical network
 is the normalised one in other units (`springc.design.scale`, exact for the nonlinear
 elements too) and every damper adds its thermal force at K kelvin. Readouts convert back as
-x / lambda, the features Phi (quadratic in displacement) as Phi / lambda^2. The noise seen in
-normalised units depends on K mu / (p A)^2 alone: halving the mass is doubling the
-temperature.
+x / lambda, the features Phi (quadratic in displacement) as Phi / lambda^2. In normalised
+units a damper b (mu b in SI) makes the force PSD 4 k_B K b mu g^2 / (p A)^2: the noise
+depends on K mu / (p A)^2 alone, and at a given sound a heavier device is the noisier one
+(its dampers grow with it, the force p A does not).
 """
 
 from __future__ import annotations

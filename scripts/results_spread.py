@@ -1,0 +1,239 @@
+"""Regenerate docs/results-spread.md: the mass-spring keyword spotter as a population of
+fabricated devices, accuracy against the relative spread of every element coefficient.
+
+    springc data synth /tmp/corpus14 --clips 1600 --seed 1 --words WORDS
+    springc train --data /tmp/corpus14 -n 4 -m 2 --realisation mass-spring -o MODELS/m4x2
+    springc train --data /tmp/corpus14 -n 8 -m 3 --realisation mass-spring -o MODELS/m8x3
+    python scripts/results_spread.py --models MODELS [--devices 6] [--clips 32]
+
+WORDS: yes,no,up,down,left,right,on,off,stop,go,one,two,three,four (as
+scripts/results_massspring.py). Every row equals `springc eval MODEL --mc N --spread S
+[--stage STAGE] --clips C`. The measurements go to docs/results-spread.json as they are made
+(a run that stops resumes there); `--render` writes the page and the plot from that file
+alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from springc.kws.evaluation import device as dv
+
+SPREADS = (1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 3e-3, 1e-2, 3e-2)
+SIZES = ("4x2", "8x3")
+STAGE_SIZE, STAGE_SPREAD = "4x2", 1e-5
+# from this spread on every device of both sizes is at chance (first measured with 4 at 4x2):
+# 2 devices each show it
+FEW_FROM, FEW = 1e-3, 2
+DOCS = Path(__file__).resolve().parent.parent / "docs"
+
+
+def measure(models: Path, store: Path, devices: int, clips: int, seed: int) -> dict:
+    """Every (size, stage, spread) row not yet in `store`, saved after each."""
+    from springc.kws.features.distributed import session
+
+    with session():
+        return _measure(models, store, devices, clips, seed)
+
+
+def _measure(models: Path, store: Path, devices: int, clips: int, seed: int) -> dict:
+    data = json.loads(store.read_text()) if store.exists() else {"rows": {}, "nominal": {}}
+    data.update(devices=devices, clips=clips, seed=seed)
+    todo = [(size, "all", s) for size in SIZES for s in SPREADS]
+    todo += [(STAGE_SIZE, stage, STAGE_SPREAD) for stage in dv.STAGES]
+    for size in SIZES:
+        rows = [t for t in todo if t[0] == size and _key(*t) not in data["rows"]]
+        if not rows:
+            continue
+        setup = dv.load_setup(models / f"m{size}", clips=clips)
+        if size not in data["nominal"]:
+            start = time.perf_counter()
+            d = dv.outputs(setup, setup.net, desc=f"{size} nominal")["decisions"]
+            data["nominal"][size] = {"accuracy": dv.accuracy(setup, d), "n": len(setup.y),
+                                     "seconds": time.perf_counter() - start,
+                                     "decisions": d.tolist()}
+        nominal = np.array(data["nominal"][size]["decisions"])
+        for _, stage, spread in rows:
+            start = time.perf_counter()
+            count = devices if spread < FEW_FROM else min(devices, FEW)
+            report = dv.evaluate_spread(setup, count, dv.Spread(spread, "local", stage, seed),
+                                        nominal=nominal,
+                                        progress=print)
+            report["seconds"] = time.perf_counter() - start
+            data["rows"][_key(size, stage, spread)] = report
+            store.write_text(json.dumps(data, indent=1))
+    return data
+
+
+def _key(size: str, stage: str, spread: float) -> str:
+    return f"{size} {stage} {spread:g}"
+
+
+def threshold(data: dict, size: str, loss: float = 0.02) -> float | None:
+    """The spread at which the mean accuracy falls `loss` below nominal, interpolated on
+    log spread between the measured spreads (None: not within them)."""
+    nominal = data["nominal"][size]["accuracy"]
+    xs = [math.log10(s) for s in SPREADS]
+    ys = [data["rows"][_key(size, "all", s)]["accuracy"]["mean"] for s in SPREADS]
+    target = nominal - loss
+    if ys[0] <= target:
+        return None
+    for (x0, y0), (x1, y1) in zip(zip(xs, ys), zip(xs[1:], ys[1:])):
+        if y1 <= target < y0:
+            return 10 ** (x0 + (target - y0) * (x1 - x0) / (y1 - y0))
+    return None
+
+
+def plot(data: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax, ex, bx) = plt.subplots(1, 3, figsize=(15, 4.2),
+                                     gridspec_kw={"width_ratios": [3, 2.4, 2]})
+    for size, colour in zip(SIZES, ("tab:blue", "tab:red")):
+        rows = [data["rows"][_key(size, "all", s)] for s in SPREADS]
+        mean = np.array([100 * r["accuracy"]["mean"] for r in rows])
+        err = np.array([100 * r["accuracy"]["stderr"] for r in rows])
+        worst = np.array([100 * r["accuracy"]["worst"] for r in rows])
+        x = 100 * np.array(SPREADS)
+        ax.errorbar(x, mean, err, color=colour, marker="o", capsize=3, label=f"{size} mean")
+        ax.plot(x, worst, color=colour, marker="v", ls=":", label=f"{size} worst")
+        ax.axhline(100 * data["nominal"][size]["accuracy"], color=colour, ls="--", lw=1,
+                   label=f"{size} nominal design")
+        errs = [_error(r) for r in rows]
+        ex.plot([xi for xi, e in zip(x, errs) if e != "-"],
+                [float(e) for e in errs if e != "-"], color=colour, marker="o", label=size)
+    ax.axhline(100 / 12, color="grey", lw=1, label="chance (12 classes)")
+    ax.set(xscale="log", xlabel="spread of every coefficient (%, relative sd)",
+           ylabel="test accuracy (%)", title="Fabricated devices: accuracy against spread")
+    ax.legend(fontsize=7)
+    ex.set(xscale="log", yscale="log", xlabel="spread (%)",
+           ylabel="median |device - nominal decision| / |nominal|",
+           title="How far the decisions move")
+    ex.legend(fontsize=7)
+    rows = [data["rows"][_key(STAGE_SIZE, st, STAGE_SPREAD)] for st in dv.STAGES]
+    bx.bar(dv.STAGES, [100 * r["accuracy"]["mean"] for r in rows],
+           yerr=[100 * r["accuracy"]["stderr"] for r in rows], capsize=3, color="tab:blue")
+    bx.axhline(100 * data["nominal"][STAGE_SIZE]["accuracy"], color="k", ls="--", lw=1,
+               label="nominal design")
+    bx.set(ylabel="test accuracy (%)",
+           title=f"{STAGE_SIZE}, {100 * STAGE_SPREAD:g}% spread in one stage")
+    bx.tick_params(axis="x", labelsize=8, rotation=20)
+    bx.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def page(data: dict) -> str:
+    n, dev = data["nominal"]["8x3"]["n"], data["devices"]
+    lines = ["# The keyword spotter under fabrication spread", "",
+             "![accuracy against spread](results-spread.png)", "",
+             f"## Accuracy against spread ({dev} devices per point, {FEW} from "
+             f"{100 * FEW_FROM:g}% on, {n} test clips)", "",
+             "| size | spread | devices | nominal design | mean (+- standard error) "
+             "| 5th percentile | worst | decision error | diverged devices |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for size in SIZES:
+        nominal = data["nominal"][size]["accuracy"]
+        for s in SPREADS:
+            r = data["rows"][_key(size, "all", s)]
+            a = r["accuracy"]
+            lines.append(f"| {size} | {100 * s:g}% | {len(r['devices'])} | {100 * nominal:.1f} | "
+                         f"{100 * a['mean']:.1f} +- {100 * a['stderr']:.1f} | "
+                         f"{100 * a['p5']:.1f} | {100 * a['worst']:.1f} | "
+                         f"{_error(r)} | {sum(d['diverged'] for d in r['devices'])} |")
+    lines += ["", f"## One stage at a time ({STAGE_SIZE}, {100 * STAGE_SPREAD:g}% spread, "
+              f"{dev} devices)", "", "| stage | mean (+- standard error) | worst | "
+              "decision error |", "|---|---|---|---|"]
+    stage_rows = {st: data["rows"][_key(STAGE_SIZE, st, STAGE_SPREAD)] for st in dv.STAGES}
+    for st, r in stage_rows.items():
+        a = r["accuracy"]
+        lines.append(f"| {st} | {100 * a['mean']:.1f} +- {100 * a['stderr']:.1f} | "
+                     f"{100 * a['worst']:.1f} | {_error(r)} |")
+    lines += ["", *_reading(data, stage_rows)]
+    return "\n".join(lines) + "\n"
+
+
+def _error(row: dict) -> str:
+    """The devices' median decision error (|device - nominal| over |nominal|, medians)."""
+    errs = [d["decision_error"] for d in row["devices"] if d["decision_error"] is not None]
+    return f"{np.median(errs):.2g}" if errs else "-"
+
+
+def _reading(data: dict, stage_rows: dict) -> list[str]:
+    t83 = threshold(data, "8x3")
+    t42 = threshold(data, "4x2")
+    worst_stage = min(stage_rows, key=lambda st: stage_rows[st]["accuracy"]["mean"])
+    seconds = sum(r["seconds"] for r in data["rows"].values())
+
+    def say(t: float | None) -> str:
+        return (f"about {100 * t:.2g}%" if t else
+                f"not within {100 * SPREADS[0]:g}-{100 * SPREADS[-1]:g}%")
+
+    n = data["nominal"]["8x3"]["n"]
+    return [
+        "## Reading the results", "",
+        f"- The 8x3 whole network loses 2 points of accuracy at a spread of {say(t83)} "
+        f"(4x2: {say(t42)}), interpolated on log spread between the measured means; with "
+        f"{data['devices']} devices and {n} clips a mean carries the standard error in the "
+        f"table, and one clip is {100 / n:.1f} points, so the crossing is located to within "
+        "a step of the spread grid, no better.",
+        f"- The most sensitive stage is the {worst_stage}. The classifier heads' "
+        "matrix-vector multipliers make their outputs from designed zero modes (stiffnesses "
+        "that cancel exactly, paper Sec. III.A); mismatch leaves each such mode a small "
+        "stiffness of either sign, so a head leaks, or (negative) slowly runs away, and its "
+        "readout no longer integrates c . Phi. The springc checks refuse such a network "
+        "(no step makes a growing mode stable), so `--mc` simulates the devices unjudged "
+        "and lets the clip show what the device does.",
+        "- Spread of the Mel filters detunes the bands by half the relative spread of their "
+        "stiffness; the compressors and delay lines average mismatch over many elements.",
+        "",
+        "## How it was measured", "",
+        f"- `python scripts/results_spread.py --models MODELS --devices {data['devices']} "
+        f"--clips {data['clips']}` (each row `springc eval MODEL --mc {data['devices']} "
+        f"--spread S [--stage STAGE] --clips {data['clips']} --seed {data['seed']}`), models "
+        "trained by `springc train --realisation mass-spring` at 4x2 and 8x3 on the "
+        "built-in corpus of scripts/results_massspring.py (`springc data synth DIR --clips "
+        "1600 --seed 1 --words yes,no,up,down,left,right,on,off,stop,go,one,two,three,four`, "
+        "12 classes, balanced held-out splits). The test clips are spread evenly over the "
+        f"136-clip test split ({n} of them, every class in proportion).",
+        "- Device k multiplies every coefficient (masses, damping, stiffnesses, leverages, "
+        "monomial coefficients, input gains) by its own draw of gauss(1, S) in Monte Carlo "
+        "sample k, local mismatch (`--spread-kind local`); the draws are those of "
+        "`springc.lang.draws` at each element's instance path and key.",
+        "- Small runs on purpose: the machine has 2 cores shared with other work "
+        f"({seconds / 60:.0f} min of simulation in all). The standard errors are those of "
+        "the mean over devices; the clip sample adds its own (binomial, about "
+        f"{100 * math.sqrt(0.25 / n):.0f} points at 50%), common to every point of a size.",
+    ]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--models", type=Path, help="folder with m4x2 and m8x3")
+    ap.add_argument("--devices", type=int, default=6)
+    ap.add_argument("--clips", type=int, default=32)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--store", type=Path, default=DOCS / "results-spread.json")
+    ap.add_argument("--out", type=Path, default=DOCS / "results-spread.md")
+    ap.add_argument("--render", action="store_true", help="only write the page and plot")
+    args = ap.parse_args()
+    if args.render:
+        data = json.loads(args.store.read_text())
+    else:
+        data = measure(args.models, args.store, args.devices, args.clips, args.seed)
+    plot(data, args.out.with_suffix(".png"))
+    args.out.write_text(page(data))
+    print(f"wrote {args.out} and {args.out.with_suffix('.png')}")
+
+
+if __name__ == "__main__":
+    main()

@@ -42,6 +42,7 @@ from springc.errors import UsageError
 from springc.kws.features import integration
 from springc.kws.features import massspring as msp
 from springc.kws.features.phi import n_features, spread
+from springc.kws.training import tapbuffer
 from springc.check import CheckedNetlist, check
 
 TAU_READOUT = 80.0  # s (paper)
@@ -153,10 +154,13 @@ def head_text(k: int, head: Head, s: msp.MassSpringSettings, heads: int) -> str:
 
 
 def classifier_text(heads: list[Head], s: msp.MassSpringSettings, include_heads: bool = True,
-                    epsilon: float | None = None) -> str:
+                    epsilon: float | None = None,
+                    buffer: tapbuffer.TapBuffer | None = None) -> str:
     """The whole classifier: the shared front end with every head on its terminal nodes.
     With `include_heads`, the heads' text follows inline (one self-contained netlist);
-    otherwise `.include "head{k}.spr"` lines name the files `write_classifier` writes."""
+    otherwise `.include "head{k}.spr"` lines name the files `write_classifier` writes.
+    With a `buffer`, the heads sit on buffer nodes instead (`springc.kws.training.tapbuffer`;
+    the heads designed for its amplitude)."""
     s.validate()
     w = SprWriter()
     w.title(f"mass-spring keyword spotter, {s.bins} bins x {s.delays} delays, "
@@ -173,10 +177,15 @@ def classifier_text(heads: list[Head], s: msp.MassSpringSettings, include_heads:
             w.include(f"head{k}.spr")
     msp.front_end(w, s)
     w.blank()
-    w.comment("heads: mvm inputs on the terminal nodes (they supply the terminals' mass and "
-              "matched damping), one readout each")
+    if buffer is None:
+        w.comment("heads: mvm inputs on the terminal nodes (they supply the terminals' mass "
+                  "and matched damping), one readout each")
+    else:
+        tapbuffer.write(w, s, buffer)
+        w.comment("heads: mvm inputs on the buffer nodes, one readout each")
+    taps = msp.terminals(s) if buffer is None else tapbuffer.nodes(s)
     for k, head in enumerate(heads):
-        w.statement(f"Xh{k}", *msp.terminals(s), f"r{k}", f"head{k}")
+        w.statement(f"Xh{k}", *taps, f"r{k}", f"head{k}")
     msp.tran(w, s)
     text = w.text()
     if include_heads:

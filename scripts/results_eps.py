@@ -1,0 +1,201 @@
+"""The 8x3 classifier against the heads' squaring error eps, plain and with buffered taps.
+
+    python scripts/results_eps.py stages --data CORPUS [--clips 2] [--buffer KB,KG ...]
+    python scripts/results_eps.py accuracy --model MODEL [--buffer KB,KG ...]
+
+`stages`: the whole classifier (stand-in heads, as `scripts/results_stages.py` builds it) on
+the first test clips of distinct command words of CORPUS, at each eps of --eps, plain and with
+each buffer of --buffer (`springc.kws.training.tapbuffer`: springs KB kc from tap to buffer and
+KG kc from buffer to ground). Per network and eps: the distortion of the delay taps, of the
+buffer nodes (over their gain g) and of the readouts (x_r / scale, c . Phi) against the plain
+network's at eps = 1e-9 (results_stages' measure: RMS error over the ideal's peak, worst
+channel, median clip), and the insertion loss (median over the clips).
+
+`accuracy`: a trained mass-spring MODEL's heads designed again at each eps (the same weights,
+`transfer.heads_for`), plain and buffered, and the whole network simulated on the model's test
+split as `springc eval` does: accuracy, its standard error, the change against the first eps
+paired on the same clips, and the insertion loss (median).
+
+Both print markdown tables and write them with the JSON to --out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+import results_stages as rs  # noqa: E402
+
+from springc.check import check  # noqa: E402
+from springc.kws.features import massspring as msp  # noqa: E402
+from springc.kws.training import tapbuffer as tb  # noqa: E402
+from springc.kws.training import transfer as tr  # noqa: E402
+from springc.lang import load_text  # noqa: E402
+from springc.sim.simulate import simulate  # noqa: E402
+
+OUTRATE = 2000.0  # taps, buffers and readouts move below 100 Hz
+
+
+def parse_buffer(text: str) -> tb.TapBuffer:
+    """KB,KG in units of kc."""
+    kb, kg = (float(v) for v in text.split(","))
+    return tb.TapBuffer(kb, kg)
+
+
+def network(heads, s, eps, buffer):
+    """The checked classifier at eps, plain (buffer None) or buffered."""
+    text = tr.classifier_text(heads, s, epsilon=eps, buffer=buffer)
+    return check(load_text(text, f"<eps {eps:g}>"))
+
+
+def stage_run(s, base_heads, signals, eps, amplitude, buffer):
+    """Taps, buffer nodes / g and readouts in c . Phi units (channels, clips, T) and the
+    insertion loss per clip."""
+    heads = tb.rescaled(rs._redesign(base_heads, s, tb.amplitude(buffer, amplitude), eps),
+                        buffer)
+    names = {"delay taps": [f"x({n})" for n in msp.terminals(s)],
+             "readout": [f"x(r{k})" for k in range(len(heads))]}
+    if buffer:
+        names["buffers"] = [f"x({n})" for n in tb.nodes(s)]
+    flat = [p for stage in names.values() for p in stage]
+    res = simulate(network(heads, s, eps, buffer), signals[:, None, :], msp.INPUT_RATE,
+                   tstop=msp.horizon(s, signals.shape[1] / msp.INPUT_RATE), method="exp-rk4",
+                   substeps=4, precision="float64", outrate=OUTRATE, probes=flat,
+                   reductions=tr.readout_reductions(heads), batch=len(signals))
+    out = {st: np.stack([res.probes[p] for p in pl]) for st, pl in names.items()}
+    out["readout"] = out["readout"] / np.array([h.scale for h in heads])[:, None, None]
+    if buffer:
+        out["buffers"] = out["buffers"] / buffer.gain
+    if not all(np.all(np.isfinite(v)) for v in out.values()):
+        raise RuntimeError(f"the network diverged at eps {eps:g}, buffer {buffer}")
+    return out, tr.insertion_loss_db(res.reductions, heads)
+
+
+def stages(args) -> None:
+    """Distortion per stage and insertion loss against eps, plain and buffered."""
+    start = time.time()
+    s = msp.MassSpringSettings(bins=8, delays=3)
+    signals = rs.clips(args.data, args.clips)
+    base = tr.stand_in_heads(s)
+    ideal, _ = stage_run(s, base, signals, rs.EPS_IDEAL, 1.0, None)
+    amplitude = float(np.median(np.abs(ideal["delay taps"]).max(axis=(0, 2))))
+    rows = []
+    for buffer in [None] + args.buffer:
+        for eps in args.eps:
+            got, loss = stage_run(s, base, signals, eps, amplitude, buffer)
+            row = {"buffer": buffer.to_dict() if buffer else None, "eps": eps,
+                   "taps": rs.distortion(got["delay taps"], ideal["delay taps"]),
+                   "buffers": (rs.distortion(got["buffers"], ideal["delay taps"])
+                               if buffer else None),
+                   "readout": rs.distortion(got["readout"], ideal["readout"]),
+                   "loss_db": float(np.median(loss))}
+            rows.append(row)
+            print(row, flush=True)
+    lines = ["| network | eps | delay taps | buffer nodes / g | readout | insertion loss dB |",
+             "|---|---|---|---|---|---|"]
+    for r in rows:
+        name = (f"buffered kb {r['buffer']['kb']:g} kc, kg {r['buffer']['kg']:g} kc"
+                if r["buffer"] else "plain")
+        buf = "-" if r["buffers"] is None else f"{r['buffers']:.2g}"
+        lines.append(f"| {name} | {r['eps']:g} | {r['taps']:.2g} | {buf} | "
+                     f"{r['readout']:.2g} | {r['loss_db']:.1f} |")
+    text = "\n".join(lines)
+    print(text)
+    print(f"A = {amplitude:.4g} m, {len(signals)} clips, {time.time() - start:.0f} s")
+    write(args.out, "stages", text, {"amplitude": amplitude, "clips": len(signals),
+                                     "rows": rows, "seconds": time.time() - start})
+
+
+def accuracy(args) -> None:
+    """A trained model's whole network at each eps, plain and buffered, on its test split."""
+    from springc.kws.data.task import open_task_data, targets
+    from springc.kws.evaluation import evaluate as ev
+    from springc.kws.features.distributed import session
+    from springc.kws.training.model import load_model
+
+    start = time.time()
+    model = load_model(args.model)
+    s, _ = tr.model_heads(model)
+    amplitude = float(model.settings["transfer"]["amplitude"])
+    ds = open_task_data(ev.trained_data(model), model.settings["task"],
+                        int(model.settings.get("seed", 0)), model.settings.get("protocol"),
+                        splits=("test",))
+    clips = ds.split("test")
+    signals = msp.load_signals(clips, False, 0, [])
+    y = targets(clips, model.settings["task"])
+    _, picker = ev.selection_models(model.models)[0]
+    rows = []
+    with session(None, args.jobs):
+        for buffer in [None] + args.buffer:
+            first = None
+            for eps in args.eps:
+                heads = tb.rescaled(tr.heads_for(model.models, s,
+                                                 tb.amplitude(buffer, amplitude), eps), buffer)
+                net = load_text(tr.classifier_text(heads, s, epsilon=eps, buffer=buffer),
+                                f"<eps {eps:g}>")
+                d, loss, _ = ev.simulate_network(net, heads, s, signals, jobs=args.jobs,
+                                                 plan=ev.model_integration(model))
+                hits = (picker.predict(d) == y).astype(float)
+                first = hits if first is None else first
+                rows.append({"buffer": buffer.to_dict() if buffer else None, "eps": eps,
+                             "accuracy": 100 * float(np.mean(hits)), "se": 100 * se(hits),
+                             "paired": 100 * float(np.mean(hits - first)),
+                             "paired_se": 100 * se(hits - first),
+                             "loss_db": float(np.median(loss)), "n": len(hits),
+                             "seconds": time.time() - start})
+                print(rows[-1], flush=True)
+    text = accuracy_table(rows)
+    print(text)
+    write(args.out, "accuracy", text, {"model": str(args.model), "rows": rows,
+                                       "seconds": time.time() - start})
+
+
+def se(x: np.ndarray) -> float:
+    """Standard error of a mean."""
+    return float(np.std(x, ddof=1) / np.sqrt(len(x)))
+
+
+def accuracy_table(rows: list[dict]) -> str:
+    """Markdown: one row per network and eps."""
+    lines = ["| network | eps | accuracy % | change vs first eps (paired) | "
+             "insertion loss dB |", "|---|---|---|---|---|"]
+    for r in rows:
+        name = (f"buffered kb {r['buffer']['kb']:g} kc, kg {r['buffer']['kg']:g} kc"
+                if r["buffer"] else "plain")
+        lines.append(f"| {name} | {r['eps']:g} | {r['accuracy']:.1f} +- {r['se']:.1f} | "
+                     f"{r['paired']:+.1f} +- {r['paired_se']:.1f} | {r['loss_db']:.1f} |")
+    return "\n".join(lines)
+
+
+def write(out: Path, name: str, text: str, data: dict) -> None:
+    """OUT/NAME.md and OUT/NAME.json."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{name}.md").write_text(text + "\n")
+    (out / f"{name}.json").write_text(json.dumps(data, indent=2) + "\n")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="what", required=True)
+    st = sub.add_parser("stages")
+    st.add_argument("--data", type=Path, required=True)
+    st.add_argument("--clips", type=int, default=2)
+    acc = sub.add_parser("accuracy")
+    acc.add_argument("--model", type=Path, required=True)
+    acc.add_argument("-j", "--jobs", type=int, default=2)
+    for p in (st, acc):
+        p.add_argument("--eps", type=float, nargs="+", default=[1e-6, 1e-2, 1e-1, 1.0])
+        p.add_argument("--buffer", type=parse_buffer, action="append", default=[])
+        p.add_argument("--out", type=Path, default=Path("eps-out"))
+    args = ap.parse_args()
+    stages(args) if args.what == "stages" else accuracy(args)
+
+
+if __name__ == "__main__":
+    main()

@@ -100,3 +100,20 @@ def test_failing_point_is_named_as_alone() -> None:
     message = got.value.diagnostics[0].message
     assert message.startswith(first[1].diagnostics[0].message)
     assert message.endswith(f"at {first[0].describe(var.count)}")
+
+
+def test_large_components_checked_together_as_alone() -> None:
+    # 320 masses: above linear.DENSE_MAX, so the Lanczos runs of the samples go in lockstep
+    from springc.bench.population import population_text
+
+    var = _variation(population_text(masses=320, samples=3))
+    points = check_points(var.point_set())
+    for point in points.points:
+        alone = check(var.netlist(point))
+        got = points.checked[point.index]
+        assert not got.modes.complete  # the sparse path
+        assert (got.modes.omega_max, got.step.dt) == (alone.modes.omega_max, alone.step.dt)
+        assert got.modes.omega_margin == alone.modes.omega_margin
+        assert got.modes.eigenvalues.tobytes() == alone.modes.eigenvalues.tobytes()
+        assert all(a[1].tobytes() == b[1].tobytes()
+                   for a, b in zip(got.modes.shapes, alone.modes.shapes))

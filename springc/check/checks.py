@@ -92,6 +92,28 @@ def check(net: FlatNetlist, method: str | None = None, *, tstep: float | None = 
     return CheckedNetlist(**vars(result), net=net, seal=_SEAL)
 
 
+def check_many(nets: list[FlatNetlist], method: str | None = None, *,
+               tstep: float | None = None, substeps: int | None = None,
+               judge_step: bool = True) -> list[CheckedNetlist | CheckError]:
+    """`check` of every netlist (arguments as `check`), each result the checked netlist or
+    the `CheckError` that `check` raises, the same as alone; the modes of all that reach the
+    time step are computed together (`linear.modes_many`: the points of a population share
+    the work of their Lanczos runs)."""
+    results = [_before_step(net) for net in nets]
+    going = [i for i, result in enumerate(results) if result is None]
+    found = dict(zip(going, linear.modes_many([nets[i] for i in going])))
+    names = {i: _method(nets[i], method)[0] for i in going}
+    limits = {}
+    for name in {n for n in names.values() if not expint.is_split(n)}:
+        ours = [i for i in going if names[i] == name]
+        limits.update(zip(ours, linear.step_limits([found[i] for i in ours], name)))
+    for i in going:
+        results[i] = time_step(nets[i], method, tstep=tstep, substeps=substeps,
+                               judge=judge_step, found=found[i], step=limits.get(i))
+    return [CheckError(r.errors) if r.errors else CheckedNetlist(**vars(r), net=net, seal=_SEAL)
+            for r, net in zip(results, nets)]
+
+
 def require_checked(value: object, who: str) -> CheckedNetlist:
     """`value` if it is a checked netlist, else a TypeError telling the caller to check."""
     if not isinstance(value, CheckedNetlist):
@@ -103,13 +125,21 @@ def require_checked(value: object, who: str) -> CheckedNetlist:
 def diagnose(net: FlatNetlist, method: str | None = None, *, tstep: float | None = None,
              substeps: int | None = None, judge_step: bool = True) -> CheckResult:
     """Run every check and return all diagnostics without raising (arguments as `check`)."""
+    early = _before_step(net)
+    if early is not None:
+        return early
+    return time_step(net, method, tstep=tstep, substeps=substeps, judge=judge_step)
+
+
+def _before_step(net: FlatNetlist) -> CheckResult | None:
+    """The errors of the passes before the time step, None where there are none."""
     diags = element_signs(net) + massless_nodes(net) + noise_sources(net)
     if diags:
         return CheckResult(diags)
     diags = whole_potential(net)
     if diags:
         return CheckResult(diags)
-    return time_step(net, method, tstep=tstep, substeps=substeps, judge=judge_step)
+    return None
 
 
 # --- element signs ----------------------------------------------------------------------
@@ -596,17 +626,20 @@ def _substeps(net: FlatNetlist) -> tuple[int, list[Diagnostic]]:
 
 
 def time_step(net: FlatNetlist, method: str | None = None, *, tstep: float | None = None,
-              substeps: int | None = None, judge: bool = True) -> CheckResult:
-    """Modes of the linearisation, zero modes as infos, and the configured step (`tstep` /
-    `substeps` where given, else `.tran` and `.options`) against the integrator's stability
-    limit (unless not `judge`)."""
+              substeps: int | None = None, judge: bool = True,
+              found: linear.Modes | None = None,
+              step: linear.StepLimit | None = None) -> CheckResult:
+    """Modes of the linearisation (`found`, computed if not given), zero modes as infos, and
+    the configured step (`tstep` / `substeps` where given, else `.tran` and `.options`)
+    against the integrator's stability limit (`step`, computed if not given; unless not
+    `judge`)."""
     name, diags = _method(net, method)
     configured, more = _substeps(net)
     substeps = substeps or configured
     diags += more
-    found = linear.modes(net)
+    found = found if found is not None else linear.modes(net)
     blocks = expint.find_blocks(net) if expint.is_split(name) else None
-    step = step_limit(net, name, found, blocks)
+    step = step if step is not None else step_limit(net, name, found, blocks)
     diags += [_zero_info(net, z) for z in found.zero_modes]
     tstep = tstep or (net.tran.tstep if net.tran else None)
     h = tstep / substeps if tstep else None

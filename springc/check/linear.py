@@ -257,18 +257,33 @@ class _Raw:
 
 def modes(net: FlatNetlist, lin: Linearisation | None = None) -> Modes:
     """All modes of the linearisation at rest (see `Modes` for large components)."""
-    lin = lin or linearise(net)
-    count, labels = component_labels(net)
-    raw = _Raw()
-    sizes = np.bincount(labels, minlength=count)
-    for size in np.unique(sizes):
-        members = np.nonzero(sizes == size)[0]
-        if size <= DENSE_MAX:
-            _dense_group(net, lin, labels, members, int(size), raw)
-        else:
-            for comp in members:
-                _sparse_component(net, lin, np.nonzero(labels == comp)[0], raw)
-    return _assemble(raw, net.nodes)
+    return modes_many([net], [lin])[0]
+
+
+def modes_many(nets: list[FlatNetlist],
+               lins: list[Linearisation | None] | None = None) -> list[Modes]:
+    """`modes` of every netlist, each the same as alone; the Lanczos runs of all their large
+    components go together (`sparse.top_many`: a population's points in lockstep)."""
+    lins = lins or [None] * len(nets)
+    raws, large = [], []
+    for net, lin in zip(nets, lins):
+        lin = lin or linearise(net)
+        count, labels = component_labels(net)
+        raw = _Raw()
+        sizes = np.bincount(labels, minlength=count)
+        # ascending sizes: every dense group comes before the first large component
+        for size in np.unique(sizes):
+            members = np.nonzero(sizes == size)[0]
+            if size <= DENSE_MAX:
+                _dense_group(net, lin, labels, members, int(size), raw)
+            else:
+                large += [_Large.of(net, lin, np.nonzero(labels == comp)[0], raw)
+                          for comp in members]
+        raws.append(raw)
+    tops = sparse.top_many([c.kt for c in large], SPARSE_MODES)
+    for comp, top in zip(large, tops):
+        _sparse_component(comp, top)
+    return [_assemble(raw, net.nodes) for raw, net in zip(raws, nets)]
 
 
 def _blocks(mat: sp.csr_matrix, nodes: np.ndarray) -> np.ndarray:
@@ -356,7 +371,28 @@ def _record_modes(nodes, lam, shapes, raw: _Raw) -> None:
         raw.shapes.append((nodes, shapes[:, j]))
 
 
-def _sparse_component(net, lin: Linearisation, nodes: np.ndarray, raw: _Raw) -> None:
+@dataclass
+class _Large:
+    """A large component of a netlist: its nodes and masses, stiffness and damping in
+    mass-weighted coordinates, and the raw data of its netlist's modes."""
+
+    net: FlatNetlist
+    nodes: np.ndarray
+    m: np.ndarray
+    kt: sp.csr_matrix
+    bt: sp.csr_matrix
+    raw: _Raw
+
+    @classmethod
+    def of(cls, net: FlatNetlist, lin: Linearisation, nodes: np.ndarray, raw: _Raw) -> _Large:
+        m = net.mass()[nodes]
+        isq = sp.diags(1.0 / np.sqrt(m))
+        kt = (isq @ lin.K[nodes][:, nodes] @ isq).tocsr()
+        bt = (isq @ lin.B[nodes][:, nodes] @ isq).tocsr()
+        return cls(net, nodes, m, kt, bt, raw)
+
+
+def _sparse_component(comp: _Large, top: sparse.TopBound) -> None:
     """Fastest modes of a large component, in time linear in its size for the common case.
     Candidates: the top of the undamped spectrum (Lanczos, `sparse.top`; the top candidate
     gets the upper bound of lambda_max, so that no step is judged against an underestimate),
@@ -364,12 +400,8 @@ def _sparse_component(net, lin: Linearisation, nodes: np.ndarray, raw: _Raw) -> 
     overdamped mode to be the fastest, the lowest modes; each gives the eigenvalue pair of its
     modal mass, damping and stiffness. Exact when damping does not couple the undamped modes
     (e.g. b = alpha m): oscillating modes are fastest at the top of the spectrum, overdamped
-    ones at the bottom."""
-    m = net.mass()[nodes]
-    isq = sp.diags(1.0 / np.sqrt(m))
-    kt = (isq @ lin.K[nodes][:, nodes] @ isq).tocsr()
-    bt = (isq @ lin.B[nodes][:, nodes] @ isq).tocsr()
-    top = sparse.top(kt, SPARSE_MODES)
+    ones at the bottom. `top`: `sparse.top` of its stiffness `comp.kt`."""
+    net, nodes, m, kt, bt, raw = comp.net, comp.nodes, comp.m, comp.kt, comp.bt, comp.raw
     raw.omega2_max = max(raw.omega2_max, top.bound)
     raw.margin = max(raw.margin, top.margin)
     raw.complete = False
@@ -497,25 +529,45 @@ def _assemble(raw: _Raw, names: list[str]) -> Modes:
 def step_limit(found: Modes, method: str = DEFAULT_METHOD) -> StepLimit:
     """Largest stable step of `method` for these modes, and the mode that sets it: the same
     answer as `integrators.max_stable_step` over all eigenvalues, vectorised."""
+    return step_limits([found], method)[0]
+
+
+def step_limits(founds: list[Modes], method: str = DEFAULT_METHOD) -> list[StepLimit]:
+    """`step_limit` of every set of modes, each the same as alone (one `ray_limits` call
+    for all their candidate modes: each ray's limit is computed on its own)."""
     tab = get_tableau(method)
-    lam = found.eigenvalues
-    if len(lam) == 0:
-        return StepLimit(method, np.inf)
-    if np.any(lam.real > ZERO_TOL * np.abs(lam)):
-        worst = int(np.argmax(lam.real))
-        return StepLimit(method, 0.0, found.mode(worst))
-    # h = s(angle) / |lam|: estimate s from a cached table of angles, then compute exactly
-    # only for the modes whose estimate is within the table's interpolation error of the
-    # smallest.
+    out: list[StepLimit | None] = [None] * len(founds)
+    pending = []
+    for k, found in enumerate(founds):
+        lam = found.eigenvalues
+        if len(lam) == 0:
+            out[k] = StepLimit(method, np.inf)
+        elif np.any(lam.real > ZERO_TOL * np.abs(lam)):
+            out[k] = StepLimit(method, 0.0, found.mode(int(np.argmax(lam.real))))
+        else:
+            pending.append((k, *_candidates(tab, lam)))
+    if not pending:
+        return out
+    limits = ray_limits(tab, np.concatenate([lam[cand] / mag[cand]
+                                             for _, lam, mag, cand in pending]))
+    ends = np.cumsum([len(cand) for _, _, _, cand in pending])
+    for (k, lam, mag, cand), end in zip(pending, ends):
+        steps = limits[end - len(cand):end] / mag[cand]
+        best = int(np.argmin(steps))
+        out[k] = (StepLimit(method, np.inf) if not np.isfinite(steps[best]) else
+                  StepLimit(method, float(steps[best]), founds[k].mode(int(cand[best]))))
+    return out
+
+
+def _candidates(tab: Tableau, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(lam, |lam|, the modes that may set the step). h = s(angle) / |lam|: s estimated
+    from a cached table of angles, and only the modes whose estimate is within the table's
+    interpolation error of the smallest are computed exactly."""
     mag = np.abs(lam)
     angles, table, error = _ray_table(tab)
     estimate = np.interp(np.clip(np.angle(lam), angles[0], angles[-1]), angles, table) / mag
     cand = np.nonzero(estimate <= estimate.min() * (1 + 2 * error + 1e-3) + 1e-300)[0]
-    steps = ray_limits(tab, lam[cand] / mag[cand]) / mag[cand]
-    best = int(np.argmin(steps))
-    if not np.isfinite(steps[best]):
-        return StepLimit(method, np.inf)
-    return StepLimit(method, float(steps[best]), found.mode(int(cand[best])))
+    return lam, mag, cand
 
 
 @cache

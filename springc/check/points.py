@@ -1,7 +1,8 @@
 """Every point of a `.step`/`.mc` netlist checked like a netlist of its own.
 
-`check_points(points, method)` runs `springc.check.check` on each point's netlist and returns
-the point set with the checked netlists; a point that fails is a `CheckError` whose every
+`check_points(points, method)` checks each point's netlist as `springc.check.check` does
+(the points of one structure group together, `check_many`) and returns the point set with
+the checked netlists; a point that fails is a `CheckError` whose every
 diagnostic names the point (step values, sample index, seed) beside the failed check. `worst`
 is the point with the smallest stable step, the one that sets the step of a run of them all.
 """
@@ -11,7 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from springc.check.checks import CheckedNetlist, check
+from springc.check.checks import CheckedNetlist, check_many
 from springc.errors import CheckError
 from springc.lang.variation import Point, PointSet
 
@@ -19,14 +20,17 @@ from springc.lang.variation import Point, PointSet
 def check_points(points: PointSet, method: str | None = None, **options) -> PointSet:
     """`points` with every point's `CheckedNetlist` (`method` overrides `.options method=`,
     `options` are `check`'s tstep, substeps and judge_step); `CheckError` at the first point
-    that fails, naming it."""
-    checked = []
-    for point, net in zip(points.points, points.nets):
-        try:
-            checked.append(check(net, method, **options))
-        except CheckError as err:
-            raise at_point(err, point, len(points)) from None
-    return replace(points, checked=tuple(checked))
+    that fails, naming it. The points of one structure group are checked together
+    (`check_many`), each with the result it has alone."""
+    results: list = [None] * len(points)
+    for group in points.groups:
+        found = check_many([points.nets[i] for i in group], method, **options)
+        for i, result in zip(group, found):
+            results[i] = result
+    for point, result in zip(points.points, results):
+        if isinstance(result, CheckError):
+            raise at_point(result, point, len(points))
+    return replace(points, checked=tuple(results))
 
 
 def at_point(err: CheckError, point: Point, count: int) -> CheckError:

@@ -57,21 +57,40 @@ def top(a: sp.spmatrix, count: int, work: int = LANCZOS_WORK) -> TopBound:
     """Largest eigenvalue of a symmetric sparse matrix, as `TopBound`, and its `count` top
     Ritz vectors, from `LANCZOS_STEPS` products with `a`, or more while their number times
     the size stays within `work`."""
-    a = sp.csr_matrix(a)
-    n = a.shape[0]
-    high = float(gershgorin(a)[1].max(initial=0.0))
-    if high <= 0.0 or a.nnz == 0:
-        return TopBound(0.0, 0.0, np.zeros((n, 0)))
-    start = _start(a)
-    steps = min(n, max(LANCZOS_STEPS, work // n))
-    alpha, beta = _lanczos(a, start, steps, high)
-    vals, coeffs = scipy.linalg.eigh_tridiagonal(alpha, beta[:-1])
-    # |beta_m s_m|: the residual norm of each Ritz pair of the tridiagonal projection
-    residual = abs(beta[-1] * coeffs[-1])
-    bound = min(high, float(vals[-1] + residual[-1]))
-    pick = np.arange(len(vals))[::-1][:count]
-    vectors = _ritz_vectors(a, start, alpha, beta, coeffs[:, pick]) if count else np.zeros((n, 0))
-    return TopBound(max(bound, float(vals[-1])), float(vals[-1]), vectors)
+    return top_many([a], count, work)[0]
+
+
+def top_many(mats: list, count: int, work: int = LANCZOS_WORK) -> list[TopBound]:
+    """`top` of every matrix in `mats`, each the same as alone: the Lanczos runs of matrices
+    of one size go in lockstep, one product with their block-diagonal matrix per step, and
+    every other operation is the lone run's on that matrix's row (a population's points
+    share the Python overhead of the steps, not their numbers)."""
+    mats = [sp.csr_matrix(a) for a in mats]
+    out: list[TopBound | None] = [None] * len(mats)
+    sizes: dict[int, list[int]] = {}
+    highs = [float(gershgorin(a)[1].max(initial=0.0)) for a in mats]
+    for k, a in enumerate(mats):
+        if highs[k] <= 0.0 or a.nnz == 0:
+            out[k] = TopBound(0.0, 0.0, np.zeros((a.shape[0], 0)))
+        else:
+            sizes.setdefault(a.shape[0], []).append(k)
+    for n, ks in sizes.items():
+        group = [mats[k] for k in ks]
+        starts = np.array([_start(a) for a in group])
+        steps = min(n, max(LANCZOS_STEPS, work // n))
+        runs = _lanczos(group, starts, steps, np.array([highs[k] for k in ks]))
+        picks = []
+        for k, (alpha, beta) in zip(ks, runs):
+            vals, coeffs = scipy.linalg.eigh_tridiagonal(alpha, beta[:-1])
+            # |beta_m s_m|: the residual norm of each Ritz pair of the tridiagonal projection
+            residual = abs(beta[-1] * coeffs[-1])
+            bound = min(highs[k], float(vals[-1] + residual[-1]))
+            picks.append(coeffs[:, np.arange(len(vals))[::-1][:count]])
+            out[k] = TopBound(max(bound, float(vals[-1])), float(vals[-1]), np.zeros((n, 0)))
+        if count:
+            for k, vectors in zip(ks, _ritz_vectors(group, starts, runs, picks)):
+                out[k].vectors = vectors
+    return out
 
 
 def _start(a: sp.csr_matrix) -> np.ndarray:
@@ -94,30 +113,80 @@ def _start(a: sp.csr_matrix) -> np.ndarray:
     return signs * weight + 0.1 * noise * weight.mean()
 
 
-def _lanczos(a: sp.csr_matrix, start: np.ndarray, steps: int,
-             high: float) -> tuple[np.ndarray, np.ndarray]:
-    """Lanczos coefficients (alpha, beta) of up to `steps` steps, without reorthogonalisation
-    (only the extreme Ritz values are used; a lost orthogonality repeats them); stops once the
-    top Ritz value plus residual is within `LANCZOS_TOL` of itself or under `high`'s."""
-    q = start / np.linalg.norm(start)
+class _Lockstep:
+    """The products of several matrices of one size with one row each of a (runs, n) array:
+    one product with their block-diagonal matrix (each row's sum is its own matrix's, in the
+    same order), rebuilt for the runs still going."""
+
+    def __init__(self, mats: list) -> None:
+        self.mats = mats
+        self.use(np.arange(len(mats)))
+
+    def use(self, rows: np.ndarray) -> None:
+        """Multiply only the matrices `rows` from now on."""
+        self.rows = rows
+        picked = [self.mats[r] for r in rows]
+        if len(picked) == 1:
+            self.block = picked[0]
+            return
+        n = picked[0].shape[0]
+        ends = np.cumsum([a.indptr[-1] for a in picked])
+        indptr = np.concatenate([[0]] + [a.indptr[1:] + (ends[i] - a.indptr[-1])
+                                         for i, a in enumerate(picked)])
+        indices = np.concatenate([a.indices.astype(np.int64) + i * n
+                                  for i, a in enumerate(picked)])
+        data = np.concatenate([a.data for a in picked])
+        size = n * len(picked)
+        self.block = sp.csr_matrix((data, indices, indptr), shape=(size, size))
+
+    def __matmul__(self, q: np.ndarray) -> np.ndarray:
+        return (self.block @ q.ravel()).reshape(q.shape)
+
+
+def _lanczos(mats: list, starts: np.ndarray, steps: int,
+             highs: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Lanczos coefficients (alpha, beta) of up to `steps` steps of each matrix from its row
+    of `starts`, without reorthogonalisation (only the extreme Ritz values are used; a lost
+    orthogonality repeats them); a run stops once its top Ritz value plus residual is within
+    `LANCZOS_TOL` of itself or under its `highs` entry's."""
+    product = _Lockstep(mats)
+    q = _normalised(starts)
     prev = np.zeros_like(q)
-    alpha, beta = [], []
-    b = 0.0
+    alpha: list[list[float]] = [[] for _ in mats]
+    beta: list[list[float]] = [[] for _ in mats]
+    b = np.zeros(len(mats))
     check = 20  # steps at which convergence is tested: 20, 30, 45, ... (cost linear in all)
     for j in range(steps):
-        w = a @ q - b * prev
-        alpha.append(float(q @ w))
-        w -= alpha[-1] * q
-        b = float(np.linalg.norm(w))
-        beta.append(b)
-        if b <= 1e-14 * high:  # an invariant subspace: the Ritz values are exact
-            break
-        prev, q = q, w / b
+        rows = product.rows
+        w = product @ q - b[:, None] * prev
+        a = np.array([float(q[i] @ w[i]) for i in range(len(rows))])
+        w -= a[:, None] * q
+        b = np.array([float(np.linalg.norm(w[i])) for i in range(len(rows))])
+        going = np.ones(len(rows), bool)
+        for i, r in enumerate(rows):
+            alpha[r].append(a[i])
+            beta[r].append(b[i])
+            # an invariant subspace: the Ritz values are exact
+            going[i] = b[i] > 1e-14 * highs[r]
+        prev, q = q, w / np.where(going, b, 1.0)[:, None]
         if j + 1 == check:
-            if _settled(alpha, beta):
-                break
+            for i, r in enumerate(rows):
+                going[i] = going[i] and not _settled(alpha[r], beta[r])
             check = check * 3 // 2
-    return np.array(alpha), np.array(beta)
+        if not going.all():
+            if not going.any():
+                break
+            product.use(rows[going])
+            q, prev, b = q[going], prev[going], b[going]
+    return [(np.array(a), np.array(b)) for a, b in zip(alpha, beta)]
+
+
+def _normalised(starts: np.ndarray) -> np.ndarray:
+    """Each row over its norm, as a lone run normalises its start vector."""
+    q = np.empty_like(starts)
+    for r in range(len(starts)):
+        q[r] = starts[r] / np.linalg.norm(starts[r])
+    return q
 
 
 def _settled(alpha: list, beta: list) -> bool:
@@ -127,21 +196,40 @@ def _settled(alpha: list, beta: list) -> bool:
     return abs(beta[-1] * coeffs[-1, -1]) <= LANCZOS_TOL * max(vals[-1], 1e-300)
 
 
-def _ritz_vectors(a: sp.csr_matrix, start: np.ndarray, alpha: np.ndarray, beta: np.ndarray,
-                  coeffs: np.ndarray) -> np.ndarray:
-    """Ritz vectors sum_j q_j coeffs[j] by running the recurrence again (the Lanczos vectors
-    are not stored: for a million masses they would take gigabytes)."""
-    q = start / np.linalg.norm(start)
+def _ritz_vectors(mats: list, starts: np.ndarray, runs: list, coeffs: list) -> list:
+    """Each matrix's Ritz vectors sum_j q_j coeffs[j] by running its recurrence again, in
+    lockstep as `_lanczos`, the longest runs first so that the runs still going are the
+    first rows (the Lanczos vectors are not stored: for a million masses they would take
+    gigabytes)."""
+    lengths = np.array([len(alpha) for alpha, _ in runs])
+    order = np.argsort(-lengths, kind="stable")
+    lengths, steps = lengths[order], int(lengths.max())
+    alpha, beta = np.zeros((len(runs), steps)), np.zeros((len(runs), steps))
+    picked = np.zeros((len(runs), steps, coeffs[0].shape[1]))
+    for i, r in enumerate(order):
+        alpha[i, :lengths[i]], beta[i, :lengths[i]] = runs[r]
+        picked[i, :lengths[i]] = coeffs[r]
+    product = _Lockstep([mats[r] for r in order])
+    q = _normalised(starts[order])
     prev = np.zeros_like(q)
-    out = np.zeros((len(q), coeffs.shape[1]))
-    for j in range(len(alpha)):
-        out += np.outer(q, coeffs[j])
-        if j + 1 == len(alpha):
+    out = np.zeros(picked.shape[:1] + q.shape[1:] + picked.shape[2:])
+    term = np.empty_like(out)
+    for j in range(steps):
+        live = len(q)
+        np.multiply(q[:, :, None], picked[:live, j, None, :], out=term[:live])
+        out[:live] += term[:live]
+        live = int(np.count_nonzero(lengths > j + 1))
+        if live == 0:
             break
-        w = a @ q - (beta[j - 1] if j else 0.0) * prev  # as `_lanczos`, operation by operation
-        w -= alpha[j] * q
-        prev, q = q, w / beta[j]
-    return out / np.linalg.norm(out, axis=0)
+        if live < len(q):
+            product.use(np.arange(live))
+            q, prev = q[:live], prev[:live]
+        back = beta[:live, j - 1] if j else np.zeros(live)
+        w = product @ q - back[:, None] * prev  # as `_lanczos`, operation by operation
+        w -= alpha[:live, j, None] * q
+        prev, q = q, w / beta[:live, j, None]
+    vectors = [out[i] / np.linalg.norm(out[i], axis=0) for i in range(len(runs))]
+    return [vectors[i] for i in np.argsort(order)]
 
 
 class Factor:

@@ -357,9 +357,13 @@ def _device(setup: Setup, k: int, spread: Spread, nominal: np.ndarray, scheduler
                     desc=f"device {k}")["decisions"]
     except DivergedRuns:
         return {"device": k, "accuracy": 0.0, "diverged": True, "decision_error": None}
-    scale = np.median(np.abs(nominal))
     return {"device": k, "accuracy": accuracy(setup, d), "diverged": False,
-            "decision_error": float(np.median(np.abs(d - nominal)) / scale)}
+            "decision_error": decision_error(d, nominal)}
+
+
+def decision_error(d: np.ndarray, nominal: np.ndarray) -> float:
+    """The median |d - nominal decision| over the median |nominal decision|."""
+    return float(np.median(np.abs(d - nominal)) / np.median(np.abs(nominal)))
 
 
 def _progress(rows: list[dict], total: int, seconds: float) -> str:
@@ -373,10 +377,11 @@ def _progress(rows: list[dict], total: int, seconds: float) -> str:
 
 def evaluate_physical(setup: Setup, phys: Physical, *, reference: dict | None = None,
                       scheduler: str | None = None, jobs: int = 0) -> dict:
-    """Accuracy with thermal noise at physical scale, beside the noiseless accuracy, and the
+    """Accuracy with thermal noise at physical scale, beside the noiseless accuracy, the
     signal-to-noise ratio of Phi (noiseless Phi over noisy minus noiseless, per feature over
-    the clips). `reference`: the noiseless normalised `outputs(..., phi=True)`, computed here
-    unless given (it is the same for every scale)."""
+    the clips) and the decision error (`decision_error` against the noiseless decisions).
+    `reference`: the noiseless normalised `outputs(..., phi=True)`, computed here unless
+    given (it is the same for every scale)."""
     from springc.kws.features.distributed import session
 
     phys.validate()
@@ -389,7 +394,9 @@ def evaluate_physical(setup: Setup, phys: Physical, *, reference: dict | None = 
                         scheduler=scheduler, jobs=jobs, desc="thermal noise")
     return {"accuracy": accuracy(setup, noisy["decisions"]),
             "noiseless": accuracy(setup, reference["decisions"]),
-            "phi_snr_db": phi_snr_db(reference["phi"], noisy["phi"]), "n": len(setup.y),
+            "phi_snr_db": phi_snr_db(reference["phi"], noisy["phi"]),
+            "decision_error": decision_error(noisy["decisions"], reference["decisions"]),
+            "n": len(setup.y),
             "temp": phys.temp, "mass": phys.mass, "spl": phys.spl, "area": phys.area,
             "seed": phys.seed, "pressure": phys.pressure, "length": lam,
             "device_mass": float(phys.mass * setup.net.mass().sum())}
@@ -473,4 +480,6 @@ def physical_lines(report: dict, phys: Physical) -> list[str]:
             f"  accuracy {100 * report['accuracy']:.2f}% with thermal noise, "
             f"{100 * report['noiseless']:.2f}% noiseless",
             f"  SNR of the features Phi: median {snr['median']:.1f} dB over the features, "
-            f"worst {snr['worst']:.1f} dB, pooled {snr['pooled']:.1f} dB"]
+            f"worst {snr['worst']:.1f} dB, pooled {snr['pooled']:.1f} dB",
+            f"  decision error (median |noisy - noiseless| / median |noiseless|) "
+            f"{report['decision_error']:.3g}"]

@@ -45,9 +45,14 @@ CASE_NAMES = ("feature", "kws", "delay", "stiff", "duffing", "kws-features", "kw
                    "call against 256 runs of the nominal chain, and scipy per sample "
                    "(springc.bench.population); writes OUT/bench-population.md and "
                    "OUT/bench/population.json. With --quick: 50 masses, 32 samples.")
+@click.option("--noise", is_flag=True,
+              help="Instead: the 8x3 feature network with thermal noise on every damper "
+                   "against without, alternating, and the noise's statistics "
+                   "(springc.bench.noise); writes OUT/bench-noise.md and OUT/bench/noise.json. "
+                   "With --quick: 8 runs of 0.02 s, a short oscillator.")
 @run_user_errors
 def bench_cmd(case_names, outdir, quick, render_from, issue3, seconds, batch, stretch,
-              json_path, scaling, population):
+              json_path, scaling, population, noise):
     """Speed against error: on each reference network (feature extractor, 8x3 keyword
     spotter, long delay line, stiff all-to-all block, hard-driven Duffing resonator) every
     integrator at several steps and float64/float32, and the peers (scipy RK45/DOP853 at rtol
@@ -63,6 +68,9 @@ def bench_cmd(case_names, outdir, quick, render_from, issue3, seconds, batch, st
         return
     if population:
         _population(Path(outdir), quick)
+        return
+    if noise:
+        _noise(Path(outdir), quick)
         return
     from springc.bench import report
     from springc.bench import suite as benchsuite
@@ -103,6 +111,14 @@ def _population(outdir: Path, quick: bool) -> None:
     sizes = dict(masses=50, samples=32, tstop=0.1, scipy_samples=1) if quick else {}
     result = population.run_population(**sizes, progress=lambda m: click.echo(m, err=True))
     _echo(population.write_report(result, outdir))
+
+
+def _noise(outdir: Path, quick: bool) -> None:
+    from springc.bench import noise
+
+    sizes = dict(runs=8, seconds=0.02, rounds=2, osc_runs=16, osc_tstop=200.0) if quick else {}
+    result = noise.run_noise(**sizes, progress=lambda m: click.echo(m, err=True))
+    _echo(noise.write_report(result, outdir))
 
 
 def _scaling(outdir: Path, quick: bool) -> None:

@@ -200,15 +200,27 @@ def normals(seed: int, runs, elements, steps) -> np.ndarray:
     whose sine and cosine are Taylor polynomials to a^15 and a^14 (error < 1e-15); the
     quarter turns swap and negate them. No libm call and no branch: the kernels' lane loops
     vectorise it (libm's log and sincos, per lane, cost as much as the network's forces)."""
-    u = np.uint64
     elements = np.asarray(elements, np.int64)
+    odd = (elements % 2 == 1)[None, :, None]
+    return box_muller(counter_bits(seed, runs, elements, steps), odd)
+
+
+def counter_bits(seed: int, runs, elements, steps) -> np.ndarray:
+    """The 64 bits r of every (run, element, step), uint64 of shape (runs, elements, steps);
+    the two dampers of a pair share them."""
+    u = np.uint64
     with np.errstate(over="ignore"):
         base = mix(u(seed) + u(GAMMA))
         run = np.asarray(runs, u)[:, None, None]
-        pair = (elements // 2).astype(u)[None, :, None]
+        pair = (np.asarray(elements, np.int64) // 2).astype(u)[None, :, None]
         key = mix(mix(base + run) + pair)
         state = key + (np.asarray(steps, u)[None, None, :] + u(1)) * u(GAMMA)
-        r = mix(state)
+        return mix(state)
+
+
+def box_muller(r: np.ndarray, odd) -> np.ndarray:
+    """The kernels' normal of the bits `r`: the cosine branch, or the sine one where `odd`."""
+    u = np.uint64
     k = ((r >> u(32)) << u(1)) | u(1)
     bits = np.frexp(k.astype(np.float64))[1]  # exact: k < 2^33
     lz = (64 - bits).astype(u)
@@ -228,8 +240,18 @@ def normals(seed: int, runs, elements, steps) -> np.ndarray:
     ca, sa = np.where(turn, -sa, ca), np.where(turn, ca, sa)
     half = (q & u(2)) != 0
     ca, sa = np.where(half, -ca, ca), np.where(half, -sa, sa)
-    odd = (elements % 2 == 1)[None, :, None]
     return rad * np.where(odd, sa, ca)
+
+
+def box_muller_libm(r: np.ndarray, odd) -> np.ndarray:
+    """`box_muller` with numpy's logarithm, sine and cosine on the same u1 and angle: the
+    transform that the kernels' polynomials approximate (for checks)."""
+    u = np.uint64
+    u1 = ((r >> u(32)).astype(np.float64) * 2.0 + 1.0) * 2.0**-33
+    lo = r & u(0xFFFFFFFF)
+    angle = ((lo >> u(30)).astype(np.float64) * (np.pi / 2)
+             + ((lo & u(FRAC)).astype(np.float64) - HALF_FRAC) * QUARTER_STEP)
+    return np.sqrt(-2.0 * np.log(u1)) * np.where(odd, np.sin(angle), np.cos(angle))
 
 
 def _horner(z: np.ndarray, coeffs: tuple[float, ...]) -> np.ndarray:

@@ -212,11 +212,12 @@ def _ritz_vectors(mats: list, starts: np.ndarray, runs: list, coeffs: list) -> l
     product = _Lockstep([mats[r] for r in order])
     q = _normalised(starts[order])
     prev = np.zeros_like(q)
-    out = np.zeros(picked.shape[:1] + q.shape[1:] + picked.shape[2:])
+    # (runs, vectors, n): the long axis innermost; every entry is the lone run's sum
+    out = np.zeros((len(runs), picked.shape[2], q.shape[1]))
     term = np.empty_like(out)
     for j in range(steps):
         live = len(q)
-        np.multiply(q[:, :, None], picked[:live, j, None, :], out=term[:live])
+        np.multiply(picked[:live, j, :, None], q[:, None, :], out=term[:live])
         out[:live] += term[:live]
         live = int(np.count_nonzero(lengths > j + 1))
         if live == 0:
@@ -228,7 +229,8 @@ def _ritz_vectors(mats: list, starts: np.ndarray, runs: list, coeffs: list) -> l
         w = product @ q - back[:, None] * prev  # as `_lanczos`, operation by operation
         w -= alpha[:live, j, None] * q
         prev, q = q, w / beta[:live, j, None]
-    vectors = [out[i] / np.linalg.norm(out[i], axis=0) for i in range(len(runs))]
+    vectors = [np.ascontiguousarray(out[i].T) for i in range(len(runs))]
+    vectors = [v / np.linalg.norm(v, axis=0) for v in vectors]
     return [vectors[i] for i in np.argsort(order)]
 
 

@@ -117,3 +117,31 @@ def test_large_components_checked_together_as_alone() -> None:
         assert got.modes.eigenvalues.tobytes() == alone.modes.eigenvalues.tobytes()
         assert all(a[1].tobytes() == b[1].tobytes()
                    for a, b in zip(got.modes.shapes, alone.modes.shapes))
+
+
+def test_lockstep_lanczos_runs_equal_lone_runs() -> None:
+    # runs of different lengths in one lockstep batch: rank-one matrices end after a step or
+    # two (fewer Ritz vectors than asked for), tridiagonal ones run on
+    import scipy.sparse as sp
+
+    from springc.check import sparse
+
+    rng = np.random.default_rng(3)
+    n = 400
+    mats = []
+    for k in range(4):
+        if k % 2:
+            diagonal = sp.diags(3 * rng.uniform(1, 2, n))
+            mats.append((sp.diags(np.ones(n - 1), 1) + sp.diags(np.ones(n - 1), -1)
+                         + diagonal).tocsr())
+        else:
+            v = np.zeros(n)
+            v[:3] = rng.uniform(1, 3, 3)
+            mats.append(sp.csr_matrix(np.outer(v, v)))
+    together = sparse.top_many(mats, 6)
+    for a, got in zip(mats, together):
+        alone = sparse.top_many([a], 6)[0]
+        assert (got.bound, got.ritz) == (alone.bound, alone.ritz)
+        assert got.vectors.shape == alone.vectors.shape
+        assert got.vectors.tobytes() == alone.vectors.tobytes()
+    assert {t.vectors.shape[1] for t in together} == {2, 6}

@@ -205,10 +205,11 @@ def _ritz_vectors(mats: list, starts: np.ndarray, runs: list, coeffs: list) -> l
     order = np.argsort(-lengths, kind="stable")
     lengths, steps = lengths[order], int(lengths.max())
     alpha, beta = np.zeros((len(runs), steps)), np.zeros((len(runs), steps))
-    picked = np.zeros((len(runs), steps, coeffs[0].shape[1]))
+    # a run shorter than the vectors asked for has fewer: zero columns, cut off at the end
+    picked = np.zeros((len(runs), steps, max(c.shape[1] for c in coeffs)))
     for i, r in enumerate(order):
         alpha[i, :lengths[i]], beta[i, :lengths[i]] = runs[r]
-        picked[i, :lengths[i]] = coeffs[r]
+        picked[i, :lengths[i], :coeffs[r].shape[1]] = coeffs[r]
     product = _Lockstep([mats[r] for r in order])
     q = _normalised(starts[order])
     prev = np.zeros_like(q)
@@ -229,7 +230,7 @@ def _ritz_vectors(mats: list, starts: np.ndarray, runs: list, coeffs: list) -> l
         w = product @ q - back[:, None] * prev  # as `_lanczos`, operation by operation
         w -= alpha[:live, j, None] * q
         prev, q = q, w / beta[:live, j, None]
-    vectors = [np.ascontiguousarray(out[i].T) for i in range(len(runs))]
+    vectors = [np.ascontiguousarray(out[i, :coeffs[r].shape[1]].T) for i, r in enumerate(order)]
     vectors = [v / np.linalg.norm(v, axis=0) for v in vectors]
     return [vectors[i] for i in np.argsort(order)]
 

@@ -10,8 +10,11 @@ the `.step` lines, the first outermost) and, with `.mc`, one sample index; `netl
 elaborates the file with the stepped `.param` lines set to the point's values and the random
 functions drawing in its sample. A `PointSet` groups the points by `structure`: points whose
 netlists differ only in element coefficients can share one kernel with per-run coefficient
-arrays (a stepped `.for` bound changes the structure). Checking each point is the check
-stage's (`springc.check.points`).
+arrays (a stepped `.for` bound changes the structure). Where every random call is the whole
+value of an element's key (`direct_draws`), the samples of one step point come from one
+elaboration: its draws are drawn for all of them at once and written into the coefficients,
+bitwise what each sample's own elaboration gives. Checking each point is the check stage's
+(`springc.check.points`).
 """
 
 from __future__ import annotations

@@ -2,6 +2,7 @@
 
     python scripts/results_eps.py stages --data CORPUS [--clips 2] [--buffer KB,KG ...]
     python scripts/results_eps.py accuracy --model MODEL [--buffer KB,KG ...]
+    python scripts/results_eps.py plot --out DIR
 
 `stages`: the whole classifier (stand-in heads, as `scripts/results_stages.py` builds it) on
 the first test clips of distinct command words of CORPUS, at each eps of --eps, plain and with
@@ -16,7 +17,8 @@ channel, median clip), and the insertion loss (median over the clips).
 split as `springc eval` does: accuracy, its standard error, the change against the first eps
 paired on the same clips, and the insertion loss (median).
 
-Both print markdown tables and write them with the JSON to --out.
+Both print markdown tables and write them with the JSON to --out; `plot` draws what --out
+holds into DIR/results-eps.png (readout distortion and accuracy against insertion loss).
 """
 
 from __future__ import annotations
@@ -173,6 +175,43 @@ def accuracy_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def label(buffer: dict | None) -> str:
+    """A network's name in the plot's legend."""
+    return f"buffered, kg {buffer['kg']:g} kc" if buffer else "plain"
+
+
+def plot(args) -> None:
+    """Readout distortion (stages.json) and accuracy (accuracy.json) against insertion loss,
+    one line per network, eps written at every point."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for ax, name, key, ylabel in ((axes[0], "stages", "readout", "readout distortion"),
+                                  (axes[1], "accuracy", "accuracy", "accuracy %")):
+        path = args.out / f"{name}.json"
+        if not path.exists():
+            ax.set_visible(False)
+            continue
+        rows = json.loads(path.read_text())["rows"]
+        for buf in dict.fromkeys(json.dumps(r["buffer"]) for r in rows):
+            mine = [r for r in rows if json.dumps(r["buffer"]) == buf]
+            ax.plot([r["loss_db"] for r in mine], [r[key] for r in mine], "o-",
+                    label=label(json.loads(buf)))
+            for r in mine:
+                ax.annotate(f"{r['eps']:g}", (r["loss_db"], r[key]), fontsize=8)
+        ax.set_xlabel("insertion loss (dB)")
+        ax.set_ylabel(ylabel)
+        ax.set_yscale("log" if key == "readout" else "linear")
+        ax.legend()
+    fig.suptitle("8x3 classifier against eps (points labelled by eps)")
+    fig.tight_layout()
+    fig.savefig(args.out / "results-eps.png", dpi=110)
+    print(args.out / "results-eps.png")
+
+
 def write(out: Path, name: str, text: str, data: dict) -> None:
     """OUT/NAME.md and OUT/NAME.json."""
     out.mkdir(parents=True, exist_ok=True)
@@ -189,12 +228,14 @@ def main() -> None:
     acc = sub.add_parser("accuracy")
     acc.add_argument("--model", type=Path, required=True)
     acc.add_argument("-j", "--jobs", type=int, default=2)
+    pl = sub.add_parser("plot")
+    pl.add_argument("--out", type=Path, default=Path("eps-out"))
     for p in (st, acc):
         p.add_argument("--eps", type=float, nargs="+", default=[1e-6, 1e-2, 1e-1, 1.0])
         p.add_argument("--buffer", type=parse_buffer, action="append", default=[])
         p.add_argument("--out", type=Path, default=Path("eps-out"))
     args = ap.parse_args()
-    stages(args) if args.what == "stages" else accuracy(args)
+    {"stages": stages, "accuracy": accuracy, "plot": plot}[args.what](args)
 
 
 if __name__ == "__main__":

@@ -25,12 +25,12 @@ from springc.kws.evaluation import device as dv
 
 SIZE = "8x3"
 AREA = 1e-6  # m^2: 1 mm^2
-MASSES = (1e-46, 1e-42, 1e-38, 1e-34, 1e-31, 1e-22)  # kg per normalised mass unit
+MASSES = (1e-42, 1e-38, 1e-34, 1e-31, 1e-22)  # kg per unit (below ~1e-44 displacements pass 1e30 m)
 # the other conditions at the mass where the noise in normalised units, T mu / (p A)^2,
-# equals the 300 K, 60 dB one's at MASSES[2]: the same accuracy is predicted
+# equals the 300 K, 60 dB one's at MASSES[1]: the same accuracy is predicted
 CONDITIONS = {(300.0, 60.0): MASSES,
-              (4.0, 60.0): (MASSES[2] * 300 / 4,),
-              (300.0, 80.0): (MASSES[2] * 100,)}
+              (4.0, 60.0): (MASSES[1] * 300 / 4,),
+              (300.0, 80.0): (MASSES[1] * 100,)}
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 
 
@@ -39,7 +39,7 @@ def measure(models: Path, store: Path, clips: int, seed: int) -> dict:
     from springc.kws.features.distributed import session
 
     data = json.loads(store.read_text()) if store.exists() else {"rows": {}}
-    data.update(clips=clips, seed=seed, area=AREA, size=SIZE)
+    data.update(date=time.strftime("%Y-%m-%d"), clips=clips, seed=seed, area=AREA, size=SIZE)
     todo = [(t, spl, m) for (t, spl), masses in CONDITIONS.items() for m in masses
             if _key(t, spl, m) not in data["rows"]]
     if not todo:
@@ -182,6 +182,7 @@ def _reading(data: dict) -> list[str]:
         "spotter needs heads with far less insertion loss than the transferred ones.",
         "",
         "## How it was measured", "",
+        f"- {data.get('date', '')} on a 2-core Intel Xeon shared with other work.",
         f"- `python scripts/results_noise.py --models MODELS --clips {data['clips']}` (each "
         f"row `springc eval MODELS/m{SIZE} --temp K --mass KG --spl DB --area 1e-6 --clips "
         f"{data['clips']} --seed {data['seed']}`), the model trained by `springc train "

@@ -35,7 +35,7 @@ import numpy as np
 
 from springc.check import check
 from springc.design.scale import P_REF, acoustic_gains, scale_netlist
-from springc.errors import DataError, DivergedRuns, UsageError
+from springc.errors import CheckError, DataError, DivergedRuns, UsageError
 from springc.kws.data.task import open_task_data, targets
 from springc.kws.evaluation.evaluate import model_integration, selection_models, trained_data
 from springc.kws.features import integration
@@ -330,7 +330,8 @@ def evaluate_spread(setup: Setup, devices: int, spread: Spread, *,
     """The accuracy of the nominal design (its decisions simulated unless `nominal` gives
     them) and of `devices` fabricated devices (0 .. N-1) on the setup's clips, with each
     device's decision error: the median |device - nominal decision| over the median
-    |nominal decision|. A device whose network diverges scores 0 (marked "diverged")."""
+    |nominal decision|. A device whose network diverges, or that the checks find statically
+    unstable (stiffness at rest not positive semidefinite), scores 0 (marked "diverged")."""
     from springc.kws.features.distributed import session
 
     spread.validate()
@@ -355,8 +356,9 @@ def _device(setup: Setup, k: int, spread: Spread, nominal: np.ndarray, scheduler
     try:
         d = outputs(setup, net, judge=False, scheduler=scheduler, jobs=jobs,
                     desc=f"device {k}")["decisions"]
-    except DivergedRuns:
-        return {"device": k, "accuracy": 0.0, "diverged": True, "decision_error": None}
+    except (DivergedRuns, CheckError) as err:  # runs away, or the checks find it unstable
+        return {"device": k, "accuracy": 0.0, "diverged": True, "decision_error": None,
+                "why": err.message}
     return {"device": k, "accuracy": accuracy(setup, d), "diverged": False,
             "decision_error": decision_error(d, nominal)}
 

@@ -27,6 +27,7 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -134,15 +135,18 @@ def accuracy(args) -> None:
     _, picker = ev.selection_models(model.models)[0]
     rows = []
     with session(None, args.jobs):
-        for buffer in [None] + args.buffer:
+        for buffer in ([] if args.no_plain else [None]) + args.buffer:
             first = None
             for eps in args.eps:
                 heads = tb.rescaled(tr.heads_for(model.models, s,
                                                  tb.amplitude(buffer, amplitude), eps), buffer)
                 net = load_text(tr.classifier_text(heads, s, epsilon=eps, buffer=buffer),
                                 f"<eps {eps:g}>")
+                plan = ev.model_integration(model)
+                if args.substeps:  # a stiffer buffer than the model's step allows
+                    plan = replace(plan, substeps=args.substeps)
                 d, loss, _ = ev.simulate_network(net, heads, s, signals, jobs=args.jobs,
-                                                 plan=ev.model_integration(model))
+                                                 plan=plan)
                 hits = (picker.predict(d) == y).astype(float)
                 first = hits if first is None else first
                 rows.append({"buffer": buffer.to_dict() if buffer else None, "eps": eps,
@@ -228,6 +232,8 @@ def main() -> None:
     acc = sub.add_parser("accuracy")
     acc.add_argument("--model", type=Path, required=True)
     acc.add_argument("-j", "--jobs", type=int, default=2)
+    acc.add_argument("--no-plain", action="store_true", help="only the buffered networks")
+    acc.add_argument("--substeps", type=int, help="instead of the model's integration's")
     pl = sub.add_parser("plot")
     pl.add_argument("--out", type=Path, default=Path("eps-out"))
     for p in (st, acc):

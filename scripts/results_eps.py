@@ -80,6 +80,18 @@ def stage_run(s, base_heads, signals, eps, amplitude, buffer):
     return out, tr.insertion_loss_db(res.reductions, heads)
 
 
+def stiffer_mvms(factor: float) -> None:
+    """Every head's mvm designed with `factor` times the default stiffness d (its stiff modes
+    sqrt(factor) higher): for the experiment only, by wrapping transfer's design_mvm."""
+    from springc.design import mvm
+
+    def design(q, *, m, b, kc):
+        return mvm.design_mvm(q, m=m, b=b, kc=kc,
+                              stiffness=factor * mvm.DEFAULT_STIFFNESS_RATIO * kc)
+
+    tr.design_mvm = design
+
+
 def stages(args) -> None:
     """Distortion per stage and insertion loss against eps, plain and buffered."""
     start = time.time()
@@ -88,8 +100,10 @@ def stages(args) -> None:
     base = tr.stand_in_heads(s)
     ideal, _ = stage_run(s, base, signals, rs.EPS_IDEAL, 1.0, None)
     amplitude = float(np.median(np.abs(ideal["delay taps"]).max(axis=(0, 2))))
+    if args.mvm_stiffness != 1.0:
+        stiffer_mvms(args.mvm_stiffness)
     rows = []
-    for buffer in [None] + args.buffer:
+    for buffer in ([] if args.no_plain else [None]) + args.buffer:
         for eps in args.eps:
             got, loss = stage_run(s, base, signals, eps, amplitude, buffer)
             row = {"buffer": buffer.to_dict() if buffer else None, "eps": eps,
@@ -123,6 +137,8 @@ def accuracy(args) -> None:
     from springc.kws.training.model import load_model
 
     start = time.time()
+    if args.mvm_stiffness != 1.0:
+        stiffer_mvms(args.mvm_stiffness)
     model = load_model(args.model)
     s, _ = tr.model_heads(model)
     amplitude = float(model.settings["transfer"]["amplitude"])
@@ -229,6 +245,7 @@ def main() -> None:
     st = sub.add_parser("stages")
     st.add_argument("--data", type=Path, required=True)
     st.add_argument("--clips", type=int, default=2)
+    st.add_argument("--no-plain", action="store_true", help="only the buffered networks")
     acc = sub.add_parser("accuracy")
     acc.add_argument("--model", type=Path, required=True)
     acc.add_argument("-j", "--jobs", type=int, default=2)
@@ -239,6 +256,8 @@ def main() -> None:
     for p in (st, acc):
         p.add_argument("--eps", type=float, nargs="+", default=[1e-6, 1e-2, 1e-1, 1.0])
         p.add_argument("--buffer", type=parse_buffer, action="append", default=[])
+        p.add_argument("--mvm-stiffness", type=float, default=1.0,
+                       help="the heads' mvm stiffness d over its default (not the ideal's)")
         p.add_argument("--out", type=Path, default=Path("eps-out"))
     args = ap.parse_args()
     {"stages": stages, "accuracy": accuracy, "plot": plot}[args.what](args)

@@ -20,13 +20,13 @@ from springc.kws.training.model import load_model
 from springc.kws.data.task import open_task_data
 from springc.lang import load_text
 from springc_cli.main import main
-from test_kws_train import corpus_and_model
+from test_kws_train import shared_corpus_and_model
 
 
 @pytest.fixture(scope="module")
 def env(tmp_path_factory):
+    data, model = shared_corpus_and_model(tmp_path_factory, "--realisation", "mass-spring")
     root = tmp_path_factory.mktemp("refit")
-    data, model = corpus_and_model(root, "--realisation", "mass-spring")
     return root, data, model
 
 

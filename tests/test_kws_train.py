@@ -54,6 +54,29 @@ def corpus_and_model(root: Path, *train_args: str) -> tuple[Path, Path]:
     return data, model
 
 
+def shared_corpus_and_model(tmp_path_factory, *train_args: str) -> tuple[Path, Path]:
+    """`corpus_and_model` made once per test run and shared by the modules that only read
+    the model (the pytest-xdist workers of one run share the folder; a lock makes one of
+    them train while the other waits): the tests that tune, refit and evaluate it write
+    folders of their own beside it."""
+    import fcntl
+    import hashlib
+    import os
+
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent  # the run's folder, above each worker's own
+    key = hashlib.sha256("\0".join(train_args).encode()).hexdigest()[:12]
+    root = base / f"shared-model-{key}"
+    root.mkdir(exist_ok=True)
+    with open(root / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (root / ".done").exists():
+            corpus_and_model(root, *train_args)
+            (root / ".done").touch()
+    return root / "data", root / "model"
+
+
 def make_corpus(root: Path, words: tuple[str, ...] = ("yes", "no", "cat"), per_speaker: int = 3,
                 seed: int = 0, empty_test: bool = False) -> Path:
     """A GSCD-layout folder: <word>/<speaker>_nohash_<k>.wav, split lists, background noise."""

@@ -31,16 +31,21 @@ def env(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def tuned(env):
-    """Three full-batch steps on two clips (the loss of epoch e is taken before its step),
-    the last kept (no validation clips)."""
+def tuned_run(env):
+    """Three full-batch steps on two clips (the loss of epoch e is taken before its step)
+    with two validation clips: the folder and what the command printed."""
     root, _, model = env
     out = root / "tuned"
     result = CliRunner().invoke(main, ["tune", str(model), "-o", str(out), "--clips", "2",
-                                       "--val-clips", "0", "--batch", "2", "--epochs", "3",
+                                       "--val-clips", "2", "--batch", "2", "--epochs", "3",
                                        "--lr", "0.1", "--no-refit", "-j", "1"])
     assert result.exit_code == 0, result.output
-    return out
+    return out, result.output
+
+
+@pytest.fixture(scope="module")
+def tuned(tuned_run):
+    return tuned_run[0]
 
 
 def setup(model_dir, clips: int, il_weight: float):
@@ -111,7 +116,7 @@ def test_the_tuned_folder_is_what_eval_simulates(env, tuned):
     readme = (tuned / "README.md").read_text()
     assert readme.startswith("# Keyword spotter: mass-spring, 4 bins x 2 delays\n\nTuned by")
     assert (f"springc tune {model_dir.resolve()} -o {tuned} --params "
-            "filter,compression,couplings,readout --epochs 3 --batch 2 --clips 2 --val-clips 0 "
+            "filter,compression,couplings,readout --epochs 3 --batch 2 --clips 2 --val-clips 2 "
             "--lr 0.1 "
             "--il-weight 0 --seed 0 --no-refit") in readme
     assert f"-o {model_dir.resolve()}\n" in readme  # the train line makes the start model
@@ -127,20 +132,16 @@ def test_the_lowest_validation_loss_picks_the_epoch_kept():
     assert T.chosen_epoch([{"epoch": 1, "train_loss": 1.0}, {"epoch": 2}]) == 2  # none: last
 
 
-def test_a_validated_run_keeps_its_best_epoch(env):
-    """Two steps with validation clips: the validation loss from the start is recorded, the
-    folder holds the kept epoch's network (the start's when the start was best), and the
-    kept epoch's validation loss is that of the folder's network."""
-    root, _, model_dir = env
-    out = root / "tuned-validated"
-    result = CliRunner().invoke(main, ["tune", str(model_dir), "-o", str(out), "--clips", "2",
-                                       "--val-clips", "2", "--batch", "2", "--epochs", "2",
-                                       "--lr", "0.3", "--no-refit", "-j", "1"])
-    assert result.exit_code == 0, result.output
+def test_a_validated_run_keeps_its_best_epoch(env, tuned_run):
+    """With validation clips the validation loss from the start is recorded, the folder
+    holds the kept epoch's network (the start's when the start was best), and the kept
+    epoch's validation loss is that of the folder's network."""
+    _, _, model_dir = env
+    out, output = tuned_run
     tune = json.loads((out / "settings.json").read_text())["tune"]
     val = [h["validation_loss"] for h in tune["history"]]
-    assert [h["epoch"] for h in tune["history"]] == [0, 1, 2]
-    assert tune["chosen_epoch"] == int(np.argmin(val)) and "kept epoch" in result.output
+    assert [h["epoch"] for h in tune["history"]] == [0, 1, 2, 3]
+    assert tune["chosen_epoch"] == int(np.argmin(val)) and "kept epoch" in output
     s0, heads0 = model_heads(load_model(model_dir))
     s1, heads1 = model_heads(load_model(out))
     moved = max(np.abs(h1.gamma / h0.gamma - 1).max() for h0, h1 in zip(heads0, heads1))

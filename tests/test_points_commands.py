@@ -14,6 +14,7 @@ from springc_cli.main import main
 
 import springc
 from springc.errors import UsageError
+from test_grad_cli import NETLIST
 
 # two masses, a stepped stiffness, a global and two local draws: 3 steps x 2 samples
 NET = """* a driven pair under spread
@@ -154,19 +155,7 @@ def test_noise_refuses_points_at_the_step_line(pop):
 
 
 # tests/test_grad_cli.py's netlist, stepped: its gradient kernel is shared with that file's
-STEPPED = """\
-.param k0=4e5 bb=40 gain=1e5 l0=1e9 unused=3 amp=1
-Ma a m=1 b={bb}
-Mb b m=1
-Ka a k={k0}
-Kb b k={2*k0}
-Da a l={l0}
-Cab a b k=1e5
-Fa a in(0) gain={gain}
-Fs b sin({amp} 50)
-.tran {1/8000} 0.03
-.step k0 list 4e5 5e5
-"""
+STEPPED = NETLIST + ".step k0 list 4e5 5e5\n"
 
 
 def test_grad_at_every_step_point_is_the_written_in_netlists(tmp_path):

@@ -24,24 +24,11 @@ from springc.sim.results import atomic_path
 
 
 @dataclass
-class AcFamily:
+class AcFamily(ac.AcResult):
     """The response H of `node` to input channel `channel` at every point: `h[point, f]`
-    at frequencies `f_hz`, `points` the points in order."""
+    at frequencies `f_hz` (`mag` and `phase` likewise), `points` the points in order."""
 
-    node: str
-    channel: int
-    f_hz: np.ndarray
-    h: np.ndarray
     points: tuple[Point, ...]
-
-    @property
-    def mag(self) -> np.ndarray:
-        return np.abs(self.h)
-
-    @property
-    def phase(self) -> np.ndarray:
-        """Phase in radians, in (-pi, pi]."""
-        return np.angle(self.h)
 
     def __len__(self) -> int:
         return len(self.points)

@@ -16,6 +16,7 @@ Writes bench-noise.md and bench/noise.json.
 from __future__ import annotations
 
 import json
+import os
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -175,25 +176,17 @@ def run_noise(runs: int = 64, seconds: float = 0.25, rounds: int = 7, osc_runs: 
     """Measure (see the module docstring); returns the numbers as a dict."""
     from springc.sim import simulate as sm
 
-    out: dict = {"threads": sm.threads(), "load": _load()}
+    out: dict = {"threads": sm.threads(), "load": os.getloadavg()[0]}
     cost = measure(runs=runs, seconds=seconds, rounds=rounds)
     out["cost"] = cost.as_dict()
-    out["load_after_cost"] = _load()
+    out["load_after_cost"] = os.getloadavg()[0]
     progress(f"noisy/noiseless {cost.ratio:.3f} (paired {cost.paired_ratio:.3f}, "
              f"CPU {cost.cpu_ratio:.3f})")
     out["draws"] = draw_statistics()
     progress("generator statistics done")
     out["oscillator"] = oscillator(osc_runs, osc_tstop)
-    out["load_end"] = _load()
+    out["load_end"] = os.getloadavg()[0]
     return out
-
-
-def _load() -> float | None:
-    """The 1-minute load average (the machine is shared), None where unknown."""
-    try:
-        return float(Path("/proc/loadavg").read_text().split()[0])
-    except (OSError, ValueError, IndexError):
-        return None
 
 
 def markdown(r: dict) -> str:

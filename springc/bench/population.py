@@ -15,6 +15,7 @@ sample against springc's. Writes bench-population.md and bench/population.json.
 from __future__ import annotations
 
 import json
+import os
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -67,7 +68,7 @@ def run_population(masses: int = MASSES, samples: int = SAMPLES, tstop: float = 
     from springc.sim.points import simulate_points
 
     out: dict = {"masses": masses, "samples": samples, "tstop": tstop, "tstep": TSTEP,
-                 "threads": sm.threads(), "load": _load()}
+                 "threads": sm.threads(), "load": os.getloadavg()[0]}
     start = time.perf_counter()
     net = springc.load(population_text(masses, samples))
     loaded = time.perf_counter()
@@ -113,14 +114,6 @@ def run_population(masses: int = MASSES, samples: int = SAMPLES, tstop: float = 
     out["springc_per_sample_s"] = out["population_s"] / samples
     out["scipy_ratio"] = float(np.mean(scipy_s)) / out["springc_per_sample_s"]
     return out
-
-
-def _load() -> float | None:
-    """The 1-minute load average (the machine is shared), None where unknown."""
-    try:
-        return float(Path("/proc/loadavg").read_text().split()[0])
-    except (OSError, ValueError, IndexError):
-        return None
 
 
 def markdown(r: dict) -> str:

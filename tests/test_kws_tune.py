@@ -32,12 +32,12 @@ def env(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def tuned_run(env):
-    """Three full-batch steps on two clips (the loss of epoch e is taken before its step)
-    with two validation clips: the folder and what the command printed."""
+    """Three full-batch steps on one clip (the loss of epoch e is taken before its step)
+    with one validation clip: the folder and what the command printed."""
     root, _, model = env
     out = root / "tuned"
-    result = CliRunner().invoke(main, ["tune", str(model), "-o", str(out), "--clips", "2",
-                                       "--val-clips", "2", "--batch", "2", "--epochs", "3",
+    result = CliRunner().invoke(main, ["tune", str(model), "-o", str(out), "--clips", "1",
+                                       "--val-clips", "1", "--batch", "1", "--epochs", "3",
                                        "--lr", "0.1", "--no-refit", "-j", "1"])
     assert result.exit_code == 0, result.output
     return out, result.output
@@ -116,7 +116,7 @@ def test_the_tuned_folder_is_what_eval_simulates(env, tuned):
     readme = (tuned / "README.md").read_text()
     assert readme.startswith("# Keyword spotter: mass-spring, 4 bins x 2 delays\n\nTuned by")
     assert (f"springc tune {model_dir.resolve()} -o {tuned} --params "
-            "filter,compression,couplings,readout --epochs 3 --batch 2 --clips 2 --val-clips 2 "
+            "filter,compression,couplings,readout --epochs 3 --batch 1 --clips 1 --val-clips 1 "
             "--lr 0.1 "
             "--il-weight 0 --seed 0 --no-refit") in readme
     assert f"-o {model_dir.resolve()}\n" in readme  # the train line makes the start model
@@ -146,7 +146,7 @@ def test_a_validated_run_keeps_its_best_epoch(env, tuned_run):
     s1, heads1 = model_heads(load_model(out))
     moved = max(np.abs(h1.gamma / h0.gamma - 1).max() for h0, h1 in zip(heads0, heads1))
     assert (moved > 1e-6) == (tune["chosen_epoch"] > 0)
-    opts = T.TuneOptions(model_dir, None, out, clips=2, val_clips=2, evaluate=False)
+    opts = T.TuneOptions(model_dir, None, out, clips=1, val_clips=1, evaluate=False)
     model, start = T.load_start(model_dir)
     _, _, held = T.training_clips(opts, model)
     clips = T.clip_set(held, model)

@@ -71,9 +71,11 @@ def test_the_kernel_draws_what_the_generator_says() -> None:
 
 @pytest.fixture(scope="module")
 def oscillator():
-    """256 runs of 1000 s (20000 RK4 steps of h = 0.05 s, omega_0 h = 0.05)."""
+    """256 runs of 1000 s (20000 RK4 steps of h = 0.05 s, omega_0 h = 0.05), the register
+    kernel of 32 lanes (half the text of the shared one: the draws are those of every form)."""
     net = springc.load(OSC)
-    res = sim.simulate(net.checked, np.zeros((256, 0, 20001)), tstep=0.05, tstop=1000.0)
+    res = sim.simulate(net.checked, np.zeros((256, 0, 20001)), tstep=0.05, tstop=1000.0,
+                       write_out=True)
     return net, res
 
 
@@ -113,7 +115,8 @@ def test_same_seed_is_bitwise_equal_for_batch_1_and_64() -> None:
 def test_every_kernel_form_runs_the_same_noise() -> None:
     """Shared (lanes 1 and 32), register (lanes 1 and 32), written out per node (a
     reduction rules out the register form) agree to rounding; the exponential schemes, whose
-    block holds every node here, to their integrators' error."""
+    block holds every node here, to their integrators' error (at lanes 1: their kernels of 32
+    lanes are twice the text, twice the compile, and the draws do not depend on the lanes)."""
     ref = run_net(batch=64, write_out=False)
     scale = np.abs(ref).max()
     for kw in (dict(batch=1, write_out=False), dict(batch=1), dict(write_out=True),
@@ -121,7 +124,7 @@ def test_every_kernel_form_runs_the_same_noise() -> None:
         got = run_net(**kw)
         assert np.abs(got - ref).max() < 1e-12 * scale, kw
     for method, tol in (("exp-rk4", 1e-5), ("strang-rk4", 2e-3)):
-        got = run_net(method=method, batch=64)
+        got = run_net(method=method, batch=1)
         assert np.abs(got - ref).max() < tol * scale, method
 
 

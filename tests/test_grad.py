@@ -61,56 +61,77 @@ Fa a in(0) gain={gain}
 """
 
 
-def fd(pn: ParamNetlist, spec: str, name: str, inputs=None, rel: float = 1e-3) -> np.ndarray:
-    """d spec / d name per run: central differences with one Richardson step (error O(h^4))."""
+def fd(pn: ParamNetlist, specs: list[str], name: str, inputs=None,
+       rel: float = 1e-3) -> dict[str, np.ndarray]:
+    """d spec / d name per run for each of `specs` (simulated together: one kernel serves
+    them all): central differences with one Richardson step (error O(h^4))."""
     p = pn.values[name]
     h = rel * abs(p) if p else rel
 
-    def at(value: float) -> np.ndarray:
-        res = simulate(check(pn.netlist({name: value})), inputs, reductions=[spec])
-        return np.asarray(res.reductions[spec], np.float64)
+    def at(value: float) -> dict[str, np.ndarray]:
+        res = simulate(check(pn.netlist({name: value})), inputs, reductions=specs)
+        return {s: np.asarray(res.reductions[s], np.float64) for s in specs}
 
-    d1 = (at(p + h) - at(p - h)) / (2 * h)
-    d2 = (at(p + h / 2) - at(p - h / 2)) / h
-    return (4 * d2 - d1) / 3
+    hi, lo, hi2, lo2 = at(p + h), at(p - h), at(p + h / 2), at(p - h / 2)
+    out = {}
+    for s in specs:
+        d1 = (hi[s] - lo[s]) / (2 * h)
+        d2 = (hi2[s] - lo2[s]) / h
+        out[s] = (4 * d2 - d1) / 3
+    return out
 
 
-def assert_matches_fd(src: str, specs: list[str], wrt: list[str], inputs=None) -> None:
+def only(specs: list[str], spec: str, weight=1.0) -> dict:
+    """Weights that pick `spec` out of `specs` (the others weigh 0): the gradient of one
+    reduction from the adjoint kernel of them all."""
+    return {s: weight if s == spec else 0.0 for s in specs}
+
+
+def assert_matches_fd(src: str, specs: list[str], wrt: list[str], inputs=None,
+                      also: tuple[str, ...] = ()) -> None:
+    """Each of `specs`: its value as `simulate`'s, its gradient as finite differences. The
+    reductions of `also` are computed beside them (weight 0), for other tests' kernels."""
     pn = ParamNetlist.from_text(src)
+    every = [*specs, *also]
+    sim = simulate(check(pn.netlist()), inputs, reductions=every).reductions
+    want = {name: fd(pn, every, name, inputs) for name in wrt}
     for spec in specs:
-        res = gradient(pn, spec, wrt, inputs)
-        sim = simulate(check(pn.netlist()), inputs, reductions=[spec]).reductions[spec]
-        np.testing.assert_allclose(res.values[spec], sim, rtol=1e-10, err_msg=spec)
+        res = gradient(pn, every, wrt, inputs, weights=only(every, spec))
+        np.testing.assert_allclose(res.values[spec], sim[spec], rtol=1e-10, err_msg=spec)
         for k, name in enumerate(wrt):
-            want = fd(pn, spec, name, inputs)
             scale = np.max(np.abs(res.grad)) + 1e-300
-            np.testing.assert_allclose(res.grad[:, k], want.reshape(-1), rtol=RTOL,
+            np.testing.assert_allclose(res.grad[:, k], want[name][spec].reshape(-1), rtol=RTOL,
                                        atol=1e-9 * scale, err_msg=f"{spec} d/d{name}")
 
 
+# the reductions each network's tests ask for, all in every call: one simulator kernel and
+# one adjoint kernel per network (the adjoint's text depends on the dampers summed)
+DUFFING_SPECS = ["final:x(x)", "final:v(x)", "msq:x(x)", "msq:v(x):0.5:1.5", "work:in",
+                 "dissipated:all"]
+LEVER_SPECS = ["final:x(y)", "msq:x(x)", "dissipated:M2"]
+GRAM = "gram:0.5:x,y"
+DASHPOTS_SPECS = ["work:in", "dissipated:all", "dissipated:B1", "loss:all", "final:v(y)"]
+
+
 def test_duffing_matches_finite_differences():
-    assert_matches_fd(DUFFING, ["final:x(x)", "final:v(x)", "msq:x(x)", "msq:v(x):0.5:1.5",
-                                "work:in", "dissipated:all"],
-                      ["w0", "l0", "bb", "amp", "xs", "mass"])
+    assert_matches_fd(DUFFING, DUFFING_SPECS, ["w0", "l0", "bb", "amp", "xs", "mass"])
 
 
 def test_quadratic_coupling_with_leverage_matches_finite_differences():
-    assert_matches_fd(LEVER, ["final:x(y)", "msq:x(x)", "dissipated:M2"],
-                      ["g", "lev", "kc", "ky", "vy"])
+    assert_matches_fd(LEVER, LEVER_SPECS, ["g", "lev", "kc", "ky", "vy"], also=(GRAM,))
 
 
 def test_gram_reduction_matches_finite_differences():
     pn = ParamNetlist.from_text(LEVER)
-    spec = "gram:0.5:x,y"
-    res = gradient(pn, spec, ["g", "lev"], weights={spec: [1.0, -2.0, 0.5]})
+    every, w = [*LEVER_SPECS, GRAM], np.array([1.0, -2.0, 0.5])
+    res = gradient(pn, every, ["g", "lev"], weights=only(every, GRAM, list(w)))
     for k, name in enumerate(["g", "lev"]):
-        want = fd(pn, spec, name)[0] @ np.array([1.0, -2.0, 0.5])
+        want = fd(pn, every, name)[GRAM][0] @ w
         assert res.grad[0, k] == pytest.approx(want, rel=RTOL)
 
 
 def test_dashpots_work_dissipation_and_loss_match_finite_differences():
-    assert_matches_fd(DASHPOTS, ["work:in", "dissipated:all", "dissipated:B1", "loss:all",
-                                 "final:v(y)"], ["bd", "bg", "k1", "amp"])
+    assert_matches_fd(DASHPOTS, DASHPOTS_SPECS, ["bd", "bg", "k1", "amp"])
 
 
 def _wav(path, seconds: float, seed: int) -> str:
@@ -161,18 +182,24 @@ P1 c={c} x^2 y^2
 
 
 def test_checkpointing_gives_the_same_gradient():
+    """The sum of every reduction of the Duffing test (its kernel), in one segment and in
+    segments of 7 steps."""
     pn = ParamNetlist.from_text(DUFFING)
-    whole = gradient(pn, "msq:x(x)", ["w0", "l0"])
-    parts = gradient(pn, "msq:x(x)", ["w0", "l0"], every=7)
+    whole = gradient(pn, DUFFING_SPECS, ["w0", "l0"])
+    parts = gradient(pn, DUFFING_SPECS, ["w0", "l0"], every=7)
     assert whole.info["every"] == 200 and parts.info["every"] == 7
     np.testing.assert_allclose(parts.grad, whole.grad, rtol=1e-12)
 
 
 def test_several_reductions_sum_with_their_weights():
+    """Two reductions weighted in one call against each alone (picked out of the dashpot
+    test's reductions, a kernel with other damper rows)."""
     pn = ParamNetlist.from_text(DASHPOTS)
     both = gradient(pn, ["work:in", "dissipated:all"], ["bd"],
                     weights={"dissipated:all": -2.0})
-    one = gradient(pn, "work:in", ["bd"]).grad - 2 * gradient(pn, "dissipated:all", ["bd"]).grad
+    alone = [gradient(pn, DASHPOTS_SPECS, ["bd"], weights=only(DASHPOTS_SPECS, s)).grad
+             for s in ("work:in", "dissipated:all")]
+    one = alone[0] - 2 * alone[1]
     np.testing.assert_allclose(both.grad, one, rtol=1e-12)
 
 

@@ -57,10 +57,12 @@ def inputs(seed: int = 0) -> np.ndarray:
     return np.sin(2 * np.pi * f[..., None] * t).sum(axis=2) * 1e-3
 
 
-def scipy_run(net, u: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Positions of a, b, c, d from scipy DOP853 on the same equations (the input linearly
-    interpolated between samples, as the kernel reads it); each run's solved once per module
-    (`_scipy_cached`: both forms' tests, and the register kernel's, compare the same runs)."""
+def scipy_runs(u: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Positions of a, b, c, d of every run, (runs, 4, len(t)), from scipy DOP853 on the same
+    equations (the input linearly interpolated between samples, as the kernel reads it). The
+    runs are one system for scipy (its steps are those of `max_step` for every run alone, so
+    each run's solution is the one it gets alone), solved once per module (`_scipy_cached`:
+    both forms' tests, and the register kernel's, compare the same runs)."""
     return _scipy_cached(u.tobytes(), u.shape, t.tobytes())
 
 
@@ -68,13 +70,14 @@ def scipy_run(net, u: np.ndarray, t: np.ndarray) -> np.ndarray:
 def _scipy_cached(u_bytes: bytes, shape: tuple, t_bytes: bytes) -> np.ndarray:
     u = np.frombuffer(u_bytes).reshape(shape)
     t = np.frombuffer(t_bytes)
-    grid = np.arange(u.shape[1]) * H
-    m = np.array([1.0, 2.0, 0.5, 1.0])
-    damp = np.array([30.0, 10.0, 0.0, 0.0])
+    runs = shape[0]
+    grid = np.arange(u.shape[2]) * H
+    m = np.array([1.0, 2.0, 0.5, 1.0])[:, None]
+    damp = np.array([30.0, 10.0, 0.0, 0.0])[:, None]
 
     def rhs(time, y):
-        x, v = y[:4], y[4:]
-        u0, u1 = (np.interp(time, grid, u[ch]) for ch in (0, 1))
+        x, v = y[:4 * runs].reshape(4, runs), y[4 * runs:].reshape(4, runs)
+        u0, u1 = (np.array([np.interp(time, grid, run[ch]) for run in u]) for ch in (0, 1))
         f = -W**2 * m * x - damp * v
         k, a = 0.3 * W**2, 1.5  # k/(2a) (x_a - a x_b)^2
         s = x[0] - a * x[1]
@@ -88,12 +91,13 @@ def _scipy_cached(u_bytes: bytes, shape: tuple, t_bytes: bytes) -> np.ndarray:
         fd = 5.0 * (v[1] - v[3])
         f[1] -= fd
         f[3] += fd
-        f += [1e3 * u0, 2e3 * u1, 3e2 * u0, 50.0 * np.sin(2 * np.pi * 60.0 * time)]
-        return np.concatenate([v, f / m])
+        f += np.stack([1e3 * u0, 2e3 * u1, 3e2 * u0,
+                       np.full(runs, 50.0 * np.sin(2 * np.pi * 60.0 * time))])
+        return np.concatenate([v.ravel(), (f / m).ravel()])
 
-    sol = solve_ivp(rhs, (0, t[-1]), np.zeros(8), method="DOP853", t_eval=t, rtol=1e-11,
-                    atol=1e-15, max_step=H / 4)
-    return sol.y[:4]
+    sol = solve_ivp(rhs, (0, t[-1]), np.zeros(8 * runs), method="DOP853", t_eval=t,
+                    rtol=1e-11, atol=1e-15, max_step=H / 4)
+    return sol.y[:4 * runs].reshape(4, runs, -1).transpose(1, 0, 2)
 
 
 FORMS = {"registers": "the state in registers", "nodes": "# force code: written out per node\n"}
@@ -131,9 +135,10 @@ def test_written_out_kernel_gives_the_shared_kernels_trajectories(method, form):
 
 
 def assert_matches_scipy(net, u: np.ndarray, res, tol: float = 1e-6) -> None:
-    """Every run's positions of a, b, c, d within `tol` (relative L2) of `scipy_run`."""
+    """Every run's positions of a, b, c, d within `tol` (relative L2) of `scipy_runs`."""
+    every = scipy_runs(u, res.t)
     for r in range(len(u)):
-        want = scipy_run(net, u[r], res.t)
+        want = every[r]
         for k, node in enumerate("abcd"):
             got = res.probes[f"x({node})"][r]
             err = np.linalg.norm(got - want[k]) / np.linalg.norm(want[k])

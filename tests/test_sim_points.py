@@ -197,14 +197,15 @@ def _sim(tmp_path, text: str, *args: str):
 
 
 def test_cli_stats_prints_the_table_and_plots_the_histograms(tmp_path):
-    result, out = _sim(tmp_path, STATIC.format(k="4", n=20), "--reduce", "final:x(a)",
+    # 32 samples: the 32-lane kernel of the library tests' 200
+    result, out = _sim(tmp_path, STATIC.format(k="4", n=32), "--reduce", "final:x(a)",
                        "--stats", "--kernel", "shared", "--plot", str(tmp_path / "h.png"))
     assert result.exit_code == 0, result.output
     assert "std(pred)" in result.output and "g (sigma 0.1)" in result.output
-    assert "20 point(s) x 1 run(s)" in result.output
+    assert "32 point(s) x 1 run(s)" in result.output
     assert out.exists() and (tmp_path / "h.png").stat().st_size > 0
     with np.load(out) as z:
-        assert z["final:x(a)"].shape == (20, 1) and z["points_sample"].tolist() == [*range(20)]
+        assert z["final:x(a)"].shape == (32, 1) and z["points_sample"].tolist() == [*range(32)]
 
 
 @pytest.mark.parametrize("text, args, message", [

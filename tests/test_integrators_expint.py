@@ -95,7 +95,7 @@ def _linear_filter(fa: float):
 @pytest.mark.parametrize("method", ["exp-rk4", "exp-heun3"])
 def test_lawson_schemes_are_exact_for_a_driven_linear_filter(method):
     """An 8 kHz, Q 126 filter pair at 32 kHz: RK4 is far off, the Lawson schemes match
-    DOP853 (the block is all the rest acts on: no stage sees a force of the rest)."""
+    DOP853 (the low-pass is coupled with strength 0: no stage sees a force of the rest)."""
     net, u = _linear_filter(8000.0)
     ref = filter_refs.load("filter_8000")  # DOP853 at rtol 1e-11
     label = net.probes[0].label

@@ -4,6 +4,8 @@ called with."""
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import json
 import os
 import subprocess
@@ -67,3 +69,37 @@ def test_a_kernel_file_is_written_once(tmp_path, monkeypatch) -> None:
     assert path.stat().st_mtime_ns == stamp - 10**9
     assert path.read_text() == source
     assert list(tmp_path.iterdir()) == [path]
+
+
+def test_the_collector_is_paused_while_a_kernel_compiles(tmp_path, monkeypatch) -> None:
+    net = lang.load_file(EXAMPLE)
+    monkeypatch.setenv("SPRINGC_CACHE", str(tmp_path / "a"))
+    first = simulate(check(net), tstop=0.05, method="ssprk3")
+    loader.forget(Path(first.info["kernel"]).stem.removeprefix("springc_kernel_"))
+    monkeypatch.setenv("SPRINGC_CACHE", str(tmp_path / "b"))  # empty: numba compiles again
+    seen = []
+    real = loader.compile_lock
+
+    @contextlib.contextmanager
+    def watching(path):
+        with real(path):
+            yield
+            seen.append(gc.isenabled())  # inside `compiling`, once numba has compiled
+
+    monkeypatch.setattr(loader, "compile_lock", watching)
+    assert gc.isenabled()
+    again = simulate(check(net), tstop=0.05, method="ssprk3")
+    assert seen == [False] and gc.isenabled()
+    np.testing.assert_array_equal(first.probes["x(x)"], again.probes["x(x)"])
+    with loader.gc_paused():  # nested: on again only when the outer scope ends
+        with loader.gc_paused():
+            assert not gc.isenabled()
+        assert not gc.isenabled()
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        with loader.gc_paused():  # entered with the collector off: left off
+            pass
+        assert not gc.isenabled()
+    finally:
+        gc.enable()

@@ -7,13 +7,15 @@ real file, so numba's `cache=True` stores the machine code beside it for the nex
 and imported by path. The cache is `$SPRINGC_CACHE` or `~/.cache/springc/kernels`; processes
 share it safely: a kernel file appears once and whole, and each kernel compiles under its own
 lock file. LLVM's SLP vectoriser, which the generated lane code is written for (numba leaves
-it off), is switched on only while a kernel's own first call compiles it.
+it off), is switched on only while a kernel's own first call compiles it, and Python's cyclic
+garbage collector is paused while numba compiles (`compiling`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import fcntl
+import gc
 import importlib.util
 import os
 import sys
@@ -30,6 +32,8 @@ from springc.kernels.codegen import kernel_hash, shared_text
 _LOADED: dict[str, "Kernel"] = {}
 _SLP_LOCK = threading.Lock()
 _SLP_USERS = [0, 0]  # kernel calls under way, numba's setting before the first of them
+_GC_LOCK = threading.Lock()
+_GC_USERS = [0, False]  # compilations under way, whether the collector ran before the first
 
 
 @contextlib.contextmanager
@@ -50,6 +54,34 @@ def slp_vectorize() -> Iterator[None]:
             _SLP_USERS[0] -= 1
             if _SLP_USERS[0] == 0:
                 config.SLP_VECTORIZE = _SLP_USERS[1]
+
+
+@contextlib.contextmanager
+def gc_paused() -> Iterator[None]:
+    """Python's cyclic garbage collector off while any thread is inside, then as it was.
+    numba's compiler allocates millions of short-lived objects, and each of the collections
+    they trigger scans every long-lived object of the process: in a test process with a large
+    heap that was a tenth of the time spent compiling kernels (docs/performance.md)."""
+    with _GC_LOCK:
+        if _GC_USERS[0] == 0:
+            _GC_USERS[1] = gc.isenabled()
+            gc.disable()
+        _GC_USERS[0] += 1
+    try:
+        yield
+    finally:
+        with _GC_LOCK:
+            _GC_USERS[0] -= 1
+            if _GC_USERS[0] == 0 and _GC_USERS[1]:
+                gc.enable()
+
+
+@contextlib.contextmanager
+def compiling(path: Path) -> Iterator[None]:
+    """The scope of a kernel's first call, which compiles it (or loads it from numba's cache):
+    the kernel file's lock (`compile_lock`), the SLP vectoriser on, the collector paused."""
+    with gc_paused(), compile_lock(path), slp_vectorize():
+        yield
 
 
 _PARALLEL_LOCK = threading.Lock()
@@ -121,7 +153,7 @@ class Kernel:
 
         start = time.perf_counter()
         signature = tuple(numba.typeof(v) for v in values)
-        with compile_lock(self.path), slp_vectorize():
+        with compiling(self.path):
             self.module.run.compile(signature)
         self.compile_s = time.perf_counter() - start
 

@@ -109,10 +109,12 @@ def _opts(net, runs: int, **kw) -> codegen.KernelOptions:
     return sm.kernel_form(net, opts, co, st, runs, kw.get("write_out"))
 
 
-def test_which_simulations_get_a_register_kernel():
+def test_which_simulations_get_a_register_kernel(monkeypatch):
     """One run per chunk, a Runge-Kutta tableau, no reductions, no monomial terms, not asked
     for the shared kernel; a network beyond REGISTER_ALWAYS masses only where the force code
-    would be written out (a long simulation, or asked for)."""
+    would be written out (a long simulation, or asked for). The lanes are chosen as on two
+    cores, whatever this machine has."""
+    monkeypatch.setattr(sm, "threads", lambda: 2)
     net = every_kind()
     assert _opts(net, 1).registers is not None
     assert _opts(net, FEW).registers is not None

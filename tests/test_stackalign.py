@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from springc.lang.ir import IRBuilder, Tran
+from springc.sim import simulate as sm
 from springc.sim.simulate import simulate
 from springc.kernels.stackalign import align_stack
 from springc.check import check
@@ -52,7 +53,9 @@ def test_align_stack_realigns_the_frame_and_leaves_the_result():
     ("strang-rk4", None, 16, False),  # split: exact blocks and RK4
     ("exp-heun3", None, 16, False),  # Lawson
 ])
-def test_register_kernels_for_lanes_align_their_frame_first(method, write_out, runs, aligned):
+def test_register_kernels_for_lanes_align_their_frame_first(method, write_out, runs, aligned,
+                                                            monkeypatch):
+    monkeypatch.setattr(sm, "threads", lambda: 2)  # 16 runs: lanes as on two cores
     b = IRBuilder("two coupled masses")
     for node, k in (("a", 100.0), ("c", 150.0)):
         b.mass(f"M{node}", node, 1.0, 1.0, x0=0.1)

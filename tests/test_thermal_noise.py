@@ -105,15 +105,17 @@ def test_the_psd_is_the_noise_analysis(oscillator) -> None:
     np.testing.assert_allclose(psd[band], want, rtol=0.10)
 
 
-def test_same_seed_is_bitwise_equal_for_batch_1_and_64() -> None:
-    """The same kernel (shared, 16 lanes: `chunk`, whatever the threads) for 64 calls of one
-    run and one call of 64: bitwise equal (another lane count is another kernel form, equal
-    to rounding)."""
-    one = run_net(batch=1, write_out=False, chunk=16)
-    all_ = run_net(batch=64, write_out=False, chunk=16)
-    assert np.array_equal(one, all_)
+@pytest.mark.parametrize("lanes", [4, 16])
+def test_same_seed_is_bitwise_equal_for_batch_1_7_and_64(lanes) -> None:
+    """The same kernel (shared, `lanes` wide: `chunk`, whatever the threads) for batches of 1
+    and 7 runs (rounded up to whole chunks: a run keeps its lane) and one call of 64: bitwise
+    equal (another lane count is another kernel form, equal to rounding; at 4 lanes, lanes of
+    one chunk round differently)."""
+    all_ = run_net(batch=64, write_out=False, chunk=lanes)
+    for batch in (1, 7):
+        assert np.array_equal(run_net(batch=batch, write_out=False, chunk=lanes), all_), batch
     assert not np.array_equal(all_[:, 0], all_[:, 1])  # runs differ from each other
-    other = run_net(batch=64, write_out=False, chunk=16, seed=8)
+    other = run_net(batch=64, write_out=False, chunk=lanes, seed=8)
     assert not np.allclose(other, all_)
 
 

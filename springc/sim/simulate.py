@@ -202,7 +202,9 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
     are split over the threads (None: for fewer runs than threads of at least
     `NODE_THREADS_FROM` dofs x runs; `split_nodes`). `temp` (kelvin) and `seed` override
     `.options temp=`/`seed=`: above 0 K every damper's thermal noise force is drawn per step
-    (`springc.sim.thermal`), run r's the same whatever the batch or kernel form. `device`:
+    (`springc.sim.thermal`), run r's the same whatever the batch or kernel form. `batch`:
+    runs per kernel call, rounded up to whole chunks of the kernel's lanes, so that run r is in
+    lane r mod lanes and its result is bitwise the same whatever the batch. `device`:
     'cpu', 'cuda' (the CUDA kernel form, `springc.sim.gpu`; UsageError where no GPU is) or
     'auto' (CUDA where a GPU is present); on CUDA every run is one batch unless `batch` is
     given."""
@@ -271,11 +273,11 @@ def _simulate(group: list[CheckedNetlist], labels: list[str] | None, inputs, inp
     batch = batch_size(batch)
     task = task_runs(len(names), batch, chunk)
     width = codegen.choose_lanes(task)
-    if labels is not None:
-        # a run's lane, and so its rounding, whatever the batch and the threads: the width
-        # from all the runs, and batches of whole chunks
+    if labels is not None:  # the width from all the runs, whatever the batch and the threads
         width = codegen.choose_lanes(len(names))
-        batch = -(-batch // width) * width
+    # batches of whole chunks: run r is in lane r mod width whatever the batch, and a lane's
+    # rounding can differ from another's (the vectoriser may treat lanes of a chunk apart)
+    batch = -(-batch // width) * width
     knet = kernel_netlist(net)  # the same forces, cheaper terms
     coeffs = kernel_arrays(knet, st, np.dtype(st.precision))
     lanes = None if labels is None else lane_arrays(nets, coeffs, st, reps)

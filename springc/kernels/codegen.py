@@ -335,16 +335,20 @@ def lanes(c: _Code, ln: LaneLayout, loads: list[str], arith: list[str],
     statement for every lane of a group in turn (`{b}` in a statement is the lane). Loads
     before stores lets LLVM's SLP vectoriser merge a group's lanes into vector loads, FMAs
     and stores without alias checks; the generator guarantees that no store of an element
-    overlaps a load of the same element (distinct nodes)."""
+    overlaps a load of the same element (distinct nodes). A group's lane indices are named
+    once (`g1_ = g_ + 1`...): numba types and lowers each `g_ + b` written in an index apart,
+    while LLVM folds them to the same machine code (docs/performance.md, cold-cache compiles)."""
     if ln.group < ln.width:
         c(f"for g_ in range(0, {ln.width}, {ln.group}):")
         c.indent()
+        for b in range(1, ln.group):
+            c(f"g{b}_ = g_ + {b}")
     for part in (loads, arith, stores):
         # one statement's lanes together: stores to one row must not be interleaved with
         # stores to another, which the vectoriser cannot reorder (the rows might overlap)
         for stmt in part:
             for b in range(ln.group):
-                lane = str(b) if ln.group == ln.width else (f"g_ + {b}" if b else "g_")
+                lane = str(b) if ln.group == ln.width else (f"g{b}_" if b else "g_")
                 c(_lane_stmt(stmt, b, lane))
     if ln.group < ln.width:
         c.dedent()

@@ -120,15 +120,15 @@ def test_same_seed_is_bitwise_equal_for_batch_1_7_and_64(lanes) -> None:
 
 
 def test_every_kernel_form_runs_the_same_noise() -> None:
-    """Shared (lanes 1 and 16), register (lanes 1 and 32), written out per node (an in-kernel
-    reduction, `msq`, rules out the register form; `energy` is taken from the final state and
-    would not) agree to rounding; the exponential schemes, whose
+    """Shared (lanes 1 and 16), register (lanes 1 and 32), written out per node (4 lanes; an
+    in-kernel reduction, `msq`, rules out the register form, where `energy`, taken from the
+    final state, would not) agree to rounding; the exponential schemes, whose
     block holds every node here, to their integrators' error (at lanes 1: their kernels of 32
     lanes are twice the text, twice the compile, and the draws do not depend on the lanes)."""
     ref = run_net(batch=64, write_out=False, chunk=16)
     scale = np.abs(ref).max()
     for kw in (dict(batch=1, write_out=False), dict(batch=1), dict(write_out=True),
-               dict(write_out=True, reductions=["msq:x(a)"])):
+               dict(write_out=True, reductions=["msq:x(a)"], chunk=4)):
         res = run_res(**kw)
         got = probes(res)
         assert np.abs(got - ref).max() < 1e-12 * scale, kw

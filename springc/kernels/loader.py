@@ -22,7 +22,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
@@ -30,51 +30,66 @@ from types import ModuleType
 from springc.kernels.codegen import kernel_hash, shared_text
 
 _LOADED: dict[str, "Kernel"] = {}
-_SLP_LOCK = threading.Lock()
-_SLP_USERS = [0, 0]  # kernel calls under way, numba's setting before the first of them
-_GC_LOCK = threading.Lock()
-_GC_USERS = [0, False]  # compilations under way, whether the collector ran before the first
 
 
-@contextlib.contextmanager
-def slp_vectorize() -> Iterator[None]:
-    """numba's SLP vectoriser on while any kernel call (and so its compilation) is under way
-    in any thread, then back to numba's own setting."""
+class _HeldSetting:
+    """A process-wide setting held while any thread is inside (`with setting():`): `hold()`
+    sets it on the first entry and returns what was there, `restore(before)` puts that back
+    on the last exit."""
+
+    def __init__(self, hold: Callable[[], object], restore: Callable[[object], None]) -> None:
+        self._hold, self._restore = hold, restore
+        self._lock = threading.Lock()
+        self._users = 0
+        self._before: object = None
+
+    @contextlib.contextmanager
+    def __call__(self) -> Iterator[None]:
+        with self._lock:
+            if self._users == 0:
+                self._before = self._hold()
+            self._users += 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._users -= 1
+                if self._users == 0:
+                    self._restore(self._before)
+
+
+def _slp_on() -> int:
     from numba.core import config
 
-    with _SLP_LOCK:
-        if _SLP_USERS[0] == 0:
-            _SLP_USERS[1] = config.SLP_VECTORIZE
-            config.SLP_VECTORIZE = 1
-        _SLP_USERS[0] += 1
-    try:
-        yield
-    finally:
-        with _SLP_LOCK:
-            _SLP_USERS[0] -= 1
-            if _SLP_USERS[0] == 0:
-                config.SLP_VECTORIZE = _SLP_USERS[1]
+    before, config.SLP_VECTORIZE = config.SLP_VECTORIZE, 1
+    return before
 
 
-@contextlib.contextmanager
-def gc_paused() -> Iterator[None]:
-    """Python's cyclic garbage collector off while any thread is inside, then as it was.
-    numba's compiler allocates millions of short-lived objects, and each of the collections
-    they trigger scans every long-lived object of the process: in a test process of 790,000
-    objects, 8% of a cold run (docs/performance.md). What a compile leaves for the collector
-    is collected at the next collection after it."""
-    with _GC_LOCK:
-        if _GC_USERS[0] == 0:
-            _GC_USERS[1] = gc.isenabled()
-            gc.disable()
-        _GC_USERS[0] += 1
-    try:
-        yield
-    finally:
-        with _GC_LOCK:
-            _GC_USERS[0] -= 1
-            if _GC_USERS[0] == 0 and _GC_USERS[1]:
-                gc.enable()
+def _slp_restore(before: int) -> None:
+    from numba.core import config
+
+    config.SLP_VECTORIZE = before
+
+
+def _gc_off() -> bool:
+    before = gc.isenabled()
+    gc.disable()
+    return before
+
+
+def _gc_restore(before: bool) -> None:
+    if before:
+        gc.enable()
+
+
+# numba's SLP vectoriser on while any kernel call (and so its compilation) is under way in
+# any thread, then back to numba's own setting
+slp_vectorize = _HeldSetting(_slp_on, _slp_restore)
+# Python's cyclic garbage collector off while numba compiles, then as it was. The compiler
+# allocates millions of short-lived objects, and each collection they trigger scans every
+# long-lived object of the process: in a test process of 790,000 objects, 8% of a cold run
+# (docs/performance.md). What a compile leaves is collected at the next collection after it.
+gc_paused = _HeldSetting(_gc_off, _gc_restore)
 
 
 @contextlib.contextmanager

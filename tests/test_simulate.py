@@ -19,6 +19,7 @@ from springc.errors import CheckError, DivergedRuns, SimulationError, UsageError
 from springc.kernels.integrators import TABLEAUX, amplification, get_tableau, stability_polynomial
 from springc.lang.ir import IRBuilder, Source, Tran
 from springc.bench.reference import rk4_numpy, solve_ivp_reference
+from springc.sim import simulate as sm
 from springc.sim.simulate import linear_rows, simulate
 from springc.check import check
 
@@ -354,22 +355,23 @@ def test_batch_equals_runs_one_at_a_time():
 
 @pytest.mark.parametrize("precision", ["float64", "float32"])
 def test_runs_over_several_calls_equal_one_call(precision):
-    """40 runs in four calls of 10 (chunks of 4 lanes, the last partial), all recording into
-    one buffer from their own rows, equal the same runs in one call."""
+    """40 runs in two calls of 32 and 8 (chunks of 16 lanes on two threads, the last chunk
+    partial), all recording into one buffer from their own rows, equal the same runs in one
+    call bitwise: run r is in lane r mod 16 of the same kernel either way."""
     net = nonlinear_net()
     u = np.random.default_rng(6).standard_normal((40, 1, 501))
-    one = simulate(check(net), u, tstop=0.5, precision=precision, reductions=["msq:x(a)"])
-    calls = simulate(check(net), u, tstop=0.5, precision=precision, batch=10,
-                     reductions=["msq:x(a)"])
-    # the calls' kernels have other lane widths (4 and 16): float32 differs in round-off
-    tol = 1e-12 if precision == "float64" else 1e-6
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(sm, "threads", lambda: 2)  # 16 lanes: 40 / 2 and 32 / 2 runs per thread
+        one = simulate(check(net), u, tstop=0.5, precision=precision, reductions=["msq:x(a)"])
+        calls = simulate(check(net), u, tstop=0.5, precision=precision, batch=32,
+                         reductions=["msq:x(a)"])
+    assert calls.info["kernel"] == one.info["kernel"]
+    assert "LANES = 16 " in Path(one.info["kernel"]).read_text()
     assert calls.reductions["msq:x(a)"].shape == (40,)
-    np.testing.assert_allclose(calls.reductions["msq:x(a)"], one.reductions["msq:x(a)"],
-                               rtol=tol, atol=0)
+    np.testing.assert_array_equal(calls.reductions["msq:x(a)"], one.reductions["msq:x(a)"])
     for label, arr in one.probes.items():
         assert calls.probes[label].shape == arr.shape == (40, 501)
-        np.testing.assert_allclose(calls.probes[label], arr, rtol=0,
-                                   atol=tol * np.abs(arr).max())
+        np.testing.assert_array_equal(calls.probes[label], arr)
 
 
 @pytest.mark.parametrize("precision", ["float64", "float32"])

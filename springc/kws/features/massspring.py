@@ -473,13 +473,9 @@ def choose_integration(s: MassSpringSettings, signals: np.ndarray,
     """The cheapest integration of the feature network with Phi within `tol` of the tight
     reference on `signals` (a sample of clips, (clips, samples) at 16 kHz); `reference` as in
     `integration.choose`."""
-    # the sample in the lanes it fills (a data set's sample of INTEGRATION_CLIPS fills
-    # BATCH, the data set's kernel); a worker compiling ahead on one clip uses the same
-    chunk = min(BATCH, len(signals))
-
     def outputs(sig, method, substeps, precision):  # one try: loud clips are NaN rows
         return phi_batch(sig, replace(s, method=method, substeps=substeps), slice(0, 1),
-                         precision, chunk)
+                         precision)
 
     duration = horizon(s, signals.shape[1] / INPUT_RATE)
     return integration.choose(checked_features(s), signals, outputs, duration, tol,
@@ -551,16 +547,15 @@ def clips_phi(clips: list, s: MassSpringSettings, augment: bool, seed: int,
 
 
 def phi_batch(signals: np.ndarray, s: MassSpringSettings, tries: slice = slice(None),
-              precision: str = DATASET_PRECISION, chunk: int = BATCH) -> np.ndarray:
-    """Phi of one batch, simulated by one core (a Dask task) in kernels of `chunk` lanes;
-    clips too loud for the step are simulated again with finer steps (`Integration.retries`,
-    the part `tries` of them; a clip that diverges at the last of a part that is not the
-    whole gets a row of NaN)."""
+              precision: str = DATASET_PRECISION) -> np.ndarray:
+    """Phi of one batch, simulated by one core (a Dask task); clips too loud for the step are
+    simulated again with finer steps (`Integration.retries`, the part `tries` of them; a clip
+    that diverges at the last of a part that is not the whole gets a row of NaN)."""
     plan = integration.Integration(s.method, s.substeps, precision)
     signals = np.asarray(signals, dtype=np.float64)
     return integration.run_with_retries(
         plan, lambda method, sub, idx: {"phi": simulate_phi(
-            signals[idx], s, chunk=chunk, method=method, substeps=sub,
+            signals[idx], s, chunk=BATCH, method=method, substeps=sub,
             precision=plan.precision)}, len(signals), tries, stiffness(signals, s))["phi"]
 
 

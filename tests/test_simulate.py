@@ -355,22 +355,23 @@ def test_batch_equals_runs_one_at_a_time():
 
 @pytest.mark.parametrize("precision", ["float64", "float32"])
 def test_runs_over_several_calls_equal_one_call(precision):
-    """40 runs in two calls of 32 and 8 (chunks of 16 lanes on two threads, the last chunk
+    """14 runs in two calls of 8 and 6 (chunks of 4 lanes on two threads, the last chunk
     partial), all recording into one buffer from their own rows, equal the same runs in one
-    call bitwise: run r is in lane r mod 16 of the same kernel either way."""
+    call bitwise: run r is in lane r mod 4 of the same kernel either way (the kernel of the
+    records test below)."""
     net = nonlinear_net()
-    u = np.random.default_rng(6).standard_normal((40, 1, 501))
+    u = np.random.default_rng(6).standard_normal((14, 1, 501))
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(sm, "threads", lambda: 2)  # 16 lanes: 40 / 2 and 32 / 2 runs per thread
+        mp.setattr(sm, "threads", lambda: 2)  # 4 lanes: 14 / 2 and 8 / 2 runs per thread
         one = simulate(check(net), u, tstop=0.5, precision=precision, reductions=["msq:x(a)"])
-        calls = simulate(check(net), u, tstop=0.5, precision=precision, batch=32,
+        calls = simulate(check(net), u, tstop=0.5, precision=precision, batch=8,
                          reductions=["msq:x(a)"])
     assert calls.info["kernel"] == one.info["kernel"]
-    assert "LANES = 16 " in Path(one.info["kernel"]).read_text()
-    assert calls.reductions["msq:x(a)"].shape == (40,)
+    assert "LANES = 4 " in Path(one.info["kernel"]).read_text()
+    assert calls.reductions["msq:x(a)"].shape == (14,)
     np.testing.assert_array_equal(calls.reductions["msq:x(a)"], one.reductions["msq:x(a)"])
     for label, arr in one.probes.items():
-        assert calls.probes[label].shape == arr.shape == (40, 501)
+        assert calls.probes[label].shape == arr.shape == (14, 501)
         np.testing.assert_array_equal(calls.probes[label], arr)
 
 
@@ -400,7 +401,7 @@ def test_record_into_an_earlier_calls_buffer():
     (the earlier result's probes are views of it); a buffer of another shape or precision is
     a usage error naming both."""
     net = nonlinear_net()
-    u = np.random.default_rng(9).standard_normal((40, 1, 501))
+    u = np.random.default_rng(9).standard_normal((14, 1, 501))
     kw = dict(tstop=0.5, reductions=["msq:x(a)"])  # the several-calls test's kernel
     first = simulate(check(net), u, **kw)
     buf = first.info["records"]
@@ -410,9 +411,9 @@ def test_record_into_an_earlier_calls_buffer():
     for label, arr in fresh.probes.items():
         np.testing.assert_array_equal(again.probes[label], arr)
         np.testing.assert_array_equal(first.probes[label], arr)  # overwritten in place
-    with pytest.raises(UsageError, match=r"float64 buffer of shape \(3, 40, 504\); this call "
-                                         r"records into float64 \(3, 20, 504\)"):
-        simulate(check(net), u[:20], tstop=0.5, record_into=buf)
+    with pytest.raises(UsageError, match=r"float64 buffer of shape \(3, 14, 504\); this call "
+                                         r"records into float64 \(3, 6, 504\)"):
+        simulate(check(net), u[:6], tstop=0.5, record_into=buf)
     with pytest.raises(UsageError, match="records into float32"):
         simulate(check(net), u, tstop=0.5, precision="float32", record_into=buf)
 

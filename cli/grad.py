@@ -40,9 +40,10 @@ def grad_cmd(netlist, spec, params, inputs, as_json, per_run, tstep, tstop, subs
     discrete adjoint of the integrator's step. With several inputs, the value and gradient
     are summed over the runs unless --per-run.
 
-    With .step, at every point (its step values set): one row per point (JSON: a list of
-    rows, each with a "point" key: index and step values). Monte Carlo samples (.mc) are
-    refused: the derivative of a random function at its draw is not computed."""
+    With .step/.mc, at every point (its step values set, its draws drawn): one row per point
+    (JSON: a list of rows, each with a "point" key: index, step values, sample, seed). At a
+    Monte Carlo sample each draw's unit deviate is held fixed: d gauss(nom, rvar) / d nom is
+    the draw over nom, the derivative of that fabricated device."""
     import springc
 
     net = springc.load(netlist, method=method, tstep=tstep, substeps=substeps)
@@ -78,8 +79,11 @@ def _rows(value, grad, wrt: list[str], runs: list[str], spec: str,
 def _text(row: dict) -> str:
     head = f"{row['run']}: " if "run" in row else ""
     if "point" in row:
-        steps = ", ".join(f"{k}={v:g}" for k, v in row["point"]["steps"].items())
-        head = f"point {row['point']['index']} ({steps}) {head}"
+        point = row["point"]
+        parts = [f"{k}={v:g}" for k, v in point["steps"].items()]
+        if point["sample"] is not None:
+            parts += [f"sample {point['sample']}", f"seed {point['seed']}"]
+        head = f"point {point['index']} ({', '.join(parts)}) {head}"
     value = row["value"]
     shown = f"{value:.10g}" if isinstance(value, float) else str(value)
     lines = [f"{head}{row['of']} = {shown}"]

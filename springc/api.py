@@ -233,9 +233,10 @@ class Netlist:
     def grad(self, of: str | Sequence[str], wrt: str | Sequence[str], inputs=None, **settings):
         """d(reduction `of`)/d(top-level `.param` `wrt`) per run, exact for the simulated
         float64 computation (the discrete adjoint): a `springc.grad.GradResult` (`values`,
-        `grad[run, k]`). `settings`: tstep, tstop, substeps, method, channel. With `.step`,
+        `grad[run, k]`). `settings`: tstep, tstop, substeps, method, channel. With `.step`/`.mc`,
         at every point: `values[spec]` (points, runs), `grad[point, run, k]`, `points`
-        (`.mc` samples are refused: `springc.grad.gradient.at_points`)."""
+        (at a `.mc` sample each draw's unit deviate held fixed:
+        `springc.grad.gradient.at_points`)."""
         from springc.grad import gradient
         from springc.grad.gradient import at_points
 

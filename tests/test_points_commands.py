@@ -14,6 +14,9 @@ from springc_cli.main import main
 
 import springc
 from springc.errors import UsageError
+from springc.grad import gradient
+from springc.grad.params import ParamNetlist, coefficients
+from springc.lang.draws import Sample
 from test_grad_cli import NETLIST
 
 # two masses, a stepped stiffness, a global and two local draws: 3 steps x 2 samples
@@ -142,10 +145,63 @@ def test_export_refuses_compare_with_points(tmp_path):
     assert not list(tmp_path.glob("o*.cir"))
 
 
-def test_grad_refuses_monte_carlo_samples_at_the_mc_line(pop):
-    with pytest.raises(UsageError) as info:
-        pop.grad("final:x(a)", "k0")
-    assert info.value.diagnostic.loc.line == 11
+# every random function, a nested draw, a drawn parameter and a drawn subcircuit default and
+# override, all with arguments that depend on k0: their derivatives hold each draw's unit
+# deviate fixed
+SPREAD = """* spread
+.param k0=2 g={gauss(k0, 0.05)} h={agauss(k0, 0.1*k0, 2)}
+.subckt cell n kc={gauss(3*k0, 0.1)}
+K1 n k={kc + aunif(k0, 0.5)}
+.ends
+M1 a m={unif(k0, 0.05)} b={aunif(0.2*k0, 0.01*k0)}
+M2 b m=2 b=0.1
+K1 a k={g * gauss(3*k0, 0.1) + h}
+C1 a b k={gauss(gauss(k0, 0.2), 0.1)}
+X1 a cell
+X2 b cell kc={unif(k0**2, 0.2)}
+.mc 4 seed=5
+"""
+
+
+def test_coefficient_derivatives_at_each_sample_are_central_differences():
+    pn = ParamNetlist.from_text(SPREAD)
+    h = 1e-6
+    for index in range(4):
+        sample = Sample(index, 5)
+        jac = pn.jacobian({"k0": 2.0}, ["k0"], sample)["k0"]
+        up = coefficients(pn.netlist({"k0": 2.0 + h}, sample))
+        down = coefficients(pn.netlist({"k0": 2.0 - h}, sample))
+        moved = 0
+        for key, d in jac.items():
+            fd = (up[key] - down[key]) / (2 * h)
+            assert d == pytest.approx(fd, rel=1e-7, abs=1e-9), (index, key)
+            moved += int(np.count_nonzero(d))
+        assert moved == 6  # m and b of M1, K1 and both cells' springs, the coupling
+    # outside a sample the derivative is the nominal value's: d unif(k0, .) / d k0 = 1
+    assert pn.jacobian({"k0": 2.0}, ["k0"])["k0"][("masses", "m")][0] == 1.0
+
+
+# tests/test_grad_cli.py's netlist, its stiffnesses drawn (its gradient kernel is shared with
+# that file's)
+DRAWN = (NETLIST.replace("k={k0}", "k={gauss(k0, 0.05)}").replace("k={2*k0}", "k={unif(2*k0, 0.1)}")
+         + ".mc 3 seed=3\n")
+
+
+def test_grad_at_each_monte_carlo_sample_is_the_central_difference_there(tmp_path):
+    (tmp_path / "d.spr").write_text(DRAWN)
+    rows = json.loads(invoke("grad", tmp_path / "d.spr", "--of", "final:x(a)", "--wrt", "k0",
+                             "--json"))
+    pn = ParamNetlist.from_text(DRAWN)
+    assert [r["point"]["sample"] for r in rows] == [0, 1, 2]
+    for row in rows:
+        sample = Sample(row["point"]["sample"], 3)
+        value = lambda k0: float(gradient(pn, "final:x(a)", ["k0"], values={"k0": k0},  # noqa: E731
+                                          sample=sample).values["final:x(a)"][0])
+        h = 4e5 * 1e-4
+        fd = (value(4e5 + h) - value(4e5 - h)) / (2 * h)
+        assert row["value"] == pytest.approx(value(4e5), rel=1e-12)
+        assert row["grad"]["k0"] == pytest.approx(fd, rel=1e-5)
+    assert len({r["grad"]["k0"] for r in rows}) == 3
 
 
 def test_noise_refuses_points_at_the_step_line(pop):

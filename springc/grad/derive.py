@@ -9,8 +9,11 @@ evaluator then computes the derivatives: exact to rounding, no step size, no sec
 
 The rules are the calculus of each operator and function of the expression language:
 comparisons, `floor` and `ceil` have derivative 0; `abs`, `min`, `max` that of the branch
-they take (the same branch the value took); a random function (`gauss(nom, ...)`), nominal
-outside a Monte Carlo sample, that of `nom`.
+they take (the same branch the value took); a random function, its draw nom + scale * u
+(`springc.lang.draws.values`) with the unit deviate u of its site held fixed: d nom +
+u d scale, u written as an `ast.Deviate` naming the call's site (the value's key and the
+call's place in evaluation order), so that the tangent's elaboration in the same Monte Carlo
+sample reads the value's own u (0 outside a sample: the nominal value's derivative).
 """
 
 from __future__ import annotations
@@ -47,6 +50,8 @@ class _Tangent:
 
     def __init__(self, seed: str, prefix: str) -> None:
         self.seed, self.prefix = seed, prefix
+        self.key = ""  # the key whose value is being differentiated (its draws' site)
+        self.order: dict[int, int] = {}  # id of each random call of that value -> its n
 
     # --- statements ----------------------------------------------------------------------
 
@@ -82,7 +87,7 @@ class _Tangent:
         return self.pair(kw)
 
     def pair(self, kw: ast.Keyword) -> tuple:
-        return (kw, ast.Keyword(self.prefix + kw.key, self.value(kw.value), kw.loc))
+        return (kw, ast.Keyword(self.prefix + kw.key, self.value(kw.value, kw.key), kw.loc))
 
     def element(self, stmt: ast.Element) -> ast.Element:
         letter = stmt.name.parts[0][:1].upper()
@@ -93,7 +98,7 @@ class _Tangent:
             elif letter == "X":
                 args.extend(self.pair(arg))
             elif arg.key.lower() in COEFFICIENT_KEYS:
-                args.append(replace(arg, value=self.value(arg.value)))
+                args.append(replace(arg, value=self.value(arg.value, arg.key.lower())))
                 given.add(arg.key.lower())
             else:
                 args.append(arg)  # an unknown key: the elaborator reports it
@@ -105,8 +110,9 @@ class _Tangent:
 
     # --- values and expressions ----------------------------------------------------------
 
-    def value(self, arg) -> ast.Value:
-        """The derivative of a value argument, as a value argument."""
+    def value(self, arg, key: str) -> ast.Value:
+        """The derivative of a value argument given to `key` (a parameter or element key:
+        where its random calls draw), as a value argument."""
         match arg:
             case ast.Num():
                 return _num(0.0, arg.loc)
@@ -114,6 +120,7 @@ class _Tangent:
                 parts = (self.prefix + arg.parts[0], *arg.parts[1:])
                 return replace(arg, parts=parts)
             case ast.Brace(expr=expr):
+                self.key, self.order = key, _draw_order(expr)
                 d = self.expr(expr)
                 return _num(0.0, arg.loc) if d is Zero else replace(arg, expr=d)
             case _:
@@ -172,8 +179,8 @@ class _Tangent:
         args, loc = e.args, e.loc
         if e.func in ("min", "max"):
             return self.extremum(e)
-        if e.func in draws.FUNCTIONS:  # elaborated without a sample: the nominal value
-            return self.expr(args[0]) if args else Zero
+        if e.func in draws.FUNCTIONS:
+            return self.draw(e)
         if e.func in ("floor", "ceil") or len(args) != 1:
             return Zero  # a wrong arity is the elaborator's error to report
         u = args[0]
@@ -181,6 +188,18 @@ class _Tangent:
         if du is Zero:
             return Zero
         return _mul(_outer(e.func, u, loc), du, loc)
+
+    def draw(self, e: ast.Call):
+        """d(nom + scale u) = d nom + u d scale, u the call's unit deviate (fixed)."""
+        if len(e.args) < 2:
+            return self.expr(e.args[0]) if e.args else Zero  # the elaborator reports it
+        nom, spread, loc = e.args[0], e.args[1], e.loc
+        scale = (ast.Binary("*", ast.Call("abs", (nom,), loc), spread, loc)
+                 if e.func in ("gauss", "unif") else spread)
+        if len(e.args) == 3:  # sigma (gauss, agauss)
+            scale = ast.Binary("/", scale, e.args[2], loc)
+        unit = ast.Deviate(e.func, self.key, self.order[id(e)], loc)
+        return _add(self.expr(nom), _mul(unit, self.expr(scale), loc), loc)
 
     def extremum(self, e: ast.Call):
         """The derivative of the argument `min`/`max` returns (Python's: the first of equal
@@ -198,6 +217,32 @@ class _Tangent:
                                 e.loc)
             total = _add(total, term, e.loc)
         return total
+
+
+def _draw_order(expr) -> dict[int, int]:
+    """Each random call of `expr` (by id) -> its place n among the value's random calls in
+    the order `springc.lang.expr.evaluate` makes them: operands left to right, a call's
+    arguments before the call."""
+    order: dict[int, int] = {}
+
+    def walk(e) -> None:
+        match e:
+            case ast.Unary(operand=u):
+                walk(u)
+            case ast.Binary(left=u, right=v):
+                walk(u)
+                walk(v)
+            case ast.Call(func=func, args=args):
+                for a in args:
+                    walk(a)
+                if func in draws.FUNCTIONS:
+                    order[id(e)] = len(order)
+            case ast.Index(indices=items):
+                for item in items:
+                    walk(item)
+
+    walk(expr)
+    return order
 
 
 def _outer(func: str, u, loc: SourceLoc):

@@ -21,7 +21,7 @@ from springc.grad import lanes, model, seeds, written
 from springc.grad.params import ParamNetlist
 from springc.kernels import expint
 from springc.kernels.integrators import get_tableau
-from springc.lang import ast
+from springc.lang.draws import Sample
 from springc.lang.ir import FlatNetlist
 from springc.lang.variation import PointSet
 from springc.sim import simulate as sim
@@ -51,24 +51,26 @@ class GradResult:
     runs: list[str]
     params: dict[str, float]
     info: dict = field(default_factory=dict)
-    points: tuple | None = None  # with .step: each point's step values (`at_points`)
+    points: tuple | None = None  # with .step/.mc: each point (`at_points`)
 
 
 def gradient(source: ParamNetlist | str | Path, of: str | Sequence[str], wrt: Sequence[str],
              inputs=None, input_rate: float | None = None, *,
              values: Mapping[str, float] | None = None, weights: Mapping | None = None,
-             **settings) -> GradResult:
+             sample: Sample | None = None, **settings) -> GradResult:
     """d/d(param) of the reductions `of` (specs as `springc sim --reduce`; several: their
     sum, each times `weights[spec]`, per run) for every top-level `.param` of `wrt`, at the
-    parameter `values` (others as the file sets them). The netlist at those values must pass
+    parameter `values` (others as the file sets them), in Monte Carlo `sample` if given (every
+    draw's unit deviate held fixed, so d gauss(nom, rvar) / d nom = draw / nom). The netlist at
+    those values must pass
     the checks (`CheckError` otherwise). `inputs`, `input_rate` and the settings (tstep,
     tstop, substeps, method, channel, every) as `coefficient_gradient`."""
     pn = source if isinstance(source, ParamNetlist) else ParamNetlist.load(source)
     specs = [of] if isinstance(of, str) else list(of)
     pn.require(list(wrt))
     t0 = time.perf_counter()
-    net = pn.netlist(values)
-    jac = pn.jacobian(values, wrt)
+    net = pn.netlist(values, sample)
+    jac = pn.jacobian(values, wrt, sample)
     checked = check(net, settings.get("method"), tstep=settings.get("tstep"),
                     substeps=settings.get("substeps"))
     t1 = time.perf_counter()
@@ -84,21 +86,15 @@ def at_points(source: ParamNetlist, points: PointSet, of: str | Sequence[str],
               **settings) -> GradResult:
     """`gradient` at every point of a `.step` netlist (each point's step values set, the
     other parameters as the file sets them): `values[spec]` (points, runs), `grad[point,
-    run, k]`, `points` the points. An error at one point names it. Monte Carlo samples are
-    refused (`UsageError`): a relative draw (`gauss`, `unif`) scales with its nominal value,
-    and that derivative at a sample is not computed."""
-    if points.points[0].sample is not None:
-        mc = next(s.loc for s in source.statements
-                  if isinstance(s, ast.Directive) and s.name == "mc")
-        raise UsageError("no gradient at Monte Carlo samples: the derivative of a random "
-                         "function at its draw is not computed", mc,
-                         hint="remove .mc to differentiate at every .step point, or use "
-                              "springc sim --reduce SPEC --stats for the first-order spread")
+    run, k]`, `points` the points. An error at one point names it. At a Monte Carlo sample
+    each draw's unit deviate is held fixed (`gradient`'s `sample`): the derivative of that
+    fabricated device."""
     results = []
     for point in points.points:
+        sample = None if point.sample is None else Sample(point.sample, point.seed)
         try:
             results.append(gradient(source, of, wrt, inputs, input_rate,
-                                    values=dict(point.steps), **settings))
+                                    values=dict(point.steps), sample=sample, **settings))
         except CheckError as err:
             raise at_point(err, point, len(points)) from None
         except UsageError as err:

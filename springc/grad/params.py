@@ -18,6 +18,7 @@ import numpy as np
 from springc.errors import NetlistError, SourceLoc, UsageError
 from springc.lang import ast, elaborate, parse, read_source
 from springc.lang.expr import Env, closest, value
+from springc.lang.draws import Sample
 from springc.lang.files import Includes
 from springc.lang.ir import FlatNetlist
 from springc.lang.variation import COEFFICIENTS, set_params, structure  # COEFFICIENTS: covered
@@ -71,18 +72,23 @@ class ParamNetlist:
                 raise UsageError(f"{option} {name}: {self.file} has no top-level .param "
                                  f"'{name}'", hint=hint)
 
-    def netlist(self, values: Mapping[str, float] | None = None) -> FlatNetlist:
-        """The elaborated netlist with `values` replacing those parameters' definitions."""
+    def netlist(self, values: Mapping[str, float] | None = None,
+                sample: Sample | None = None) -> FlatNetlist:
+        """The elaborated netlist with `values` replacing those parameters' definitions (in
+        Monte Carlo `sample`: its draws, else the random functions' nominal values)."""
         values = dict(values or {})
         self.require(list(values), "parameter")
-        return elaborate(self._tree(set_params(self.statements, values)), self.lib_dirs)
+        return elaborate(self._tree(set_params(self.statements, values)), self.lib_dirs,
+                         sample)
 
-    def jacobian(self, values: Mapping[str, float] | None, wrt: Sequence[str]
+    def jacobian(self, values: Mapping[str, float] | None, wrt: Sequence[str],
+                 sample: Sample | None = None
                  ) -> dict[str, dict[tuple[str, str], np.ndarray]]:
         """d(coefficient)/d(param) for each name of `wrt`, keyed as `coefficients()`, at the
-        parameter values `values` (others as in the file). A parameter that no coefficient
-        depends on, or that also sets something other than a coefficient (a source's
-        arguments, a time, a loop bound, a node name), is a `UsageError`."""
+        parameter values `values` (others as in the file), in Monte Carlo `sample` if given
+        (each draw's unit deviate held fixed: `springc.grad.derive`). A parameter that no
+        coefficient depends on, or that also sets something other than a coefficient (a
+        source's arguments, a time, a loop bound, a node name), is a `UsageError`."""
         self.require(list(wrt))
         values = dict(values or {})
         base_stmts = set_params(self.statements, values)
@@ -94,7 +100,8 @@ class ParamNetlist:
                 self._probe(base, base_stmts, name)
                 self.probed.add(name)
             try:
-                out[name] = coefficients(elaborate(self._tangent(name, values), self.lib_dirs))
+                out[name] = coefficients(elaborate(self._tangent(name, values), self.lib_dirs,
+                                                   sample))
             except NetlistError as err:
                 raise UsageError(f"cannot differentiate with respect to '{name}': "
                                  f"{err.format()}") from None

@@ -67,7 +67,20 @@ class Index:
     loc: SourceLoc
 
 
-Expr = Num | Var | Unary | Binary | Call | Index
+@dataclass(frozen=True, slots=True)
+class Deviate:
+    """Not written by users: the unit deviate of a random call in a Monte Carlo sample (z of
+    `gauss`/`agauss`, w in (-1, 1) of `unif`/`aunif`; 0 outside a sample), the call being the
+    `n`-th random call of the value of `key` at the site where this is evaluated. The tangent
+    netlists of `springc.grad.derive` differentiate a draw with it."""
+
+    func: str
+    key: str
+    n: int
+    loc: SourceLoc
+
+
+Expr = Num | Var | Unary | Binary | Call | Index | Deviate
 
 # --- values and arguments ------------------------------------------------------------------
 

@@ -68,24 +68,33 @@ def _uniforms(seed: int, samples: np.ndarray, site: np.uint64, stream: int) -> n
     return ((bits >> np.uint64(11)).astype(np.float64) + 0.5) * 2.0**-53
 
 
+def units(func: str, seed: int, samples, path: str, key: str, n: int = 0) -> np.ndarray:
+    """The unit deviates of the draws at site (`path`, `key`, `n`) for each sample index of
+    `samples`: a standard normal z (`gauss`, `agauss`) or a uniform w on (-1, 1) (`unif`,
+    `aunif`)."""
+    samples = np.asarray(samples, np.int64)
+    site = _site_bits(path, key, n)
+    if func in ("gauss", "agauss"):
+        u1, u2 = _uniforms(seed, samples, site, 1), _uniforms(seed, samples, site, 2)
+        return np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
+    if func in ("unif", "aunif"):
+        return 2.0 * _uniforms(seed, samples, site, 1) - 1.0
+    raise TypeError(f"not a random function: {func}")
+
+
 def values(func: str, args: list[float], seed: int, samples, path: str, key: str,
            n: int = 0) -> np.ndarray:
     """The draws of `func(*args)` (arguments already checked) at site (`path`, `key`, `n`)
-    for each sample index of `samples`."""
-    samples = np.asarray(samples, np.int64)
-    site = _site_bits(path, key, n)
+    for each sample index of `samples`: nom + scale * `units` (gauss: scale |nom| rvar /
+    sigma, agauss avar / sigma, unif |nom| rvar, aunif avar)."""
+    unit = units(func, seed, samples, path, key, n)
     nom, spread = float(args[0]), float(args[1])
     if func in ("gauss", "agauss"):
-        u1, u2 = _uniforms(seed, samples, site, 1), _uniforms(seed, samples, site, 2)
-        z = np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
         sigma = float(args[2]) if len(args) == 3 else 1.0
         scale = abs(nom) * spread if func == "gauss" else spread
-        return nom + (scale / sigma) * z
-    if func in ("unif", "aunif"):
-        w = 2.0 * _uniforms(seed, samples, site, 1) - 1.0
-        half = abs(nom) * spread if func == "unif" else spread
-        return nom + half * w
-    raise TypeError(f"not a random function: {func}")
+        return nom + (scale / sigma) * unit
+    half = abs(nom) * spread if func == "unif" else spread
+    return nom + half * unit
 
 
 @dataclass(frozen=True, slots=True)
@@ -126,6 +135,14 @@ class Site:
         if s.log is not None:
             s.log.append((self.path, self.key, n, func, tuple(args)))
         return float(values(func, args, s.seed, [s.index], self.path, self.key, n)[0])
+
+    def deviate(self, func: str, key: str, n: int) -> float:
+        """The unit deviate of the `n`-th random call of `key`'s value at this site's path
+        (`units`; 0 without a sample)."""
+        if self.sample is None:
+            return 0.0
+        s = self.sample
+        return float(units(func, s.seed, [s.index], self.path, key, n)[0])
 
 
 def nominal(func: str, args: list[float], loc: SourceLoc) -> float:

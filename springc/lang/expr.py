@@ -88,6 +88,15 @@ class Env:
             env = env.parent
         return draws.nominal(func, args, loc)
 
+    def deviate(self, node: ast.Deviate) -> float:
+        """A `Deviate` node's value at the nearest site (0 without one: nominal values)."""
+        env: Env | None = self
+        while env is not None:
+            if env.site is not None:
+                return env.site.deviate(node.func, node.key, node.n)
+            env = env.parent
+        return 0.0
+
     def names(self) -> set[str]:
         """Every name visible from here (for suggestions)."""
         out = set(CONSTANTS)
@@ -144,6 +153,8 @@ def evaluate(expr: ast.Expr, env: Env) -> float | np.ndarray:
             return _finite(_call(func, [scalar(a, env) for a in args], loc), f"{func}()", loc)
         case ast.Index(name=name, indices=indices, loc=loc):
             return _index(name, [scalar(i, env) for i in indices], env, loc)
+        case ast.Deviate():
+            return env.deviate(expr)
         case _:
             raise TypeError(f"not an expression node: {expr!r}")
 

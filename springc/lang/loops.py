@@ -213,7 +213,7 @@ def _gather(name: str, indices: list, space: _Space, loc) -> np.ndarray:
 def _uses(expr: ast.Expr, names) -> bool:
     """True if `expr` reads one of `names`."""
     match expr:
-        case ast.Num():
+        case ast.Num() | ast.Deviate():
             return False
         case ast.Var(name=name):
             return name in names

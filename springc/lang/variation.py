@@ -324,7 +324,7 @@ def _random_calls(node) -> Iterator[ast.Call]:
                 yield node
             for arg in args:
                 yield from _random_calls(arg)
-        case ast.Num() | ast.Var() | ast.Str() | str() | None:
+        case ast.Num() | ast.Var() | ast.Str() | ast.Deviate() | str() | None:
             return
         case ast.Unary(operand=operand):
             yield from _random_calls(operand)

@@ -175,6 +175,7 @@ M2 y m=1 b=0.1 v0=-0.5
 K1 x k={k}
 K2 y k=2
 P1 c={c} x^2 y^2
+P2 c={c/4} y^2
 .options substeps=3 method=rk38
 .tran 20ms 1.5
 """

@@ -2,8 +2,11 @@
 in, so each one's gradient is a plain sum), and the layout of the gradient vector.
 
 Per-node quantities (total mass, local damping, initial state) are sums over `M` elements,
-so an element's gradient is its node's. `to_elements` maps a kernel gradient back to the
-coefficient arrays of `springc.grad.params.COEFFICIENTS`.
+so an element's gradient is its node's. As for the simulator's kernels, a monomial `P c x^2`
+is a spring of stiffness 2c (`springc.kernels.lower`: the general monomial loops, with their
+powers and the Hessian products of the reverse sweep, cost more than the rest of the keyword
+spotter's classifier together), its gradient twice its spring's. `to_elements` maps a kernel
+gradient back to the coefficient arrays of `springc.grad.params.COEFFICIENTS`.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from springc.kernels.lower import kernel_netlist, squares
 from springc.lang.ir import FlatNetlist
 from springc.sim import sources
 
@@ -55,7 +59,9 @@ M, B, X0, V0, K, L, CK, CA, QG, QA, BB, PC, FI, FC = range(len(BLOCKS))
 
 def build(net: FlatNetlist) -> Model:
     """The kernel model of `net` (input forces in `sources.input_forces` order, shared ones in
-    `sources.common_forces` order, the orders of the simulator's input and source tables)."""
+    `sources.common_forces` order, the orders of the simulator's input and source tables;
+    the squares among the monomials as springs after `net`'s own, `kernel_netlist`)."""
+    net = kernel_netlist(net)
     f = lambda a: np.ascontiguousarray(a, np.float64)  # noqa: E731
     i = lambda a: np.ascontiguousarray(a, np.int64)  # noqa: E731
     # node indices that are never negative: unsigned, so that numba indexes without its
@@ -86,15 +92,19 @@ def to_elements(net: FlatNetlist, model: Model, grad: np.ndarray
     keyed as `springc.grad.params.COEFFICIENTS`."""
     blk = lambda k: grad[..., model.off[k]:model.off[k + 1]]  # noqa: E731
     node = net.masses.node
+    moved, own = squares(net.monomials), len(net.springs)
+    monomials = np.zeros(grad.shape[:-1] + (len(moved),))
+    monomials[..., ~moved] = blk(PC)
+    monomials[..., moved] = 2.0 * blk(K)[..., own:]  # k = 2c
     forces = np.zeros(grad.shape[:-1] + (len(net.forces),))
     forces[..., sources.input_forces(net)] = blk(FI)
     forces[..., sources.common_forces(net)] = blk(FC)
     return {
         ("masses", "m"): blk(M)[..., node], ("masses", "b"): blk(B)[..., node],
         ("masses", "x0"): blk(X0)[..., node], ("masses", "v0"): blk(V0)[..., node],
-        ("springs", "k"): blk(K), ("duffings", "l"): blk(L),
+        ("springs", "k"): blk(K)[..., :own], ("duffings", "l"): blk(L),
         ("couplings", "k"): blk(CK), ("couplings", "a"): blk(CA),
         ("quads", "g"): blk(QG), ("quads", "a"): blk(QA),
-        ("dashpots", "b"): blk(BB), ("monomials", "c"): blk(PC),
+        ("dashpots", "b"): blk(BB), ("monomials", "c"): monomials,
         ("forces", "gain"): forces,
     }

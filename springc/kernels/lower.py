@@ -22,7 +22,7 @@ from springc.lang.ir import FlatNetlist, Monomials, Springs
 def kernel_netlist(net: FlatNetlist) -> FlatNetlist:
     """`net` with its one-variable quadratic monomials as springs (k = 2c), the rest as is."""
     p = net.monomials
-    moved = _squares(p)
+    moved = squares(p)
     if not moved.any():
         return net
     first = p.ptr[:-1]
@@ -34,7 +34,7 @@ def kernel_netlist(net: FlatNetlist) -> FlatNetlist:
     return replace(net, springs=springs, monomials=_keep(p, ~moved))
 
 
-def _squares(p: Monomials) -> np.ndarray:
+def squares(p: Monomials) -> np.ndarray:
     """Per monomial: whether it is c x^2 of one variable (one factor, exponent 2)."""
     factors = np.diff(p.ptr)
     single = factors == 1

@@ -81,7 +81,7 @@ def _check_points(text: str, kernel: str, method: str, reduce: list[str], form: 
 
 
 @pytest.mark.parametrize("kernel, reduce, extra, form", [
-    ("shared", ["final:x(a)", "msq:v(b)", "energy"], MONOMIAL,
+    ("shared", ["final:x(a)", "msq:v(b)", "energy", "work:in", "dissipated:all"], MONOMIAL,
      "force code: loops over the runtime index arrays"),
     ("written-out", ["final:x(a)", "energy"], MONOMIAL, "force code: written out per node\n"),
     ("written-out", [], "", "the state in registers"),
@@ -92,21 +92,17 @@ def test_every_point_in_one_call_equals_its_netlist(kernel, reduce, extra, form)
 
 
 def test_exponential_form_takes_the_points_where_its_blocks_agree():
+    # the input work too: its Lawson sums read the inputs' own gains per run (g is drawn)
     text = NET.replace(".param k0=30", ".param k0=30 kb=100") + BLOCK
-    info = _check_points(text, "shared", "exp-rk4", ["final:x(c)"], "exp-rk4")
+    info = _check_points(text, "shared", "exp-rk4", ["final:x(c)", "work:in"], "exp-rk4")
     assert info["calls"] == 1
 
 
 def test_exponential_blocks_that_differ_run_point_by_point():
     text = NET.replace(".param k0=30", ".param k0=30 kb={gauss(100, 0.05)}") + BLOCK
-    info = _check_points(text, "shared", "exp-rk4", ["final:x(c)"], "exp-rk4")
+    info = _check_points(text, "shared", "exp-rk4", ["final:x(c)", "work:in"], "exp-rk4")
     assert info["calls"] == 6
     assert info["per_point"] == ["the exponential scheme's exact blocks differ between points"]
-
-
-def test_work_sums_run_point_by_point():
-    info = springc.load(NET).simulate(_inputs(), reduce=["work:in"], kernel="shared").info
-    assert info["calls"] == 6 and "input work" in info["per_point"][0]
 
 
 @pytest.fixture(scope="module")
@@ -119,7 +115,7 @@ def population():
 @pytest.mark.parametrize("batch, threads", [(7, 2), (256, 2), (256, 1), (1, 1)])
 def test_same_seed_same_bits_whatever_the_batch_and_threads(population, monkeypatch, batch,
                                                            threads):
-    reduce = ["final:x(a)", "msq:v(b)", "energy"]
+    reduce = ["final:x(a)", "msq:v(b)", "energy", "work:in", "dissipated:all"]
     reference = population.simulate(_inputs(1), reduce=reduce, kernel="shared", batch=12)
     monkeypatch.setattr(sm, "threads", lambda: threads)
     res = population.simulate(_inputs(1), reduce=reduce, kernel="shared", batch=batch)
@@ -137,3 +133,5 @@ def test_without_points_the_kernel_text_stays():
     assert "per_run" not in text and "_l[" not in text
     lanes = sm.kernel_source(net, codegen.KernelOptions(per_run=("km", "minv")))
     assert "'per_run': ('km', 'minv')" in lanes and "km_l[i, 0]" in lanes
+    sums = sm.kernel_source(net, codegen.KernelOptions(work=True, dissipation=True))
+    assert "per_run" not in sums and "_l[" not in sums  # the sums read the shared arrays

@@ -16,7 +16,6 @@ from springc_cli.main import main
 
 import springc
 from springc.kernels import loader
-from springc.sim import points
 
 # two coupled resonators: a stepped stiffness, a global draw, local (per-element) draws
 PAIR = """\
@@ -83,19 +82,16 @@ def test_every_point_equals_its_netlist_written_out(kernel):
 
 
 def test_points_of_one_structure_compile_one_kernel(monkeypatch):
-    calls, compiles = [], []  # simulate calls so far at each compile (or cache load)
-    compile_, simulate_ = loader.Kernel.compile, points.simulate
+    """The six points, work sums included, in the lanes of one call of one kernel (where
+    they run point by point, the calls share one kernel too: tests/test_points_lanes.py)."""
+    compiles = []
+    compile_ = loader.Kernel.compile
     monkeypatch.setattr(loader.Kernel, "compile",
-                        lambda self, values: (compiles.append(len(calls)),
-                                              compile_(self, values)))
-    monkeypatch.setattr(points, "simulate",
-                        lambda *a, **k: (calls.append(1), simulate_(*a, **k))[1])
+                        lambda self, values: (compiles.append(self.path), compile_(self, values)))
     loader.forget()  # loaded again from the cache: every compile is counted
-    net = springc.load(PAIR)
-    res = net.simulate(_inputs(), reduce=REDUCE, kernel="shared")
-    assert len(calls) == 6 and len(set(res.info["kernels"])) == 1
-    # during the first point's call only (its threads may both compile before either has)
-    assert compiles and set(compiles) == {1}
+    res = springc.load(PAIR).simulate(_inputs(), reduce=REDUCE, kernel="shared")
+    assert res.info["calls"] == 1 and res.info["per_point"] == []
+    assert len(set(compiles)) == 1 and set(res.info["kernels"]) == {str(compiles[0])}
 
 
 def test_shapes_and_the_points_table(tmp_path):

@@ -973,26 +973,47 @@ def emit_stage_reductions(c: _Code, feat: Features, opts: KernelOptions, s: int,
     """Quadrature of power over the step with the tableau weights (consistent with RK). The
     force on a node is its acceleration times its mass: `fi_gm` holds gain / mass. `gains`:
     an array of the input forces' own gains to use instead (a split kernel's Runge-Kutta part
-    has its blocks' inputs at gain 0)."""
+    has its blocks' inputs at gain 0). An array with a column per run
+    (`KernelOptions.per_run`) is read per lane, inside the lane loop."""
     vs = nystrom_velocity(s)
+    per, read = opts.per_run, _lane_reader(opts.per_run)
     if opts.work and feat.in_forces:
-        gain = f"{gains}[e]" if gains else "fi_gm[e] / minv[fi_node[e]]"
-        c("for e in range(fi_node.shape[0]):")
-        c(f"    fw = hbd{s} * {gain}")
-        c("    for b in range(nb_):")
-        c(f"        w_in[e, b] += fw * uc[fi_chan[e], b] * {vs}[fi_node[e], b]")
+        arrays = (gains,) if gains else ("fi_gm", "minv")
+        gain = read(gains, "e") if gains else \
+            f"{read('fi_gm', 'e')} / {read('minv', 'fi_node[e]')}"
+        _emit_lane_sum(c, "fi_node", f"hbd{s} * {gain}", "fw", set(arrays) & set(per),
+                       f"w_in[e, b] += fw * uc[fi_chan[e], b] * {vs}[fi_node[e], b]")
     if opts.work and feat.common_forces:
-        c("for e in range(fc_node.shape[0]):")
-        c(f"    fv = fc_gm[e] / minv[fc_node[e]] * g[step, {s}, e]")
-        c("    for b in range(nb_):")
-        c(f"        w_c[e, b] += hbd{s} * fv * {vs}[fc_node[e], b]")
+        gain = f"{read('fc_gm', 'e')} / {read('minv', 'fc_node[e]')} * g[step, {s}, e]"
+        _emit_lane_sum(c, "fc_node", gain, "fv", {"fc_gm", "minv"} & set(per),
+                       f"w_c[e, b] += hbd{s} * fv * {vs}[fc_node[e], b]")
     if opts.dissipation:
         c("for d in range(ds_i.shape[0]):")
         c("    i = ds_i[d]")
         c("    j = ds_j[d]")
         c("    for b in range(nb_):")
         c(f"        dv = {vs}[i, b] - ({vs}[j, b] if j >= 0 else 0.0)")
-        c(f"        dsacc[d, b] += hbd{s} * ds_b[d] * dv * dv")
+        c(f"        dsacc[d, b] += hbd{s} * {read('ds_b', 'd')} * dv * dv")
+
+
+def _lane_reader(per_run: tuple[str, ...]) -> Callable[[str, str], str]:
+    """`read(array, index)`: the element's expression, per lane (`[index, b]` of its
+    `terms.lane_array`) where the array has a column per run."""
+    return lambda array, index: (f"{terms.lane_array(array)}[{index}, b]" if array in per_run
+                                 else f"{array}[{index}]")
+
+
+def _emit_lane_sum(c: _Code, nodes: str, factor: str, name: str, lane: set[str],
+                   update: str) -> None:
+    """`for e: name = factor; for b: update`, the factor inside the lane loop where it reads
+    an array per lane (`lane`, the arrays of `KernelOptions.per_run` it reads)."""
+    c(f"for e in range({nodes}.shape[0]):")
+    if not lane:
+        c(f"    {name} = {factor}")
+    c("    for b in range(nb_):")
+    if lane:
+        c(f"        {name} = {factor}")
+    c(f"        {update}")
 
 
 def record_block(precision) -> int:

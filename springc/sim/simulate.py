@@ -231,8 +231,7 @@ def simulate_lanes(members: Sequence[CheckedNetlist], labels: Sequence[str], inp
     number of runs and a batch is rounded up to whole chunks, so that each run's lane, and
     its result to the bit, is the same whatever the batch and the threads. `options`:
     `simulate`'s. Raises `LanesRefused` (before any work) where the members cannot share a
-    call: the CUDA form, thermal noise (its streams are numbered by run), input-work and
-    dissipation reductions (the kernel reads the coefficients in them), and an exponential
+    call: the CUDA form, thermal noise (its streams are numbered by run), and an exponential
     scheme whose exact blocks differ between members."""
     if len(members) != len(labels):
         raise ValueError("one label per member")
@@ -280,7 +279,8 @@ def _simulate(group: list[CheckedNetlist], labels: list[str] | None, inputs, inp
     batch = -(-batch // width) * width
     knet = kernel_netlist(net)  # the same forces, cheaper terms
     coeffs = kernel_arrays(knet, st, np.dtype(st.precision))
-    lanes = None if labels is None else lane_arrays(nets, coeffs, st, reps)
+    lanes = None if labels is None else lane_arrays(
+        nets, coeffs, st, reps, reduction_arrays(nets, list(reductions), rplan, st))
     if lanes is not None:
         coeffs = {**coeffs, **lanes.per_run}
     if thermal.temperature(net) > 0:
@@ -325,8 +325,6 @@ def _lanes_serve(net: FlatNetlist, rplan, dev: str) -> None:
         raise LanesRefused("the CUDA form takes no per-run coefficients")
     if thermal.temperature(net) > 0:
         raise LanesRefused("thermal noise: its draws are numbered by the run")
-    if rplan.work or rplan.damper_rows:
-        raise LanesRefused("input work and dissipation sums read the element coefficients")
 
 
 @dataclass
@@ -346,19 +344,37 @@ class Lanes:
         return np.arange(lo, hi) // self.reps
 
 
-def lane_arrays(nets: list[FlatNetlist], coeffs: dict, st: Settings, reps: int) -> Lanes:
-    """The per-run arrays of `nets` (the first's kernel arrays `coeffs`): each coefficient
-    array equal in every netlist stays shared, the others get a column per run. Arrays other
-    than the force coefficients (an exponential scheme's blocks, the index arrays) must be
-    equal (`LanesRefused`)."""
+def reduction_arrays(nets: list[FlatNetlist], specs: list[str], rplan,
+                     st: Settings) -> dict[str, list[np.ndarray]]:
+    """Each netlist's coefficient arrays that the work and dissipation sums read besides the
+    force code's: the damper rows' coefficients `ds_b` and a Lawson kernel's input gains
+    `fi_w` (only where the sums are asked for: a kernel without them does not take them)."""
+    out = {}
+    if rplan.damper_rows:
+        out["ds_b"] = [damper_coefficients(reductions_plan(specs, n), st.precision)
+                       for n in nets]
+    if rplan.work and expint.is_split(st.method):
+        out["fi_w"] = [lawson_gains(n) for n in nets]
+    return out
+
+
+def lane_arrays(nets: list[FlatNetlist], coeffs: dict, st: Settings, reps: int,
+                sums: dict[str, list[np.ndarray]]) -> Lanes:
+    """The per-run arrays of `nets` (the first's kernel arrays `coeffs`, and each one's
+    arrays of the reduction sums `sums`, `reduction_arrays`): each array equal in every
+    netlist stays shared, the others get a column per run. Arrays other than the
+    coefficients (an exponential scheme's blocks, the index arrays) must be equal
+    (`LanesRefused`)."""
     dtype = np.dtype(st.precision)
     others = [kernel_arrays(kernel_netlist(n), st, dtype) for n in nets[1:]]
-    allowed = codegen.coefficient_names()
+    allowed = codegen.coefficient_names() | set(sums)
     per_run = {}
-    for key, first in coeffs.items():
-        columns = [first] + [o[key] for o in others]
-        if key == "fi_w" or all(np.array_equal(first, col) for col in columns[1:]):
-            continue  # (fi_w: the Lawson work sums' gains; work runs point by point)
+    members = {key: [first] + [o[key] for o in others]
+               for key, first in coeffs.items() if key != "fi_w"}  # fi_w: only in `sums`
+    for key, columns in {**members, **sums}.items():
+        first = columns[0]
+        if all(np.array_equal(first, col) for col in columns[1:]):
+            continue
         if key not in allowed:
             why = ("the exponential scheme's exact blocks differ between points"
                    if expint.is_split(st.method) else f"the kernel array {key} differs")
@@ -462,9 +478,19 @@ def kernel_arrays(net: FlatNetlist, st: Settings, dtype) -> dict[str, np.ndarray
     blocks = expint.find_blocks(net)
     out = coefficient_arrays(expint.split_netlist(net, blocks), dtype)
     out.update(expint.scheme_arrays(net, blocks, st.h, st.method, dtype))
-    # the input work of a Lawson kernel: the inputs' own gains (the split zeroes the blocks')
-    out["fi_w"] = np.ascontiguousarray(net.forces.gain[sources.input_forces(net)], np.float64)
+    out["fi_w"] = lawson_gains(net)
     return out
+
+
+def lawson_gains(net: FlatNetlist) -> np.ndarray:
+    """The input work of a Lawson kernel: the inputs' own gains (the split zeroes the
+    blocks')."""
+    return np.ascontiguousarray(net.forces.gain[sources.input_forces(net)], np.float64)
+
+
+def damper_coefficients(rplan, precision: str) -> np.ndarray:
+    """The coefficient of each damper row of the dissipation sums (`ds_b`)."""
+    return np.array([r[2] for r in rplan.damper_rows], np.dtype(precision))
 
 
 def stage_tableau(method: str):
@@ -570,9 +596,6 @@ def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rec, col, r
     nch = sources.channels_used(net)
     nsamples = st.nsteps // st.substeps + 1
     args = dict(coeffs)
-    if lanes is not None:
-        args.update({k: np.ascontiguousarray(v[:, col:col + runs])
-                     for k, v in lanes.per_run.items()})
     args.update(
         x0=np.ascontiguousarray(x0, dtype),
         v0=np.ascontiguousarray(v0, dtype),
@@ -593,7 +616,7 @@ def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rec, col, r
     rows = rplan.damper_rows
     args.update(ds_i=np.array([r[0] for r in rows], np.int64),
                 ds_j=np.array([r[1] for r in rows], np.int64),
-                ds_b=np.array([r[2] for r in rows], dtype), diss=np.zeros((len(rows), runs)))
+                ds_b=damper_coefficients(rplan, st.precision), diss=np.zeros((len(rows), runs)))
     wins = [reductions.msq_window(r, st.h, st.nsteps) for r in rplan.msq]
     args.update(ms_node=np.array([r.node for r in rplan.msq], np.int64),
                 ms_isv=np.array([r.isv for r in rplan.msq], np.bool_),
@@ -602,6 +625,9 @@ def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rec, col, r
                 msq=np.zeros((len(wins), runs)))
     ngram = sum(r.gram.groups for r in rplan.gram)
     args.update(reductions.gram_arrays(rplan, st.h, dtype), gram=np.zeros((ngram, runs)))
+    if lanes is not None:  # this call's columns of the per-run arrays
+        args.update({k: np.ascontiguousarray(v[:, col:col + runs])
+                     for k, v in lanes.per_run.items()})
     _run_chunks(kernel, args, runs, task)
     work = np.zeros((nf, runs))
     work[sources.input_forces(net)] = args["work_in"]

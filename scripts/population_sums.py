@@ -1,0 +1,51 @@
+"""Wall of one `simulate` of a Monte Carlo population with work and dissipation sums.
+
+    python scripts/population_sums.py [--samples 64] [--masses 100]
+
+A chain of masses (every mass, damper and spring drawn, the couplings one global draw), an
+input at the first mass, 0.5 s at 16 kHz (RK4), reductions `work:in`, `dissipated:all` and a
+final position; no probes recorded. Prints the kernel calls and the least wall of three calls
+after a warm-up (compile excluded), and the first samples' input work. Run it with
+`PYTHONPATH=<another tree>` to compare trees (docs/bench-population.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+import springc
+
+
+def population(masses: int, samples: int) -> str:
+    lines = [".param kc={gauss(1e4, 0.01)}"]
+    for i in range(masses):
+        lines += [f"M{i} n{i} m={{gauss(1e-3, 0.01)}} b={{gauss(0.01, 0.05)}}",
+                  f"K{i} n{i} k={{gauss(4e4, 0.01)}}"]
+        if i:
+            lines.append(f"C{i} n{i - 1} n{i} k={{kc}}")
+    lines += ["F0 n0 in gain=1", ".tran {1/16000} 0.5", f".mc {samples} seed=1"]
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--samples", type=int, default=64)
+    ap.add_argument("--masses", type=int, default=100)
+    args = ap.parse_args()
+    net = springc.load(population(args.masses, args.samples))
+    sig = np.random.default_rng(0).normal(0, 1, (1, 1, 8000))
+    reduce = ["work:in", "dissipated:all", f"final:x(n{args.masses - 1})"]
+    walls = []
+    for _ in range(4):  # the first compiles or loads the kernel
+        start = time.perf_counter()
+        res = net.simulate(sig, input_rate=16000, reduce=reduce, probes=[])
+        walls.append(time.perf_counter() - start)
+    print(f"calls {res.info['calls']}, wall {min(walls[1:]):.3f} s (least of 3, warm); "
+          f"work:in of samples 0-2: {res['work:in'][:3, 0]}")
+
+
+if __name__ == "__main__":
+    main()

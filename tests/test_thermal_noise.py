@@ -15,6 +15,7 @@ from click.testing import CliRunner
 
 import springc
 from springc.analyses.noise import K_B, noise
+from springc.check import check
 from springc.bench.noise import cost_of_noise
 from springc.kernels import codegen, terms, thermal
 from springc.kernels.lower import kernel_netlist
@@ -186,3 +187,23 @@ def test_sim_temp_and_seed_override_the_netlist(tmp_path) -> None:
 def test_the_cost_bench_runs() -> None:
     ratio = cost_of_noise(springc.load(NET).flat, runs=2, seconds=0.01, rounds=1)
     assert np.isfinite(ratio) and ratio > 0
+
+
+def test_a_populations_points_meet_their_own_noise_in_one_call() -> None:
+    """Three `.step` points of B1's coefficient (and so of its noise force) in the lanes of
+    one call, 2 runs each: point p's runs are runs 2p, 2p + 1 of the call and draw those
+    runs' streams, so they equal runs 2p, 2p + 1 of a separate simulation of p's netlist (to
+    rounding), and every device meets noise of its own."""
+    b1 = f"B1 a b b={0.4 * KT!r}"
+    text = (f".param bb={0.4 * KT!r}\n" + NET.replace(b1, "B1 a b b={bb}")
+            + f".step bb list {0.4 * KT!r} {0.8 * KT!r} {1.6 * KT!r}\n")
+    net = springc.load(text)
+    res = net.simulate(np.zeros((2, 1, 101)), substeps=1, method="rk4", kernel="shared")
+    assert res.info["calls"] == 1 and res.info["per_point"] == []
+    got = np.stack([res[k] for k in res.probes])  # (probe, point, run, time)
+    for p, flat in enumerate(net.points.nets):
+        alone = probes(sim.simulate(check(flat), np.zeros((2 * p + 2, 1, 101)),
+                                    substeps=1, method="rk4", write_out=False, chunk=4))
+        scale = np.abs(alone).max()
+        assert np.abs(got[:, p] - alone[:, 2 * p:]).max() <= 1e-9 * scale, p
+    assert not np.allclose(got[:, 0, 0], got[:, 1, 0])  # another damper, another noise

@@ -663,7 +663,7 @@ def _emit_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> No
     c.indent()
     emit_step_start(c, feat.in_forces)
     if feat.thermal:
-        thermal.emit_draw(c)
+        thermal.emit_draw(c, opts.per_run)
 
     def prelude(s: int) -> None:
         if s > 0:

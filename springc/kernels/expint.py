@@ -391,7 +391,7 @@ def _emit_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab: Tablea
     c.indent()
     codegen.emit_step_start(c, True)
     if feat.thermal:
-        thermal.emit_draw(c)
+        thermal.emit_draw(c, opts.per_run)
     codegen.emit_interp(c, "ua", "sub / substeps", ln)
     codegen.emit_interp(c, "um", f"(sub + {scheme.half!r}) / substeps", ln)
     codegen.emit_interp(c, "ub", "(sub + 1.0) / substeps", ln)
@@ -594,7 +594,7 @@ def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab:
     c.indent()
     codegen.emit_step_start(c, True)
     if feat.thermal:
-        thermal.emit_draw(c)
+        thermal.emit_draw(c, opts.per_run)
     for k, frac in enumerate(lw.ufracs):
         codegen.emit_interp(c, f"ut{k}", f"(sub + {frac!r}) / substeps", lw.ln)
     power = opts.work or opts.dissipation

@@ -101,7 +101,7 @@ def _emit_one_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -
     c("    k0 += 1")
     _emit_input_positions(c, tab, nodes, "k0")
     if feat.thermal:
-        thermal.emit_draw(c)
+        thermal.emit_draw(c, opts.per_run)
         _emit_noise_loads(c, nodes, "0")
     _emit_step(c, tab, nodes, "u[lo_, {ch}, {k}]", feat.thermal)
     emit_step_end(c, opts, LaneLayout(1, 1), lambda: _write_back(c, len(nodes)))
@@ -127,7 +127,7 @@ def _emit_lanes(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> 
     c.indent()
     emit_step_start(c, feat.in_forces)
     if feat.thermal:
-        thermal.emit_draw(c)
+        thermal.emit_draw(c, opts.per_run)
     _emit_input_positions(c, tab, nodes, "k0 - ubase")
     c(f"for b in range({opts.lanes}):")
     c.indent()

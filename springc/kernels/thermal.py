@@ -141,9 +141,13 @@ def emit_chunk_init(c) -> None:
     c("nz = np.zeros((n, LANES), FT)")
 
 
-def emit_draw(c) -> None:
+def emit_draw(c, per_run: tuple[str, ...] = ()) -> None:
     """At a step's start (`step` the step index): the noisy rows of `nz` from this step's
-    draws, every damper adding to its node i and subtracting from its node j."""
+    draws, every damper adding to its node i and subtracting from its node j. `per_run`:
+    the kernel's arrays with a column per run (the points of `.step`/`.mc` in its lanes);
+    `nz_si`, `nz_sj` there are read per lane."""
+    si = "nz_si_l[e, b]" if "nz_si" in per_run else "si"
+    sj = "nz_sj_l[e, b]" if "nz_sj" in per_run else "sj"
     c("for k_ in range(nz_node.shape[0]):")
     c("    q_ = nz_node[k_]")
     c("    for b in range(LANES):")
@@ -157,17 +161,19 @@ def emit_draw(c) -> None:
     c.indent()
     c("i = nz_i[e]")
     c("j = nz_j[e]")
-    c("si = nz_si[e]")
+    if si == "si":
+        c("si = nz_si[e]")
     c("h_ = e - 2 * p_")
     c("if j < 0:  # to ground")
     c("    for b in range(LANES):")
-    c("        nz[i, b] += si * FT(nzz[h_, b])")
+    c(f"        nz[i, b] += {si} * FT(nzz[h_, b])")
     c("else:")
-    c("    sj = nz_sj[e]")
+    if sj == "sj":
+        c("    sj = nz_sj[e]")
     c("    for b in range(LANES):")
     c("        zf = FT(nzz[h_, b])")
-    c("        nz[i, b] += si * zf")
-    c("        nz[j, b] -= sj * zf")
+    c(f"        nz[i, b] += {si} * zf")
+    c(f"        nz[j, b] -= {sj} * zf")
     c.dedent(2)
 
 

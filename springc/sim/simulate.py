@@ -231,8 +231,10 @@ def simulate_lanes(members: Sequence[CheckedNetlist], labels: Sequence[str], inp
     number of runs and a batch is rounded up to whole chunks, so that each run's lane, and
     its result to the bit, is the same whatever the batch and the threads. `options`:
     `simulate`'s. Raises `LanesRefused` (before any work) where the members cannot share a
-    call: the CUDA form, thermal noise (its streams are numbered by run), and an exponential
-    scheme whose exact blocks differ between members."""
+    call: the CUDA form, an exponential scheme whose exact blocks differ between members, and
+    thermal noise whose noisy dampers differ (one with b = 0 in some member). With thermal
+    noise each run draws its own stream (numbered by its index in the call), so every
+    device of a population meets its own noise."""
     if len(members) != len(labels):
         raise ValueError("one label per member")
     nets = [require_checked(m, "simulate_lanes") for m in members]
@@ -279,12 +281,12 @@ def _simulate(group: list[CheckedNetlist], labels: list[str] | None, inputs, inp
     batch = -(-batch // width) * width
     knet = kernel_netlist(net)  # the same forces, cheaper terms
     coeffs = kernel_arrays(knet, st, np.dtype(st.precision))
-    lanes = None if labels is None else lane_arrays(
-        nets, coeffs, st, reps, reduction_arrays(nets, list(reductions), rplan, st))
-    if lanes is not None:
-        coeffs = {**coeffs, **lanes.per_run}
     if thermal.temperature(net) > 0:
         coeffs.update(thermal.noise_arrays(net, st.h, np.dtype(st.precision)))
+    lanes = None if labels is None else lane_arrays(
+        nets, coeffs, st, reps, member_arrays(nets, list(reductions), rplan, st))
+    if lanes is not None:
+        coeffs = {**coeffs, **lanes.per_run}
     opts = codegen.KernelOptions(st.method, st.precision, width,
                                  record=bool(plist), work=rplan.work,
                                  dissipation=bool(rplan.damper_rows), msq=bool(rplan.msq),
@@ -323,8 +325,6 @@ def _lanes_serve(net: FlatNetlist, rplan, dev: str) -> None:
     """Raise `LanesRefused` where the members cannot share a kernel call (`simulate_lanes`)."""
     if dev == "cuda":
         raise LanesRefused("the CUDA form takes no per-run coefficients")
-    if thermal.temperature(net) > 0:
-        raise LanesRefused("thermal noise: its draws are numbered by the run")
 
 
 @dataclass
@@ -344,12 +344,21 @@ class Lanes:
         return np.arange(lo, hi) // self.reps
 
 
-def reduction_arrays(nets: list[FlatNetlist], specs: list[str], rplan,
-                     st: Settings) -> dict[str, list[np.ndarray]]:
-    """Each netlist's coefficient arrays that the work and dissipation sums read besides the
-    force code's: the damper rows' coefficients `ds_b` and a Lawson kernel's input gains
-    `fi_w` (only where the sums are asked for: a kernel without them does not take them)."""
+# the arrays of `member_arrays` that may differ between the points of one call
+PER_RUN_EXTRA = frozenset({"ds_b", "fi_w", "nz_si", "nz_sj"})
+
+
+def member_arrays(nets: list[FlatNetlist], specs: list[str], rplan,
+                  st: Settings) -> dict[str, list[np.ndarray]]:
+    """Each netlist's arrays besides the force code's coefficients that the kernel reads:
+    the damper rows' coefficients `ds_b` of the dissipation sums, a Lawson kernel's input
+    gains `fi_w` of the work sums (only where the sums are asked for: a kernel without them
+    does not take them), and the thermal noise's arrays (its dampers' forces over mass
+    `nz_si`, `nz_sj` may differ between the points, the rest must not)."""
     out = {}
+    if thermal.temperature(nets[0]) > 0:
+        noise = [thermal.noise_arrays(n, st.h, np.dtype(st.precision)) for n in nets]
+        out.update({key: [a[key] for a in noise] for key in noise[0]})
     if rplan.damper_rows:
         out["ds_b"] = [damper_coefficients(reductions_plan(specs, n), st.precision)
                        for n in nets]
@@ -361,24 +370,23 @@ def reduction_arrays(nets: list[FlatNetlist], specs: list[str], rplan,
 def lane_arrays(nets: list[FlatNetlist], coeffs: dict, st: Settings, reps: int,
                 sums: dict[str, list[np.ndarray]]) -> Lanes:
     """The per-run arrays of `nets` (the first's kernel arrays `coeffs`, and each one's
-    arrays of the reduction sums `sums`, `reduction_arrays`): each array equal in every
+    other arrays `sums`, `member_arrays`): each array equal in every
     netlist stays shared, the others get a column per run. Arrays other than the
     coefficients (an exponential scheme's blocks, the index arrays) must be equal
     (`LanesRefused`)."""
     dtype = np.dtype(st.precision)
     others = [kernel_arrays(kernel_netlist(n), st, dtype) for n in nets[1:]]
-    allowed = codegen.coefficient_names() | set(sums)
+    allowed = codegen.coefficient_names() | PER_RUN_EXTRA
     per_run = {}
     members = {key: [first] + [o[key] for o in others]
-               for key, first in coeffs.items() if key != "fi_w"}  # fi_w: only in `sums`
+               for key, first in coeffs.items()
+               if key not in sums and key != "fi_w"}  # fi_w: only where `sums` has it
     for key, columns in {**members, **sums}.items():
         first = columns[0]
         if all(np.array_equal(first, col) for col in columns[1:]):
             continue
         if key not in allowed:
-            why = ("the exponential scheme's exact blocks differ between points"
-                   if expint.is_split(st.method) else f"the kernel array {key} differs")
-            raise LanesRefused(why)
+            raise LanesRefused(_differs(key, st))
         per_run[key] = np.ascontiguousarray(np.repeat(np.stack(columns, 1), reps, 1))
     x0, v0 = (np.repeat(np.stack(s, 1), reps, 1)
               for s in zip(*(n.initial_state() for n in nets)))
@@ -480,6 +488,15 @@ def kernel_arrays(net: FlatNetlist, st: Settings, dtype) -> dict[str, np.ndarray
     out.update(expint.scheme_arrays(net, blocks, st.h, st.method, dtype))
     out["fi_w"] = lawson_gains(net)
     return out
+
+
+def _differs(key: str, st: Settings) -> str:
+    """Why the points cannot share a call when kernel array `key` differs between them."""
+    if key.startswith("nz_"):
+        return "thermal noise: the noisy dampers differ between points (b = 0 in some)"
+    if expint.is_split(st.method):
+        return "the exponential scheme's exact blocks differ between points"
+    return f"the kernel array {key} differs"
 
 
 def lawson_gains(net: FlatNetlist) -> np.ndarray:

@@ -1,12 +1,13 @@
 """Wall of one `simulate` of a Monte Carlo population with work and dissipation sums.
 
-    python scripts/population_sums.py [--samples 64] [--masses 100]
+    python scripts/population_sums.py [--samples 64] [--masses 100] [--temp K]
 
 A chain of masses (every mass, damper and spring drawn, the couplings one global draw), an
 input at the first mass, 0.5 s at 16 kHz (RK4), reductions `work:in`, `dissipated:all` and a
-final position; no probes recorded. Prints the kernel calls and the least wall of three calls
-after a warm-up (compile excluded), and the first samples' input work. Run it with
-`PYTHONPATH=<another tree>` to compare trees (docs/bench-population.md).
+final position; no probes recorded; with --temp, the dampers' thermal noise at K kelvin.
+Prints the kernel calls and the least wall of three calls after a warm-up (compile
+excluded), and the first samples' input work. Run it with `PYTHONPATH=<another tree>` to
+compare trees (docs/performance.md).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import numpy as np
 import springc
 
 
-def population(masses: int, samples: int) -> str:
+def population(masses: int, samples: int, temp: float = 0.0) -> str:
     lines = [".param kc={gauss(1e4, 0.01)}"]
     for i in range(masses):
         lines += [f"M{i} n{i} m={{gauss(1e-3, 0.01)}} b={{gauss(0.01, 0.05)}}",
@@ -27,6 +28,8 @@ def population(masses: int, samples: int) -> str:
         if i:
             lines.append(f"C{i} n{i - 1} n{i} k={{kc}}")
     lines += ["F0 n0 in gain=1", ".tran {1/16000} 0.5", f".mc {samples} seed=1"]
+    if temp:
+        lines.append(f".options temp={temp!r}")
     return "\n".join(lines) + "\n"
 
 
@@ -34,8 +37,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=64)
     ap.add_argument("--masses", type=int, default=100)
+    ap.add_argument("--temp", type=float, default=0.0)
     args = ap.parse_args()
-    net = springc.load(population(args.masses, args.samples))
+    net = springc.load(population(args.masses, args.samples, args.temp))
     sig = np.random.default_rng(0).normal(0, 1, (1, 1, 8000))
     reduce = ["work:in", "dissipated:all", f"final:x(n{args.masses - 1})"]
     walls = []

@@ -189,21 +189,24 @@ def test_the_cost_bench_runs() -> None:
     assert np.isfinite(ratio) and ratio > 0
 
 
-def test_a_populations_points_meet_their_own_noise_in_one_call() -> None:
-    """Three `.step` points of B1's coefficient (and so of its noise force) in the lanes of
-    one call, 2 runs each: point p's runs are runs 2p, 2p + 1 of the call and draw those
+@pytest.mark.parametrize("values, calls", [((0.4, 0.8, 1.6), 1), ((0.0, 0.8, 1.6), 3)])
+def test_a_populations_points_meet_their_own_noise(values, calls) -> None:
+    """Three `.step` points of B1's coefficient (and so of its noise force), 2 runs each: in
+    the lanes of one call, or (B1 noiseless at the first point: other noisy dampers) one call
+    per point. Either way point p's runs are runs 2p, 2p + 1 of the population and draw those
     runs' streams, so they equal runs 2p, 2p + 1 of a separate simulation of p's netlist (to
     rounding), and every device meets noise of its own."""
     b1 = f"B1 a b b={0.4 * KT!r}"
+    listed = " ".join(repr(v * KT) for v in values)
     text = (f".param bb={0.4 * KT!r}\n" + NET.replace(b1, "B1 a b b={bb}")
-            + f".step bb list {0.4 * KT!r} {0.8 * KT!r} {1.6 * KT!r}\n")
+            + f".step bb list {listed}\n")
     net = springc.load(text)
     res = net.simulate(np.zeros((2, 1, 101)), substeps=1, method="rk4", kernel="shared")
-    assert res.info["calls"] == 1 and res.info["per_point"] == []
+    assert res.info["calls"] == calls
     got = np.stack([res[k] for k in res.probes])  # (probe, point, run, time)
     for p, flat in enumerate(net.points.nets):
         alone = probes(sim.simulate(check(flat), np.zeros((2 * p + 2, 1, 101)),
                                     substeps=1, method="rk4", write_out=False, chunk=4))
         scale = np.abs(alone).max()
         assert np.abs(got[:, p] - alone[:, 2 * p:]).max() <= 1e-9 * scale, p
-    assert not np.allclose(got[:, 0, 0], got[:, 1, 0])  # another damper, another noise
+    assert not np.allclose(got[:, 1, 0], got[:, 2, 0])  # another damper, another noise

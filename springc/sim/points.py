@@ -99,14 +99,14 @@ def simulate_points(points: PointSet, inputs=None, input_rate: float | None = No
     for group in points.groups:
         if len(group) > 1:
             try:
-                out.add_group(group, _lanes(points, group, signals, input_rate, call))
+                out.add_group(group, _lanes(points, group, signals, input_rate, call, len(names)))
                 _tick(bar, len(group))
                 continue
             except LanesRefused as why:
                 out.info["per_point"].append(str(why))
         for i in group:
             res = _one_point(points.points[i], len(points), points.checked[i], signals,
-                             input_rate, out.records, call)
+                             input_rate, out.records, {**call, "first_run": i * len(names)})
             out.add(i, res)
             _tick(bar, 1)
     if bar is not None:
@@ -119,14 +119,17 @@ def _tick(bar, count: int) -> None:
         bar.update(count)
 
 
-def _lanes(points: PointSet, group: tuple[int, ...], signals, input_rate,
-           call: dict) -> SimResult:
+def _lanes(points: PointSet, group: tuple[int, ...], signals, input_rate, call: dict,
+           reps: int) -> SimResult:
     """One group's points in the lanes of one call (`simulate_lanes`), each named by its
     point (a diverged run is '<input> at point ...')."""
     count = len(points)
+    # the group's runs are the population's from its first point's on where its points follow
+    # one another (noise streams); a group of scattered points numbers its own
+    first = group[0] * reps if list(group) == list(range(group[0], group[-1] + 1)) else 0
     return simulate_lanes([points.checked[i] for i in group],
                           [points.points[i].describe(count) for i in group], signals,
-                          input_rate, **call)
+                          input_rate, **call, first_run=first)
 
 
 class _Stack:

@@ -182,7 +182,7 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
              chunk: int | None = None, write_out: bool | None = None,
              record_into: np.ndarray | None = None, check_step: bool = True,
              node_threads: bool | None = None, temp: float | None = None,
-             seed: int | None = None, device: str = "cpu") -> SimResult:
+             seed: int | None = None, device: str = "cpu", first_run: int = 0) -> SimResult:
     """Simulate the checked netlist for every input signal (`springc.check.check(net)`).
 
     `inputs`: None (one run, no input), an array (runs, channels, samples) sampled at
@@ -207,7 +207,9 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
     lane r mod lanes and its result is bitwise the same whatever the batch. `device`:
     'cpu', 'cuda' (the CUDA kernel form, `springc.sim.gpu`; UsageError where no GPU is) or
     'auto' (CUDA where a GPU is present); on CUDA every run is one batch unless `batch` is
-    given."""
+    given. `first_run`: the index of this call's first run in a larger population, whose
+    noise streams run r draws as run `first_run` + r (`springc.sim.points`: each device its
+    own)."""
     options = {k: v for k, v in locals().items() if k not in ("checked", "inputs",
                                                                "input_rate")}
     return _simulate([require_checked(checked, "simulate")], None, inputs, input_rate,
@@ -245,7 +247,8 @@ def _simulate(group: list[CheckedNetlist], labels: list[str] | None, inputs, inp
               tstep=None, tstop=None, substeps=None, method=None, precision=None, outrate=None,
               probes=None, reductions=(), batch=None, channel=None, progress=False,
               chunk=None, write_out=None, record_into=None, check_step=True,
-              node_threads=None, temp=None, seed=None, device="cpu") -> SimResult:
+              node_threads=None, temp=None, seed=None, device="cpu",
+              first_run=0) -> SimResult:
     """`simulate` of the first netlist of `group` or, with `labels`, `simulate_lanes` of
     them all."""
     nets = [thermal.with_overrides(c.net, temp, seed) for c in group]
@@ -302,7 +305,7 @@ def _simulate(group: list[CheckedNetlist], labels: list[str] | None, inputs, inp
     rec = _records(len(plist), st.nsteps // st.rec_every + 1, len(names),
                    np.dtype(st.precision), record_into)
     out = _run_batches(net, kernel, st, coeffs, signals, names, plist, rplan, batch, task,
-                       progress, rec, lanes)
+                       progress, rec, lanes, first_run)
     out.info.update(wall_s=time.perf_counter() - start, kernel=str(kernel.path),
                     compile_s=kernel.compile_s, settings=st, records=rec)
     return out
@@ -551,10 +554,12 @@ def threads() -> int:
 
 
 def _run_batches(net, kernel, st: Settings, coeffs, signals, names, plist, rplan, batch, task,
-                 progress, rec: np.ndarray, lanes: Lanes | None = None) -> SimResult:
+                 progress, rec: np.ndarray, lanes: Lanes | None = None,
+                 first_run: int = 0) -> SimResult:
     """The kernel calls, batch by batch, all recording into `rec` (one record for all the
     calls, each writing its own runs' rows: no copy at the end, a recording at every step is
-    hundreds of MB). With `lanes`, run r reads input r % reps."""
+    hundreds of MB). With `lanes`, run r reads input r % reps. Run r draws the noise streams
+    of run `first_run` + r."""
     runs = len(names)
     dtype = np.dtype(st.precision)
     tab = stage_tableau(st.method)
@@ -566,7 +571,7 @@ def _run_batches(net, kernel, st: Settings, coeffs, signals, names, plist, rplan
         hi = min(runs, lo + batch)
         part = None if signals is None else _batch_inputs(signals, lo, hi)
         chunks.append(_run_one_batch(net, kernel, st, part, hi - lo, coeffs, g, plist, rec, lo,
-                                     rplan, task, names[lo:hi], lanes))
+                                     rplan, task, names[lo:hi], lanes, first_run))
         if bar is not None:
             bar.update(hi - lo)
     if bar is not None:
@@ -602,7 +607,7 @@ def _progress(runs: int, enabled: bool):
 
 
 def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rec, col, rplan, task,
-                   names, lanes: Lanes | None = None):
+                   names, lanes: Lanes | None = None, first_run: int = 0):
     """Simulate `runs` runs in one kernel call (their probes into rows col.. of `rec`);
     returns the reductions. With `lanes`, runs col.. of its per-run arrays."""
     dtype = np.dtype(st.precision)
@@ -622,7 +627,7 @@ def _run_one_batch(net, kernel, st, signals, runs, coeffs, g, plist, rec, col, r
         check_every=CHECK_EVERY, limit=LIMITS[st.precision],
         xf=np.zeros((net.n, runs), dtype), vf=np.zeros((net.n, runs), dtype),
         status=np.zeros(runs, np.int64), bad_node=np.zeros(runs, np.int64),
-        run0=col,  # the global index of this call's first run: its noise streams
+        run0=first_run + col,  # the population index of this batch's first run: its noise
     )
     args.update(rec_every=st.rec_every, rec_node=np.array([p.node for p in plist], np.uint64),
                 rec_isv=np.array([p.quantity == "v" for p in plist], np.bool_),

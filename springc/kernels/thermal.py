@@ -146,8 +146,9 @@ def emit_draw(c, per_run: tuple[str, ...] = ()) -> None:
     draws, every damper adding to its node i and subtracting from its node j. `per_run`:
     the kernel's arrays with a column per run (the points of `.step`/`.mc` in its lanes);
     `nz_si`, `nz_sj` there are read per lane."""
-    si = "nz_si_l[e, b]" if "nz_si" in per_run else "si"
-    sj = "nz_sj_l[e, b]" if "nz_sj" in per_run else "sj"
+    lane_si, lane_sj = "nz_si" in per_run, "nz_sj" in per_run
+    si = "nz_si_l[e, b]" if lane_si else "si"
+    sj = "nz_sj_l[e, b]" if lane_sj else "sj"
     c("for k_ in range(nz_node.shape[0]):")
     c("    q_ = nz_node[k_]")
     c("    for b in range(LANES):")
@@ -161,14 +162,14 @@ def emit_draw(c, per_run: tuple[str, ...] = ()) -> None:
     c.indent()
     c("i = nz_i[e]")
     c("j = nz_j[e]")
-    if si == "si":
+    if not lane_si:
         c("si = nz_si[e]")
     c("h_ = e - 2 * p_")
     c("if j < 0:  # to ground")
     c("    for b in range(LANES):")
     c(f"        nz[i, b] += {si} * FT(nzz[h_, b])")
     c("else:")
-    if sj == "sj":
+    if not lane_sj:
         c("    sj = nz_sj[e]")
     c("    for b in range(LANES):")
     c("        zf = FT(nzz[h_, b])")

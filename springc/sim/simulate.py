@@ -235,8 +235,8 @@ def simulate_lanes(members: Sequence[CheckedNetlist], labels: Sequence[str], inp
     `simulate`'s. Raises `LanesRefused` (before any work) where the members cannot share a
     call: the CUDA form, an exponential scheme whose exact blocks differ between members, and
     thermal noise whose noisy dampers differ (one with b = 0 in some member). With thermal
-    noise each run draws its own stream (numbered by its index in the call), so every
-    device of a population meets its own noise."""
+    noise each run draws its own streams (run r of the call those of run `first_run` + r),
+    so every device of a population meets its own noise."""
     if len(members) != len(labels):
         raise ValueError("one label per member")
     nets = [require_checked(m, "simulate_lanes") for m in members]

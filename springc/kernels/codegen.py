@@ -363,15 +363,17 @@ def _lane_stmt(stmt: str, b: int, lane: str) -> str:
 
 def emit_stage_loop(c: _Code, feat: Features, tab: Tableau, width: LaneLayout,
                     prelude: Callable[[int], None],
-                    after: Callable[[int], None] | None = None,
+                    after: Callable[[], None] | None = None,
                     nodes: tuple | None = None, parallel: bool = False,
                     per_run: tuple[str, ...] = ()) -> None:
     """The stages of one step as a loop whose body holds the force code once (a call per
     stage passes ~20 array arguments; the force code written out per stage compiles far
     slower: docs/performance.md#the-shared-kernels-shape). `prelude(s)` writes stage s's own
     code (its state xs, vs, its input); the force code then reads xa, va and writes ka;
-    `after(s)`, when given, writes what follows stage s's forces; `nodes` (`terms.node_terms`), when
-    given, has the linear, input and quadratic-coupling forces written out per node;
+    `after()`, when given, writes what follows every stage's forces, once (it reads the stage
+    s_ through xa, va and the stage weights `hbd_`, `emit_stage_weights`; stages of weight
+    zero skip it); `nodes` (`terms.node_terms`), when given, has the linear, input and
+    quadratic-coupling forces written out per node;
     `parallel`: the force code's node loop is a `prange` (`emit_linear`); `per_run`: the
     coefficient arrays read per lane (`KernelOptions.per_run`)."""
     c("for s_ in range(STAGES):")
@@ -387,14 +389,12 @@ def emit_stage_loop(c: _Code, feat: Features, tab: Tableau, width: LaneLayout,
     c("grow = g[step, s_]" if feat.common_forces else "grow = g[0, 0]")
     emit_accel_body(c, feat, width, nodes, parallel, per_run)
     if after is not None:
-        for s in range(tab.stages):
-            c(f"if s_ == {s}:")
-            c.indent()
-            start = len(c.lines)
-            after(s)
-            if len(c.lines) == start:
-                c("pass")
-            c.dedent()
+        # once, not once per stage: a copy per stage compiled about 1 s slower per sum
+        # (docs/performance.md#cold-cache-compiles-in-mass-spring-training)
+        c("if hbd_[s_] != 0.0:")
+        c.indent()
+        after()
+        c.dedent()
     c.dedent()
 
 
@@ -673,9 +673,8 @@ def _emit_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> No
             # stage time; a stage at the same time as the previous one reuses it.
             emit_interp(c, "uc", f"(sub + {tab.c[s]!r}) / substeps", ln)
 
-    def after(s: int) -> None:
-        if tab.b[s] != 0.0:
-            emit_stage_reductions(c, feat, opts, s)
+    def after() -> None:
+        emit_stage_reductions(c, feat, opts)
 
     emit_stage_loop(c, feat, tab, ln, prelude, after if opts.work or opts.dissipation else None,
                     opts.nodes, opts.parallel, opts.per_run)
@@ -692,6 +691,8 @@ def emit_run_head(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -
     emit_def(c, run_args(feat, opts), "nsteps steps of h", aligned_frame(opts), opts.parallel)
     emit_coefficients(c, tab)
     emit_nystrom_coefficients(c, tab)
+    if opts.work or opts.dissipation:
+        emit_stage_weights(c, tab)
 
 
 def aligned_frame(opts: KernelOptions) -> bool:
@@ -824,6 +825,12 @@ def emit_coefficients(c: _Code, tab: Tableau) -> None:
         if b != 0.0:
             c(f"hb{s} = FT(h * {b!r})")
             c(f"hbd{s} = h * {b!r}")
+
+
+def emit_stage_weights(c: _Code, tab: Tableau) -> None:
+    """`hbd_`: h b_s of every stage in float64 (zeros too), indexed by the stage loop's s_
+    for the work and dissipation sums (`emit_stage_reductions`)."""
+    c(f"hbd_ = ({', '.join(f'h * {b!r}' for b in tab.b)},)")
 
 
 def nystrom_coefficients(tab: Tableau) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
@@ -968,32 +975,33 @@ def nystrom_combine(c: _Code, tab: Tableau, width: LaneLayout, frozen: str | Non
     c.dedent()
 
 
-def emit_stage_reductions(c: _Code, feat: Features, opts: KernelOptions, s: int,
+def emit_stage_reductions(c: _Code, feat: Features, opts: KernelOptions,
                           gains: str | None = None) -> None:
-    """Quadrature of power over the step with the tableau weights (consistent with RK). The
+    """Quadrature of power over the step with the tableau weights (consistent with RK): stage
+    s_'s share, its weight `hbd_[s_]` (`emit_stage_weights`), its velocity va. The
     force on a node is its acceleration times its mass: `fi_gm` holds gain / mass. `gains`:
     an array of the input forces' own gains to use instead (a split kernel's Runge-Kutta part
     has its blocks' inputs at gain 0). An array with a column per run
     (`KernelOptions.per_run`) is read per lane, inside the lane loop."""
-    vs = nystrom_velocity(s)
+    vs = "va"
     per, read = opts.per_run, _lane_reader(opts.per_run)
     if opts.work and feat.in_forces:
         arrays = (gains,) if gains else ("fi_gm", "minv")
         gain = read(gains, "e") if gains else \
             f"{read('fi_gm', 'e')} / {read('minv', 'fi_node[e]')}"
-        _emit_lane_sum(c, "fi_node", f"hbd{s} * {gain}", "fw", set(arrays) & set(per),
+        _emit_lane_sum(c, "fi_node", f"hbd_[s_] * {gain}", "fw", set(arrays) & set(per),
                        f"w_in[e, b] += fw * uc[fi_chan[e], b] * {vs}[fi_node[e], b]")
     if opts.work and feat.common_forces:
-        gain = f"{read('fc_gm', 'e')} / {read('minv', 'fc_node[e]')} * g[step, {s}, e]"
+        gain = f"{read('fc_gm', 'e')} / {read('minv', 'fc_node[e]')} * g[step, s_, e]"
         _emit_lane_sum(c, "fc_node", gain, "fv", {"fc_gm", "minv"} & set(per),
-                       f"w_c[e, b] += hbd{s} * fv * {vs}[fc_node[e], b]")
+                       f"w_c[e, b] += hbd_[s_] * fv * {vs}[fc_node[e], b]")
     if opts.dissipation:
         c("for d in range(ds_i.shape[0]):")
         c("    i = ds_i[d]")
         c("    j = ds_j[d]")
         c("    for b in range(nb_):")
         c(f"        dv = {vs}[i, b] - ({vs}[j, b] if j >= 0 else 0.0)")
-        c(f"        dsacc[d, b] += hbd{s} * {read('ds_b', 'd')} * dv * dv")
+        c(f"        dsacc[d, b] += hbd_[s_] * {read('ds_b', 'd')} * dv * dv")
 
 
 def _lane_reader(per_run: tuple[str, ...]) -> Callable[[str, str], str]:

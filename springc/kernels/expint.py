@@ -580,6 +580,8 @@ def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab:
     codegen.emit_def(c, lawson_args(feat, opts, lw.sizes), "nsteps exponential RK steps of h")
     codegen.emit_coefficients(c, tab)
     codegen.emit_nystrom_coefficients(c, tab)
+    if opts.work or opts.dissipation:
+        codegen.emit_stage_weights(c, tab)
     codegen.velocity_needed(c, feat, opts)
     c("hh = FT(h)")
     c("for ci in range(c0, c1):")
@@ -610,9 +612,8 @@ def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab:
             # the input at the stage time: one of the interpolated ut rows
             c(f"uc = ut{lw.ufracs.index(tab.c[s])}")
 
-    def after(s: int) -> None:
-        if tab.b[s] != 0.0:
-            codegen.emit_stage_reductions(c, feat, opts, s, gains="fi_w")
+    def after() -> None:
+        codegen.emit_stage_reductions(c, feat, opts, gains="fi_w")
 
     codegen.emit_stage_loop(c, feat, tab, lw.ln, prelude, after if power else None,
                             per_run=opts.per_run)

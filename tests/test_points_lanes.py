@@ -98,11 +98,19 @@ def test_exponential_form_takes_the_points_where_its_blocks_agree():
     assert info["calls"] == 1
 
 
-def test_exponential_blocks_that_differ_run_point_by_point():
+def test_exponential_blocks_that_differ_share_the_call():
+    # each point's exact blocks (its propagators E and q) read per lane
     text = NET.replace(".param k0=30", ".param k0=30 kb={gauss(100, 0.05)}") + BLOCK
     info = _check_points(text, "shared", "exp-rk4", ["final:x(c)", "work:in"], "exp-rk4")
+    assert info["calls"] == 1 and info["per_point"] == []
+
+
+def test_split_blocks_that_differ_run_point_by_point():
+    # the Strang scheme's block flows are a function of their own (no lanes of points)
+    text = NET.replace(".param k0=30", ".param k0=30 kb={gauss(100, 0.05)}") + BLOCK
+    info = _check_points(text, "shared", "strang-rk4", ["final:x(c)"], "strang-rk4")
     assert info["calls"] == 6
-    assert info["per_point"] == ["the exponential scheme's exact blocks differ between points"]
+    assert info["per_point"] == ["the split scheme's exact blocks differ between points"]
 
 
 @pytest.fixture(scope="module")

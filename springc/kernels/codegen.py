@@ -761,10 +761,26 @@ def emit_lane_coefficients(c: _Code, per_run: tuple[str, ...]) -> None:
     its `terms.lane_array`, (entries, LANES): padding lanes take the chunk's last run's."""
     for name in per_run:
         local = terms.lane_array(name)
+        if name.startswith("lw"):
+            _emit_lane_propagators(c, name, local)
+            continue
         c(f"{local} = np.empty(({name}.shape[0], LANES), {name}.dtype)")
         c(f"for k_ in range({name}.shape[0]):")
         c("    for b in range(LANES):")
         c(f"        {local}[k_, b] = {name}[k_, lo_ + min(b, nv_ - 1)]")
+
+
+def _emit_lane_propagators(c: _Code, name: str, local: str) -> None:
+    """A Lawson kernel's per-run propagator array (blocks, fractions, rows, columns, runs),
+    `springc.kernels.expint`, into its chunk copy with LANES columns."""
+    c(f"{local} = np.empty({name}.shape[:4] + (LANES,), {name}.dtype)")
+    c(f"for k_ in range({name}.shape[0]):")
+    c(f"    for f_ in range({name}.shape[1]):")
+    c(f"        for r_ in range({name}.shape[2]):")
+    c(f"            for j_ in range({name}.shape[3]):")
+    c("                for b in range(LANES):")
+    c(f"                    {local}[k_, f_, r_, j_, b] = "
+      f"{name}[k_, f_, r_, j_, lo_ + min(b, nv_ - 1)]")
 
 
 def emit_step_start(c: _Code, inputs: bool) -> None:

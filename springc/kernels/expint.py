@@ -29,6 +29,7 @@ from springc.kernels.codegen import KernelOptions, _Code
 from springc.errors import UsageError
 from springc.kernels.integrators import Tableau, get_tableau
 from springc.kernels.lower import kernel_netlist
+from springc.kernels.terms import lane_array
 from springc.lang.ir import GROUND, FlatNetlist
 
 MAX_BLOCK = 4  # nodes: filter pairs are 2; larger components are chains or blocks, not filters
@@ -491,7 +492,7 @@ def generate_lawson(rest: FlatNetlist, options: KernelOptions, sizes: list[int],
     c("")
     if feat.thermal:
         thermal.emit_helpers(c, codegen.decorator())
-    lw = _Lawson(tab, fracs, ufracs, sizes, max(nch, 1), ln)
+    lw = _Lawson(tab, fracs, ufracs, sizes, max(nch, 1), ln, frozenset(options.per_run))
     _emit_lawson_run(c, feat, options, tab, lw)
     return _header(rest, options, scheme, tab, c.text(),
                    [f"# blocks of sizes {sizes}; input channels {nch}"])
@@ -507,6 +508,7 @@ class _Lawson:
     sizes: list[int]
     nch: int
     ln: codegen.LaneLayout
+    per_run: frozenset[str] = frozenset()  # the propagators read per lane (KernelOptions.per_run)
 
     def fi(self, frac: float) -> int:
         return self.fracs.index(frac)
@@ -539,33 +541,47 @@ class _Lawson:
         c.indent()
         for r in range(m):
             c(f"i{r} = lw{m}_node[q, {r}]")
+        # a propagator that differs between a population's points is read per lane from
+        # its chunk copy (`codegen.emit_lane_coefficients`), the others once per block
+        lane_loads: list[str] = []
+        name = {}
+
+        def load(var: str, array: str, index: str) -> None:
+            if array in self.per_run:
+                name[var] = f"{var}_{{b}}"
+                lane_loads.append(f"{var}_{{b}} = {lane_array(array)}[{index}, {{b}}]")
+            else:
+                name[var] = var
+                c(f"{var} = {array}[{index}]")
+
         for r in range(rows):
             for k in range(n2):
-                c(f"e{r}_{k} = lw{m}_e[q, {f0}, {r}, {k}]")
+                load(f"e{r}_{k}", f"lw{m}_e", f"q, {f0}, {r}, {k}")
             for ch in range(self.nch):
-                c(f"pa{r}_{ch} = lw{m}_p0[q, {f0}, {r}, {ch}]")
-                c(f"pb{r}_{ch} = lw{m}_p1[q, {f0}, {r}, {ch}]")
+                load(f"pa{r}_{ch}", f"lw{m}_p0", f"q, {f0}, {r}, {ch}")
+                load(f"pb{r}_{ch}", f"lw{m}_p1", f"q, {f0}, {r}, {ch}")
         for j, w, fr in terms:
             c(f"hw{j} = FT(hh * {w!r})")  # FT: a float64 here would promote the lanes
             if fr != 0.0:
                 for r in range(rows):
                     for k in range(m):
-                        c(f"g{j}_{r}_{k} = lw{m}_e[q, {self.fi(fr)}, {r}, {m + k}]")
+                        load(f"g{j}_{r}_{k}", f"lw{m}_e", f"q, {self.fi(fr)}, {r}, {m + k}")
         loads = []
         for r in range(m):
             loads += [f"Z{r}_{{b}} = x[i{r}, {{b}}]", f"Z{m + r}_{{b}} = v[i{r}, {{b}}]"]
             loads += [f"N{j}_{r}_{{b}} = kv{j}[i{r}, {{b}}]" for j, _, _ in terms]
         for ch in range(self.nch):
             loads += [f"UA{ch}_{{b}} = ut0[{ch}, {{b}}]", f"UB{ch}_{{b}} = ut{fu}[{ch}, {{b}}]"]
+        loads += lane_loads
         arith = [f"S{j}_{r}_{{b}} = hw{j} * N{j}_{r}_{{b}}" for j, _, _ in terms
                  for r in range(m)]
         for r in range(rows):
-            parts = [f"e{r}_{k} * Z{k}_{{b}}" for k in range(n2)]
-            parts += [f"pa{r}_{ch} * UA{ch}_{{b}} + pb{r}_{ch} * UB{ch}_{{b}}"
+            parts = [f"{name[f'e{r}_{k}']} * Z{k}_{{b}}" for k in range(n2)]
+            parts += [f"{name[f'pa{r}_{ch}']} * UA{ch}_{{b}} + {name[f'pb{r}_{ch}']} * UB{ch}_{{b}}"
                       for ch in range(self.nch)]
             for j, _, fr in terms:
                 if fr != 0.0:
-                    parts += [f"g{j}_{r}_{k} * S{j}_{k}_{{b}}" for k in range(m)]
+                    parts += [f"{name[f'g{j}_{r}_{k}']} * S{j}_{k}_{{b}}" for k in range(m)]
                 elif r >= m:
                     parts.append(f"S{j}_{r - m}_{{b}}")
             arith.append(f"O{r}_{{b}} = {' + '.join(parts)}")

@@ -233,7 +233,7 @@ def simulate_lanes(members: Sequence[CheckedNetlist], labels: Sequence[str], inp
     number of runs and a batch is rounded up to whole chunks, so that each run's lane, and
     its result to the bit, is the same whatever the batch and the threads. `options`:
     `simulate`'s. Raises `LanesRefused` (before any work) where the members cannot share a
-    call: the CUDA form, an exponential scheme whose exact blocks differ between members, and
+    call: the CUDA form, a Strang split scheme whose exact blocks differ between members, and
     thermal noise whose noisy dampers differ (one with b = 0 in some member). With thermal
     noise each run draws its own streams (run r of the call those of run `first_run` + r),
     so every device of a population meets its own noise."""
@@ -379,7 +379,9 @@ def lane_arrays(nets: list[FlatNetlist], coeffs: dict, st: Settings, reps: int,
     (`LanesRefused`)."""
     dtype = np.dtype(st.precision)
     others = [kernel_arrays(kernel_netlist(n), st, dtype) for n in nets[1:]]
-    allowed = codegen.coefficient_names() | PER_RUN_EXTRA
+    if any(o.keys() != coeffs.keys() for o in others):
+        raise LanesRefused(_differs("blocks", st))  # a split scheme's blocks differ in size
+    allowed = codegen.coefficient_names() | PER_RUN_EXTRA | lawson_propagators(coeffs, st)
     per_run = {}
     members = {key: [first] + [o[key] for o in others]
                for key, first in coeffs.items()
@@ -390,7 +392,8 @@ def lane_arrays(nets: list[FlatNetlist], coeffs: dict, st: Settings, reps: int,
             continue
         if key not in allowed:
             raise LanesRefused(_differs(key, st))
-        per_run[key] = np.ascontiguousarray(np.repeat(np.stack(columns, 1), reps, 1))
+        # the runs last: (entries, runs), a propagator's (blocks, fractions, rows, cols, runs)
+        per_run[key] = np.ascontiguousarray(np.repeat(np.stack(columns, -1), reps, -1))
     x0, v0 = (np.repeat(np.stack(s, 1), reps, 1)
               for s in zip(*(n.initial_state() for n in nets)))
     return Lanes(nets, reps, per_run, x0, v0)
@@ -493,12 +496,21 @@ def kernel_arrays(net: FlatNetlist, st: Settings, dtype) -> dict[str, np.ndarray
     return out
 
 
+def lawson_propagators(coeffs: dict, st: Settings) -> set[str]:
+    """The arrays of a Lawson kernel's exact blocks that may differ between the runs of one
+    call (their propagators, read per lane: `springc.kernels.expint`); none for the other
+    schemes."""
+    if not expint.is_split(st.method) or expint.SCHEMES[st.method].kind != "lawson":
+        return set()
+    return {k for k in coeffs if k.startswith("lw") and not k.endswith("_node")}
+
+
 def _differs(key: str, st: Settings) -> str:
     """Why the points cannot share a call when kernel array `key` differs between them."""
     if key.startswith("nz_"):
         return "thermal noise: the noisy dampers differ between points (b = 0 in some)"
     if expint.is_split(st.method):
-        return "the exponential scheme's exact blocks differ between points"
+        return "the split scheme's exact blocks differ between points"
     return f"the kernel array {key} differs"
 
 

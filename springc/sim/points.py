@@ -10,8 +10,8 @@ that differ between the points passed with a column per run, in the shared, writ
 register and Runge-Kutta-part-of-exponential kernels alike. Where a group cannot share a call
 (`LanesRefused`: the CUDA form, a Strang split scheme whose exact blocks differ between
 the points, noisy dampers that differ; a Lawson scheme's blocks are read per lane) each of
-its points is one `simulate` call, the calls sharing the structure's compiled kernel; `info["per_point"]` says
-why. Every run has the same settings and the same inputs (read once).
+its points is one `simulate` call, the calls sharing the structure's compiled kernel;
+`info["per_point"]` says why. Every run has the same settings and the same inputs (read once).
 """
 
 from __future__ import annotations

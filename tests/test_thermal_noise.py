@@ -210,3 +210,25 @@ def test_a_populations_points_meet_their_own_noise(values, calls) -> None:
         scale = np.abs(alone).max()
         assert np.abs(got[:, p] - alone[:, 2 * p:]).max() <= 1e-9 * scale, p
     assert not np.allclose(got[:, 1, 0], got[:, 2, 0])  # another damper, another noise
+
+
+def test_scattered_structure_groups_keep_each_points_streams() -> None:
+    """A structural parameter stepped inside another (`.for` bound n): the points of one
+    structure are 0, 2 and 1, 3. Each call numbers its runs' streams from its first, so the
+    scattered groups run point by point, and point p's runs still equal runs 2p, 2p + 1 of a
+    separate simulation of p's netlist: no two devices share noise."""
+    b1 = f"B1 a b b={0.4 * KT!r}"
+    text = (f".param bb={0.4 * KT!r} n=1\n" + NET.replace(b1, "B1 a b b={bb}")
+            + ".for i 1 {n}\n" + f"Me{{i}} e{{i}} m={KT!r} b={0.1 * KT!r}\n"
+            + f"Ke{{i}} e{{i}} k={KT!r}\n.endfor\n"
+            + f".step bb list {0.4 * KT!r} {0.8 * KT!r}\n.step n list 1 2\n")
+    net = springc.load(text)
+    assert net.points.groups == ((0, 2), (1, 3))
+    res = net.simulate(np.zeros((2, 1, 101)), substeps=1, method="rk4", kernel="shared")
+    assert res.info["calls"] == 4
+    got = np.stack([res[k] for k in res.probes])
+    for p, flat in enumerate(net.points.nets):
+        alone = probes(sim.simulate(check(flat), np.zeros((2 * p + 2, 1, 101)),
+                                    substeps=1, method="rk4", write_out=False, chunk=4))
+        assert np.abs(got[:, p] - alone[:, 2 * p:]).max() <= 1e-9 * np.abs(alone).max(), p
+    assert not np.allclose(got[:, 0, 0], got[:, 2, 0])  # other streams, other noise

@@ -25,7 +25,7 @@ import numpy as np
 from springc.check.points import at_point
 from springc.errors import CheckError, DivergedRuns, UsageError
 from springc.lang.variation import Point, PointSet
-from springc.sim import results
+from springc.sim import results, thermal
 from springc.sim.simulate import (LanesRefused, SimResult, require_memory, resolve_probes,
                                   settings, simulate, simulate_lanes)
 from springc.sim.simulate import _gather_inputs
@@ -96,7 +96,7 @@ def simulate_points(points: PointSet, inputs=None, input_rate: float | None = No
                 reductions=list(reductions), channel=channel, **options)
     out = _Stack(len(points))
     bar = _progress(len(points), progress)
-    for group in points.groups:
+    for group in _call_groups(points, call):
         if len(group) > 1:
             try:
                 out.add_group(group, _lanes(points, group, signals, input_rate, call, len(names)))
@@ -119,14 +119,35 @@ def _tick(bar, count: int) -> None:
         bar.update(count)
 
 
+def _call_groups(points: PointSet, call: dict) -> list[tuple[int, ...]]:
+    """The structure groups (`PointSet.groups`) as calls. A call's runs draw the noise streams
+    of consecutive population runs from its first on, so under thermal noise a group of
+    scattered points (a structural parameter stepped inside the samples) is split into its
+    stretches of consecutive points: point i's input r keeps run i R + r's streams, and no
+    two devices share noise."""
+    noisy = thermal.temperature(thermal.with_overrides(points.nets[0], call.get("temp"),
+                                                       call.get("seed"))) > 0
+    if not noisy:
+        return list(points.groups)
+    out = []
+    for group in points.groups:
+        start = 0
+        for k in range(1, len(group) + 1):
+            if k == len(group) or group[k] != group[k - 1] + 1:
+                out.append(tuple(group[start:k]))
+                start = k
+    return out
+
+
 def _lanes(points: PointSet, group: tuple[int, ...], signals, input_rate, call: dict,
            reps: int) -> SimResult:
     """One group's points in the lanes of one call (`simulate_lanes`), each named by its
-    point (a diverged run is '<input> at point ...')."""
+    point (a diverged run is '<input> at point ...'); under thermal noise the points are
+    consecutive (`_call_groups`) and the call's runs are the population's from its first
+    point's on."""
     count = len(points)
-    # the group's runs are the population's from its first point's on where its points follow
-    # one another (noise streams); a group of scattered points numbers its own
-    first = group[0] * reps if list(group) == list(range(group[0], group[-1] + 1)) else 0
+    consecutive = list(group) == list(range(group[0], group[-1] + 1))
+    first = group[0] * reps if consecutive else 0  # without noise the numbering is unused
     return simulate_lanes([points.checked[i] for i in group],
                           [points.points[i].describe(count) for i in group], signals,
                           input_rate, **call, first_run=first)

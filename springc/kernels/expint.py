@@ -529,6 +529,39 @@ class _Lawson:
         for m in self.sizes:
             self._emit_size(c, stage, m, xo, vo)
 
+    def _emit_propagators(self, c: _Code, m: int, rows: int, f0: int,
+                          terms: list[tuple[int, float, float]]
+                          ) -> tuple[dict[str, str], list[str]]:
+        """Block q's propagator entries for the free flow at fraction index f0 and each
+        term's E: the name each is read by, and the per-lane loads. An entry of an array
+        that differs between a population's points (`per_run`) is read per lane from its
+        chunk copy (`codegen.emit_lane_coefficients`, named `<entry>_{b}`), the others once
+        per block here."""
+        name: dict[str, str] = {}
+        lane_loads: list[str] = []
+
+        def load(var: str, array: str, index: str) -> None:
+            if array in self.per_run:
+                name[var] = f"{var}_{{b}}"
+                lane_loads.append(f"{var}_{{b}} = {lane_array(array)}[{index}, {{b}}]")
+            else:
+                name[var] = var
+                c(f"{var} = {array}[{index}]")
+
+        for r in range(rows):
+            for k in range(2 * m):
+                load(f"e{r}_{k}", f"lw{m}_e", f"q, {f0}, {r}, {k}")
+            for ch in range(self.nch):
+                load(f"pa{r}_{ch}", f"lw{m}_p0", f"q, {f0}, {r}, {ch}")
+                load(f"pb{r}_{ch}", f"lw{m}_p1", f"q, {f0}, {r}, {ch}")
+        for j, w, fr in terms:
+            c(f"hw{j} = FT(hh * {w!r})")  # FT: a float64 here would promote the lanes
+            if fr != 0.0:
+                for r in range(rows):
+                    for k in range(m):
+                        load(f"g{j}_{r}_{k}", f"lw{m}_e", f"q, {self.fi(fr)}, {r}, {m + k}")
+        return name, lane_loads
+
     def _emit_size(self, c: _Code, stage: int | None, m: int, xo: str, vo: str | None
                    ) -> None:
         frac, terms = self.terms(stage)
@@ -541,31 +574,7 @@ class _Lawson:
         c.indent()
         for r in range(m):
             c(f"i{r} = lw{m}_node[q, {r}]")
-        # a propagator that differs between a population's points is read per lane from
-        # its chunk copy (`codegen.emit_lane_coefficients`), the others once per block
-        lane_loads: list[str] = []
-        name = {}
-
-        def load(var: str, array: str, index: str) -> None:
-            if array in self.per_run:
-                name[var] = f"{var}_{{b}}"
-                lane_loads.append(f"{var}_{{b}} = {lane_array(array)}[{index}, {{b}}]")
-            else:
-                name[var] = var
-                c(f"{var} = {array}[{index}]")
-
-        for r in range(rows):
-            for k in range(n2):
-                load(f"e{r}_{k}", f"lw{m}_e", f"q, {f0}, {r}, {k}")
-            for ch in range(self.nch):
-                load(f"pa{r}_{ch}", f"lw{m}_p0", f"q, {f0}, {r}, {ch}")
-                load(f"pb{r}_{ch}", f"lw{m}_p1", f"q, {f0}, {r}, {ch}")
-        for j, w, fr in terms:
-            c(f"hw{j} = FT(hh * {w!r})")  # FT: a float64 here would promote the lanes
-            if fr != 0.0:
-                for r in range(rows):
-                    for k in range(m):
-                        load(f"g{j}_{r}_{k}", f"lw{m}_e", f"q, {self.fi(fr)}, {r}, {m + k}")
+        name, lane_loads = self._emit_propagators(c, m, rows, f0, terms)
         loads = []
         for r in range(m):
             loads += [f"Z{r}_{{b}} = x[i{r}, {{b}}]", f"Z{m + r}_{{b}} = v[i{r}, {{b}}]"]

@@ -91,18 +91,15 @@ def test_every_point_in_one_call_equals_its_netlist(kernel, reduce, extra, form)
     assert info["calls"] == 1 and info["per_point"] == []
 
 
-def test_exponential_form_takes_the_points_where_its_blocks_agree():
-    # the input work too: its Lawson sums read the inputs' own gains per run (g is drawn)
-    text = NET.replace(".param k0=30", ".param k0=30 kb=100") + BLOCK
-    info = _check_points(text, "shared", "exp-rk4", ["final:x(c)", "work:in"], "exp-rk4")
-    assert info["calls"] == 1
-
-
 def test_exponential_blocks_that_differ_share_the_call():
-    # each point's exact blocks (its propagators E and q) read per lane
+    # each point's exact blocks (their propagators E and q) read per lane, and the input
+    # work: its Lawson sums read the inputs' own gains per run (g is drawn)
     text = NET.replace(".param k0=30", ".param k0=30 kb={gauss(100, 0.05)}") + BLOCK
     info = _check_points(text, "shared", "exp-rk4", ["final:x(c)", "work:in"], "exp-rk4")
     assert info["calls"] == 1 and info["per_point"] == []
+    header = open(info["kernels"][0]).read().splitlines()[1]
+    assert all(f"'{k}'" in header for k in ("lw2_e", "lw2_p0", "lw2_p1", "fi_w", "km"))
+    assert "'lw2_node'" not in header and "'frz'" not in header
 
 
 def test_split_blocks_that_differ_run_point_by_point():

@@ -34,7 +34,9 @@ stages and combine of the tableau in `codegen.stage_terms`/`combine_terms`. All 
 `codegen`'s preamble, header, argument lists, chunk and step code and records; the register
 kernels keep the state in scalars, the exponential ones add their block updates.
 docs/architecture.md#kernel-forms.
-`streamstore`, `stackalign` and `vmath` are the numba intrinsics the generated kernels call.
+`streamstore`, `stackalign` and `vmath` are the numba intrinsics the generated kernels call;
+`chunk` holds the chunk code they share (the divergence guard, the lanes' copies in and out),
+compiled once per process.
 `thermal` writes the dampers' noise forces (`.options temp=`) into every form above: drawn
 once per step into rows that each stage's force code adds (the register forms add them to
 their sums); a netlist without a temperature gets none of that text.

@@ -263,10 +263,11 @@ class _Code:
 
 @functools.cache
 def _module_hash(module: str) -> str:
-    """A hash of an intrinsics module's source (`springc.kernels.streamstore`,
-    `springc.kernels.stackalign`), written into the kernels that import it: numba's cache of a
-    kernel checks only the kernel's own file, so a change there must change the kernel's text (and
-    so its cache key). Read, not imported: this module never imports numba."""
+    """A hash of a module's source that kernels import (`springc.kernels.streamstore`,
+    `springc.kernels.stackalign`, `springc.kernels.chunk`), written into the kernels that
+    import it: numba's cache of a kernel checks only the kernel's own file, so a change there
+    must change the kernel's text (and so its cache key). Read, not imported: this module
+    never imports numba."""
     origin = importlib.util.find_spec(module).origin
     return hashlib.sha256(Path(origin).read_bytes()).hexdigest()[:16]
 
@@ -283,6 +284,9 @@ def preamble(c: _Code, opts: KernelOptions, args: list[str], stages: int) -> Non
     """Imports and module constants of a generated kernel."""
     c("import numpy as np")
     c("import numba as nb")
+    c("from springc.kernels.chunk import guard, load_lanes, mark_nodes, record_tail, "
+      "store_lanes  "
+      f"# {_module_hash('springc.kernels.chunk')}")
     if aligned_frame(opts):
         c("from springc.kernels.stackalign import align_stack  "
           f"# {_module_hash('springc.kernels.stackalign')}")
@@ -734,10 +738,8 @@ def emit_chunk_start(c: _Code, opts: KernelOptions, scratch: list[str]) -> None:
     c("uc = np.zeros((max(nch, 1), LANES), FT)")
     c("ustg = np.zeros((STAGE_BLOCK + 2, max(nch, 1), LANES), FT)")
     c("ubase = -2 * STAGE_BLOCK")
-    c("for i in range(n):")
-    c("    for b in range(LANES):")
-    c("        x[i, b] = x0[i, lo_ + min(b, nv_ - 1)]")
-    c("        v[i, b] = v0[i, lo_ + min(b, nv_ - 1)]")
+    c("load_lanes(x, x0, lo_, nv_)")  # springc.kernels.chunk
+    c("load_lanes(v, v0, lo_, nv_)")
     _emit_reduction_init(c, opts)
     if opts.record:
         # the streaming stores fault on a misaligned address: refuse such a buffer instead
@@ -765,9 +767,7 @@ def emit_lane_coefficients(c: _Code, per_run: tuple[str, ...]) -> None:
             _emit_lane_propagators(c, name, local)
             continue
         c(f"{local} = np.empty(({name}.shape[0], LANES), {name}.dtype)")
-        c(f"for k_ in range({name}.shape[0]):")
-        c("    for b in range(LANES):")
-        c(f"        {local}[k_, b] = {name}[k_, lo_ + min(b, nv_ - 1)]")
+        c(f"load_lanes({local}, {name}, lo_, nv_)")
 
 
 def _emit_lane_propagators(c: _Code, name: str, local: str) -> None:
@@ -821,10 +821,8 @@ def emit_interp(c: _Code, target: str, pos: str, width: LaneLayout, channels: st
 def emit_chunk_end(c: _Code, opts: KernelOptions) -> None:
     """Store the final state and the reductions of the valid lanes; fence the record's
     streaming stores."""
-    c("for i in range(n):")
-    c("    for b in range(nv_):")
-    c("        xf[i, lo_ + b] = x[i, b]")
-    c("        vf[i, lo_ + b] = v[i, b]")
+    c("store_lanes(xf, x, lo_, nv_)")  # springc.kernels.chunk
+    c("store_lanes(vf, v, lo_, nv_)")
     _emit_reduction_store(c, opts)
     if opts.record:
         emit_record_tail(c)
@@ -956,14 +954,8 @@ def velocity_needed(c: _Code, feat: Features, opts: KernelOptions) -> None:
             and kind.reads_velocity() for index in (kind.node_i, kind.node_j) if index]
     ends += (["fi_node"] if opts.work and feat.in_forces else [])
     ends += (["fc_node"] if opts.work and feat.common_forces else [])
-    grounded = {kind.node_j for kind in terms.KINDS if kind.ground is not None}
     for index in ends:
-        c(f"for e in range({index}.shape[0]):")
-        if index in grounded:  # -1: the ground
-            c(f"    if {index}[e] >= 0:")
-            c(f"        vneed[{index}[e]] = True")
-        else:
-            c(f"    vneed[{index}[e]] = True")
+        c(f"mark_nodes(vneed, {index})")  # springc.kernels.chunk; -1: the ground
 
 
 def nystrom_combine(c: _Code, tab: Tableau, width: LaneLayout, frozen: str | None = None,
@@ -1084,12 +1076,7 @@ def emit_record(c: _Code, r: str, width: LaneLayout, rb: int) -> None:
 
 def emit_record_tail(c: _Code) -> None:
     """The records of the last, partial staging block (ordinary stores)."""
-    c("if r_hi >= 0 and r_hi % RB != RB - 1:")
-    c("    r0 = r_hi - r_hi % RB")
-    c("    for p in range(rec_node.shape[0]):")
-    c("        for b in range(nv_):")
-    c("            for k in range(r_hi % RB + 1):")
-    c("                rec[p, rec_col + lo_ + b, r0 + k] = stg[p, k, b]")
+    c("record_tail(rec, stg, rec_node.shape[0], r_hi, rec_col + lo_, nv_)")
 
 
 def emit_step_end(c: _Code, opts: KernelOptions, width: LaneLayout,
@@ -1124,27 +1111,7 @@ def emit_step_end(c: _Code, opts: KernelOptions, width: LaneLayout,
     c("cc_ = 0")
     if before is not None:
         before()
-    c("alive = 0")
-    c("for b in range(nv_):")
-    c.indent()
-    c("if status[lo_ + b] != 0:")
-    c("    continue")
-    c("worst = 0.0")
-    c("wi = -1")
-    c("for i in range(n):")
-    c("    ax = abs(x[i, b])")
-    c("    if not (ax <= limit and abs(v[i, b]) <= limit):")
-    c("        ax = np.inf")
-    c("    if wi < 0 or ax > worst:")
-    c("        worst = ax")
-    c("        wi = i")
-    c("if not worst <= limit:")
-    c("    status[lo_ + b] = k1")
-    c("    bad_node[lo_ + b] = wi")
-    c("else:")
-    c("    alive += 1")
-    c.dedent()
-    c("if alive == 0:")
+    c("if guard(x, v, status, bad_node, lo_, nv_, limit, k1) == 0:")  # springc.kernels.chunk
     c("    break")
     c.dedent()
 
@@ -1191,6 +1158,4 @@ def _emit_reduction_store(c: _Code, opts: KernelOptions) -> None:
     if opts.gram:
         pairs.append(("gracc", "gram"))
     for local, out in pairs:
-        c(f"for r in range({local}.shape[0]):")
-        c("    for b in range(nv_):")
-        c(f"        {out}[r, lo_ + b] = {local}[r, b]")
+        c(f"store_lanes({out}, {local}, lo_, nv_)")

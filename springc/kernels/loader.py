@@ -1,6 +1,6 @@
 """Loading generated kernels: the only module that imports numba (besides
 `springc.kernels.streamstore`, `stackalign` and `vmath`, the intrinsics the generated
-kernels call).
+kernels call, and `chunk`, the chunk code they share).
 
 The source from `springc.kernels.codegen` is written to `<cache>/springc_kernel_<hash>.py` (a
 real file, so numba's `cache=True` stores the machine code beside it for the next process)

@@ -1,10 +1,11 @@
-"""The chunk code every generated CPU kernel shares: the divergence guard and the copy of a
-chunk's lanes into the caller's arrays, compiled once per process (and cached by numba)
-instead of in every kernel.
+"""The chunk code every generated CPU kernel shares: the divergence guard, the copies of a
+chunk's lanes in and out, the last partial record block, the marks of the nodes whose
+velocity is read and the restaging of the input samples, compiled once per process (and
+cached by numba) instead of in every kernel.
 
-Both run rarely (the guard every `check_every` steps, the copy once per chunk), so a call
-costs nothing measurable, while written into each kernel they made its compile about a
-third longer: numba's compile time grows faster than a function's length
+All run rarely (the guard every `check_every` steps, the restaging every STAGE_BLOCK input
+samples, the rest once per chunk or call), so a call costs nothing measurable, while
+written into each kernel they made its compile 13-22% longer: numba's compile time grows faster than a function's length
 (docs/performance.md#cold-cache-compiles-in-mass-spring-training). A generated kernel
 imports them with this module's hash (`codegen.preamble`).
 """
@@ -78,3 +79,14 @@ def record_tail(rec, stg, probes: int, r_hi: int, col: int, nv: int) -> None:
             for b in range(nv):
                 for k in range(r_hi % rb + 1):
                     rec[p, col + b, r0 + k] = stg[p, k, b]
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def restage(ustg, u, lo: int, nv: int, ubase: int) -> None:
+    """The input samples ubase.. of the chunk's runs (u: (runs, channels, samples)) into the
+    staging block ustg (samples, channels, LANES), as many as it holds or u has left."""
+    top = min(ustg.shape[0], u.shape[2] - ubase)
+    for b in range(nv):
+        for ch in range(u.shape[1]):
+            for t in range(top):
+                ustg[t, ch, b] = u[lo + b, ch, ubase + t]

@@ -285,7 +285,7 @@ def preamble(c: _Code, opts: KernelOptions, args: list[str], stages: int) -> Non
     c("import numpy as np")
     c("import numba as nb")
     c("from springc.kernels.chunk import guard, load_lanes, mark_nodes, record_tail, "
-      "store_lanes  "
+      "restage, store_lanes  "
       f"# {_module_hash('springc.kernels.chunk')}")
     if aligned_frame(opts):
         c("from springc.kernels.stackalign import align_stack  "
@@ -793,15 +793,8 @@ def emit_step_start(c: _Code, inputs: bool) -> None:
     if not inputs:
         return
     c("if k0 >= ubase + STAGE_BLOCK:")
-    c.indent()
-    c("ubase = k0")
-    c("top = min(STAGE_BLOCK + 2, u.shape[2] - ubase)")
-    c("for b in range(nv_):")
-    c("    for ch in range(nch):")
-    c("        u_r = u[lo_ + b, ch]")
-    c("        for t in range(top):")
-    c("            ustg[t, ch, b] = u_r[ubase + t]")
-    c.dedent()
+    c("    ubase = k0")
+    c("    restage(ustg, u, lo_, nv_, ubase)")  # springc.kernels.chunk
 
 
 def emit_interp(c: _Code, target: str, pos: str, width: LaneLayout, channels: str = "nch") -> None:

@@ -5,7 +5,8 @@ cached by numba) instead of in every kernel.
 
 All run rarely (the guard every `check_every` steps, the restaging every STAGE_BLOCK input
 samples, the rest once per chunk or call), so a call costs nothing measurable, while
-written into each kernel they made its compile 13-22% longer: numba's compile time grows faster than a function's length
+written into each kernel they made its compile 13-22% longer: numba's compile time grows
+faster than a function's length
 (docs/performance.md#cold-cache-compiles-in-mass-spring-training). A generated kernel
 imports them with this module's hash (`codegen.preamble`).
 """

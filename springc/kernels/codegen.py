@@ -984,24 +984,23 @@ def emit_stage_reductions(c: _Code, feat: Features, opts: KernelOptions,
     an array of the input forces' own gains to use instead (a split kernel's Runge-Kutta part
     has its blocks' inputs at gain 0). An array with a column per run
     (`KernelOptions.per_run`) is read per lane, inside the lane loop."""
-    vs = "va"
     per, read = opts.per_run, _lane_reader(opts.per_run)
     if opts.work and feat.in_forces:
         arrays = (gains,) if gains else ("fi_gm", "minv")
         gain = read(gains, "e") if gains else \
             f"{read('fi_gm', 'e')} / {read('minv', 'fi_node[e]')}"
         _emit_lane_sum(c, "fi_node", f"hbd_[s_] * {gain}", "fw", set(arrays) & set(per),
-                       f"w_in[e, b] += fw * uc[fi_chan[e], b] * {vs}[fi_node[e], b]")
+                       "w_in[e, b] += fw * uc[fi_chan[e], b] * va[fi_node[e], b]")
     if opts.work and feat.common_forces:
         gain = f"{read('fc_gm', 'e')} / {read('minv', 'fc_node[e]')} * g[step, s_, e]"
         _emit_lane_sum(c, "fc_node", gain, "fv", {"fc_gm", "minv"} & set(per),
-                       f"w_c[e, b] += hbd_[s_] * fv * {vs}[fc_node[e], b]")
+                       "w_c[e, b] += hbd_[s_] * fv * va[fc_node[e], b]")
     if opts.dissipation:
         c("for d in range(ds_i.shape[0]):")
         c("    i = ds_i[d]")
         c("    j = ds_j[d]")
         c("    for b in range(nb_):")
-        c(f"        dv = {vs}[i, b] - ({vs}[j, b] if j >= 0 else 0.0)")
+        c("        dv = va[i, b] - (va[j, b] if j >= 0 else 0.0)")
         c(f"        dsacc[d, b] += hbd_[s_] * {read('ds_b', 'd')} * dv * dv")
 
 

@@ -772,15 +772,11 @@ def emit_lane_coefficients(c: _Code, per_run: tuple[str, ...]) -> None:
 
 def _emit_lane_propagators(c: _Code, name: str, local: str) -> None:
     """A Lawson kernel's per-run propagator array (blocks, fractions, rows, columns, runs),
-    `springc.kernels.expint`, into its chunk copy with LANES columns."""
+    `springc.kernels.expint`, into its chunk copy with LANES columns: `load_lanes` on both
+    seen as (entries, columns)."""
     c(f"{local} = np.empty({name}.shape[:4] + (LANES,), {name}.dtype)")
-    c(f"for k_ in range({name}.shape[0]):")
-    c(f"    for f_ in range({name}.shape[1]):")
-    c(f"        for r_ in range({name}.shape[2]):")
-    c(f"            for j_ in range({name}.shape[3]):")
-    c("                for b in range(LANES):")
-    c(f"                    {local}[k_, f_, r_, j_, b] = "
-      f"{name}[k_, f_, r_, j_, lo_ + min(b, nv_ - 1)]")
+    c(f"load_lanes({local}.reshape((-1, LANES)), {name}.reshape((-1, {name}.shape[4])), "
+      "lo_, nv_)")
 
 
 def emit_step_start(c: _Code, inputs: bool) -> None:

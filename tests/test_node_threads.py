@@ -96,7 +96,11 @@ def test_serial_kernel_text_does_not_name_the_option():
     serial = codegen.generate(net, codegen.KernelOptions("rk4", lanes=1))
     split = codegen.generate(net, codegen.KernelOptions("rk4", lanes=1, parallel=True))
     assert "parallel" not in serial and "prange" not in serial
-    assert split.count("nb.prange(n)") == 5  # RK4: stage states 1-3, forces, combine
+    # RK4: the stage states (stages 1-3 one code, codegen.uniform_stages), forces, combine;
+    # the 3/8 rule's stages read several force stages: a stage state each
+    assert split.count("nb.prange(n)") == 3
+    rk38 = codegen.generate(net, codegen.KernelOptions("rk38", lanes=1, parallel=True))
+    assert rk38.count("nb.prange(n)") == 5
     assert "NODE_THREADS = True" in split
 
 

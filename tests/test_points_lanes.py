@@ -91,11 +91,30 @@ def test_every_point_in_one_call_equals_its_netlist(kernel, reduce, extra, form)
     assert info["calls"] == 1 and info["per_point"] == []
 
 
+# the exponential schemes' cases: a pair (a, b) with a stepped spring, a drawn spring on the
+# nonlinear node b and a drawn input gain beside the block, whose stiffness kb is drawn
+NET_BLOCK = """\
+.param k0=30 g={gauss(1, 0.1)} kb={gauss(100, 0.05)}
+M1 a m=1 b=0.4
+M2 b m=0.5 b=0.2
+K1 a k={k0}
+K2 b k={gauss(20, 0.05)}
+D1 b l=5
+Q1 a b g=1.5 a=1
+F1 a in gain={g}
+.probe x(a) v(b)
+.step k0 list 30 45
+.mc 3 seed=11
+.tran 20m 0.4
+.options method=rk4 substeps=2
+""" + BLOCK
+
+
 def test_exponential_blocks_that_differ_share_the_call():
     # each point's exact blocks (their propagators E and q) read per lane, and the input
     # work: its Lawson sums read the inputs' own gains per run (g is drawn)
-    text = NET.replace(".param k0=30", ".param k0=30 kb={gauss(100, 0.05)}") + BLOCK
-    info = _check_points(text, "shared", "exp-rk4", ["final:x(c)", "work:in"], "exp-rk4")
+    info = _check_points(NET_BLOCK, "shared", "exp-rk4", ["final:x(c)", "work:in"],
+                         "exp-rk4")
     assert info["calls"] == 1 and info["per_point"] == []
     header = open(info["kernels"][0]).read().splitlines()[1]
     assert all(f"'{k}'" in header for k in ("lw2_e", "lw2_p0", "lw2_p1", "fi_w", "km"))
@@ -104,8 +123,7 @@ def test_exponential_blocks_that_differ_share_the_call():
 
 def test_split_blocks_that_differ_run_point_by_point():
     # the Strang scheme's block flows are a function of their own (no lanes of points)
-    text = NET.replace(".param k0=30", ".param k0=30 kb={gauss(100, 0.05)}") + BLOCK
-    info = _check_points(text, "shared", "strang-rk4", ["final:x(c)"], "strang-rk4")
+    info = _check_points(NET_BLOCK, "shared", "strang-rk4", ["final:x(c)"], "strang-rk4")
     assert info["calls"] == 6
     assert info["per_point"] == ["the split scheme's exact blocks differ between points"]
 

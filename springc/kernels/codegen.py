@@ -374,21 +374,29 @@ def emit_stage_loop(c: _Code, feat: Features, tab: Tableau, width: LaneLayout,
     stage passes ~20 array arguments; the force code written out per stage compiles far
     slower: docs/performance.md#the-shared-kernels-shape). `prelude(s)` writes stage s's own
     code (its state xs, vs, its input); the force code then reads xa, va and writes ka;
-    `after()`, when given, writes what follows every stage's forces, once (it reads the stage
+    With `uniform_stages`, `prelude(None)` writes every stage after the first at once, from
+    the tables of `emit_nystrom_coefficients`. `after()`, when given, writes what follows
+    every stage's forces, once (it reads the stage
     s_ through xa, va and the stage weights `hbd_`, `emit_stage_weights`; stages of weight
     zero skip it); `nodes` (`terms.node_terms`), when given, has the linear, input and
     quadratic-coupling forces written out per node;
     `parallel`: the force code's node loop is a `prange` (`emit_linear`); `per_run`: the
     coefficient arrays read per lane (`KernelOptions.per_run`)."""
+    uniform = uniform_stages(tab)
+    if uniform:
+        c(f"kvs_ = ({', '.join(f'kv{s}' for s in range(tab.stages))},)")
     c("for s_ in range(STAGES):")
     c.indent()
-    for s in range(tab.stages):
-        c(f"{'if' if s == 0 else 'elif'} s_ == {s}:  # c = {tab.c[s]!r}")
+    for s in ([0, None] if uniform else range(tab.stages)):
+        if s is None:
+            c("else:  # every later stage, its coefficients from the tables")
+        else:
+            c(f"{'if' if s == 0 else 'elif'} s_ == {s}:  # c = {tab.c[s]!r}")
         c.indent()
         prelude(s)
         c("xa = x" if s == 0 else "xa = xs")
         c(f"va = {nystrom_velocity(s)}")
-        c(f"ka = kv{s}")
+        c("ka = kv0" if s == 0 else "ka = kvs_[s_]" if s is None else f"ka = kv{s}")
         c.dedent()
     c("grow = g[step, s_]" if feat.common_forces else "grow = g[0, 0]")
     emit_accel_body(c, feat, width, nodes, parallel, per_run)
@@ -669,13 +677,11 @@ def _emit_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> No
     if feat.thermal:
         thermal.emit_draw(c, opts.per_run)
 
-    def prelude(s: int) -> None:
-        if s > 0:
+    def prelude(s: int | None) -> None:
+        if s != 0:
             nystrom_stage_state(c, tab, s, ln, parallel=opts.parallel)
-        if feat.in_forces and (s == 0 or tab.c[s] != tab.c[s - 1]):
-            # Linear interpolation of the input samples (grid step h * substeps) at the
-            # stage time; a stage at the same time as the previous one reuses it.
-            emit_interp(c, "uc", f"(sub + {tab.c[s]!r}) / substeps", ln)
+        if feat.in_forces:
+            emit_stage_input(c, tab, s, ln)
 
     def after() -> None:
         emit_stage_reductions(c, feat, opts)
@@ -793,6 +799,19 @@ def emit_step_start(c: _Code, inputs: bool) -> None:
     c("    restage(ustg, u, lo_, nv_, ubase)")  # springc.kernels.chunk
 
 
+def emit_stage_input(c: _Code, tab: Tableau, s: int | None, width: LaneLayout) -> None:
+    """The input at stage s's time into uc: linear interpolation of the input samples (grid
+    step h * substeps); a stage at the same time as the previous one reuses it. Stage None:
+    the stage s_ of `uniform_stages`."""
+    if s is None:
+        c("if cs_[s_] != cs_[s_ - 1]:")
+        c.indent()
+        emit_interp(c, "uc", "(sub + cs_[s_]) / substeps", width)
+        c.dedent()
+    elif s == 0 or tab.c[s] != tab.c[s - 1]:
+        emit_interp(c, "uc", f"(sub + {tab.c[s]!r}) / substeps", width)
+
+
 def emit_interp(c: _Code, target: str, pos: str, width: LaneLayout, channels: str = "nch") -> None:
     """Linear interpolation of the staged input at input-grid position k0 + `pos` into the
     first `channels` rows of `target`."""
@@ -858,6 +877,38 @@ def emit_nystrom_coefficients(c: _Code, tab: Tableau) -> None:
     c(f"hbs = FT(h * {bsum!r})")
     for k in np.flatnonzero(ba):
         c(f"hhb{k} = FT(h * h * {float(ba[k])!r})")
+    if uniform_stages(tab):
+        emit_stage_tables(c, tab)
+
+
+def uniform_stages(tab: Tableau) -> bool:
+    """Whether every stage after the first reads one force stage for its velocity and at
+    most one for its position (RK4, heun3): their state updates are then one code that reads
+    the stage's coefficients and force arrays from tuples indexed by s_ (`emit_stage_tables`).
+    A copy per stage made the keyword-spotting features kernel compile 40% slower
+    (docs/performance.md#cold-cache-compiles)."""
+    reads = [stage_reads(tab, s) for s in range(1, tab.stages)]
+    return tab.stages >= 3 and all(len(row) == 1 and len(sq) <= 1 for row, sq in reads)
+
+
+def emit_stage_tables(c: _Code, tab: Tableau) -> None:
+    """Per stage (index s_; stage 0's entries unused): the force stage its velocity reads
+    (`jv_`) and its position reads (`jx_`, with coefficient 0 where it reads none), their
+    h-scaled coefficients `hv_`, `hx_`, `hc_` (as `emit_nystrom_coefficients` names them) and
+    the stage times `cs_`."""
+    jv, jx, hv, hx = [0], [0], ["FT(0.0)"], ["FT(0.0)"]
+    for s in range(1, tab.stages):
+        row, sq = stage_reads(tab, s)
+        jv.append(row[0])
+        hv.append(f"ha{s}_{row[0]}")
+        jx.append(sq[0] if sq else row[0])
+        hx.append(f"hh{s}_{sq[0]}" if sq else "FT(0.0)")
+    c(f"jv_ = ({', '.join(map(str, jv))},)")
+    c(f"jx_ = ({', '.join(map(str, jx))},)")
+    c(f"hv_ = ({', '.join(hv)},)")
+    c(f"hx_ = ({', '.join(hx)},)")
+    c(f"hc_ = (FT(0.0), {', '.join(f'hc{s}' for s in range(1, tab.stages))},)")
+    c(f"cs_ = ({', '.join(repr(float(t)) for t in tab.c)},)")
 
 
 def nystrom_velocity(s: int) -> str:
@@ -893,19 +944,30 @@ def combine_terms(tab: Tableau, v: str, k: Callable[[int], str]) -> tuple[str, s
     return xterm, " + ".join(f"hb{s} * {k(s)}" for s in used)
 
 
-def nystrom_stage_state(c: _Code, tab: Tableau, s: int, width: LaneLayout,
+def nystrom_stage_state(c: _Code, tab: Tableau, s: int | None, width: LaneLayout,
                         frozen: str | None = None, parallel: bool = False) -> None:
     """xs = x + h c_s v + h^2 sum_k (A A)_sk kv_k and vs = v + h sum_j a_sj kv_j, row by row:
     the stage state from the force stages alone, so that the combine reads no stage
     velocities and one vs row serves every stage (8 state rows instead of 10 for RK4, three
     fewer reads per step). Rows flagged in `frz` (the exactly propagated blocks of
     `springc.kernels.expint`) are left to the block code with `frozen` 'skip', and keep xs = x
-    (their velocity kicked) with 'hold'. `parallel`: the rows split over threads."""
-    row, sq = stage_reads(tab, s)
-    xterm, vterm = stage_terms(tab, s, "V{b}", lambda k: f"K{k}_{{b}}")
+    (their velocity kicked) with 'hold'. `parallel`: the rows split over threads. Stage s
+    None: the stage s_ of `uniform_stages` (its force arrays `kvv_`, `kvx_`)."""
     loads = ["X{b} = x[i, {b}]", "V{b} = v[i, {b}]"]
-    xloads = loads + [f"K{k}_{{b}} = kv{k}[i, {{b}}]" for k in sq]
-    loads += [f"K{k}_{{b}} = kv{k}[i, {{b}}]" for k in sorted(set(row) | set(sq))]
+    if s is None:
+        c("kvv_ = kvs_[jv_[s_]]")
+        c("kvx_ = kvs_[jx_[s_]]")
+        c("hvs_ = hv_[s_]")
+        c("hxs_ = hx_[s_]")
+        c("hcs_ = hc_[s_]")
+        xterm, vterm = "hcs_ * V{b} + hxs_ * KX_{b}", "hvs_ * KV_{b}"
+        xloads = loads + ["KX_{b} = kvx_[i, {b}]"]
+        loads = xloads + ["KV_{b} = kvv_[i, {b}]"]
+    else:
+        row, sq = stage_reads(tab, s)
+        xterm, vterm = stage_terms(tab, s, "V{b}", lambda k: f"K{k}_{{b}}")
+        xloads = loads + [f"K{k}_{{b}} = kv{k}[i, {{b}}]" for k in sq]
+        loads += [f"K{k}_{{b}} = kv{k}[i, {{b}}]" for k in sorted(set(row) | set(sq))]
     c(node_loop(parallel))
     c.indent()
     if frozen:

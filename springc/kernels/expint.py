@@ -398,12 +398,12 @@ def _emit_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab: Tablea
     codegen.emit_interp(c, "ub", "(sub + 1.0) / substeps", ln)
     c(f"blocks(x, v, zt, zn, ua, um, {bk_args})")
 
-    def prelude(s: int) -> None:
+    def prelude(s: int | None) -> None:
         # one Runge-Kutta stage of the rest; block positions stay frozen (exact flow)
-        if s > 0:
+        if s != 0:
             codegen.nystrom_stage_state(c, tab, s, ln, frozen="hold")
-        if feat.in_forces and (s == 0 or tab.c[s] != tab.c[s - 1]):
-            codegen.emit_interp(c, "uc", f"(sub + {tab.c[s]!r}) / substeps", ln)
+        if feat.in_forces:
+            codegen.emit_stage_input(c, tab, s, ln)
 
     codegen.emit_stage_loop(c, feat, tab, ln, prelude, per_run=opts.per_run)
     codegen.nystrom_combine(c, tab, ln, frozen="hold")
@@ -498,6 +498,29 @@ def generate_lawson(rest: FlatNetlist, options: KernelOptions, sizes: list[int],
                    [f"# blocks of sizes {sizes}; input channels {nch}"])
 
 
+@dataclass(frozen=True)
+class _Term:
+    """One stage force in a block's flow: E at `fraction` (an index expression; None: the
+    identity, the stage at the same time) times h w (`weight`) times its forces `kv` on the
+    block's nodes; `j` names its variables."""
+
+    j: str
+    kv: str
+    weight: str
+    fraction: str | None
+
+
+@dataclass(frozen=True)
+class _BlockStep:
+    """A block's flow to a stage from the step's start: the free flow E, P0, P1 at fraction
+    index `f0` (an expression), the input at the stage's time (`input`, a row array), the
+    stage forces' terms."""
+
+    f0: str
+    input: str
+    terms: list[_Term]
+
+
 @dataclass
 class _Lawson:
     """Emits the unrolled block updates of a Lawson scheme."""
@@ -513,27 +536,64 @@ class _Lawson:
     def fi(self, frac: float) -> int:
         return self.fracs.index(frac)
 
-    def terms(self, stage: int | None) -> tuple[float, list[tuple[int, float, float]]]:
-        """(fraction of the free flow, [(j, weight, fraction of E on N_j)])."""
-        if stage is None:
-            return 1.0, [(j, b, 1.0 - self.tab.c[j]) for j, b in enumerate(self.tab.b)
-                         if b != 0.0]
-        ci = self.tab.c[stage]
-        return ci, [(j, a, ci - self.tab.c[j]) for j, a in enumerate(self.tab.a[stage])
-                    if a != 0.0]
+    def step(self, stage: int | None) -> _BlockStep:
+        """The flow to stage `stage` (None: to the step's end) from the step's start."""
+        frac = 1.0 if stage is None else self.tab.c[stage]
+        weights = self.tab.b if stage is None else self.tab.a[stage]
+        if frac not in self.ufracs:
+            raise ValueError(f"tableau stage time {frac} is not an input fraction")
+        terms = [_Term(str(j), f"kv{j}", f"FT(hh * {w!r})",
+                       str(self.fi(frac - self.tab.c[j])) if frac != self.tab.c[j] else None)
+                 for j, w in enumerate(weights) if w != 0.0]
+        return _BlockStep(str(self.fi(frac)), f"ut{self.ufracs.index(frac)}", terms)
+
+    def emit_tables(self, c: _Code) -> None:
+        """Per stage of `codegen.uniform_stages` (index s_; stage 0's entries unused): its
+        free flow's fraction index `lf_`, its input row `lu_`, its term's weight `lw_` and
+        the fraction index of the term's E `lg_` (-1: the identity, a term at the stage's own
+        time)."""
+        f, u, w, g = ["0"], ["0"], ["FT(0.0)"], ["0"]
+        for s in range(1, self.tab.stages):
+            j = codegen.stage_reads(self.tab, s)[0][0]
+            cs = self.tab.c[s]
+            f.append(str(self.fi(cs)))
+            u.append(str(self.ufracs.index(cs)))
+            w.append(f"FT(hh * {self.tab.a[s][j]!r})")
+            g.append(str(self.fi(cs - self.tab.c[j])) if cs != self.tab.c[j] else "-1")
+        for name, values in (("lf_", f), ("lu_", u), ("lw_", w), ("lg_", g)):
+            c(f"{name} = ({', '.join(values)},)")
 
     def emit_inline(self, c: _Code, stage: int | None, xo: str, vo: str | None) -> None:
         """The blocks' state at this stage (or step end) into their rows of `xo`, `vo` (the
         positions alone when `vo` is None), written in place in the step (a call would pass a
         dozen arrays per stage)."""
         for m in self.sizes:
-            self._emit_size(c, stage, m, xo, vo)
+            self._emit_size(c, self.step(stage), m, xo, vo)
 
-    def _emit_propagators(self, c: _Code, m: int, rows: int, f0: int,
-                          terms: list[tuple[int, float, float]]
+    def emit_uniform(self, c: _Code, xo: str, vo: str | None) -> None:
+        """`emit_inline` for the stage s_ of `codegen.uniform_stages` (its tables
+        `emit_tables`; its force stage `kvv_`, `codegen.nystrom_stage_state`)."""
+        c("ub_ = uts_[lu_[s_]]")
+        c("lfs_ = lf_[s_]")  # plain names: an index expression holds no brackets
+        c("lgs_ = lg_[s_]")
+        identity = {self.tab.c[s] == self.tab.c[codegen.stage_reads(self.tab, s)[0][0]]
+                    for s in range(1, self.tab.stages)}
+        # a term at the stage's own time adds its kick alone: no multiply by E(0) = I
+        for k, same in enumerate(sorted(identity, reverse=True)):
+            if len(identity) > 1:
+                c("if lgs_ < 0:" if k == 0 else "else:")
+                c.indent()
+            step = _BlockStep("lfs_", "ub_",
+                              [_Term("v", "kvv_", "lw_[s_]", None if same else "lgs_")])
+            for m in self.sizes:
+                self._emit_size(c, step, m, xo, vo)
+            if len(identity) > 1:
+                c.dedent()
+
+    def _emit_propagators(self, c: _Code, m: int, rows: int, step: _BlockStep
                           ) -> tuple[dict[str, str], list[str]]:
-        """Block q's propagator entries for the free flow at fraction index f0 and each
-        term's E: the name each is read by, and the per-lane loads. An entry of an array
+        """Block q's propagator entries for the free flow and each term's E: the name each
+        is read by, and the per-lane loads. An entry of an array
         that differs between a population's points (`per_run`) is read per lane from its
         chunk copy (`codegen.emit_lane_coefficients`, named `<entry>_{b}`), the others once
         per block here."""
@@ -548,51 +608,50 @@ class _Lawson:
                 name[var] = var
                 c(f"{var} = {array}[{index}]")
 
+        f0 = step.f0
         for r in range(rows):
             for k in range(2 * m):
                 load(f"e{r}_{k}", f"lw{m}_e", f"q, {f0}, {r}, {k}")
             for ch in range(self.nch):
                 load(f"pa{r}_{ch}", f"lw{m}_p0", f"q, {f0}, {r}, {ch}")
                 load(f"pb{r}_{ch}", f"lw{m}_p1", f"q, {f0}, {r}, {ch}")
-        for j, w, fr in terms:
-            c(f"hw{j} = FT(hh * {w!r})")  # FT: a float64 here would promote the lanes
-            if fr != 0.0:
+        for t in step.terms:
+            c(f"hw{t.j} = {t.weight}")  # FT: a float64 here would promote the lanes
+            if t.fraction is not None:
                 for r in range(rows):
                     for k in range(m):
-                        load(f"g{j}_{r}_{k}", f"lw{m}_e", f"q, {self.fi(fr)}, {r}, {m + k}")
+                        load(f"g{t.j}_{r}_{k}", f"lw{m}_e", f"q, {t.fraction}, {r}, {m + k}")
         return name, lane_loads
 
-    def _emit_size(self, c: _Code, stage: int | None, m: int, xo: str, vo: str | None
+    def _emit_size(self, c: _Code, step: _BlockStep, m: int, xo: str, vo: str | None
                    ) -> None:
-        frac, terms = self.terms(stage)
-        if frac not in self.ufracs:
-            raise ValueError(f"tableau stage time {frac} is not an input fraction")
-        f0, fu = self.fi(frac), self.ufracs.index(frac)
+        terms = step.terms
         n2 = 2 * m
         rows = n2 if vo else m  # output rows: positions, then velocities
         c(f"for q in range(lw{m}_node.shape[0]):")
         c.indent()
         for r in range(m):
             c(f"i{r} = lw{m}_node[q, {r}]")
-        name, lane_loads = self._emit_propagators(c, m, rows, f0, terms)
+        name, lane_loads = self._emit_propagators(c, m, rows, step)
         loads = []
         for r in range(m):
             loads += [f"Z{r}_{{b}} = x[i{r}, {{b}}]", f"Z{m + r}_{{b}} = v[i{r}, {{b}}]"]
-            loads += [f"N{j}_{r}_{{b}} = kv{j}[i{r}, {{b}}]" for j, _, _ in terms]
+            loads += [f"N{t.j}_{r}_{{b}} = {t.kv}[i{r}, {{b}}]" for t in terms]
         for ch in range(self.nch):
-            loads += [f"UA{ch}_{{b}} = ut0[{ch}, {{b}}]", f"UB{ch}_{{b}} = ut{fu}[{ch}, {{b}}]"]
+            loads += [f"UA{ch}_{{b}} = ut0[{ch}, {{b}}]",
+                      f"UB{ch}_{{b}} = {step.input}[{ch}, {{b}}]"]
         loads += lane_loads
-        arith = [f"S{j}_{r}_{{b}} = hw{j} * N{j}_{r}_{{b}}" for j, _, _ in terms
+        arith = [f"S{t.j}_{r}_{{b}} = hw{t.j} * N{t.j}_{r}_{{b}}" for t in terms
                  for r in range(m)]
         for r in range(rows):
             parts = [f"{name[f'e{r}_{k}']} * Z{k}_{{b}}" for k in range(n2)]
             parts += [f"{name[f'pa{r}_{ch}']} * UA{ch}_{{b}} + {name[f'pb{r}_{ch}']} * UB{ch}_{{b}}"
                       for ch in range(self.nch)]
-            for j, _, fr in terms:
-                if fr != 0.0:
-                    parts += [f"{name[f'g{j}_{r}_{k}']} * S{j}_{k}_{{b}}" for k in range(m)]
+            for t in terms:
+                if t.fraction is not None:
+                    parts += [f"{name[f'g{t.j}_{r}_{k}']} * S{t.j}_{k}_{{b}}" for k in range(m)]
                 elif r >= m:
-                    parts.append(f"S{j}_{r - m}_{{b}}")
+                    parts.append(f"S{t.j}_{r - m}_{{b}}")
             arith.append(f"O{r}_{{b}} = {' + '.join(parts)}")
         stores = [f"{xo}[i{r}, {{b}}] = O{r}_{{b}}" for r in range(m)]
         stores += [f"{vo}[i{r}, {{b}}] = O{m + r}_{{b}}" for r in range(m) if vo]
@@ -609,6 +668,9 @@ def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab:
         codegen.emit_stage_weights(c, tab)
     codegen.velocity_needed(c, feat, opts)
     c("hh = FT(h)")
+    uniform = codegen.uniform_stages(tab)
+    if uniform:
+        lw.emit_tables(c)
     c("for ci in range(c0, c1):")
     c.indent()
     codegen.emit_chunk_start(c, opts, ["xs", "vs", "xn", "vn"]
@@ -617,6 +679,8 @@ def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab:
         thermal.emit_chunk_init(c)
     for k in range(len(lw.ufracs)):  # every channel: the rest's forces read them too
         c(f"ut{k} = np.zeros((max(nch, {lw.nch}), LANES), FT)")
+    if uniform:
+        c(f"uts_ = ({', '.join(f'ut{k}' for k in range(len(lw.ufracs)))},)")
     c("for step in range(nsteps):")
     c.indent()
     codegen.emit_step_start(c, True)
@@ -625,7 +689,13 @@ def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab:
     for k, frac in enumerate(lw.ufracs):
         codegen.emit_interp(c, f"ut{k}", f"(sub + {frac!r}) / substeps", lw.ln)
     power = opts.work or opts.dissipation
-    def prelude(s: int) -> None:
+    def prelude(s: int | None) -> None:
+        if s is None:  # the stage s_ of the tables
+            codegen.nystrom_stage_state(c, tab, None, lw.ln, frozen="skip")
+            lw.emit_uniform(c, "xs", "vs" if power else None)
+            if feat.in_forces:
+                c("uc = uts_[lu_[s_]]")
+            return
         if s > 0:
             codegen.nystrom_stage_state(c, tab, s, lw.ln, frozen="skip")
             # the blocks' stage positions: nothing in the rest reads a block node's velocity

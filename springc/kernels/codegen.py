@@ -886,7 +886,7 @@ def uniform_stages(tab: Tableau) -> bool:
     most one for its position (RK4, heun3): their state updates are then one code that reads
     the stage's coefficients and force arrays from tuples indexed by s_ (`emit_stage_tables`).
     A copy per stage made the keyword-spotting features kernel compile 40% slower
-    (docs/performance.md#cold-cache-compiles)."""
+    (docs/performance.md#cold-cache-compiles-in-mass-spring-training)."""
     reads = [stage_reads(tab, s) for s in range(1, tab.stages)]
     return tab.stages >= 3 and all(len(row) == 1 and len(sq) <= 1 for row, sq in reads)
 

@@ -573,6 +573,8 @@ class _Lawson:
     def emit_uniform(self, c: _Code, xo: str, vo: str | None) -> None:
         """`emit_inline` for the stage s_ of `codegen.uniform_stages` (its tables
         `emit_tables`; its force stage `kvv_`, `codegen.nystrom_stage_state`)."""
+        if not self.sizes:  # no blocks: nothing to propagate
+            return
         c("ub_ = uts_[lu_[s_]]")
         c("lfs_ = lf_[s_]")  # plain names: an index expression holds no brackets
         c("lgs_ = lg_[s_]")

@@ -165,6 +165,27 @@ def test_without_noise_the_physical_network_is_the_normalised_one(_kernel_cache)
     assert np.abs(got - ref).max() < 1e-9 * np.abs(ref).max()
 
 
+def test_devices_in_the_lanes_of_one_call_are_each_device_alone(net, heads):
+    """`eval --mc`'s population: three fabricated 2x1 classifiers on two clips in the lanes
+    of one kernel call give each device's readouts as its own call does."""
+    spread = dv.Spread(1e-3, seed=3)
+    devices = [check(dv.fabricate(net, spread, k), judge_step=False) for k in range(3)]
+    plan = integration.Integration("rk4", 16, "float64")
+    sig = words()
+    items = np.column_stack([np.arange(len(sig)), sig])
+    tstop = msp.horizon(S, sig.shape[1] / msp.INPUT_RATE)
+    specs = tr.readout_reductions(heads)
+    together = dv.devices_batch(items, devices, specs, tstop, plan, S)
+    for p, device in enumerate(devices):
+        alone = dv.network_batch(items, device, specs, tstop, plan, S, judged=False)
+        for key, value in alone.items():
+            assert together[key].shape[:2] == (2, 3)
+            scale = np.abs(value).max()
+            assert scale > 0 and np.abs(together[key][:, p] - value).max() <= 1e-12 * scale
+    # the devices differ: the spread moves every readout
+    assert np.abs(together["final:x(r0)"][:, 0] - together["final:x(r0)"][:, 1]).max() > 0
+
+
 def test_the_snr_of_the_features():
     clean = np.array([[1.0, 2.0], [3.0, -4.0]])
     snr = dv.phi_snr_db(clean, clean * 1.1)  # noise a tenth of the signal: 20 dB everywhere

@@ -46,6 +46,7 @@ from springc.lang import draws
 from springc.lang.ir import FlatNetlist
 
 STAGES = ("filters", "compressors", "delays", "couplings", "readouts")
+DEVICE_GROUP = 8  # devices per kernel call: progress after each group
 SPREAD_KINDS = ("local", "global")
 # (table, element key) of every fabricated coefficient; x0 and v0 are initial state
 FABRICATED = (
@@ -239,6 +240,49 @@ def network_batch(items: np.ndarray, checked, specs: list, tstop: float,
     return integration.run_with_retries(plan, run, len(sig), tries, msp.stiffness(sig, s))
 
 
+def devices_batch(items: np.ndarray, members: list, specs: list, tstop: float,
+                  plan: integration.Integration, s: msp.MassSpringSettings,
+                  tries: slice = slice(None)) -> dict:
+    """`network_batch` for a population: every device of `members` (checked netlists of one
+    structure) on every clip of the batch in the lanes of one kernel call per try
+    (`simulate_lanes`), so nothing is compiled or called per device. Retries go run by run as
+    `integration.run_with_retries` does (a run: a device on a clip); a run that diverges at
+    the last retry has NaN rows, so that it fails its device alone. Reductions (clips,
+    devices, ...): a clip a row, as `msp.map_pooled` gathers rows."""
+    from springc.sim.simulate import simulate_lanes
+
+    sig = items[:, 1:].astype(np.float64)
+    clips, labels = len(sig), [f"device {p}" for p in range(len(members))]
+    final = plan.retries()[-1]
+
+    def run(method, substeps, idx):
+        mem, clip = np.unique(idx // clips), np.unique(idx % clips)
+        try:
+            red = simulate_lanes([members[p] for p in mem], [labels[p] for p in mem],
+                                 sig[clip, None, :], msp.INPUT_RATE, probes=[],
+                                 reductions=specs, tstop=tstop, chunk=msp.BATCH,
+                                 batch=len(mem) * len(clip), method=method,
+                                 substeps=substeps, precision=plan.precision,
+                                 check_step=False).reductions
+            diverged = np.zeros(0, np.int64)
+        except DivergedRuns as err:
+            red, diverged = err.reductions, np.asarray(err.diverged, np.int64)
+        # the call ran every chosen device on every chosen clip: the runs asked for
+        call = np.searchsorted(mem, idx // clips) * len(clip) + np.searchsorted(clip, idx % clips)
+        got = {key: np.array(value[call], np.float64) for key, value in red.items()}
+        bad = np.flatnonzero(np.isin(call, diverged))
+        if len(bad) and (method, substeps) != final:
+            raise DivergedRuns(f"{len(bad)} run(s) diverged", bad, got)
+        for value in got.values():
+            value[bad] = np.nan
+        return got
+
+    stiffness = np.tile(msp.stiffness(sig, s), len(members))
+    out = integration.run_with_retries(plan, run, len(members) * clips, tries, stiffness)
+    return {key: np.swapaxes(v.reshape((len(members), clips) + v.shape[1:]), 0, 1)
+            for key, v in out.items()}
+
+
 @dataclass(frozen=True)
 class Setup:
     """What every device shares: the model's settings, heads and integration, its normalised
@@ -306,6 +350,20 @@ def outputs(setup: Setup, net: FlatNetlist, *, lam: float = 1.0, temp: float | N
     return out
 
 
+def device_decisions(setup: Setup, members: list, *, scheduler: str | None = None,
+                     jobs: int = 0, desc: str = "devices") -> np.ndarray:
+    """The decisions (devices, clips, rows) of the test clips through every device of
+    `members` (checked, unjudged netlists of the classifier's structure) at once
+    (`devices_batch`); a device's run that diverges at every retry gives NaN rows."""
+    tstop = msp.horizon(setup.s, setup.signals.shape[1] / msp.INPUT_RATE)
+    work = partial(devices_batch, members=members, specs=readout_reductions(setup.heads),
+                   tstop=tstop, plan=setup.plan, s=setup.s)
+    items = np.column_stack([np.arange(len(setup.signals)), setup.signals.astype(np.float64)])
+    reds = msp.map_pooled(work, items, desc, scheduler, jobs or None)
+    return np.stack([decisions({k: v[:, p] for k, v in reds.items() if k.startswith("final:")},
+                               setup.heads) for p in range(len(members))])
+
+
 def accuracy(setup: Setup, d: np.ndarray) -> float:
     """The accuracy of decision rows, scored like `springc eval`'s; a clip whose decisions
     are not finite counts as an error."""
@@ -340,8 +398,9 @@ def evaluate_spread(setup: Setup, devices: int, spread: Spread, *,
         if nominal is None:
             nominal = outputs(setup, setup.net, scheduler=scheduler, jobs=jobs,
                               desc="nominal design")["decisions"]
-        for k in range(devices):
-            rows.append(_device(setup, k, spread, nominal, scheduler, jobs))
+        for first in range(0, devices, DEVICE_GROUP):
+            ks = range(first, min(first + DEVICE_GROUP, devices))
+            rows += _devices(setup, ks, spread, nominal, scheduler, jobs)
             if progress:
                 progress(_progress(rows, devices, time.perf_counter() - start))
     acc = np.array([r["accuracy"] for r in rows])
@@ -350,17 +409,30 @@ def evaluate_spread(setup: Setup, devices: int, spread: Spread, *,
             "stage": spread.stage, "seed": spread.seed}
 
 
-def _device(setup: Setup, k: int, spread: Spread, nominal: np.ndarray, scheduler,
-            jobs) -> dict:
-    net = fabricate(setup.net, spread, k)
-    try:
-        d = outputs(setup, net, judge=False, scheduler=scheduler, jobs=jobs,
-                    desc=f"device {k}")["decisions"]
-    except (DivergedRuns, CheckError) as err:  # runs away, or the checks find it unstable
-        return {"device": k, "accuracy": 0.0, "diverged": True, "decision_error": None,
-                "why": err.message}
-    return {"device": k, "accuracy": accuracy(setup, d), "diverged": False,
-            "decision_error": decision_error(d, nominal)}
+def _devices(setup: Setup, ks: range, spread: Spread, nominal: np.ndarray, scheduler,
+             jobs) -> list[dict]:
+    """The rows of devices `ks`, simulated together (`device_decisions`); a device that the
+    checks find unstable, or whose network diverges, scores 0."""
+    rows, members = {}, {}
+    for k in ks:
+        try:
+            members[k] = check(fabricate(setup.net, spread, k), judge_step=False)
+        except CheckError as err:  # statically unstable
+            rows[k] = _diverged(k, err.message)
+    if members:
+        d = device_decisions(setup, list(members.values()), scheduler=scheduler, jobs=jobs,
+                             desc=f"devices {ks.start}-{ks.stop - 1}")
+        for k, dk in zip(members, d):
+            rows[k] = ({"device": k, "accuracy": accuracy(setup, dk), "diverged": False,
+                        "decision_error": decision_error(dk, nominal)}
+                       if np.isfinite(dk).all() else
+                       _diverged(k, "its network diverged at every integration retry"))
+    return [rows[k] for k in ks]
+
+
+def _diverged(k: int, why: str) -> dict:
+    return {"device": k, "accuracy": 0.0, "diverged": True, "decision_error": None,
+            "why": why}
 
 
 def decision_error(d: np.ndarray, nominal: np.ndarray) -> float:

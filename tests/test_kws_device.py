@@ -7,6 +7,7 @@ noise the features and decisions of the normalised network, after converting uni
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -184,6 +185,24 @@ def test_devices_in_the_lanes_of_one_call_are_each_device_alone(net, heads):
             assert scale > 0 and np.abs(together[key][:, p] - value).max() <= 1e-12 * scale
     # the devices differ: the spread moves every readout
     assert np.abs(together["final:x(r0)"][:, 0] - together["final:x(r0)"][:, 1]).max() > 0
+
+
+def test_a_device_that_diverges_at_every_retry_fails_alone(net, heads):
+    """A device whose masses are a millionth of the design's (modes 1000x faster than any
+    retry's step can follow) has NaN rows; the device beside it in the call is unharmed."""
+    good = check(dv.fabricate(net, dv.Spread(1e-3, seed=3), 0), judge_step=False)
+    light = replace(net, masses=replace(net.masses, m=net.masses.m * 1e-6))
+    bad = check(light, judge_step=False)
+    plan = integration.Integration("rk4", 16, "float64")
+    sig = words()
+    items = np.column_stack([np.arange(len(sig)), sig])
+    tstop = msp.horizon(S, sig.shape[1] / msp.INPUT_RATE)
+    specs = tr.readout_reductions(heads)
+    together = dv.devices_batch(items, [good, bad], specs, tstop, plan, S)
+    alone = dv.network_batch(items, good, specs, tstop, plan, S, judged=False)
+    for key, value in alone.items():
+        assert np.isnan(together[key][:, 1]).all()
+        np.testing.assert_allclose(together[key][:, 0], value, rtol=1e-12, atol=0)
 
 
 def test_the_snr_of_the_features():

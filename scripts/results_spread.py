@@ -186,6 +186,22 @@ def _crossing(data: dict, size: str, level: float = 0.1) -> str:
     return "-"
 
 
+def _first(data: dict, size: str) -> dict:
+    return data["rows"][_key(size, "all", SPREADS[0])]
+
+
+def _change(data: dict, size: str) -> str:
+    """The mean accuracy at the smallest spread against the nominal design's, in points."""
+    delta = _first(data, size)["accuracy"]["mean"] - data["nominal"][size]["accuracy"]
+    return f"{100 * delta:+.1f}"
+
+
+def _beyond(data: dict, size: str) -> str:
+    """The smallest spread (%) whose median decision error exceeds 1."""
+    over = [s for s in SPREADS if _median_error(data["rows"][_key(size, "all", s)]) > 1]
+    return f"{100 * over[0]:g}%" if over else "no measured spread"
+
+
 def _order(rows: dict) -> str:
     """Stages from the largest median decision error to the smallest."""
     ranked = sorted(rows, key=lambda st: _median_error(rows[st]), reverse=True)
@@ -210,12 +226,16 @@ def _reading(data: dict, stage_rows: dict) -> list[str]:
     return [
         "## Reading the results", "",
         f"- The 8x3 whole network loses 2 points of accuracy at a spread of {say('8x3')} "
-        f"(4x2: {say('4x2')}). At that smallest spread (1e-7 relative) both sizes already lose a "
-        "clip in some devices while their decisions move by only about 1% (decision error "
-        "column): those clips sit on a decision boundary, and 2 points are less than one "
-        f"of {n} clips resolves. The decisions themselves move by 10% near "
+        f"(4x2: {say('4x2')}), interpolated on log spread between the measured spreads. "
+        f"At the smallest spread ({SPREADS[0]:g} relative) the devices' mean is "
+        f"{_change(data, '4x2')} (4x2) and {_change(data, '8x3')} points (8x3) from the "
+        f"nominal design's, their decisions moving by {_error(_first(data, '4x2'))} and "
+        f"{_error(_first(data, '8x3'))} (decision error column); one clip is "
+        f"{100 / n:.1f} points of {n}, and the clips a device gains or loses there sit on "
+        "a decision boundary. The decisions themselves move by 10% near "
         f"{_crossing(data, '8x3')} at 8x3 ({_crossing(data, '4x2')} at 4x2), interpolated "
-        "on log spread, and by more than their own size from 0.001% on.",
+        f"on log spread, and by more than their own size from {_beyond(data, '8x3')} on at "
+        f"8x3 ({_beyond(data, '4x2')} at 4x2).",
         f"- The most sensitive stage is the {worst_stage} (lowest mean accuracy with "
         f"{100 * STAGE_SPREAD:g}% spread in that stage alone; the decision error orders "
         f"the stages: {_order(stage_rows)}). The classifier heads' matrix-vector "
@@ -230,8 +250,8 @@ def _reading(data: dict, stage_rows: dict) -> list[str]:
         "every stage at this spread (a draw depends on the element, not on the stage "
         "chosen), with the same decision error: the other stages add nothing measurable.",
         "- The decision error grows in proportion to the spread while it is small (about "
-        "10x per decade) and past 0.01% the readouts run away (errors of 1e3 and more): the "
-        "devices then decide at chance. A device the checks find statically unstable (its "
+        "10x per decade) and from 0.01% on the readouts run away (errors of 1e3 and more): "
+        "the devices then decide at chance. A device the checks find statically unstable (its "
         "stiffness at rest not positive semidefinite) or whose simulation diverges scores 0 "
         "and is counted in the last column.",
         "",
@@ -252,7 +272,9 @@ def _reading(data: dict, stage_rows: dict) -> list[str]:
         "monomial coefficients, input gains) by its own draw of gauss(1, S) in Monte Carlo "
         "sample k, local mismatch (`--spread-kind local`); the draws are those of "
         "`springc.lang.draws` at each element's instance path and key.",
-        f"- {seconds / 60:.0f} min of simulation in all. The standard errors are those of "
+        f"- A point's devices run in the lanes of one kernel call, {dv.DEVICE_GROUP} at a "
+        f"time (`springc.kws.evaluation.device.devices_batch`); {seconds / 60:.0f} min of "
+        "simulation in all. The standard errors are those of "
         "the mean over devices; the clip sample adds its own (binomial, about "
         f"{100 * math.sqrt(0.25 / n):.0f} points at 50%), common to every point of a size.",
     ]

@@ -373,9 +373,9 @@ def emit_stage_loop(c: _Code, feat: Features, tab: Tableau, width: LaneLayout,
     """The stages of one step as a loop whose body holds the force code once (a call per
     stage passes ~20 array arguments; the force code written out per stage compiles far
     slower: docs/performance.md#the-shared-kernels-shape). `prelude(s)` writes stage s's own
-    code (its state xs, vs, its input); the force code then reads xa, va and writes ka;
-    With `uniform_stages`, `prelude(None)` writes every stage after the first at once, from
-    the tables of `emit_nystrom_coefficients`. `after()`, when given, writes what follows
+    code (its state xs, vs, its input); the force code then reads xa, va and writes ka
+    (with `uniform_stages`, `prelude(None)` writes every stage after the first at once, from
+    the tables of `emit_nystrom_coefficients`); `after()`, when given, writes what follows
     every stage's forces, once (it reads the stage
     s_ through xa, va and the stage weights `hbd_`, `emit_stage_weights`; stages of weight
     zero skip it); `nodes` (`terms.node_terms`), when given, has the linear, input and

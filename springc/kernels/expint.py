@@ -547,14 +547,18 @@ class _Lawson:
                  for j, w in enumerate(weights) if w != 0.0]
         return _BlockStep(str(self.fi(frac)), f"ut{self.ufracs.index(frac)}", terms)
 
+    def _uniform_terms(self) -> list[tuple[int, int]]:
+        """(stage, the one force stage it reads) for every stage after the first, under
+        `codegen.uniform_stages`."""
+        return [(s, codegen.stage_reads(self.tab, s)[0][0]) for s in range(1, self.tab.stages)]
+
     def emit_tables(self, c: _Code) -> None:
         """Per stage of `codegen.uniform_stages` (index s_; stage 0's entries unused): its
         free flow's fraction index `lf_`, its input row `lu_`, its term's weight `lw_` and
         the fraction index of the term's E `lg_` (-1: the identity, a term at the stage's own
         time)."""
         f, u, w, g = ["0"], ["0"], ["FT(0.0)"], ["0"]
-        for s in range(1, self.tab.stages):
-            j = codegen.stage_reads(self.tab, s)[0][0]
+        for s, j in self._uniform_terms():
             cs = self.tab.c[s]
             f.append(str(self.fi(cs)))
             u.append(str(self.ufracs.index(cs)))
@@ -578,8 +582,7 @@ class _Lawson:
         c("ub_ = uts_[lu_[s_]]")
         c("lfs_ = lf_[s_]")  # plain names: an index expression holds no brackets
         c("lgs_ = lg_[s_]")
-        identity = {self.tab.c[s] == self.tab.c[codegen.stage_reads(self.tab, s)[0][0]]
-                    for s in range(1, self.tab.stages)}
+        identity = {self.tab.c[s] == self.tab.c[j] for s, j in self._uniform_terms()}
         # a term at the stage's own time adds its kick alone: no multiply by E(0) = I
         for k, same in enumerate(sorted(identity, reverse=True)):
             if len(identity) > 1:

@@ -269,7 +269,7 @@ def devices_batch(items: np.ndarray, members: list, specs: list, tstop: float,
             red, diverged = err.reductions, np.asarray(err.diverged, np.int64)
         # the call ran every chosen device on every chosen clip: the runs asked for
         call = np.searchsorted(mem, idx // clips) * len(clip) + np.searchsorted(clip, idx % clips)
-        got = {key: np.array(value[call], np.float64) for key, value in red.items()}
+        got = {key: value[call].astype(np.float64) for key, value in red.items()}
         bad = np.flatnonzero(np.isin(call, diverged))
         if len(bad) and (method, substeps) != final:
             raise DivergedRuns(f"{len(bad)} run(s) diverged", bad, got)
@@ -337,11 +337,10 @@ def outputs(setup: Setup, net: FlatNetlist, *, lam: float = 1.0, temp: float | N
     specs: list = readout_reductions(setup.heads)
     if phi:
         specs.append(msp.phi_reduction(net, setup.s))
-    tstop = msp.horizon(setup.s, setup.signals.shape[1] / msp.INPUT_RATE)
+    items, tstop = _clips(setup)
     work = partial(network_batch, checked=check(net, judge_step=judge), specs=specs,
                    tstop=tstop, plan=setup.plan, s=setup.s, temp=temp, seed=seed,
                    judged=judge)
-    items = np.column_stack([np.arange(len(setup.signals)), setup.signals.astype(np.float64)])
     reds = msp.map_pooled(work, items, desc, scheduler, jobs or None)
     out = {"decisions": decisions({k: v / lam for k, v in reds.items()
                                    if k.startswith("final:")}, setup.heads)}
@@ -350,15 +349,20 @@ def outputs(setup: Setup, net: FlatNetlist, *, lam: float = 1.0, temp: float | N
     return out
 
 
+def _clips(setup: Setup) -> tuple[np.ndarray, float]:
+    """The test clips as Dask items (rows: clip index, samples...) and the simulated time."""
+    items = np.column_stack([np.arange(len(setup.signals)), setup.signals.astype(np.float64)])
+    return items, msp.horizon(setup.s, setup.signals.shape[1] / msp.INPUT_RATE)
+
+
 def device_decisions(setup: Setup, members: list, *, scheduler: str | None = None,
                      jobs: int = 0, desc: str = "devices") -> np.ndarray:
     """The decisions (devices, clips, rows) of the test clips through every device of
     `members` (checked, unjudged netlists of the classifier's structure) at once
     (`devices_batch`); a device's run that diverges at every retry gives NaN rows."""
-    tstop = msp.horizon(setup.s, setup.signals.shape[1] / msp.INPUT_RATE)
+    items, tstop = _clips(setup)
     work = partial(devices_batch, members=members, specs=readout_reductions(setup.heads),
                    tstop=tstop, plan=setup.plan, s=setup.s)
-    items = np.column_stack([np.arange(len(setup.signals)), setup.signals.astype(np.float64)])
     reds = msp.map_pooled(work, items, desc, scheduler, jobs or None)
     return np.stack([decisions({k: v[:, p] for k, v in reds.items() if k.startswith("final:")},
                                setup.heads) for p in range(len(members))])

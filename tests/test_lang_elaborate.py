@@ -251,6 +251,31 @@ def test_a_file_included_twice_in_one_scope_is_read_once(tmp_path: Path) -> None
     assert load_file(main).masses.names == ["X1.M"]
 
 
+def test_an_included_file_is_parsed_once_per_process_until_it_changes(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two netlists that include the same block: the block is parsed once; rewritten, its new
+    text is parsed (the new mass is what elaborates); the least recently used trees go."""
+    from springc.lang import files, parser
+
+    parsed = []
+    real = parser.parse
+    monkeypatch.setattr(parser, "parse", lambda text, name: parsed.append(name) or
+                        real(text, name))
+    block = tmp_path / "blk.spr"
+    block.write_text(".subckt blk a\nM a m=2\n.ends\n")
+    for k in range(2):
+        (tmp_path / f"u{k}.spr").write_text(f'.include "blk.spr"\nX{k} n blk\n')
+        assert load_file(tmp_path / f"u{k}.spr").masses.m[0] == 2.0
+    assert [Path(name).name for name in parsed] == ["blk.spr"]
+    block.write_text(".subckt blk a\nM a m=3\n.ends\n")
+    assert load_file(tmp_path / "u1.spr").masses.m[0] == 3.0
+    assert [Path(name).name for name in parsed] == ["blk.spr", "blk.spr"]
+    monkeypatch.setattr(files, "PARSED_KEPT", 2)
+    for k in range(3):
+        files.parse_included(f"M{k} a m=1\n", f"kept{k}.spr")
+    assert len(files._PARSED) == 2 and ("kept0.spr", "M0 a m=1\n") not in files._PARSED
+
+
 def test_data_arrays_from_npy_and_csv(tmp_path: Path) -> None:
     np.save(tmp_path / "w.npy", np.array([[1.0, 2.0], [3.0, 4.0]]))
     (tmp_path / "v.csv").write_text("# header comment\n5\n6\n7\n")

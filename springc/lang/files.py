@@ -6,6 +6,7 @@ file and the reason.
 from __future__ import annotations
 
 import os
+from collections import OrderedDict
 from dataclasses import replace
 from pathlib import Path
 
@@ -96,8 +97,6 @@ class Includes:
                            f"looked in: {looked}")
 
     def _parse(self, path: Path, name: ast.Str) -> ast.Netlist:
-        from springc.lang.parser import parse  # the parser imports nothing from here
-
         key = str(path)
         if key not in self.parsed:
             try:
@@ -105,8 +104,29 @@ class Includes:
             except (OSError, UnicodeDecodeError) as exc:
                 raise NetlistError(f"cannot read include file '{path}': {exc}",
                                    name.loc) from None
-            self.parsed[key] = parse(text, display(path))
+            self.parsed[key] = parse_included(text, display(path))
         return self.parsed[key]
+
+
+_PARSED: OrderedDict[tuple[str, str], ast.Netlist] = OrderedDict()
+PARSED_KEPT = 256  # included files whose trees a process keeps (the least recently used go)
+
+
+def parse_included(text: str, filename: str) -> ast.Netlist:
+    """`parser.parse(text, filename)`, kept for the next include of the same text under the
+    same name: a library block that every netlist of a sweep, a population or a tuning run
+    includes is parsed once per process (the trees are immutable, so one serves all)."""
+    from springc.lang.parser import parse  # the parser imports nothing from here
+
+    key = (filename, text)
+    tree = _PARSED.get(key)
+    if tree is None:
+        tree = _PARSED[key] = parse(text, filename)
+        while len(_PARSED) > PARSED_KEPT:
+            _PARSED.popitem(last=False)
+    else:
+        _PARSED.move_to_end(key)
+    return tree
 
 
 def read_array(path: Path, loc: SourceLoc) -> np.ndarray:

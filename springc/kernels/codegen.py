@@ -27,7 +27,7 @@ from springc.kernels import terms, thermal
 from springc.kernels.integrators import Tableau, get_tableau
 from springc.lang.ir import FlatNetlist
 
-KERNEL_VERSION = 7  # bump when the generated text or its calling convention changes
+KERNEL_VERSION = 8  # bump when the generated text or its calling convention changes
 RECORD_ALIGN = 64  # bytes: the record's alignment and row padding (a cache line, and a
 # multiple of every streaming store's size), which `emit_record`'s aligned stores rely on
 LANE_CHOICES = (32, 16, 4, 1)  # compile-time lane widths a kernel is generated for (32: the
@@ -247,6 +247,12 @@ class _Code:
     def __init__(self) -> None:
         self.lines: list[str] = []
         self.level = 0
+        self.tags = 0
+
+    def next_tag(self) -> str:
+        """A suffix no other call has had (`lanes`' own names)."""
+        self.tags += 1
+        return f"_t{self.tags}_"
 
     def __call__(self, text: str = "") -> None:
         self.lines.append("    " * self.level + text if text else "")
@@ -334,28 +340,54 @@ def lane_layout(opts: KernelOptions) -> LaneLayout:
 
 
 def lanes(c: _Code, ln: LaneLayout, loads: list[str], arith: list[str],
-          stores: list[str]) -> None:
+          stores: list[str], own_arith: bool = False) -> None:
     """Straight-line code for the lanes: the loads, then the arithmetic, then the stores, each
     statement for every lane of a group in turn (`{b}` in a statement is the lane). Loads
     before stores lets LLVM's SLP vectoriser merge a group's lanes into vector loads, FMAs
     and stores without alias checks; the generator guarantees that no store of an element
     overlaps a load of the same element (distinct nodes). A group's lane indices are named
-    once (`g1_ = g_ + 1`...): numba types and lowers each `g_ + b` written in an index apart,
-    while LLVM folds them to the same machine code (docs/performance.md, cold-cache compiles)."""
+    once (`g1_t7_ = g0_t7_ + 1`...): numba types and lowers each `g_ + b` written in an index
+    apart, while LLVM folds them to the same machine code (docs/performance.md, cold-cache
+    compiles).
+
+    The temporaries the loads define (and the arithmetic's, with `own_arith`) are this
+    call's own, as are the group indices: each gets the call's number (`X{b}` -> `X_t7_{b}`),
+    so that every name is defined once in the kernel. numba's SSA reconstruction rewrites
+    the whole function once for each name defined more than once (a tenth of a large
+    kernel's compile). The arithmetic's names stay as written by default: an accumulator
+    (`A{b}`) carries over to later calls."""
+    tag = c.next_tag()
+    loads, arith, stores = _own_names(tag, loads, arith if own_arith else [], arith, stores)
+    lane_names = [str(b) for b in range(ln.group)]
     if ln.group < ln.width:
-        c(f"for g_ in range(0, {ln.width}, {ln.group}):")
+        lane_names = [f"g{b}{tag}" for b in range(ln.group)]
+        c(f"for {lane_names[0]} in range(0, {ln.width}, {ln.group}):")
         c.indent()
         for b in range(1, ln.group):
-            c(f"g{b}_ = g_ + {b}")
+            c(f"{lane_names[b]} = {lane_names[0]} + {b}")
     for part in (loads, arith, stores):
         # one statement's lanes together: stores to one row must not be interleaved with
         # stores to another, which the vectoriser cannot reorder (the rows might overlap)
         for stmt in part:
             for b in range(ln.group):
-                lane = str(b) if ln.group == ln.width else (f"g{b}_" if b else "g_")
-                c(_lane_stmt(stmt, b, lane))
+                c(_lane_stmt(stmt, b, lane_names[b]))
     if ln.group < ln.width:
         c.dedent()
+
+
+def _own_names(tag: str, loads: list[str], arith_owned: list[str], arith: list[str],
+               stores: list[str]) -> tuple[list[str], list[str], list[str]]:
+    """The statements with the names defined by `loads` and `arith_owned` tagged."""
+    defined = r"([A-Za-z_]\w*)\{b\} = "
+    names = {m.group(1) for stmt in loads + arith_owned for m in [re.match(defined, stmt)] if m}
+    if not names:
+        return loads, arith, stores
+    pattern = re.compile(r"\b(" + "|".join(sorted(names, key=len, reverse=True)) + r")\{b\}")
+
+    def own(stmt: str) -> str:
+        return pattern.sub(lambda m: f"{m.group(1)}{tag}{{b}}", stmt)
+
+    return [own(s) for s in loads], [own(s) for s in arith], [own(s) for s in stores]
 
 
 def _lane_stmt(stmt: str, b: int, lane: str) -> str:

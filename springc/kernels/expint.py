@@ -660,7 +660,7 @@ class _Lawson:
             arith.append(f"O{r}_{{b}} = {' + '.join(parts)}")
         stores = [f"{xo}[i{r}, {{b}}] = O{r}_{{b}}" for r in range(m)]
         stores += [f"{vo}[i{r}, {{b}}] = O{m + r}_{{b}}" for r in range(m) if vo]
-        codegen.lanes(c, self.ln, loads, arith, stores)
+        codegen.lanes(c, self.ln, loads, arith, stores, own_arith=True)
         c.dedent()
 
 

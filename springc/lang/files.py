@@ -6,6 +6,7 @@ file and the reason.
 from __future__ import annotations
 
 import os
+import threading
 from collections import OrderedDict
 from dataclasses import replace
 from pathlib import Path
@@ -109,6 +110,7 @@ class Includes:
 
 
 _PARSED: OrderedDict[tuple[str, str], ast.Netlist] = OrderedDict()
+_PARSED_LOCK = threading.Lock()
 PARSED_KEPT = 256  # included files whose trees a process keeps (the least recently used go)
 
 
@@ -119,13 +121,16 @@ def parse_included(text: str, filename: str) -> ast.Netlist:
     from springc.lang.parser import parse  # the parser imports nothing from here
 
     key = (filename, text)
-    tree = _PARSED.get(key)
-    if tree is None:
-        tree = _PARSED[key] = parse(text, filename)
+    with _PARSED_LOCK:  # threads that load netlists share the trees
+        tree = _PARSED.get(key)
+        if tree is not None:
+            _PARSED.move_to_end(key)
+            return tree
+    tree = parse(text, filename)
+    with _PARSED_LOCK:
+        _PARSED[key] = tree
         while len(_PARSED) > PARSED_KEPT:
             _PARSED.popitem(last=False)
-    else:
-        _PARSED.move_to_end(key)
     return tree
 
 

@@ -2,6 +2,7 @@
 
     python scripts/results_eps.py stages --data CORPUS [--clips 2] [--buffer KB,KG ...]
     python scripts/results_eps.py accuracy --model MODEL [--buffer KB,KG ...]
+    python scripts/results_eps.py peaks --model MODEL [--clips 96]
     python scripts/results_eps.py plot --out DIR
 
 `stages`: the whole classifier (stand-in heads, as `scripts/results_stages.py` builds it) on
@@ -17,7 +18,12 @@ channel, median clip), and the insertion loss (median over the clips).
 split as `springc eval` does: accuracy, its standard error, the change against the first eps
 paired on the same clips, and the insertion loss (median).
 
-Both print markdown tables and write them with the JSON to --out; `plot` draws what --out
+`peaks`: the per-clip peak terminal displacement of the features (whose median over the 16
+clips of the reference run is the heads' amplitude A) on --clips training clips drawn at
+random (seed 0) from MODEL's corpus, as percentiles over the model's A and the factor
+(peak / A)^2 by which a clip at that peak meets a larger eps than the design's.
+
+The first two print markdown tables and write them with the JSON to --out; `plot` draws what --out
 holds into DIR/results-eps.png (readout distortion and accuracy against insertion loss).
 """
 
@@ -178,6 +184,26 @@ def accuracy(args) -> None:
                                        "seconds": time.time() - start})
 
 
+def peaks(args) -> None:
+    """The spread of the clips' peak terminal displacement over the model's amplitude A."""
+    from springc.kws.data.dataset import open_dataset
+    from springc.kws.training.model import load_model
+
+    model = load_model(args.model)
+    s, _ = tr.model_heads(model)
+    amplitude = float(model.settings["transfer"]["amplitude"])
+    clips = open_dataset(model.settings["dataset"]["path"]).split("train")
+    pick = np.random.default_rng(0).choice(len(clips), args.clips, replace=False)
+    ref = msp.reference_run(msp.load_signals([clips[i] for i in pick], False, 0, []), s)
+    levels = (5, 25, 50, 75, 90, 95, 99, 100)
+    over = np.percentile(ref.peaks, levels) / amplitude
+    text = "\n".join(["| percentile | peak / A | (peak / A)^2 |", "|---|---|---|"]
+                     + [f"| {p} | {v:.3g} | {v * v:.3g} |" for p, v in zip(levels, over)])
+    print(text)
+    write(args.out, "peaks", text, {"model": str(args.model), "amplitude": amplitude,
+                                    "peaks": ref.peaks.tolist()})
+
+
 def se(x: np.ndarray) -> float:
     """Standard error of a mean."""
     return float(np.std(x, ddof=1) / np.sqrt(len(x)))
@@ -251,6 +277,10 @@ def main() -> None:
     acc.add_argument("-j", "--jobs", type=int, default=2)
     acc.add_argument("--no-plain", action="store_true", help="only the buffered networks")
     acc.add_argument("--substeps", type=int, help="instead of the model's integration's")
+    pk = sub.add_parser("peaks")
+    pk.add_argument("--model", type=Path, required=True)
+    pk.add_argument("--clips", type=int, default=96)
+    pk.add_argument("--out", type=Path, default=Path("eps-out"))
     pl = sub.add_parser("plot")
     pl.add_argument("--out", type=Path, default=Path("eps-out"))
     for p in (st, acc):
@@ -260,7 +290,7 @@ def main() -> None:
                        help="the heads' mvm stiffness d over its default (not the ideal's)")
         p.add_argument("--out", type=Path, default=Path("eps-out"))
     args = ap.parse_args()
-    {"stages": stages, "accuracy": accuracy, "plot": plot}[args.what](args)
+    {"stages": stages, "accuracy": accuracy, "peaks": peaks, "plot": plot}[args.what](args)
 
 
 if __name__ == "__main__":

@@ -357,10 +357,10 @@ def lanes(c: _Code, ln: LaneLayout, loads: list[str], arith: list[str],
     kernel's compile). The arithmetic's names stay as written by default: an accumulator
     (`A{b}`) carries over to later calls."""
     tag = c.next_tag()
-    loads, arith, stores = _own_names(tag, loads, arith if own_arith else [], arith, stores)
-    lane_names = [str(b) for b in range(ln.group)]
-    if ln.group < ln.width:
-        lane_names = [f"g{b}{tag}" for b in range(ln.group)]
+    loads, arith, stores = _own_names(tag, loads, arith, stores, own_arith)
+    looped = ln.group < ln.width
+    lane_names = [f"g{b}{tag}" if looped else str(b) for b in range(ln.group)]
+    if looped:
         c(f"for {lane_names[0]} in range(0, {ln.width}, {ln.group}):")
         c.indent()
         for b in range(1, ln.group):
@@ -371,15 +371,17 @@ def lanes(c: _Code, ln: LaneLayout, loads: list[str], arith: list[str],
         for stmt in part:
             for b in range(ln.group):
                 c(_lane_stmt(stmt, b, lane_names[b]))
-    if ln.group < ln.width:
+    if looped:
         c.dedent()
 
 
-def _own_names(tag: str, loads: list[str], arith_owned: list[str], arith: list[str],
-               stores: list[str]) -> tuple[list[str], list[str], list[str]]:
-    """The statements with the names defined by `loads` and `arith_owned` tagged."""
-    defined = r"([A-Za-z_]\w*)\{b\} = "
-    names = {m.group(1) for stmt in loads + arith_owned for m in [re.match(defined, stmt)] if m}
+def _own_names(tag: str, loads: list[str], arith: list[str], stores: list[str],
+               own_arith: bool) -> tuple[list[str], list[str], list[str]]:
+    """The statements with the names that `loads` (and `arith`, with `own_arith`) define
+    tagged."""
+    defining = loads + arith if own_arith else loads
+    names = {m.group(1) for stmt in defining
+             for m in [re.match(r"([A-Za-z_]\w*)\{b\} = ", stmt)] if m}
     if not names:
         return loads, arith, stores
     pattern = re.compile(r"\b(" + "|".join(sorted(names, key=len, reverse=True)) + r")\{b\}")

@@ -54,6 +54,15 @@ def _case(**kw) -> bs.Case:
     return bs.Case("osc", "driven oscillator", _oscillator(), None, TSTEP, TSTOP, **args)
 
 
+@pytest.fixture
+def quick_timing(monkeypatch):
+    """The timing rules at their least (one ceiling measurement of a few ms, each row timed
+    MIN_CALLS times): the tests read what the suite reports, not how fast it ran."""
+    monkeypatch.setattr(bs, "CEILING_TRIES", 1)
+    monkeypatch.setattr(bs, "CEILING_SECONDS", 0.01)
+    monkeypatch.setattr(bs, "REPEAT_FOR", 0.0)
+
+
 @pytest.fixture(scope="module")
 def ref():
     return bs.reference(_case(), None)
@@ -212,7 +221,7 @@ def test_verdicts_say_met_missed_and_partly_met_with_the_numbers():
     assert md[6].endswith(": feature 1600000x; net not run; one not run.")
 
 
-def test_run_case_writes_the_report_with_reference_and_ladder(tmp_path):
+def test_run_case_writes_the_report_with_reference_and_ladder(tmp_path, quick_timing):
     case = _case(peers=("DOP853", "DOP853 tstep/8", "numpy-rk4"))
     res = bs.run_case(case, progress=lambda m: None)
     assert res.reference["floor"] < 1e-11
@@ -280,7 +289,8 @@ def test_paired_rows_and_the_ceiling_are_timed_in_alternation_least_and_best(mon
     assert "least of 3 re-timings in alternation with the ceiling" in row.note
 
 
-def test_unrecorded_rows_record_nothing_are_rated_and_never_decide_a_claim(monkeypatch):
+def test_unrecorded_rows_record_nothing_are_rated_and_never_decide_a_claim(
+        monkeypatch, quick_timing):
     """A row run without probes: its simulations ask for no probe, it has a throughput and a
     ceiling fraction but no error, is labelled so, and the claims keep using the recorded
     row of the same configuration."""

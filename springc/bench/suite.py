@@ -49,6 +49,7 @@ REPEAT_FOR, REPEAT_BUDGET = 1.0, 8.0
 PAIRED_ROUNDS = 15  # rounds of alternating re-timing of a case's `paired` rows (load bursts)
 CEILING_TRIES = 3  # the ceiling is a best case: the most of its measurements (a case with
 # `paired` rows measures it once per round of their re-timing as well, in alternation)
+CEILING_SECONDS = 0.3  # each ceiling measurement runs its loop at least this long
 BATCH = 64  # runs of a batched case: two chunks of 32 lanes, one per core (simulate's default)
 
 
@@ -685,20 +686,23 @@ def _ngspice(case: Case, first, tstop):
     return t, traces, "ngspice trap, reltol 1e-9 (sampled input), uic"
 
 
-def _ceilings(case: Case, runs: int, tries: int = CEILING_TRIES, peak: bool = False
+def _ceilings(case: Case, runs: int, tries: int | None = None, peak: bool = False
               ) -> dict[str, float]:
     """Ceiling run-seconds per wall-second at the input rate, per precision measured: the
     best of `tries` measurements; with `peak`, the FMA peak's (`ceiling.measure_peak`), rated
-    with the same flop count."""
+    with the same flop count. `tries` defaults to CEILING_TRIES."""
+    tries = CEILING_TRIES if tries is None else tries
     flops = ceiling.rk4_flops_per_dof_step(case.net)
     rate = 1.0 / case.tstep
 
     def measure(precision: str) -> float:
         if peak:
-            fps = ceiling.measure_peak(runs, precision, threads=_threads())["flops_per_second"]
+            fps = ceiling.measure_peak(runs, precision, threads=_threads(),
+                                       min_seconds=CEILING_SECONDS)["flops_per_second"]
             return ceiling.run_seconds_per_wall_second(fps, flops, case.net.n, rate)
         return float(ceiling.measure_ceiling(case.net.n, runs, precision, threads=_threads(),
-                                             flops_per_step=flops, rate=rate)
+                                             flops_per_step=flops, rate=rate,
+                                             min_seconds=CEILING_SECONDS)
                      ["run_seconds_per_wall_second"])
 
     return {precision: max(measure(precision) for _ in range(tries))

@@ -3,6 +3,7 @@
     python scripts/results_eps.py stages --data CORPUS [--clips 2] [--buffer KB,KG ...]
     python scripts/results_eps.py accuracy --model MODEL [--buffer KB,KG ...]
     python scripts/results_eps.py peaks --model MODEL [--clips 96]
+    python scripts/results_eps.py cv --data CORPUS [--buffer KB,KG ...] [--test 100]
     python scripts/results_eps.py plot --out DIR
 
 `stages`: the whole classifier (stand-in heads, as `scripts/results_stages.py` builds it) on
@@ -23,8 +24,16 @@ clips of the reference run is the heads' amplitude A) on --clips training clips 
 random (seed 0) from MODEL's corpus, as percentiles over the model's A and the factor
 (peak / A)^2 by which a clip at that peak meets a larger eps than the design's.
 
-The first two print markdown tables and write them with the JSON to --out; `plot` draws what --out
-holds into DIR/results-eps.png (readout distortion and accuracy against insertion loss).
+`cv`: speaker-fold cross-validation on CORPUS as `scripts/results_front.py` does it (the 8x3
+mass-spring features of every clip; per fold the SVM on the training folds, C chosen on the
+next fold, its heads designed at each eps), the whole network, plain and buffered, simulated
+on --test clips of the held-out fold: balanced accuracies with speaker-bootstrap standard
+errors, the change against the first eps paired on the same clips (same bootstrap draws) and
+the insertion loss (median).
+
+The first two and `cv` print markdown tables and write them with the JSON to --out; `plot`
+draws what --out holds into DIR/results-eps.png (readout distortion and accuracy against
+insertion loss).
 """
 
 from __future__ import annotations
@@ -184,6 +193,99 @@ def accuracy(args) -> None:
                                        "seconds": time.time() - start})
 
 
+def crossval(args) -> None:
+    """The 8x3 network plain and buffered at each eps, cross-validated over speakers."""
+    from springc.kws.data.task import open_task_data, task_weights
+    from springc.kws.evaluation import crossval as cv
+    from springc.kws.evaluation import evaluate as ev
+    from springc.kws.features.digital import FeatureSettings
+    from springc.kws.features.distributed import session
+    from springc.kws.features.integration import Integration
+    from springc.kws.training.svm import SVM_GRID, fit_linear, select
+    from springc.kws.training.train import feature_matrices
+
+    start = time.time()
+    if args.mvm_stiffness != 1.0:
+        stiffer_mvms(args.mvm_stiffness)
+    clips = open_task_data(args.data, "kws12", 0, "lists").clips
+    y = np.array([c.label for c in clips])
+    groups = cv.speaker_groups(clips)
+    fold = cv.speaker_folds(groups, args.folds)
+    weight = task_weights("kws12")
+    plan = Integration(args.method, args.substeps, "float64")
+    buffers = ([] if args.no_plain else [None]) + args.buffer
+    outcome = {(label(b and b.to_dict()), eps): {"test": [], "ok": [], "loss": []}
+               for b in buffers for eps in args.eps}
+    with session(None, args.jobs):
+        s, _, ref = msp.integrated(msp.physical_settings(FeatureSettings(bins=8, delays=3),
+                                                         None), clips, 1e-3)
+        x = feature_matrices(clips, "cv", "mass-spring", [s], noise_files=[], jobs=args.jobs,
+                             use_cache=True)[0]
+        for k in range(args.folds):
+            nxt = (k + 1) % args.folds
+            inner, val = (fold != k) & (fold != nxt), fold == nxt
+            _, c, _ = select(x[inner], y[inner], x[val], y[val], "svm", SVM_GRID, 1, weight,
+                             score=cv.balanced_score)
+            model = fit_linear(x[fold != k], y[fold != k], c, "svm", weight)
+            test = np.sort(np.random.default_rng(k).permutation(
+                np.flatnonzero(fold == k))[:args.test])
+            signals = msp.load_signals([clips[i] for i in test], False, 0, [])
+            for buffer in buffers:
+                for eps in args.eps:
+                    heads = tb.rescaled(tr.heads_for([(tuple(model.classes), model)], s,
+                                                     tb.amplitude(buffer, ref.amplitude), eps),
+                                        buffer)
+                    net = load_text(tr.classifier_text(heads, s, epsilon=eps, buffer=buffer),
+                                    f"<eps {eps:g}>")
+                    d, loss, _ = ev.simulate_network(net, heads, s, signals, jobs=args.jobs,
+                                                     plan=plan)
+                    row = outcome[(label(buffer and buffer.to_dict()), eps)]
+                    row["test"] += test.tolist()
+                    row["ok"] += (model.classes[d.argmax(1)] == y[test]).tolist()
+                    row["loss"] += loss.tolist()
+                    print(f"fold {k} {label(buffer and buffer.to_dict())} eps {eps:g}: "
+                          f"{np.mean(row['ok'][-len(test):]):.3f}, {np.median(loss):.1f} dB "
+                          f"({time.time() - start:.0f} s)", flush=True)
+    rows = cv_rows(outcome, y, groups)
+    text = cv_table(rows, args)
+    print(text)
+    write(args.out, "cv", text, {"data": str(args.data), "rows": rows, "plan": plan.describe(),
+                                 "seconds": time.time() - start})
+
+
+def cv_rows(outcome: dict, y: np.ndarray, groups: np.ndarray) -> list[dict]:
+    """Per network and eps: balanced accuracy, its speaker-bootstrap SE, the paired change
+    against the network's first eps (the same draws) and the median insertion loss."""
+    from springc.kws.evaluation import crossval as cv
+
+    rows, firsts = [], {}
+    for (name, eps), r in outcome.items():
+        idx, ok = np.array(r["test"]), np.array(r["ok"], float)
+        first = firsts.setdefault(name, ok)
+        boot = cv.speaker_bootstrap(y[idx], {"a": ok, "f": first}, groups[idx], resamples=1000)
+        rows.append({"network": name, "eps": eps, "clips": len(idx),
+                     "accuracy": cv.balanced_accuracy(y[idx], ok), "se": float(boot["a"].std()),
+                     "paired": cv.balanced_accuracy(y[idx], ok)
+                     - cv.balanced_accuracy(y[idx], first),
+                     "paired_se": float((boot["a"] - boot["f"]).std()),
+                     "loss_db": float(np.median(r["loss"]))})
+    return rows
+
+
+def cv_table(rows: list[dict], args) -> str:
+    """The cross-validated rows as markdown (accuracies in %)."""
+    out = [f"{args.folds}-fold speaker cross-validation, {args.test} test clips per fold, "
+           f"whole network {args.method} x{args.substeps} float64"
+           + (f", mvm stiffness x{args.mvm_stiffness:g}" if args.mvm_stiffness != 1 else "")
+           + ":", "",
+           "| network | eps | clips | accuracy % | change vs first eps (paired) "
+           "| insertion loss dB (median) |", "|---|---|---|---|---|---|"]
+    out += [f"| {r['network']} | {r['eps']:g} | {r['clips']} | {r['accuracy']:.1f} +- "
+            f"{r['se']:.1f} | {r['paired']:+.1f} +- {r['paired_se']:.1f} | {r['loss_db']:.1f} |"
+            for r in rows]
+    return "\n".join(out)
+
+
 def peaks(args) -> None:
     """The spread of the clips' peak terminal displacement over the model's amplitude A."""
     from springc.kws.data.dataset import open_dataset
@@ -281,16 +383,25 @@ def main() -> None:
     pk.add_argument("--model", type=Path, required=True)
     pk.add_argument("--clips", type=int, default=96)
     pk.add_argument("--out", type=Path, default=Path("eps-out"))
+    cvp = sub.add_parser("cv")
+    cvp.add_argument("--data", type=Path, required=True)
+    cvp.add_argument("--folds", type=int, default=3)
+    cvp.add_argument("--test", type=int, default=100, help="test clips per held-out fold")
+    cvp.add_argument("-j", "--jobs", type=int, default=2)
+    cvp.add_argument("--no-plain", action="store_true", help="only the buffered networks")
+    cvp.add_argument("--method", default="exp-rk4")
+    cvp.add_argument("--substeps", type=int, default=4)
     pl = sub.add_parser("plot")
     pl.add_argument("--out", type=Path, default=Path("eps-out"))
-    for p in (st, acc):
+    for p in (st, acc, cvp):
         p.add_argument("--eps", type=float, nargs="+", default=[1e-6, 1e-2, 1e-1, 1.0])
         p.add_argument("--buffer", type=parse_buffer, action="append", default=[])
         p.add_argument("--mvm-stiffness", type=float, default=1.0,
                        help="the heads' mvm stiffness d over its default (not the ideal's)")
         p.add_argument("--out", type=Path, default=Path("eps-out"))
     args = ap.parse_args()
-    {"stages": stages, "accuracy": accuracy, "peaks": peaks, "plot": plot}[args.what](args)
+    {"stages": stages, "accuracy": accuracy, "peaks": peaks, "cv": crossval,
+     "plot": plot}[args.what](args)
 
 
 if __name__ == "__main__":

@@ -3,7 +3,8 @@
     python scripts/results_eps.py stages --data CORPUS [--clips 2] [--buffer KB,KG ...]
     python scripts/results_eps.py accuracy --model MODEL [--buffer KB,KG ...]
     python scripts/results_eps.py peaks --model MODEL [--clips 96]
-    python scripts/results_eps.py cv --data CORPUS [--buffer KB,KG ...] [--test 100]
+    python scripts/results_eps.py cv --data CORPUS [--size 8x3] [--buffer KB,KG ...]
+    python scripts/results_eps.py fig8 --runs DIR [DIR ...] --png PNG
     python scripts/results_eps.py plot --out DIR
 
 `stages`: the whole classifier (stand-in heads, as `scripts/results_stages.py` builds it) on
@@ -24,12 +25,14 @@ clips of the reference run is the heads' amplitude A) on --clips training clips 
 random (seed 0) from MODEL's corpus, as percentiles over the model's A and the factor
 (peak / A)^2 by which a clip at that peak meets a larger eps than the design's.
 
-`cv`: speaker-fold cross-validation on CORPUS as `scripts/results_front.py` does it (the 8x3
-mass-spring features of every clip; per fold the SVM on the training folds, C chosen on the
-next fold, its heads designed at each eps), the whole network, plain and buffered, simulated
-on --test clips of the held-out fold: balanced accuracies with speaker-bootstrap standard
-errors, the change against the first eps paired on the same clips (same bootstrap draws) and
-the insertion loss (median).
+`cv`: speaker-fold cross-validation on CORPUS as `scripts/results_front.py` does it (the
+mass-spring features of every clip for --size and the compressors' threshold --threshold; per
+fold the SVM on the training folds, C chosen on the next fold, its heads designed at each eps),
+the whole network, plain and buffered, simulated on --test clips of the held-out fold: balanced
+accuracies with speaker-bootstrap standard errors, the change against the first eps paired on
+the same clips (same bootstrap draws) and the insertion loss (median). `fig8` draws the paper's
+Fig. 8e-f from `cv` runs: accuracy against insertion loss over eps, and at eps = 1 over sizes
+and compression thresholds.
 
 The first two and `cv` print markdown tables and write them with the JSON to --out; `plot`
 draws what --out holds into DIR/results-eps.png (readout distortion and accuracy against
@@ -194,7 +197,7 @@ def accuracy(args) -> None:
 
 
 def crossval(args) -> None:
-    """The 8x3 network plain and buffered at each eps, cross-validated over speakers."""
+    """A size's network plain and buffered at each eps, cross-validated over speakers."""
     from springc.kws.data.task import open_task_data, task_weights
     from springc.kws.evaluation import crossval as cv
     from springc.kws.evaluation import evaluate as ev
@@ -217,8 +220,10 @@ def crossval(args) -> None:
     outcome = {(label(b and b.to_dict()), eps): {"test": [], "ok": [], "loss": []}
                for b in buffers for eps in args.eps}
     with session(None, args.jobs):
-        s, _, ref = msp.integrated(msp.physical_settings(FeatureSettings(bins=8, delays=3),
-                                                         None), clips, 1e-3)
+        bins, delays = (int(v) for v in args.size.split("x"))
+        given = replace(msp.physical_settings(FeatureSettings(bins=bins, delays=delays)),
+                        threshold=args.threshold)
+        s, _, ref = msp.integrated(msp.physical_settings(None, given), clips, 1e-3)
         x = feature_matrices(clips, "cv", "mass-spring", [s], noise_files=[], jobs=args.jobs,
                              use_cache=True)[0]
         for k in range(args.folds):
@@ -228,7 +233,7 @@ def crossval(args) -> None:
                              score=cv.balanced_score)
             model = fit_linear(x[fold != k], y[fold != k], c, "svm", weight)
             test = np.sort(np.random.default_rng(k).permutation(
-                np.flatnonzero(fold == k))[:args.test])
+                np.flatnonzero(fold == k))[:args.test or None])
             signals = msp.load_signals([clips[i] for i in test], False, 0, [])
             for buffer in buffers:
                 for eps in args.eps:
@@ -249,12 +254,15 @@ def crossval(args) -> None:
     rows = cv_rows(outcome, y, groups)
     text = cv_table(rows, args)
     print(text)
-    write(args.out, "cv", text, {"data": str(args.data), "rows": rows, "plan": plan.describe(),
-                                 "seconds": time.time() - start})
+    name = f"cv-{args.size}-ac{args.threshold:g}"
+    write(args.out, name, text, {"data": str(args.data), "size": args.size,
+                                 "threshold": args.threshold, "rows": rows,
+                                 "mvm_stiffness": args.mvm_stiffness,
+                                 "plan": plan.describe(), "seconds": time.time() - start})
 
 
 def cv_rows(outcome: dict, y: np.ndarray, groups: np.ndarray) -> list[dict]:
-    """Per network and eps: balanced accuracy, its speaker-bootstrap SE, the paired change
+    """Per network and eps (in %): balanced accuracy, its speaker-bootstrap SE, the paired change
     against the network's first eps (the same draws) and the median insertion loss."""
     from springc.kws.evaluation import crossval as cv
 
@@ -263,19 +271,19 @@ def cv_rows(outcome: dict, y: np.ndarray, groups: np.ndarray) -> list[dict]:
         idx, ok = np.array(r["test"]), np.array(r["ok"], float)
         first = firsts.setdefault(name, ok)
         boot = cv.speaker_bootstrap(y[idx], {"a": ok, "f": first}, groups[idx], resamples=1000)
-        rows.append({"network": name, "eps": eps, "clips": len(idx),
-                     "accuracy": cv.balanced_accuracy(y[idx], ok), "se": float(boot["a"].std()),
-                     "paired": cv.balanced_accuracy(y[idx], ok)
-                     - cv.balanced_accuracy(y[idx], first),
-                     "paired_se": float((boot["a"] - boot["f"]).std()),
+        acc, acc_first = (100 * cv.balanced_accuracy(y[idx], v) for v in (ok, first))
+        rows.append({"network": name, "eps": eps, "clips": len(idx), "accuracy": acc,
+                     "se": 100 * float(boot["a"].std()), "paired": acc - acc_first,
+                     "paired_se": 100 * float((boot["a"] - boot["f"]).std()),
                      "loss_db": float(np.median(r["loss"]))})
     return rows
 
 
 def cv_table(rows: list[dict], args) -> str:
     """The cross-validated rows as markdown (accuracies in %)."""
-    out = [f"{args.folds}-fold speaker cross-validation, {args.test} test clips per fold, "
-           f"whole network {args.method} x{args.substeps} float64"
+    out = [f"{args.size}, compression threshold A_c {args.threshold:g} m: {args.folds}-fold "
+           f"speaker cross-validation, {args.test or 'all'} test clips per fold, whole "
+           f"network {args.method} x{args.substeps} float64"
            + (f", mvm stiffness x{args.mvm_stiffness:g}" if args.mvm_stiffness != 1 else "")
            + ":", "",
            "| network | eps | clips | accuracy % | change vs first eps (paired) "
@@ -360,6 +368,58 @@ def plot(args) -> None:
     print(args.out / "results-eps.png")
 
 
+def figure8(args) -> None:
+    """The paper's Fig. 8e-f from `cv` runs (every cv-*.json under --runs): (e) accuracy
+    against insertion loss over eps, per size and network; (f) at eps = 1, the sizes and the
+    compression thresholds. Prints both tables and writes the PNG to --png."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs = [json.loads(p.read_text()) for d in args.runs for p in sorted(d.glob("cv-*.json"))]
+    rows = [dict(r, size=run["size"], threshold=run["threshold"]) for run in runs
+            for r in run["rows"]]
+    fig, (ax_e, ax_f) = plt.subplots(1, 2, figsize=(11, 4.2))
+    sweep = [r for r in rows if r["threshold"] == msp.MassSpringSettings.threshold]
+    lines = dict.fromkeys((r["size"], r["network"]) for r in sweep
+                          if sum(q["size"] == r["size"] and q["network"] == r["network"]
+                                 for q in sweep) > 1)
+    for size, name in lines:
+        mine = sorted((r for r in sweep if (r["size"], r["network"]) == (size, name)),
+                      key=lambda r: r["eps"])
+        ax_e.errorbar([r["loss_db"] for r in mine], [r["accuracy"] for r in mine],
+                      [r["se"] for r in mine], fmt="o-", capsize=2, label=f"{size} {name}")
+        for r in mine:
+            ax_e.annotate(f"{r['eps']:g}", (r["loss_db"], r["accuracy"]), fontsize=7)
+    ax_e.set_title("(e) eps (points labelled), per size and network")
+    at_one = [r for r in rows if r["eps"] == 1.0 and r["network"] != "plain"]
+    marker = {4: "o", 6: "^", 8: "s"}
+    shades = sorted({r["threshold"] for r in at_one})
+    cmap = plt.get_cmap("viridis", max(len(shades), 2))
+    for r in at_one:
+        bins, delays = (int(v) for v in r["size"].split("x"))
+        ax_f.errorbar(r["loss_db"], r["accuracy"], r["se"], fmt=marker.get(bins, "D"),
+                      ms=8, capsize=2, mfc=cmap(shades.index(r["threshold"])),
+                      mec="black" if delays == 3 else "0.6", ecolor="0.6")
+        ax_f.annotate(f"{r['size']}, A_c {r['threshold']:g}", (r["loss_db"], r["accuracy"]),
+                      fontsize=7)
+    ax_f.set_title("(f) eps = 1, buffered: sizes and compression A_c")
+    for ax in (ax_e, ax_f):
+        ax.set_xlabel("insertion loss (dB, median)")
+        ax.set_ylabel("accuracy % (balanced, speaker-fold CV)")
+    ax_e.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(args.png, dpi=100)
+    table = ["| size | A_c (m) | network | eps | clips | accuracy % | change vs its first eps "
+             "| insertion loss dB |", "|---|---|---|---|---|---|---|---|"]
+    table += [f"| {r['size']} | {r['threshold']:g} | {r['network']} | {r['eps']:g} | "
+              f"{r['clips']} | {r['accuracy']:.1f} +- {r['se']:.1f} | {r['paired']:+.1f} +- "
+              f"{r['paired_se']:.1f} | {r['loss_db']:.1f} |" for r in rows]
+    print("\n".join(table))
+    print(args.png)
+
+
 def write(out: Path, name: str, text: str, data: dict) -> None:
     """OUT/NAME.md and OUT/NAME.json."""
     out.mkdir(parents=True, exist_ok=True)
@@ -385,12 +445,18 @@ def main() -> None:
     pk.add_argument("--out", type=Path, default=Path("eps-out"))
     cvp = sub.add_parser("cv")
     cvp.add_argument("--data", type=Path, required=True)
+    cvp.add_argument("--size", default="8x3", help="bins x delays")
+    cvp.add_argument("--threshold", type=float, default=msp.MassSpringSettings.threshold,
+                     help="the compressors' threshold A_c (m; smaller compresses more)")
     cvp.add_argument("--folds", type=int, default=3)
-    cvp.add_argument("--test", type=int, default=100, help="test clips per held-out fold")
+    cvp.add_argument("--test", type=int, default=100, help="test clips per held-out fold (0: all)")
     cvp.add_argument("-j", "--jobs", type=int, default=2)
     cvp.add_argument("--no-plain", action="store_true", help="only the buffered networks")
     cvp.add_argument("--method", default="exp-rk4")
     cvp.add_argument("--substeps", type=int, default=4)
+    f8 = sub.add_parser("fig8")
+    f8.add_argument("--runs", type=Path, nargs="+", required=True, help="cv --out folders")
+    f8.add_argument("--png", type=Path, default=Path("results-fig8.png"))
     pl = sub.add_parser("plot")
     pl.add_argument("--out", type=Path, default=Path("eps-out"))
     for p in (st, acc, cvp):
@@ -401,7 +467,7 @@ def main() -> None:
         p.add_argument("--out", type=Path, default=Path("eps-out"))
     args = ap.parse_args()
     {"stages": stages, "accuracy": accuracy, "peaks": peaks, "cv": crossval,
-     "plot": plot}[args.what](args)
+     "fig8": figure8, "plot": plot}[args.what](args)
 
 
 if __name__ == "__main__":

@@ -289,8 +289,7 @@ def test_paired_rows_and_the_ceiling_are_timed_in_alternation_least_and_best(mon
     assert "least of 3 re-timings in alternation with the ceiling" in row.note
 
 
-def test_unrecorded_rows_record_nothing_are_rated_and_never_decide_a_claim(
-        monkeypatch, quick_timing):
+def test_unrecorded_rows_record_nothing_are_rated_and_never_decide_a_claim(monkeypatch):
     """A row run without probes: its simulations ask for no probe, it has a throughput and a
     ceiling fraction but no error, is labelled so, and the claims keep using the recorded
     row of the same configuration."""
@@ -302,6 +301,9 @@ def test_unrecorded_rows_record_nothing_are_rated_and_never_decide_a_claim(
         return real(net, inputs, **kw)
 
     monkeypatch.setattr(bs, "simulate", spy)
+    # each row timed MIN_CALLS times; the ceiling and the peak as measured (the fractions of
+    # the peak are checked below 1: a short peak measurement on a busy machine reads low)
+    monkeypatch.setattr(bs, "REPEAT_FOR", 0.0)
     x1 = ("rk4", 1, "float64")
     case = _case(configs=[x1], peers=(), ladder=(), paired=(x1,), unrecorded=(x1,), rounds=2)
     res = bs.run_case(case, progress=lambda m: None)

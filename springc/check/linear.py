@@ -18,6 +18,7 @@ from functools import cache
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
+from threadpoolctl import ThreadpoolController
 
 from springc.check import sparse
 from springc.kernels.integrators import (
@@ -266,24 +267,39 @@ def modes_many(nets: list[FlatNetlist],
     components go together (`sparse.top_many`: a population's points in lockstep)."""
     lins = lins or [None] * len(nets)
     raws, large = [], []
-    for net, lin in zip(nets, lins):
-        lin = lin or linearise(net)
-        count, labels = component_labels(net)
-        raw = _Raw()
-        sizes = np.bincount(labels, minlength=count)
-        # ascending sizes: every dense group comes before the first large component
-        for size in np.unique(sizes):
-            members = np.nonzero(sizes == size)[0]
-            if size <= DENSE_MAX:
-                _dense_group(net, lin, labels, members, int(size), raw)
-            else:
-                large += [_Large.of(net, lin, np.nonzero(labels == comp)[0], raw)
-                          for comp in members]
-        raws.append(raw)
+    with _blas().limit(limits=1, user_api="blas"):
+        for net, lin in zip(nets, lins):
+            raws.append(_dense_modes(net, lin, large))
     tops = sparse.top_many([c.kt for c in large], SPARSE_MODES)
     for comp, top in zip(large, tops):
         _sparse_component(comp, top)
     return [_assemble(raw, net.nodes) for raw, net in zip(raws, nets)]
+
+
+@cache
+def _blas() -> ThreadpoolController:
+    """The process's BLAS thread pools. The dense eigensolves here are of at most 2 DENSE_MAX
+    rows, where BLAS threads gain nothing, and on cores that Dask workers or numba threads
+    keep busy OpenBLAS's spinning threads cost a hundredfold: 2.2 s instead of 0.024 s for
+    the 280-row eig of a tuned 4x2 classifier (docs/performance.md)."""
+    return ThreadpoolController()
+
+
+def _dense_modes(net: FlatNetlist, lin: Linearisation | None, large: list) -> _Raw:
+    """The modes of a netlist's small components; its large ones appended to `large`."""
+    lin = lin or linearise(net)
+    count, labels = component_labels(net)
+    raw = _Raw()
+    sizes = np.bincount(labels, minlength=count)
+    # ascending sizes: every dense group comes before the first large component
+    for size in np.unique(sizes):
+        members = np.nonzero(sizes == size)[0]
+        if size <= DENSE_MAX:
+            _dense_group(net, lin, labels, members, int(size), raw)
+        else:
+            large += [_Large.of(net, lin, np.nonzero(labels == comp)[0], raw)
+                      for comp in members]
+    return raw
 
 
 def _blocks(mat: sp.csr_matrix, nodes: np.ndarray) -> np.ndarray:

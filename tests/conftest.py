@@ -4,7 +4,7 @@
 of their own, so OpenBLAS's default of a thread per core puts several busy threads on each
 core: its threads spin between calls and the other worker waits. A dense eigensolve of the
 checks took 2.2 s instead of 0.024 s that way (docs/performance.md, "BLAS threads in the test
-run"). The environment variables reach the processes the tests start; numpy is already loaded
+run"). The environment variable reaches the processes the tests start; numpy is already loaded
 here, so its thread pool is limited directly as well.
 """
 
@@ -12,6 +12,5 @@ import os
 
 from threadpoolctl import threadpool_limits
 
-for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_name, "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # numpy's BLAS; numba's threads stay
 threadpool_limits(limits=1, user_api="blas")

@@ -71,7 +71,8 @@ def parse_buffer(text: str) -> tb.TapBuffer:
 
 def network(heads, s, eps, buffer):
     """The checked classifier at eps, plain (buffer None) or buffered."""
-    text = tr.classifier_text(heads, s, epsilon=eps, buffer=buffer)
+    text = tr.classifier_text(heads, s, epsilon=eps, buffer=buffer,
+                              mvm_stiffness=MVM["stiffness"])
     return check(load_text(text, f"<eps {eps:g}>"))
 
 
@@ -98,16 +99,13 @@ def stage_run(s, base_heads, signals, eps, amplitude, buffer):
     return out, tr.insertion_loss_db(res.reductions, heads)
 
 
+MVM = {"stiffness": 1.0}  # the heads' mvm stiffness over its default (--mvm-stiffness)
+
+
 def stiffer_mvms(factor: float) -> None:
     """Every head's mvm designed with `factor` times the default stiffness d (its stiff modes
-    sqrt(factor) higher): for the experiment only, by wrapping transfer's design_mvm."""
-    from springc.design import mvm
-
-    def design(q, *, m, b, kc):
-        return mvm.design_mvm(q, m=m, b=b, kc=kc,
-                              stiffness=factor * mvm.DEFAULT_STIFFNESS_RATIO * kc)
-
-    tr.design_mvm = design
+    sqrt(factor) higher; `transfer.classifier_text`'s mvm_stiffness)."""
+    MVM["stiffness"] = factor
 
 
 def stages(args) -> None:
@@ -174,7 +172,8 @@ def accuracy(args) -> None:
             for eps in args.eps:
                 heads = tb.rescaled(tr.heads_for(model.models, s,
                                                  tb.amplitude(buffer, amplitude), eps), buffer)
-                net = load_text(tr.classifier_text(heads, s, epsilon=eps, buffer=buffer),
+                net = load_text(tr.classifier_text(heads, s, epsilon=eps, buffer=buffer,
+                                                   mvm_stiffness=MVM["stiffness"]),
                                 f"<eps {eps:g}>")
                 plan = ev.model_integration(model)
                 if args.substeps:  # a stiffer buffer than the model's step allows
@@ -240,7 +239,9 @@ def crossval(args) -> None:
                     heads = tb.rescaled(tr.heads_for([(tuple(model.classes), model)], s,
                                                      tb.amplitude(buffer, ref.amplitude), eps),
                                         buffer)
-                    net = load_text(tr.classifier_text(heads, s, epsilon=eps, buffer=buffer),
+                    net = load_text(tr.classifier_text(heads, s, epsilon=eps,
+                                                       buffer=buffer,
+                                                       mvm_stiffness=MVM["stiffness"]),
                                     f"<eps {eps:g}>")
                     d, loss, _ = ev.simulate_network(net, heads, s, signals, jobs=args.jobs,
                                                      plan=plan)

@@ -95,3 +95,17 @@ def test_buffered_classifier_passes_checks():
 def test_bad_buffer_refused():
     with pytest.raises(ValueError, match="kb > 0"):
         tb.TapBuffer(0.0, 1.0)
+
+
+def test_mvm_stiffness_scales_the_heads_stiff_modes():
+    """`mvm_stiffness` multiplies the mvms' stiffness d: their stiff modes, the network's
+    fastest, go up by its square root (omega^2 by 10 within the lines' share), the modes of
+    the rest stay as many."""
+    from springc.check import linear
+
+    heads = tr.stand_in_heads(S, rows=2)
+    plain, stiff = (linear.modes(load_text(tr.classifier_text(heads, S, epsilon=1.0,
+                                                                mvm_stiffness=f), "<c>"))
+                    for f in (1.0, 10.0))
+    assert stiff.omega_max**2 / plain.omega_max**2 == pytest.approx(10.0, rel=1e-3)
+    assert len(stiff) == len(plain)

@@ -36,7 +36,7 @@ import numpy as np
 
 from springc.design.blocks import readout_params
 from springc.design.emit import SprWriter, num
-from springc.design.mvm import design_mvm, mvm_text
+from springc.design.mvm import DEFAULT_STIFFNESS_RATIO, design_mvm, mvm_text
 from springc.design.squaring import leverage_for
 from springc.errors import UsageError
 from springc.kws.features import integration
@@ -130,12 +130,15 @@ def heads_for(models, s: msp.MassSpringSettings, amplitude: float,
     return out
 
 
-def head_text(k: int, head: Head, s: msp.MassSpringSettings, heads: int) -> str:
+def head_text(k: int, head: Head, s: msp.MassSpringSettings, heads: int,
+              mvm_stiffness: float = 1.0) -> str:
     """`.subckt mvm{k}` (encoding Q^T) and `.subckt head{k} f0 .. f{N-1} r`: the mvm on the
-    terminals, the quadratic couplings and the readout."""
+    terminals, the quadratic couplings and the readout. `mvm_stiffness` multiplies the mvm's
+    stiffness d (`springc.design.mvm`'s default: DEFAULT_STIFFNESS_RATIO kc)."""
     n = s.bins * s.delays
+    kc = s.kc / heads
     design = design_mvm(head.q.T, m=s.site_mass() / (2 * heads), b=s.line_damping() / heads,
-                        kc=s.kc / heads)
+                        kc=kc, stiffness=mvm_stiffness * DEFAULT_STIFFNESS_RATIO * kc)
     mvm = mvm_text(design, source=f"the eigenvectors of C for {head.name}")
     mvm = mvm.replace("\n.subckt mvm ", f"\n.subckt mvm{k} ").replace(".ends mvm", f".ends mvm{k}")
     w = SprWriter()
@@ -155,12 +158,15 @@ def head_text(k: int, head: Head, s: msp.MassSpringSettings, heads: int) -> str:
 
 def classifier_text(heads: list[Head], s: msp.MassSpringSettings, include_heads: bool = True,
                     epsilon: float | None = None,
-                    buffer: tapbuffer.TapBuffer | None = None) -> str:
+                    buffer: tapbuffer.TapBuffer | None = None,
+                    mvm_stiffness: float = 1.0) -> str:
     """The whole classifier: the shared front end with every head on its terminal nodes.
     With `include_heads`, the heads' text follows inline (one self-contained netlist);
     otherwise `.include "head{k}.spr"` lines name the files `write_classifier` writes.
     With a `buffer`, the heads sit on buffer nodes instead (`springc.kws.training.tapbuffer`;
-    the heads designed for its amplitude)."""
+    the heads designed for its amplitude); `mvm_stiffness` multiplies the heads' mvm
+    stiffness (the design stable to eps = 1 of docs/results-eps.md: a buffer of kb 6e-5 kc,
+    kg 1e4 kc and mvm_stiffness 10)."""
     s.validate()
     w = SprWriter()
     w.title(f"mass-spring keyword spotter, {s.bins} bins x {s.delays} delays, "
@@ -189,7 +195,8 @@ def classifier_text(heads: list[Head], s: msp.MassSpringSettings, include_heads:
     msp.tran(w, s)
     text = w.text()
     if include_heads:
-        text += "\n" + "\n".join(head_text(k, h, s, len(heads)) for k, h in enumerate(heads))
+        text += "\n" + "\n".join(head_text(k, h, s, len(heads), mvm_stiffness)
+                                 for k, h in enumerate(heads))
     return text
 
 

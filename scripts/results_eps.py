@@ -5,6 +5,7 @@
     python scripts/results_eps.py peaks --model MODEL [--clips 96]
     python scripts/results_eps.py cv --data CORPUS [--size 8x3] [--buffer KB,KG ...]
     python scripts/results_eps.py fig8 --runs DIR [DIR ...] --png PNG
+    python scripts/results_eps.py integration --data CORPUS [--buffer KB,KG] [--mvm-stiffness 10]
     python scripts/results_eps.py plot --out DIR
 
 `stages`: the whole classifier (stand-in heads, as `scripts/results_stages.py` builds it) on
@@ -32,7 +33,8 @@ the whole network, plain and buffered, simulated on --test clips of the held-out
 accuracies with speaker-bootstrap standard errors, the change against the first eps paired on
 the same clips (same bootstrap draws) and the insertion loss (median). `fig8` draws the paper's
 Fig. 8e-f from `cv` runs: accuracy against insertion loss over eps, and at eps = 1 over sizes
-and compression thresholds.
+and compression thresholds. `integration`: the error of the `cv` step on the buffered
+network.
 
 The first two and `cv` print markdown tables and write them with the JSON to --out; `plot`
 draws what --out holds into DIR/results-eps.png (readout distortion and accuracy against
@@ -295,6 +297,36 @@ def cv_table(rows: list[dict], args) -> str:
     return "\n".join(out)
 
 
+def integration_error(args) -> None:
+    """The buffered 8x3 classifier at the largest --eps (stand-in heads) on 16 clips of
+    CORPUS: the readouts of exp-rk4 x4 (the `cv` step) and of finer steps against RK4 x16,
+    in float64, relative to each clip's largest readout."""
+    from springc.kws.data.task import open_task_data
+    from springc.kws.features.integration import Integration
+
+    stiffer_mvms(args.mvm_stiffness)
+    clips = open_task_data(args.data, "kws12", 0, "lists").clips
+    signals = msp.load_signals(clips[:400:25], False, 0, [])
+    s = msp.MassSpringSettings(bins=8, delays=3)
+    buffer = args.buffer[0] if args.buffer else tb.TapBuffer(6e-5, 1e4)
+    heads = tb.rescaled(tr.stand_in_heads(s, rows=12), buffer)
+    checked = network(heads, s, max(args.eps), buffer)
+    specs = [f"final:x(r{k})" for k in range(len(heads))]
+    tstop = msp.horizon(s, signals.shape[1] / msp.INPUT_RATE)
+
+    def readouts(method: str, substeps: int) -> np.ndarray:
+        red = tr.classifier_batch(signals, checked, specs, tstop,
+                                  Integration(method, substeps, "float64"))
+        return np.stack([red[k] for k in specs], axis=1)
+
+    ref = readouts("rk4", 16)
+    for method, substeps in (("exp-rk4", 4), ("exp-rk4", 8), ("rk4", 8)):
+        err = (np.abs(readouts(method, substeps) - ref).max(axis=1)
+               / np.abs(ref).max(axis=1))
+        print(f"{method} x{substeps} float64 against rk4 x16: readout error max "
+              f"{err.max():.2e}, median {np.median(err):.2e} ({len(err)} clips)", flush=True)
+
+
 def peaks(args) -> None:
     """The spread of the clips' peak terminal displacement over the model's amplitude A."""
     from springc.kws.data.dataset import open_dataset
@@ -455,12 +487,14 @@ def main() -> None:
     cvp.add_argument("--no-plain", action="store_true", help="only the buffered networks")
     cvp.add_argument("--method", default="exp-rk4")
     cvp.add_argument("--substeps", type=int, default=4)
+    ie = sub.add_parser("integration")
+    ie.add_argument("--data", type=Path, required=True)
     f8 = sub.add_parser("fig8")
     f8.add_argument("--runs", type=Path, nargs="+", required=True, help="cv --out folders")
     f8.add_argument("--png", type=Path, default=Path("results-fig8.png"))
     pl = sub.add_parser("plot")
     pl.add_argument("--out", type=Path, default=Path("eps-out"))
-    for p in (st, acc, cvp):
+    for p in (st, acc, cvp, ie):
         p.add_argument("--eps", type=float, nargs="+", default=[1e-6, 1e-2, 1e-1, 1.0])
         p.add_argument("--buffer", type=parse_buffer, action="append", default=[])
         p.add_argument("--mvm-stiffness", type=float, default=1.0,
@@ -468,7 +502,7 @@ def main() -> None:
         p.add_argument("--out", type=Path, default=Path("eps-out"))
     args = ap.parse_args()
     {"stages": stages, "accuracy": accuracy, "peaks": peaks, "cv": crossval,
-     "fig8": figure8, "plot": plot}[args.what](args)
+     "integration": integration_error, "fig8": figure8, "plot": plot}[args.what](args)
 
 
 if __name__ == "__main__":

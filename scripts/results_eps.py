@@ -71,11 +71,17 @@ def parse_buffer(text: str) -> tb.TapBuffer:
     return tb.TapBuffer(kb, kg)
 
 
-def network(heads, s, eps, buffer):
-    """The checked classifier at eps, plain (buffer None) or buffered."""
+def classifier(heads, s, eps, buffer):
+    """The classifier netlist at eps, plain (buffer None) or buffered, the heads' mvms at
+    MVM's stiffness."""
     text = tr.classifier_text(heads, s, epsilon=eps, buffer=buffer,
                               mvm_stiffness=MVM["stiffness"])
-    return check(load_text(text, f"<eps {eps:g}>"))
+    return load_text(text, f"<eps {eps:g}>")
+
+
+def network(heads, s, eps, buffer):
+    """The checked classifier at eps, plain (buffer None) or buffered."""
+    return check(classifier(heads, s, eps, buffer))
 
 
 def stage_run(s, base_heads, signals, eps, amplitude, buffer):
@@ -118,8 +124,7 @@ def stages(args) -> None:
     base = tr.stand_in_heads(s)
     ideal, _ = stage_run(s, base, signals, rs.EPS_IDEAL, 1.0, None)
     amplitude = float(np.median(np.abs(ideal["delay taps"]).max(axis=(0, 2))))
-    if args.mvm_stiffness != 1.0:
-        stiffer_mvms(args.mvm_stiffness)
+    stiffer_mvms(args.mvm_stiffness)
     rows = []
     for buffer in ([] if args.no_plain else [None]) + args.buffer:
         for eps in args.eps:
@@ -155,8 +160,7 @@ def accuracy(args) -> None:
     from springc.kws.training.model import load_model
 
     start = time.time()
-    if args.mvm_stiffness != 1.0:
-        stiffer_mvms(args.mvm_stiffness)
+    stiffer_mvms(args.mvm_stiffness)
     model = load_model(args.model)
     s, _ = tr.model_heads(model)
     amplitude = float(model.settings["transfer"]["amplitude"])
@@ -174,9 +178,7 @@ def accuracy(args) -> None:
             for eps in args.eps:
                 heads = tb.rescaled(tr.heads_for(model.models, s,
                                                  tb.amplitude(buffer, amplitude), eps), buffer)
-                net = load_text(tr.classifier_text(heads, s, epsilon=eps, buffer=buffer,
-                                                   mvm_stiffness=MVM["stiffness"]),
-                                f"<eps {eps:g}>")
+                net = classifier(heads, s, eps, buffer)
                 plan = ev.model_integration(model)
                 if args.substeps:  # a stiffer buffer than the model's step allows
                     plan = replace(plan, substeps=args.substeps)
@@ -205,12 +207,11 @@ def crossval(args) -> None:
     from springc.kws.features.digital import FeatureSettings
     from springc.kws.features.distributed import session
     from springc.kws.features.integration import Integration
-    from springc.kws.training.svm import SVM_GRID, fit_linear, select
+    from springc.kws.training.svm import SVM_GRID
     from springc.kws.training.train import feature_matrices
 
     start = time.time()
-    if args.mvm_stiffness != 1.0:
-        stiffer_mvms(args.mvm_stiffness)
+    stiffer_mvms(args.mvm_stiffness)
     clips = open_task_data(args.data, "kws12", 0, "lists").clips
     y = np.array([c.label for c in clips])
     groups = cv.speaker_groups(clips)
@@ -228,11 +229,7 @@ def crossval(args) -> None:
         x = feature_matrices(clips, "cv", "mass-spring", [s], noise_files=[], jobs=args.jobs,
                              use_cache=True)[0]
         for k in range(args.folds):
-            nxt = (k + 1) % args.folds
-            inner, val = (fold != k) & (fold != nxt), fold == nxt
-            _, c, _ = select(x[inner], y[inner], x[val], y[val], "svm", SVM_GRID, 1, weight,
-                             score=cv.balanced_score)
-            model = fit_linear(x[fold != k], y[fold != k], c, "svm", weight)
+            model, _ = cv.fold_model(x, y, fold, k, SVM_GRID, weight)
             test = np.sort(np.random.default_rng(k).permutation(
                 np.flatnonzero(fold == k))[:args.test or None])
             signals = msp.load_signals([clips[i] for i in test], False, 0, [])
@@ -241,17 +238,15 @@ def crossval(args) -> None:
                     heads = tb.rescaled(tr.heads_for([(tuple(model.classes), model)], s,
                                                      tb.amplitude(buffer, ref.amplitude), eps),
                                         buffer)
-                    net = load_text(tr.classifier_text(heads, s, epsilon=eps,
-                                                       buffer=buffer,
-                                                       mvm_stiffness=MVM["stiffness"]),
-                                    f"<eps {eps:g}>")
-                    d, loss, _ = ev.simulate_network(net, heads, s, signals, jobs=args.jobs,
+                    d, loss, _ = ev.simulate_network(classifier(heads, s, eps, buffer),
+                                                     heads, s, signals, jobs=args.jobs,
                                                      plan=plan)
-                    row = outcome[(label(buffer and buffer.to_dict()), eps)]
+                    name = label(buffer and buffer.to_dict())
+                    row = outcome[(name, eps)]
                     row["test"] += test.tolist()
                     row["ok"] += (model.classes[d.argmax(1)] == y[test]).tolist()
                     row["loss"] += loss.tolist()
-                    print(f"fold {k} {label(buffer and buffer.to_dict())} eps {eps:g}: "
+                    print(f"fold {k} {name} eps {eps:g}: "
                           f"{np.mean(row['ok'][-len(test):]):.3f}, {np.median(loss):.1f} dB "
                           f"({time.time() - start:.0f} s)", flush=True)
     rows = cv_rows(outcome, y, groups)

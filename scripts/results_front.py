@@ -35,7 +35,7 @@ from springc.kws.training import transfer as tr
 from springc.kws.features.digital import FeatureSettings
 from springc.kws.features.distributed import session
 from springc.kws.features.massspring import integrated, load_signals, physical_settings
-from springc.kws.training.svm import SVM_GRID, fit_linear, select
+from springc.kws.training.svm import SVM_GRID
 from springc.kws.data.task import open_task_data, task_weights
 from springc.kws.training.train import feature_matrices
 from springc.lang import load_text
@@ -91,9 +91,7 @@ def size_run(args, clips, y, fold, groups, bins: int, delays: int, eps_list) -> 
     for k in range(k_folds):
         nxt = (k + 1) % k_folds
         inner, val = (fold != k) & (fold != nxt), fold == nxt
-        _, c, _ = select(x[inner], y[inner], x[val], y[val], "svm", SVM_GRID, 1, weight,
-                         score=cv.balanced_score)
-        model = fit_linear(x[fold != k], y[fold != k], c, "svm", weight)
+        model, _ = cv.fold_model(x, y, fold, k, SVM_GRID, weight)
         models = [(tuple(model.classes), model)]
         test = draw(np.flatnonzero(fold == k), args.test, k)
         fit_idx = draw(np.flatnonzero(inner), args.refit, 100 + k)

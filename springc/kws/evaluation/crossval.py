@@ -111,21 +111,28 @@ def balanced_score(model, x: np.ndarray, y: np.ndarray) -> float:
     return balanced_accuracy(y, model.predict(x) == y)
 
 
+def fold_model(x: np.ndarray, y: np.ndarray, fold: np.ndarray, k: int,
+               grid: tuple[float, ...], class_weight: str | None, jobs: int = 1):
+    """The SVM of held-out fold k and its C: C chosen on fold k+1 by balanced accuracy among
+    models fitted on the other folds (`svm.select`; ties: the smaller C), then the model
+    fitted on every fold but k. `jobs` threads fit the grid."""
+    k_folds = int(fold.max()) + 1
+    inner, val = (fold != k) & (fold != (k + 1) % k_folds), fold == (k + 1) % k_folds
+    _, c, _ = select(x[inner], y[inner], x[val], y[val], "svm", grid, jobs, class_weight,
+                     score=balanced_score)
+    return fit_linear(x[fold != k], y[fold != k], c, "svm", class_weight), c
+
+
 def fold_predictions(x: np.ndarray, y: np.ndarray, fold: np.ndarray,
                      grid: tuple[float, ...], class_weight: str | None,
                      jobs: int = 1) -> tuple[np.ndarray, list]:
-    """Prediction per clip from the model of its fold, and the C chosen per fold (on fold
-    k+1, by balanced accuracy, with `svm.select`; ties: the smaller C). `jobs` threads fit
-    the grid."""
-    k_folds = int(fold.max()) + 1
+    """Prediction per clip from the model of its fold (`fold_model`), and the C chosen per
+    fold."""
     pred = np.empty(len(y), dtype=object)
     chosen = []
-    for k in range(k_folds):
-        inner, val = (fold != k) & (fold != (k + 1) % k_folds), fold == (k + 1) % k_folds
-        _, c, _ = select(x[inner], y[inner], x[val], y[val], "svm", grid, jobs, class_weight,
-                         score=balanced_score)
+    for k in range(int(fold.max()) + 1):
+        model, c = fold_model(x, y, fold, k, grid, class_weight, jobs)
         chosen.append(c)
-        model = fit_linear(x[fold != k], y[fold != k], c, "svm", class_weight)
         pred[fold == k] = model.predict(x[fold == k])
     return pred.astype(str), chosen
 

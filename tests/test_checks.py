@@ -195,6 +195,29 @@ def test_a_negative_spring_hidden_by_a_squarer_is_found_by_the_search() -> None:
     assert "not bounded below" in _errors(net)[0]
 
 
+@pytest.mark.parametrize("c, factors, visible", [
+    (0.3, [("x1", 2), ("x2", 2)], True),  # a square: >= 0 wherever it is
+    (0.3, [("x2", 4)], True),
+    (-0.3, [("x1", 2), ("x2", 2)], False),  # negative: only the search can tell
+    (0.3, [("x1", 2), ("x2", 1)], False),  # an odd exponent changes sign
+])
+def test_squares_of_higher_degree_are_bounded_without_a_search(c, factors, visible) -> None:
+    """With the squarer's PSD quadratic part (c = -0.004 above), a P term that is a square
+    keeps V >= 0: the shortcut accepts it, and the search that it saves finds no descent
+    either. Signed and odd terms are left to the search."""
+    def build(b):
+        b.spring("K1", "x1", 1.0)
+        b.spring("K2", "x2", 0.01)
+        b.quad("Q1", "x1", "x2", 2.0, 1.0)
+        b.monomial("P1", -0.004, [("x2", 2)])
+        b.monomial("P2", c, factors, loc=_loc(12))
+    net = _two(build)
+    lin = _hessian_at_rest(net)
+    labels = np.zeros(net.n, np.int64)
+    assert checks._visibly_bounded(net, lin, labels, 0, np.arange(net.n)) is visible
+    if visible:
+        assert checks._escape(net, lin, labels, 0) is None
+
 def _hessian_at_rest(net):
     """The Hessian of V at rest, as the checks build it."""
     from springc.check import linear

@@ -313,13 +313,17 @@ def _component_potential(net, lin, labels: np.ndarray, comp: int) -> tuple[str, 
 
 def _visibly_bounded(net, hess, labels: np.ndarray, comp: int, nodes: np.ndarray) -> bool:
     """True when V >= 0 is evident, so no search is needed: every P term of the component is
-    quadratic, and the Hessian without the Q elements' share (g a on x_j) is PSD. Then
-    V = 1/2 x.K'x + the Q and D potentials, each >= 0 by the sign rules (g/(2a)(x_i^2 -
-    a x_j)^2, l/4 x^4); a network of designed zero modes, such as the classifier's
-    multipliers, passes here instead of in a search over its hundreds of variables."""
+    quadratic or a square (a positive coefficient, every exponent even), and the Hessian
+    without the Q elements' share (g a on x_j) is PSD. Then V = 1/2 x.K'x + the Q and D
+    potentials, each >= 0 by the sign rules (g/(2a)(x_i^2 - a x_j)^2, l/4 x^4), + the
+    squares, which add nothing to the Hessian at rest; a network of designed zero modes, such
+    as the classifier's multipliers, passes here instead of in a search over its hundreds of
+    variables, and a population's points with such terms cost no search each."""
     p, q = net.monomials, net.quads
-    for lo, hi in zip(p.ptr[:-1], p.ptr[1:]):
-        if hi > lo and labels[p.var[lo]] == comp and p.exp[lo:hi].sum() != 2:
+    for e, (lo, hi) in enumerate(zip(p.ptr[:-1], p.ptr[1:])):
+        if hi == lo or labels[p.var[lo]] != comp or p.exp[lo:hi].sum() == 2:
+            continue
+        if not (p.c[e] > 0 and (p.exp[lo:hi] % 2 == 0).all()):
             return False
     local = np.full(net.n, -1, np.int64)
     local[nodes] = np.arange(len(nodes))

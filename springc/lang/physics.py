@@ -30,7 +30,7 @@ def potential(net: FlatNetlist, x: np.ndarray) -> np.ndarray:
 def internal_force(net: FlatNetlist, x: np.ndarray) -> np.ndarray:
     """-dV/dx, the force of all potential elements."""
     f = np.zeros_like(x, dtype=np.float64)
-    s, d, c, q, p = net.springs, net.duffings, net.couplings, net.quads, net.monomials
+    s, d, c, q = net.springs, net.duffings, net.couplings, net.quads
     np.add.at(f, s.node, -_col(s.k, x) * x[s.node])
     np.add.at(f, d.node, -_col(d.l, x) * x[d.node] ** 3)
     stretch = x[c.i] - _col(c.a, x) * x[c.j]
@@ -39,6 +39,13 @@ def internal_force(net: FlatNetlist, x: np.ndarray) -> np.ndarray:
     qs = x[q.i] ** 2 - _col(q.a, x) * x[q.j]
     np.add.at(f, q.i, -_col(2 * q.g / q.a, x) * x[q.i] * qs)
     np.add.at(f, q.j, _col(q.g, x) * qs)
+    return f + monomial_force(net, x)
+
+
+def monomial_force(net: FlatNetlist, x: np.ndarray) -> np.ndarray:
+    """-dV/dx of the P elements alone."""
+    f = np.zeros_like(x, dtype=np.float64)
+    p = net.monomials
     for e in range(len(p)):
         for k in range(p.ptr[e], p.ptr[e + 1]):
             f[p.var[k]] -= p.c[e] * _monomial_derivative(p, e, k, x)

@@ -218,6 +218,7 @@ def test_squares_of_higher_degree_are_bounded_without_a_search(c, factors, visib
     if visible:
         assert checks._escape(net, lin, labels, 0) is None
 
+
 def _hessian_at_rest(net):
     """The Hessian of V at rest, as the checks build it."""
     from springc.check import linear

@@ -60,8 +60,10 @@ class Equations:
     over mass) assembled once for an integrator's many calls: the linear terms (springs,
     couplings, dampers, dashpots) as one stiffness and one damping matrix, the nonlinear terms
     gathered into their nodes by incidence matrices (sparse above `DENSE_MAX` nodes). The same
-    sums as the physics functions up to round-off (tests/test_reference.py), a tenth of
-    their time per call on small networks, where `np.add.at` per term kind dominated."""
+    sums as the physics functions up to round-off (tests/test_reference.py); a call on a
+    one-mass network takes a tenth of their time (2.8 against 32.5 us, where an `np.add.at`
+    per term kind dominated), on three masses with a P element about half (the P elements
+    are still summed term by term)."""
 
     DENSE_MAX = 100
 

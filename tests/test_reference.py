@@ -8,6 +8,7 @@ import pytest
 from springc.lang import physics
 from springc.lang.ir import IRBuilder, Source, Tran
 from springc.bench.reference import Equations, forcing, rk4_numpy, solve_ivp_reference
+from test_simulate import nonlinear_net
 
 
 def oscillator(w0: float = 20.0, b: float = 2.0):
@@ -53,23 +54,11 @@ def test_forcing_interpolates_inputs_linearly():
 
 @pytest.mark.parametrize("dense_max", [100, 0])  # small matrices dense, then all sparse
 def test_assembled_equations_are_the_physics_functions(monkeypatch, dense_max):
-    """Every term kind: springs, a Duffing term, a leverage coupling, a quadratic coupling,
-    dashpots between nodes and to ground, local dampers, a monomial."""
+    """Every term kind (test_simulate's nonlinear network): springs, a Duffing term, a
+    leverage coupling, a quadratic coupling, dashpots between nodes and to ground, local
+    dampers, a monomial."""
     monkeypatch.setattr(Equations, "DENSE_MAX", dense_max)
-    b = IRBuilder("every term")
-    b.mass("M1", "a", 1.0, 3.0)
-    b.mass("M2", "c", 2.0, 0.0)
-    b.mass("M3", "d", 0.5, 1.0)
-    b.spring("K1", "a", 100.0)
-    b.spring("K3", "d", 80.0)
-    b.duffing("D1", "a", 1e3)
-    b.coupling("C1", "a", "c", 20.0, a=1.5)
-    b.quad("Q1", "c", "d", 30.0, a=0.7)
-    b.dashpot("B1", "a", "d", 2.0)
-    b.dashpot("B2", "c", "0", 0.5)
-    b.monomial("P1", 5.0, [("a", 2), ("d", 1)])
-    b.tran = Tran(1e-3, 1.0, None)
-    net = b.finish()
+    net = nonlinear_net()
     rng = np.random.default_rng(3)
     x, v, fext = rng.normal(size=(3, net.n, 4))
     want = (physics.internal_force(net, x) + physics.damping_force(net, v) + fext) \

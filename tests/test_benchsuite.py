@@ -374,7 +374,8 @@ def test_timed_calls_record_into_the_buffer_of_the_call_before():
     assert other.info["records"] is not a.info["records"]
 
 
-def test_an_unrecorded_row_the_guard_stops_says_so_and_is_not_re_timed(monkeypatch):
+def test_an_unrecorded_row_the_guard_stops_says_so_and_is_not_re_timed(monkeypatch,
+                                                                      quick_timing):
     from springc.errors import SimulationError
 
     calls = []

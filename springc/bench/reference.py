@@ -13,10 +13,11 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.integrate import solve_ivp
 
+from springc.check import linear
 from springc.lang import physics
 from springc.sim import sources
 from springc.kernels.integrators import get_tableau
-from springc.lang.ir import GROUND, FlatNetlist, Probe
+from springc.lang.ir import FlatNetlist, Probe
 
 
 def forcing(net: FlatNetlist, inputs: np.ndarray | None,
@@ -58,27 +59,26 @@ def _interp_rows(rows: np.ndarray, rate: float, t: float) -> np.ndarray:
 class Equations:
     """The accelerations of `springc.lang.physics` (internal plus damping plus external force,
     over mass) assembled once for an integrator's many calls: the linear terms (springs,
-    couplings, dampers, dashpots) as one stiffness and one damping matrix, the nonlinear terms
-    gathered into their nodes by incidence matrices (sparse above `DENSE_MAX` nodes). The same
-    sums as the physics functions up to round-off (tests/test_reference.py); a call on a
-    one-mass network takes a tenth of their time (2.8 against 32.5 us, where an `np.add.at`
-    per term kind dominated), on three masses with a P element about half (the P elements
-    are still summed term by term)."""
+    couplings, dampers, dashpots) as one stiffness and one damping matrix from the checks'
+    entries (`springc.check.linear`), the nonlinear terms gathered into their nodes by
+    incidence matrices (sparse above `DENSE_MAX` nodes). The same sums as the physics functions
+    up to round-off (tests/test_reference.py); a call on a one-mass network takes a tenth of
+    their time (2.8 against 32.5 us, where an `np.add.at` per term kind dominated), on three
+    masses with a P element about half (the P elements are still summed term by term)."""
 
     DENSE_MAX = 100
 
     def __init__(self, net: FlatNetlist) -> None:
-        n, s, c, d = net.n, net.springs, net.couplings, net.dashpots
+        n = net.n
         self.net, self.minv = net, 1.0 / net.mass()
-        self.k = self._matrix(np.r_[s.node, c.i, c.j, c.i, c.j], np.r_[s.node, c.i, c.j, c.j, c.i],
-                              np.r_[s.k, c.k / c.a, c.k * c.a, -c.k, -c.k], n)
-        tied = d.j != GROUND
-        i, j, b = d.i[tied], d.j[tied], d.b[tied]
-        self.b = self._matrix(np.r_[np.arange(n), d.i, j, i, j], np.r_[np.arange(n), d.i, j, j, i],
-                              np.r_[net.local_damping(), d.b, b, -b, -b], n)
-        dq, q = net.duffings, net.quads
-        self.at_duffing = self._incidence(dq.node, n)
+        self.k = self._matrix(*map(np.concatenate, linear.spring_entries(net)), n)
+        self.b = self._matrix(*map(np.concatenate, linear.damping_entries(net)), n)
+        d, q = net.duffings, net.quads
+        self.at_duffing = self._incidence(d.node, n)
         self.at_qi, self.at_qj = self._incidence(q.i, n), self._incidence(q.j, n)
+        # the per-element coefficients as columns against (elements, runs), once
+        self.dl, self.qa, self.qg = d.l[:, None], q.a[:, None], q.g[:, None]
+        self.qgi = (2 * q.g / q.a)[:, None]
 
     def __call__(self, x: np.ndarray, v: np.ndarray, fext: np.ndarray) -> np.ndarray:
         """Accelerations for positions and velocities (n, runs) and external forces (n, runs)."""
@@ -86,11 +86,11 @@ class Equations:
         f = fext - self.k @ x - self.b @ v
         d, q, p = net.duffings, net.quads, net.monomials
         if len(d.node):
-            f -= self.at_duffing @ (d.l[:, None] * x[d.node] ** 3)
+            f -= self.at_duffing @ (self.dl * x[d.node] ** 3)
         if len(q.i):
-            qs = x[q.i] ** 2 - q.a[:, None] * x[q.j]
-            f -= self.at_qi @ ((2 * q.g / q.a)[:, None] * x[q.i] * qs)
-            f += self.at_qj @ (q.g[:, None] * qs)
+            qs = x[q.i] ** 2 - self.qa * x[q.j]
+            f -= self.at_qi @ (self.qgi * x[q.i] * qs)
+            f += self.at_qj @ (self.qg * qs)
         if len(p):
             f += physics.monomial_force(net, x)
         return self.minv[:, None] * f

@@ -53,7 +53,7 @@ def linearise(net: FlatNetlist) -> Linearisation:
     `physics.damping_matrix(net)` but sparse and vectorised (10^4 elements in milliseconds)."""
     n = net.n
     mass = sp.diags(net.mass()).tocsr()
-    damping = _sparse(n, *_damping_entries(net))
+    damping = _sparse(n, *damping_entries(net))
     return Linearisation(mass, damping, _sparse(n, *_stiffness_entries(net)))
 
 
@@ -63,11 +63,20 @@ def _sparse(n: int, rows, cols, vals) -> sp.csr_matrix:
     return sp.coo_matrix((np.concatenate(vals), (rows, cols)), shape=(n, n)).tocsr()
 
 
+def spring_entries(net: FlatNetlist) -> tuple[list, list, list]:
+    """(rows, cols, values) of the springs' and couplings' stiffness, the part of the Hessian
+    that is the same at every x, as lists of arrays (repeated entries sum)."""
+    s, c = net.springs, net.couplings
+    return ([s.node, c.i, c.j, c.i, c.j], [s.node, c.i, c.j, c.j, c.i],
+            [s.k, c.k / c.a, c.k * c.a, -c.k, -c.k])
+
+
 def _stiffness_entries(net: FlatNetlist):
-    s, c, q = net.springs, net.couplings, net.quads
-    rows = [s.node, c.i, c.j, c.i, c.j, q.j]
-    cols = [s.node, c.i, c.j, c.j, c.i, q.j]
-    vals = [s.k, c.k / c.a, c.k * c.a, -c.k, -c.k, q.g * q.a]
+    q = net.quads
+    rows, cols, vals = spring_entries(net)
+    rows.append(q.j)
+    cols.append(q.j)
+    vals.append(q.g * q.a)
     for r, cc, v in _monomial_hessian_at_rest(net):
         rows.append(np.array([r]))
         cols.append(np.array([cc]))
@@ -94,7 +103,9 @@ def _monomial_hessian_at_rest(net: FlatNetlist):
             yield live[1], live[0], p.c[e]
 
 
-def _damping_entries(net: FlatNetlist):
+def damping_entries(net: FlatNetlist) -> tuple[list, list, list]:
+    """(rows, cols, values) of the linear damping matrix (local dampers and dashpots), as lists
+    of arrays (repeated entries sum)."""
     d = net.dashpots
     inner = d.j != GROUND
     i2, j2, b2 = d.i[inner], d.j[inner], d.b[inner]

@@ -4,6 +4,9 @@ classifier networks, on the CPU kernels (the reference) or the CUDA form.
     python scripts/cpu_reference.py --json cpu.json                     # this machine's cores
     python scripts/cpu_reference.py --device cuda --runs 10000 --json gpu.json
 
+`--threads` sets the CUDA form's threads per run for networks split over a block
+(`springc.kernels.cuda.SPLIT_THREADS`; 1: one run per thread), each value a row.
+
 Each network runs RK4 (the substeps of `cuda_compare.BENCH_SUBSTEPS`) for `--seconds` of
 speech-like input (`springc.bench.suite.speech_like`), recording nothing and summing the final
 energy, in float64 and float32 (the classifier float64 only). A first call compiles the
@@ -24,9 +27,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np  # noqa: E402
-from cuda_compare import BENCH_SUBSTEPS, bench_cases  # noqa: E402
+from cuda_compare import BENCH_SUBSTEPS, bench_cases, split_threads  # noqa: E402
 
 from springc.check import check  # noqa: E402
+from springc.kernels import cuda as cudagen  # noqa: E402
 from springc.sim import simulate as sm  # noqa: E402
 
 
@@ -46,10 +50,13 @@ def measure(name: str, net, inputs, tstep: float, seconds: float, precision: str
         start = time.perf_counter()
         sm.simulate(checked, inputs, **kw)
         best = min(best, time.perf_counter() - start)
+    threads = cudagen.SPLIT_THREADS if net.n >= cudagen.SPLIT_MIN else 1
     row = {"network": name, "dofs": net.n, "precision": precision, "device": device,
+           "threads_per_run": threads if device == "cuda" else None,
            "runs": runs, "seconds": seconds, "substeps": kw["substeps"], "wall_s": best,
            "runs_per_s": runs / best, "run_seconds_per_s": runs * seconds / best}
-    print(f"{name:28s} {precision} {device}: {runs} runs of {seconds} s in {best:.3f} s = "
+    shown = f"{device} T={threads}" if device == "cuda" else device
+    print(f"{name:28s} {precision} {shown}: {runs} runs of {seconds} s in {best:.3f} s = "
           f"{runs / best:,.0f} runs/s", flush=True)
     return row
 
@@ -68,6 +75,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=0.05, help="simulated time per run")
     parser.add_argument("--repeat", type=int, default=2)
     parser.add_argument("--only", nargs="*", help="network names to run (default: all)")
+    parser.add_argument("--precision", nargs="*", default=["float64", "float32"])
+    parser.add_argument("--threads", nargs="*", type=int, default=[cudagen.SPLIT_THREADS],
+                        help="cuda: threads per run of the split form (1: one run a thread)")
     parser.add_argument("--json", help="write the rows here")
     args = parser.parse_args(argv)
     runs = args.runs or (10000 if args.device == "cuda" else 8 * sm.threads())
@@ -77,17 +87,20 @@ def main(argv: list[str] | None = None) -> int:
             continue
         if u is None:  # the Duffing resonator's drive is its own: runs of no input
             u = np.zeros((runs, 1, int(round(args.seconds / tstep)) + 1))
-        for precision in ("float64", "float32"):
+        for precision in args.precision:
             if name == "pipeline classifier 8x3" and precision == "float32":
                 continue
-            try:
-                rows.append(measure(name, net, u, tstep, args.seconds, precision, args.device,
-                                    args.repeat))
-            except Exception as err:  # report and go on: one network must not stop the rest
-                print(f"{name} {precision}: FAILED {type(err).__name__}: {err}", flush=True)
-                rows.append({"network": name, "precision": precision, "error": str(err)})
-            if args.json:  # after every row: a stage stopped at its time limit keeps them
-                Path(args.json).write_text(json.dumps(info(args.device, rows), indent=1))
+            for threads in args.threads:
+                split_threads(threads)
+                try:
+                    rows.append(measure(name, net, u, tstep, args.seconds, precision,
+                                        args.device, args.repeat))
+                except Exception as err:  # report and go on: one must not stop the rest
+                    print(f"{name} {precision}: FAILED {type(err).__name__}: {err}",
+                          flush=True)
+                    rows.append({"network": name, "precision": precision, "error": str(err)})
+                if args.json:  # after every row: a stage stopped at its limit keeps them
+                    Path(args.json).write_text(json.dumps(info(args.device, rows), indent=1))
     return 0 if all("error" not in r for r in rows) else 1
 
 

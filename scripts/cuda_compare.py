@@ -84,8 +84,10 @@ PROGRESS: list[dict] = []  # every case so far, written to --json after each one
 JSON_PATH: list[str] = []
 
 
-def compare(name: str, net, inputs, precision: str, **kw) -> dict:
-    """One case: the CPU kernels' result and the CUDA form's, their errors and times."""
+def compare(name: str, net, inputs, precision: str, reference=None, **kw) -> dict:
+    """One case: the CPU kernels' result and the CUDA form's, their errors and times; with a
+    float64 CPU `reference`, each one's own error against it too (float32's rounding, which
+    the two devices meet apart). The row keeps the CPU result under "result" (not saved)."""
     checked = check(net)
     start = time.perf_counter()
     cpu = sm.simulate(checked, inputs, precision=precision, **kw)
@@ -95,33 +97,41 @@ def compare(name: str, net, inputs, precision: str, **kw) -> dict:
     errs = errors(cpu, cuda)
     worst = max(errs.values())
     ok = worst <= TOLERANCE[precision]
-    print(f"{'ok  ' if ok else 'FAIL'} {name:48s} {precision} worst {worst:.2e} "
-          f"(cpu {mid - start:.1f} s, cuda {end - mid:.1f} s)", flush=True)
+    own = ""
     row = {"case": name, "precision": precision, "worst": worst, "ok": ok, "errors": errs,
            "cpu_s": mid - start, "cuda_s": end - mid}
+    if reference is not None:
+        row["cpu_vs_float64"] = max(errors(reference, cpu).values())
+        row["cuda_vs_float64"] = max(errors(reference, cuda).values())
+        own = (f"; against float64: cpu {row['cpu_vs_float64']:.2e}, "
+               f"cuda {row['cuda_vs_float64']:.2e}")
+    print(f"{'ok  ' if ok else 'FAIL'} {name:48s} {precision} worst {worst:.2e} "
+          f"(cpu {mid - start:.1f} s, cuda {end - mid:.1f} s){own}", flush=True)
     PROGRESS.append(row)
     for path in JSON_PATH:  # a run stopped at its time limit keeps the cases done
         with open(path, "w") as fh:
             json.dump(PROGRESS, fh, indent=1)
-    return row
+    return {**row, "result": cpu}
 
 
 def tiny() -> list[dict]:
-    """The every-kind network in both force forms, two tableaux, both precisions, with its
-    steps streamed over many calls."""
+    """The every-kind network in the three force forms (written out, loops, split over 3
+    threads a run), two tableaux, both precisions, with its steps streamed over many calls."""
     net = every_kind()
     u = smooth_inputs(3, 2, 90, seed=0)
     out = []
-    written = cudagen.WRITE_OUT_MAX
-    for form, limit in (("written out", written), ("loops", 0)):
-        cudagen.WRITE_OUT_MAX = limit
+    saved = cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS
+    for form, write_out, split_min in (("written out", saved[0], 10**9), ("loops", 0, 10**9),
+                                       ("split", 0, 1)):
+        cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = write_out, split_min, 3
         for method, precision, sub in (("rk4", "float64", 1), ("heun3", "float64", 2),
                                        ("rk4", "float32", 1)):
             gpu.STEPS_PER_CALL = 13  # many calls: the inputs and records streamed
-            out.append(compare(f"every kind, {form}, {method} x{sub}", net, u, precision,
-                               method=method, substeps=sub, reductions=REDUCE,
-                               outrate=5e3, write_out=False))
-    cudagen.WRITE_OUT_MAX = written
+            row = compare(f"every kind, {form}, {method} x{sub}", net, u, precision,
+                          method=method, substeps=sub, reductions=REDUCE, outrate=5e3,
+                          write_out=False)
+            out.append({k: v for k, v in row.items() if k != "result"})
+    cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = saved
     return out
 
 
@@ -151,21 +161,35 @@ def bench_cases(seconds: float, runs: int) -> list[tuple[str, object, np.ndarray
     ]
 
 
+def split_threads(threads: int) -> None:
+    """The CUDA form's threads per run for networks split over a block
+    (`springc.kernels.cuda.SPLIT_THREADS`; 1: none split, one run per thread)."""
+    if threads == 1:
+        cudagen.SPLIT_MIN = 10**9
+    else:
+        cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = cudagen.WRITE_OUT_MAX + 1, threads
+
+
 BENCH_SUBSTEPS = {"stiff block": 32, "pipeline features 8x3": 8,
                   "pipeline classifier 8x3": 8, "duffing resonator": 2}
 
 
-def bench(seconds: float, runs: int) -> list[dict]:
-    """Every bench network, RK4 in float64 and float32, its final state and energy too."""
+def bench(seconds: float, runs: int, only: list[str] | None = None) -> list[dict]:
+    """Every bench network (or those named in `only`), RK4 in float64 and float32, its final
+    state and energy too."""
     out = []
     for name, net, u, tstep in bench_cases(seconds, runs):
+        if only and name not in only:
+            continue
         sub = BENCH_SUBSTEPS.get(name, 1)
+        reference = None
         for precision in ("float64", "float32"):
             if name == "pipeline classifier 8x3" and precision == "float32":
                 continue  # its multipliers' cancellation: float32 is not used for it
-            out.append(compare(name, net, u, precision, method="rk4", substeps=sub,
-                               tstep=tstep, tstop=seconds, reductions=["energy"],
-                               check_step=False))
+            row = compare(name, net, u, precision, reference, method="rk4", substeps=sub,
+                          tstep=tstep, tstop=seconds, reductions=["energy"], check_step=False)
+            reference = row.pop("result")
+            out.append(row)
     return out
 
 
@@ -175,10 +199,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=0.02, help="bench: simulated time")
     parser.add_argument("--runs", type=int, default=64, help="bench: runs per network")
     parser.add_argument("--json", help="write every case's errors here")
+    parser.add_argument("--only", nargs="*", help="bench: network names to run (default: all)")
     args = parser.parse_args(argv)
     if args.json:
         JSON_PATH.append(args.json)
-    cases = tiny() if args.which == "tiny" else bench(args.seconds, args.runs)
+    # numba's CUDA simulator runs a block's threads as Python threads that meet at barriers:
+    # at the interpreter's default switch interval (5 ms) each barrier waits that long
+    sys.setswitchinterval(1e-4)
+    cases = tiny() if args.which == "tiny" else bench(args.seconds, args.runs, args.only)
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(cases, fh, indent=1)

@@ -24,7 +24,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from cuda_compare import BENCH_SUBSTEPS, bench_cases  # noqa: E402
+from cuda_compare import BENCH_SUBSTEPS, bench_cases, split_threads  # noqa: E402
 
 from springc.check import check  # noqa: E402
 from springc.kernels.lower import kernel_netlist  # noqa: E402
@@ -178,8 +178,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs", type=int, default=10000)
     parser.add_argument("--seconds", type=float, default=0.05)
     parser.add_argument("--precision", default="float64")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="springc's threads per run where a run is split over a block")
     parser.add_argument("--json")
     args = parser.parse_args(argv)
+    if args.threads:
+        split_threads(args.threads)
     import jax
 
     jax.config.update("jax_enable_x64", args.precision == "float64")

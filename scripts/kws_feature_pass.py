@@ -19,9 +19,13 @@ import sys
 import time
 from pathlib import Path
 
-from springc.bench import suite
-from springc.kws.features import massspring as msp
-from springc.sim.simulate import simulate
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from cuda_compare import split_threads  # noqa: E402
+
+from springc.bench import suite  # noqa: E402
+from springc.kws.features import massspring as msp  # noqa: E402
+from springc.sim.simulate import simulate  # noqa: E402
 
 
 def phi(signals, s: msp.MassSpringSettings, device: str, precision: str):
@@ -44,8 +48,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--precision", default="float64")
     parser.add_argument("--check", type=int, default=0,
                         help="clips whose Phi is compared with the CPU kernels' (0: none)")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="cuda: threads per run of the split form")
     parser.add_argument("--json")
     args = parser.parse_args(argv)
+    if args.threads:
+        split_threads(args.threads)
     s = msp.MassSpringSettings()
     signals = suite.SPEECH_LEVEL * suite.speech_like(args.seconds, msp.INPUT_RATE, args.clips,
                                                      seed=7)[:, 0, :]

@@ -14,6 +14,13 @@ same description of the step as the CPU kernels (this module never imports numba
   network's size (a compile-time constant), read from and written back to device arrays
   (n, runs) at each call, so that the host can integrate a long recording call by call over
   ranges of steps, feeding each range's input samples (`springc.sim.gpu`).
+- Split runs (`CudaOptions.threads` > 1, for networks too large to write out): one run per
+  block, its nodes split over the block's threads, each node gathering its own element ends
+  (`terms.node_ends`, the CPU kernels' parallel form, so the sums round alike); the run's
+  state in shared memory, the threads meeting at a barrier wherever one reads what another
+  wrote. One run per thread keeps a 10,000-run launch to a few warps per multiprocessor,
+  each waiting on its local memory; split, the same launch fills the GPU and its state stays
+  on the chip.
 - Records and the reductions `work`, `dissipation`, `msq`, `gram` (and, on the host, `final`,
   `energy`, `loss`) as the shared kernel accumulates them.
 
@@ -27,17 +34,22 @@ import re
 from dataclasses import dataclass
 
 from springc.kernels import terms
-from springc.kernels.codegen import (Features, _Code, accel_args, combine_terms,
-                                     emit_coefficients, features, nystrom_coefficients,
-                                     source_hash, stage_terms)
+from springc.kernels.codegen import (Features, LaneLayout, _Code, accel_args, combine_terms,
+                                     emit_coefficients, emit_linear, features, gather_args,
+                                     nystrom_coefficients, source_hash, stage_terms)
 from springc.kernels.integrators import Tableau, get_tableau
 from springc.lang.ir import FlatNetlist
 
-CUDA_VERSION = 1  # bump when the generated text or its calling convention changes
+CUDA_VERSION = 2  # bump when the generated text or its calling convention changes
 BLOCK = 32  # threads (runs) per block: 10,000 runs make 313 blocks, every SM busy
 # Networks up to this many nodes get their force code written out per node (constant
 # indices, coefficients in scalars); larger ones loop over the runtime index arrays.
 WRITE_OUT_MAX = terms.NODES_MAX
+# Larger ones are split over a block's threads (`CudaOptions.threads`) where their state fits
+# a block's static shared memory, else loop one run per thread.
+SPLIT_MIN = WRITE_OUT_MAX + 1
+SPLIT_THREADS = 64  # threads per run in the split form (docs/bench-gpu.md)
+SHARED_BYTES = 48 * 1024
 
 
 @dataclass(frozen=True)
@@ -61,6 +73,14 @@ class CudaOptions:
     gram: int = 0
     vneed: tuple[bool, ...] = ()
     nodes: tuple | None = None
+    threads: int = 1  # threads per run: > 1, the split form
+
+
+def shared_bytes(n: int, precision: str, method: str, gram: int = 0) -> int:
+    """The split form's shared memory per block: positions, velocities, their stage values
+    and every stage's forces, n each, and the Gram sums."""
+    size = 8 if precision == "float64" else 4
+    return (4 + get_tableau(method).stages) * n * size + 8 * gram + 64
 
 
 def run_args(feat: Features, opts: CudaOptions) -> list[str]:
@@ -70,10 +90,15 @@ def run_args(feat: Features, opts: CudaOptions) -> list[str]:
     names = ["xst", "vst", "u", "ubase", "g", "s0", "s1", "nsteps", "substeps", "h",
              "check_every", "limit"]
     names += accel_args(feat) + ["vneed"]
+    if opts.threads > 1:
+        names += gather_args(feat)
     names += ["rec_every", "rec_node", "rec_isv", "rec", "rbase"]
     names += ["work_in", "work_c", "ds_i", "ds_j", "ds_b", "diss"]
     names += ["ms_node", "ms_isv", "ms_lo", "ms_hi", "msq"]
-    names += ["gr_i", "gr_j", "gr_g", "gr_w", "gr_decay", "gram", "status", "bad_node"]
+    names += ["gr_i", "gr_j", "gr_g", "gr_w", "gr_decay", "gram"]
+    if opts.threads > 1:
+        names += ["gr_ptr"]  # the split form's Gram pairs, ordered by group
+    names += ["status", "bad_node"]
     return names
 
 
@@ -91,8 +116,7 @@ def generate(net: FlatNetlist, opts: CudaOptions) -> str:
         f"# netlist: {net.file}",
         f"# title: {net.title}",
         f"# options: {shown}",
-        "# force code: " + ("written out per node" if opts.nodes else "loops over the "
-                            "runtime index arrays"),
+        "# force code: " + _form(opts),
         f"# integrator: {tab.name} ({tab.description})",
         f"# dofs: {net.n}; elements: {net.element_counts()}",
         f"# body-hash: {source_hash(f'cuda {CUDA_VERSION}' + body)}",
@@ -101,9 +125,16 @@ def generate(net: FlatNetlist, opts: CudaOptions) -> str:
     return "\n".join(header) + body
 
 
+def _form(opts: CudaOptions) -> str:
+    if opts.threads > 1:
+        return f"split: one run per block of {opts.threads} threads, nodes gathering their ends"
+    return "written out per node" if opts.nodes else "loops over the runtime index arrays"
+
+
 def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
+    split = opts.threads > 1
     c = _Code()
-    c('"""Generated by springc.kernels.cuda; see the header. One run per thread."""')
+    c('"""Generated by springc.kernels.cuda; see the header."""')
     c("import numpy as np")
     c("from numba import cuda")
     c("")
@@ -113,7 +144,8 @@ def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
     c(f"NCH = {max(opts.channels, 1)}")
     c(f"NFI = {opts.inputs}  # input forces")
     c(f"NFC = {opts.common}  # shared-signal forces")
-    c(f"BLOCK = {BLOCK}")
+    c(f"BLOCK = {opts.threads if split else BLOCK}  # threads per block")
+    c(f"T = {opts.threads}  # threads per run")
     c("CUDA = True")
     c("LANES = 1  # runs per thread")
     c(f"VNEED = {tuple(opts.vneed)!r}  # whether anything reads a node's stage velocity")
@@ -122,8 +154,13 @@ def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
     c("@cuda.jit")
     c(f"def run({', '.join(run_args(feat, opts))}):")
     c.indent()
-    c('"""Integrate steps s0..s1-1 of run cuda.grid(1) from its state in xst, vst."""')
-    c("r = cuda.grid(1)")
+    if split:
+        c('"""Integrate steps s0..s1-1 of run blockIdx.x, its nodes split over the threads."""')
+        c("r = cuda.blockIdx.x")
+        c("t = cuda.threadIdx.x")
+    else:
+        c('"""Integrate steps s0..s1-1 of run cuda.grid(1) from its state in xst, vst."""')
+        c("r = cuda.grid(1)")
     c("if r >= xst.shape[1] or status[r] != 0:")
     c("    return")
     _emit_constants(c, tab)
@@ -148,6 +185,24 @@ def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
     return c.text()
 
 
+def _sync(c: _Code, opts: CudaOptions) -> None:
+    """A barrier of the run's threads (split form only)."""
+    if opts.threads > 1:
+        c("cuda.syncthreads()")
+
+
+def _first(c: _Code, opts: CudaOptions) -> None:
+    """Open a block that one thread of the run runs (split form: thread 0)."""
+    if opts.threads > 1:
+        c("if t == 0:")
+        c.indent()
+
+
+def _end_first(c: _Code, opts: CudaOptions) -> None:
+    if opts.threads > 1:
+        c.dedent()
+
+
 def _emit_constants(c: _Code, tab: Tableau) -> None:
     """The h-scaled tableau (`codegen.emit_coefficients`) and Nystrom constants, as `codegen`
     names them."""
@@ -165,11 +220,14 @@ def _emit_constants(c: _Code, tab: Tableau) -> None:
 
 
 def _emit_state(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau) -> None:
-    """The thread's local arrays, its state read from the device, its reductions' sums."""
+    """The run's arrays (split: in shared memory), its state read from the device, its
+    reductions' sums (split: thread 0's)."""
+    split = opts.threads > 1
+    where = "shared" if split else "local"
     for name in ["x", "v", "xs", "vs"] + [f"kv{s}" for s in range(tab.stages)]:
-        c(f"{name} = cuda.local.array(N, FT)")
+        c(f"{name} = cuda.{where}.array(N, FT)")
     c("uc = cuda.local.array(NCH, FT)")
-    c("for i in range(N):")
+    c(_node_loop(opts))
     c("    x[i] = xst[i, r]")
     c("    v[i] = vst[i, r]")
     c("    vs[i] = FT(0.0)")
@@ -178,6 +236,20 @@ def _emit_state(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau) -> No
         c(f"{local} = cuda.local.array({size}, np.float64)")
         c(f"for q in range({size}):")
         c(f"    {local}[q] = {out}[q, r]")
+    if split and opts.gram:
+        c(f"gracc = cuda.shared.array({opts.gram}, np.float64)")
+        c(f"for q in range(t, {opts.gram}, T):")
+        c("    gracc[q] = gram[q, r]")
+    if split:
+        c("stop_ = cuda.shared.array(1, np.int32)")
+        c("if t == 0:")
+        c("    stop_[0] = 0")
+        c("cuda.syncthreads()")
+
+
+def _node_loop(opts: CudaOptions) -> str:
+    """The loop over the run's nodes (split: this thread's share)."""
+    return "for i in range(t, N, T):" if opts.threads > 1 else "for i in range(N):"
 
 
 def _sums(feat: Features, opts: CudaOptions) -> list[tuple[str, str, int]]:
@@ -187,9 +259,10 @@ def _sums(feat: Features, opts: CudaOptions) -> list[tuple[str, str, int]]:
         out.append(("w_in", "work_in", "fi_node.shape[0]"))
     if opts.work and feat.common_forces:
         out.append(("w_c", "work_c", "fc_node.shape[0]"))
+    gram = 0 if opts.threads > 1 else opts.gram  # split: in shared memory (`_emit_gram`)
     out += [(loc, dev, size) for loc, dev, size in (("dsacc", "diss", opts.dampers),
                                                   ("msacc", "msq", opts.msq),
-                                                  ("gracc", "gram", opts.gram)) if size]
+                                                  ("gracc", "gram", gram)) if size]
     # local arrays need compile-time sizes: the force counts are the netlist's
     fixed = {"fi_node.shape[0]": "NFI", "fc_node.shape[0]": "NFC"}
     return [(loc, dev, fixed.get(size, size)) for loc, dev, size in out]
@@ -208,10 +281,13 @@ def _emit_counters(c: _Code) -> None:
 
 
 def _emit_stage(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau, s: int) -> None:
-    """Stage s: its state (Nystrom form), its input, its forces, its reductions."""
+    """Stage s: its state (Nystrom form), its input, its forces, its reductions. Split, the
+    run's threads meet after the stage state (the forces read every node's) and after forces
+    that read the stage state, before the next stage overwrites it."""
     c(f"# stage {s} (c = {tab.c[s]!r})")
     if s > 0:
         _emit_stage_state(c, opts, tab, s)
+        _sync(c, opts)
     if feat.in_forces and (s == 0 or tab.c[s] != tab.c[s - 1]):
         c(f"pos = (sub + {tab.c[s]!r}) / substeps")
         c("kk = k0 + int(pos) - ubase")
@@ -225,8 +301,13 @@ def _emit_stage(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau, s: in
     text = force_code(feat, opts)
     for line in text:
         c(_rename(line, xa, va, f"kv{s}"))
-    if tab.b[s] != 0.0:
+    if tab.b[s] != 0.0 and (opts.dampers or opts.work and (feat.in_forces
+                                                           or feat.common_forces)):
+        _first(c, opts)
         _emit_stage_reductions(c, feat, opts, s, va)
+        _end_first(c, opts)
+    if s > 0 and s < tab.stages - 1:
+        _sync(c, opts)
 
 
 def _rename(line: str, xa: str, va: str, ka: str) -> str:
@@ -254,7 +335,7 @@ def _emit_stage_state(c: _Code, opts: CudaOptions, tab: Tableau, s: int) -> None
 def _per_node(opts: CudaOptions) -> list[tuple[int | None, str]]:
     """A loop over the nodes (`(None, 'for i ...')`) or, written out, each node i."""
     if opts.nodes is None:
-        return [(None, "for i in range(N):")]
+        return [(None, _node_loop(opts))]
     return [(i, f"# node {i}") for i in range(opts.n)]
 
 
@@ -264,6 +345,8 @@ def _at(expr: str, i: int) -> str:
 
 def force_code(feat: Features, opts: CudaOptions) -> list[str]:
     """ka = M^-1 F(xa, va, uc, grow) for one run, as lines (relative indentation)."""
+    if opts.threads > 1:
+        return _split_force_code(feat, opts)
     out: list[str] = []
     if opts.nodes is not None:
         for i, node in enumerate(opts.nodes):
@@ -279,6 +362,23 @@ def force_code(feat: Features, opts: CudaOptions) -> list[str]:
         out += _monomials()
     if feat.common_forces and opts.nodes is None:
         out += _kind_loop(terms.COMMON)
+    return out
+
+
+def _split_force_code(feat: Features, opts: CudaOptions) -> list[str]:
+    """The split form's forces: each thread's nodes sum their own terms and element ends
+    (`codegen.emit_linear`'s parallel form, one lane); monomials and shared signals, which
+    scatter, are then added by thread 0 alone, after a barrier, and the run's threads meet
+    again before anyone reads them."""
+    sub = _Code()
+    emit_linear(sub, feat, LaneLayout(1, 1), parallel=True)
+    out = [re.sub(r", 0\]", "]", line.replace("for i in nb.prange(n):", _node_loop(opts)))
+           for line in sub.lines]
+    scattered = (_monomials() if feat.monomials else []) + (
+        _kind_loop(terms.COMMON) if feat.common_forces else [])
+    if scattered:
+        out += ["cuda.syncthreads()", "if t == 0:"] + ["    " + line for line in scattered]
+        out += ["cuda.syncthreads()"]
     return out
 
 
@@ -347,6 +447,9 @@ def _emit_stage_reductions(c: _Code, feat: Features, opts: CudaOptions, s: int,
 
 
 def _emit_combine(c: _Code, opts: CudaOptions, tab: Tableau) -> None:
+    """The step's new state from its stages (split: each thread its nodes, then a barrier
+    before anyone reads them)."""
+    _sync_before_combine(c, opts, tab)
     xterm, vterm = combine_terms(tab, "V", lambda k: f"kv{k}[i]")
     for i, line in _per_node(opts):
         c(line)
@@ -356,18 +459,27 @@ def _emit_combine(c: _Code, opts: CudaOptions, tab: Tableau) -> None:
         c(f"{pad}V = v[{idx}]")
         c(f"{pad}x[{idx}] = x[{idx}] + (" + fix(xterm) + ")")
         c(f"{pad}v[{idx}] = V + (" + fix(vterm) + ")")
+    _sync(c, opts)
+
+
+def _sync_before_combine(c: _Code, opts: CudaOptions, tab: Tableau) -> None:
+    """A one-stage tableau's forces read x and v, which the combine then writes."""
+    if tab.stages == 1:
+        _sync(c, opts)
 
 
 def _emit_step_end(c: _Code, opts: CudaOptions) -> None:
     """Mean squares, Gram sums, the record when due and the divergence guard
-    (`codegen.emit_step_end`); a diverged run stops, its state and sums stored."""
+    (`codegen.emit_step_end`), by thread 0 in the split form; a diverged run stops, its
+    state and sums stored (split: every thread of it, told through shared memory)."""
     c("k1 = step + 1")
+    _first(c, opts)
     if opts.msq:
         c(f"for m in range({opts.msq}):")
         c("    if ms_lo[m] <= k1 and k1 <= ms_hi[m]:")
         c("        q = v[ms_node[m]] if ms_isv[m] else x[ms_node[m]]")
         c("        msacc[m] += q * q")
-    if opts.gram:
+    if opts.gram and opts.threads == 1:
         c(f"for gq in range({opts.gram}):")
         c("    gracc[gq] *= gr_decay[gq]")
         c("for p in range(gr_i.shape[0]):")
@@ -380,8 +492,14 @@ def _emit_step_end(c: _Code, opts: CudaOptions) -> None:
         c(f"    for p in range({opts.probes}):")
         c("        q = rec_node[p]")
         c("        rec[p, rn_ - rbase, r] = v[q] if rec_isv[p] else x[q]")
+    if opts.threads > 1 and not (opts.msq or opts.probes):
+        c("pass")
+    _end_first(c, opts)
+    if opts.gram and opts.threads > 1:
+        _emit_split_gram(c, opts)
     c("if k1 % check_every == 0 or k1 == nsteps:")
     c.indent()
+    _first(c, opts)
     c("worst = 0.0")
     c("wi = -1")
     c("for i in range(N):")
@@ -394,17 +512,41 @@ def _emit_step_end(c: _Code, opts: CudaOptions) -> None:
     c("if not worst <= limit:")
     c("    status[r] = k1")
     c("    bad_node[r] = wi")
+    if opts.threads > 1:
+        c("    stop_[0] = 1")
+        c.dedent()
+        c("cuda.syncthreads()")
+        c("if stop_[0] != 0:")
     c("    break")
     c.dedent()
 
 
+def _emit_split_gram(c: _Code, opts: CudaOptions) -> None:
+    """The Gram sums, each thread its share of the groups, each group decayed and then its
+    pairs added in their order (`gr_ptr`: the pairs sorted by group), as the one-thread
+    loops add them."""
+    c(f"for gq in range(t, {opts.gram}, T):")
+    c("    acc = gracc[gq] * gr_decay[gq]")
+    c("    for p in range(gr_ptr[gq], gr_ptr[gq + 1]):")
+    c("        acc += gr_w[p] * x[gr_i[p]] * x[gr_j[p]]")
+    c("    gracc[gq] = acc")
+
+
 def _emit_store(c: _Code, feat: Features, opts: CudaOptions) -> None:
     """The state and the sums back to the device arrays."""
-    c("for i in range(N):")
+    c(_node_loop(opts))
     c("    xst[i, r] = x[i]")
     c("    vst[i, r] = v[i]")
-    for local, out, size in _sums(feat, opts):
+    sums = _sums(feat, opts)
+    if sums:
+        _first(c, opts)
+    for local, out, size in sums:
         c(f"for q in range({size}):")
         c(f"    {out}[q, r] = {local}[q]")
+    if sums:
+        _end_first(c, opts)
+    if opts.gram and opts.threads > 1:
+        c(f"for q in range(t, {opts.gram}, T):")
+        c("    gram[q, r] = gracc[q]")
 
 

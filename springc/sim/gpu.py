@@ -3,13 +3,16 @@ form (`springc.kernels.cuda`) over the arrays `springc.sim.simulate` prepares fo
 kernels (the same names, so that simulate finishes the reductions and checks divergence the
 same way).
 
-One run per thread; the state stays on the device between calls, each call integrating
+One run per thread, or per block of threads for the split form (`springc.kernels.cuda`); the
+state stays on the device between calls, each call integrating
 `STEPS_PER_CALL` steps, so only that range's input samples, shared signals and records are
 on the device at a time: a recording of any length fits. numba's CUDA simulator
 (`NUMBA_ENABLE_CUDASIM=1`) runs the same kernels on the CPU, for the tests.
 """
 
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 
@@ -107,13 +110,17 @@ def options(net: FlatNetlist, method: str, precision: str, coeffs: dict, probes:
     """The CUDA kernel's options for the kernel netlist `net` and a reduction plan."""
     nodes = terms.node_terms(coeffs, net.n) if net.n <= cudagen.WRITE_OUT_MAX else None
     feat = features(net)
+    gram = sum(r.gram.groups for r in rplan.gram)
+    split = (nodes is None and net.n >= cudagen.SPLIT_MIN and cudagen.shared_bytes(
+        net.n, precision, method, gram) <= cudagen.SHARED_BYTES)
     return cudagen.CudaOptions(
         method, precision, net.n, sources.channels_used(net),
         inputs=len(sources.input_forces(net)) if feat.in_forces else 0,
         common=len(sources.common_forces(net)) if feat.common_forces else 0,
         probes=probes, work=rplan.work, dampers=len(rplan.damper_rows),
-        msq=len(rplan.msq), gram=sum(r.gram.groups for r in rplan.gram),
-        vneed=vneed(net, coeffs, rplan.work), nodes=nodes)
+        msq=len(rplan.msq), gram=gram,
+        vneed=vneed(net, coeffs, rplan.work), nodes=nodes,
+        threads=cudagen.SPLIT_THREADS if split else 1)
 
 
 def load(net: FlatNetlist, opts: cudagen.CudaOptions) -> loader.Kernel:
@@ -134,10 +141,13 @@ def run(kernel: loader.Kernel, args: dict, runs: int) -> None:
     (`rec`, from column `rec_col`), reductions, final state (`xf`, `vf`) and status as the
     CPU kernels do."""
     from numba import cuda
+    from numba.core.errors import NumbaPerformanceWarning
 
     mod = kernel.module
     nsteps, sub, every = int(args["nsteps"]), int(args["substeps"]), int(args["rec_every"])
     dtype = args["x0"].dtype
+    if "gr_ptr" in mod.ARGS:
+        args = {**args, **_pairs_by_group(args)}
     dev = {name: _to_device(args[name]) for name in mod.ARGS if name in args
            and name not in ("u", "g", "rec") and isinstance(args[name], np.ndarray)}
     dev["vneed"] = cuda.to_device(np.array(mod.VNEED, np.bool_))
@@ -145,8 +155,8 @@ def run(kernel: loader.Kernel, args: dict, runs: int) -> None:
     for name in _SUMS:
         dev[name] = cuda.to_device(_rows(args[name]))
     _record_start(args, runs)
-    threads = min(cudagen.BLOCK, runs)
-    blocks = -(-runs // threads)
+    threads = mod.BLOCK if mod.T > 1 else min(mod.BLOCK, runs)
+    blocks = runs if mod.T > 1 else -(-runs // threads)
     for s0 in range(0, nsteps, STEPS_PER_CALL):
         s1 = min(nsteps, s0 + STEPS_PER_CALL)
         a, b = s0 // sub, (s1 - 1) // sub + 3
@@ -157,7 +167,9 @@ def run(kernel: loader.Kernel, args: dict, runs: int) -> None:
                                         dtype)
         for name in ("nsteps", "substeps", "h", "check_every", "limit", "rec_every"):
             call[name] = args[name]
-        mod.run[blocks, threads](*[call[name] for name in mod.ARGS])
+        with warnings.catch_warnings():  # a launch of few runs is not a user's error
+            warnings.simplefilter("ignore", NumbaPerformanceWarning)
+            mod.run[blocks, threads](*[call[name] for name in mod.ARGS])
         if args["rec"].shape[0] and count:
             col = int(args["rec_col"])
             got = call["rec"].copy_to_host()
@@ -170,6 +182,17 @@ def run(kernel: loader.Kernel, args: dict, runs: int) -> None:
         args[name][...] = dev[name].copy_to_host()[:rows]
     args["status"][...] = dev["status"].copy_to_host()
     args["bad_node"][...] = dev["bad_node"].copy_to_host()
+
+
+def _pairs_by_group(args: dict) -> dict:
+    """The Gram pairs sorted by group, each group's in their order, and each group's range
+    (`gr_ptr`): the split form sums a group in one thread."""
+    order = np.argsort(args["gr_g"], kind="stable")
+    out = {name: np.ascontiguousarray(args[name][order])
+           for name in ("gr_i", "gr_j", "gr_g", "gr_w")}
+    groups = len(args["gr_decay"])
+    out["gr_ptr"] = np.searchsorted(out["gr_g"], np.arange(groups + 1)).astype(np.int64)
+    return out
 
 
 def _to_device(a: np.ndarray):

@@ -84,11 +84,11 @@ stage "peers: pipeline features" 80 $PY scripts/gpu_peers.py --network "pipeline
     --runs 10000 --seconds 0.02 --threads "$T" --json "$OUT_DIR/peers_features.json"
 # 3. the CUDA form against the CPU kernels on the networks the split form runs (the others'
 #    forms are those docs/bench-gpu.md measured before); compiles the CPU kernels too
-stage "cuda vs cpu kernels" 120 $PY scripts/cuda_compare.py bench --seconds 0.02 --runs 64 \
+stage "cuda vs cpu kernels" 110 $PY scripts/cuda_compare.py bench --seconds 0.02 --runs 64 \
     --only "pipeline features 8x3" "564-dof kws network" "long delay line" \
     "pipeline classifier 8x3" --json "$OUT_DIR/compare.json"
 # 4. runs per second of every bench network, 10,000 runs each
-stage "cuda throughput" 120 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
+stage "cuda throughput" 100 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
     --seconds 0.02 --repeat 2 --threads "$T" --json "$OUT_DIR/cuda_throughput.json"
 stage "peers: 564-dof kws network" 50 $PY scripts/gpu_peers.py --network "564-dof kws network" \
     --runs 10000 --seconds 0.02 --threads "$T" --json "$OUT_DIR/peers_kws.json"

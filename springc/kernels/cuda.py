@@ -48,8 +48,9 @@ WRITE_OUT_MAX = terms.NODES_MAX
 # Larger ones are split over a block's threads (`CudaOptions.threads`) where their state fits
 # a block's static shared memory, else loop one run per thread.
 SPLIT_MIN = WRITE_OUT_MAX + 1
-SPLIT_THREADS = 64  # threads per run in the split form (docs/bench-gpu.md)
+SPLIT_THREADS = 256  # threads per run of the split form: the fastest of 32-512 (docs/bench-gpu.md)
 SHARED_BYTES = 48 * 1024
+MIN_BLOCKS = 0  # split form: blocks each multiprocessor must hold (caps registers; 0: no cap)
 
 
 @dataclass(frozen=True)
@@ -151,7 +152,10 @@ def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
     c(f"VNEED = {tuple(opts.vneed)!r}  # whether anything reads a node's stage velocity")
     c("")
     c("")
-    c("@cuda.jit")
+    if split and MIN_BLOCKS:
+        c(f"@cuda.jit(launch_bounds=({opts.threads}, {MIN_BLOCKS}))")
+    else:
+        c("@cuda.jit")
     c(f"def run({', '.join(run_args(feat, opts))}):")
     c.indent()
     if split:

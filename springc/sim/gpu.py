@@ -141,7 +141,6 @@ def run(kernel: loader.Kernel, args: dict, runs: int) -> None:
     (`rec`, from column `rec_col`), reductions, final state (`xf`, `vf`) and status as the
     CPU kernels do."""
     from numba import cuda
-    from numba.core.errors import NumbaPerformanceWarning
 
     mod = kernel.module
     nsteps, sub, every = int(args["nsteps"]), int(args["substeps"]), int(args["rec_every"])
@@ -168,7 +167,8 @@ def run(kernel: loader.Kernel, args: dict, runs: int) -> None:
         for name in ("nsteps", "substeps", "h", "check_every", "limit", "rec_every"):
             call[name] = args[name]
         with warnings.catch_warnings():  # a launch of few runs is not a user's error
-            warnings.simplefilter("ignore", NumbaPerformanceWarning)
+            # numba-cuda's warning is its own class, not numba's: matched by its text
+            warnings.filterwarnings("ignore", message=".*Grid size")
             mod.run[blocks, threads](*[call[name] for name in mod.ARGS])
         if args["rec"].shape[0] and count:
             col = int(args["rec_col"])
@@ -195,11 +195,16 @@ def _pairs_by_group(args: dict) -> dict:
     return out
 
 
+INDEX_32 = False  # integer arrays as int32 on the device (fewer registers, 32-bit indexing)
+
+
 def _to_device(a: np.ndarray):
     """A constant array on the device (an empty one as one zero: no zero-size launches)."""
     from numba import cuda
 
     a = np.ascontiguousarray(a)
+    if INDEX_32 and a.dtype.kind in "iu" and a.dtype.itemsize == 8:
+        a = a.astype(np.int32)
     return cuda.to_device(a if a.size else np.zeros((1,) * max(a.ndim, 1), a.dtype))
 
 

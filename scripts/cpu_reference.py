@@ -31,7 +31,6 @@ from cuda_compare import BENCH_SUBSTEPS, bench_cases, split_threads  # noqa: E40
 
 from springc.check import check  # noqa: E402
 from springc.kernels import cuda as cudagen  # noqa: E402
-from springc.sim import gpu  # noqa: E402
 from springc.sim import simulate as sm  # noqa: E402
 
 
@@ -54,11 +53,9 @@ def measure(name: str, net, inputs, tstep: float, seconds: float, precision: str
     threads = cudagen.SPLIT_THREADS if net.n >= cudagen.SPLIT_MIN else 1
     row = {"network": name, "dofs": net.n, "precision": precision, "device": device,
            "threads_per_run": threads if device == "cuda" else None,
-           "min_blocks": cudagen.MIN_BLOCKS, "index32": gpu.INDEX_32,
            "runs": runs, "seconds": seconds, "substeps": kw["substeps"], "wall_s": best,
            "runs_per_s": runs / best, "run_seconds_per_s": runs * seconds / best}
-    shown = (f"{device} T={threads} min-blocks={cudagen.MIN_BLOCKS} int32={gpu.INDEX_32}"
-             if device == "cuda" else device)
+    shown = f"{device} T={threads}" if device == "cuda" else device
     print(f"{name:28s} {precision} {shown}: {runs} runs of {seconds} s in {best:.3f} s = "
           f"{runs / best:,.0f} runs/s", flush=True)
     return row
@@ -81,14 +78,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--precision", nargs="*", default=["float64", "float32"])
     parser.add_argument("--threads", nargs="*", type=int, default=[cudagen.SPLIT_THREADS],
                         help="cuda: threads per run of the split form (1: one run a thread)")
-    parser.add_argument("--min-blocks", type=int, default=0,
-                        help="cuda: the split form's launch bound, blocks per multiprocessor")
-    parser.add_argument("--index32", action="store_true",
-                        help="cuda: integer coefficient arrays as int32 on the device")
     parser.add_argument("--json", help="write the rows here")
     args = parser.parse_args(argv)
-    cudagen.MIN_BLOCKS = args.min_blocks
-    gpu.INDEX_32 = args.index32
     runs = args.runs or (10000 if args.device == "cuda" else 8 * sm.threads())
     rows = []
     for name, net, u, tstep in bench_cases(args.seconds, runs):

@@ -50,7 +50,6 @@ WRITE_OUT_MAX = terms.NODES_MAX
 SPLIT_MIN = WRITE_OUT_MAX + 1
 SPLIT_THREADS = 256  # threads per run of the split form: the fastest of 32-512 (docs/bench-gpu.md)
 SHARED_BYTES = 48 * 1024
-MIN_BLOCKS = 0  # split form: blocks each multiprocessor must hold (caps registers; 0: no cap)
 
 
 @dataclass(frozen=True)
@@ -152,10 +151,7 @@ def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
     c(f"VNEED = {tuple(opts.vneed)!r}  # whether anything reads a node's stage velocity")
     c("")
     c("")
-    if split and MIN_BLOCKS:
-        c(f"@cuda.jit(launch_bounds=({opts.threads}, {MIN_BLOCKS}))")
-    else:
-        c("@cuda.jit")
+    c("@cuda.jit")
     c(f"def run({', '.join(run_args(feat, opts))}):")
     c.indent()
     if split:

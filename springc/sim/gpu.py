@@ -195,16 +195,11 @@ def _pairs_by_group(args: dict) -> dict:
     return out
 
 
-INDEX_32 = False  # integer arrays as int32 on the device (fewer registers, 32-bit indexing)
-
-
 def _to_device(a: np.ndarray):
     """A constant array on the device (an empty one as one zero: no zero-size launches)."""
     from numba import cuda
 
     a = np.ascontiguousarray(a)
-    if INDEX_32 and a.dtype.kind in "iu" and a.dtype.itemsize == 8:
-        a = a.astype(np.int32)
     return cuda.to_device(a if a.size else np.zeros((1,) * max(a.ndim, 1), a.dtype))
 
 

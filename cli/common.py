@@ -16,6 +16,28 @@ from springc.errors import DataError, SpringcError
 REPORT_URL = "the springc issue tracker"
 
 
+def on_device(fn: Callable) -> Callable:
+    """Give a command `--device cpu|cuda|auto`: its simulations run there
+    (`springc.sim.gpu.default_device`: on the GPU, in this process; `cuda` without a GPU is a
+    user error). Goes below `run_user_errors`, which reports that error."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, device: str, **kwargs):
+        from springc.sim import gpu
+
+        with gpu.default_device(device):
+            return fn(*args, **kwargs)
+
+    return click.option(
+        "--device", type=click.Choice(["cpu", "cuda", "auto"]), default="cpu",
+        show_default=True,
+        help="Where the mass-spring simulations run: cpu (the CPU kernels, on Dask workers); "
+             "cuda (the CUDA kernel form in this process, each batch of clips one launch; "
+             "what it does not run, such as thermal noise or the exponential schemes, stays "
+             "on the CPU; needs springc[cuda] and an NVIDIA GPU); auto: cuda where a GPU is "
+             "present, else cpu.")(wrapper)
+
+
 def run_user_errors(fn: Callable) -> Callable:
     """Wrap a command: user errors print `file:line:col: error: ...` and exit 1, and so does a
     file the system refuses (`error: PATH: ...`); anything else is an internal error that says

@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 import click
-from springc_cli.common import run_user_errors
+from springc_cli.common import on_device, run_user_errors
 
 from springc.kws.data.dataset import PROTOCOLS
 from springc.kws.evaluation.device import SPREAD_KINDS, STAGES
@@ -90,6 +90,7 @@ def _massspring(settings: FeatureSettings, threshold: float | None):
 @_PAPER_STEPS
 @_SCHEDULER
 @run_user_errors
+@on_device
 def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, tau, fc,
               feature_rate, protocol, class_weights, jobs, seed, no_cache, out, epsilon,
               threshold, tolerance, paper_steps, scheduler) -> None:
@@ -160,6 +161,7 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
               help="With --mc or --temp: N test clips spread evenly over the split.")
 @_SCHEDULER
 @run_user_errors
+@on_device
 def eval_cmd(model_dir, data, realisation, protocol, as_json, jobs, no_cache, scheduler,
              budget, devices, spread, spread_kind, stage, temp, mass, spl, area, seed,
              clips) -> None:
@@ -262,6 +264,7 @@ def _majority(report: dict) -> float:
 @_PAPER_STEPS
 @_SCHEDULER
 @run_user_errors
+@on_device
 def cv_cmd(data, bins, delays, realisations, folds, threshold, jobs, seed, no_cache, out,
            tolerance, paper_steps, scheduler) -> None:
     """Speaker-grouped cross-validation (12 classes) on every clip of a data set: the
@@ -298,6 +301,7 @@ def cv_cmd(data, bins, delays, realisations, folds, threshold, jobs, seed, no_ca
 @_JOBS
 @_SCHEDULER
 @run_user_errors
+@on_device
 def classify_cmd(model_dir, inputs, realisation, as_json, stream, plots, jobs,
                  scheduler) -> None:
     """Classify sound files (or the sound files under folders) with a trained model: per file

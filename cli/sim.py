@@ -59,8 +59,9 @@ REDUCE_HELP = (
                    "structure: for sweeps of short runs); shared: never.")
 @click.option("--device", type=click.Choice(["cpu", "cuda", "auto"]), default="cpu",
               help="cpu: the CPU kernels; cuda: the CUDA kernel form, one run per GPU thread "
-                   "(Runge-Kutta methods; needs springc[cuda] and an NVIDIA GPU); auto: cuda "
-                   "where a GPU is present, else cpu.")
+                   "(a block of threads per run above 48 masses; Runge-Kutta methods; needs "
+                   "springc[cuda] and an NVIDIA GPU); auto: cuda where a GPU is present and "
+                   "serves the method, else cpu.")
 @click.option("--temp", type=float, default=None,
               help="Temperature in kelvin of every damper's thermal noise force, drawn per "
                    "integration step (overrides .options temp=; 0: no noise).")

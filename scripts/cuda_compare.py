@@ -84,15 +84,17 @@ PROGRESS: list[dict] = []  # every case so far, written to --json after each one
 JSON_PATH: list[str] = []
 
 
-def compare(name: str, net, inputs, precision: str, reference=None, **kw) -> dict:
-    """One case: the CPU kernels' result and the CUDA form's, their errors and times; with a
-    float64 CPU `reference`, each one's own error against it too (float32's rounding, which
-    the two devices meet apart). The row keeps the CPU result under "result" (not saved)."""
+def compare(name: str, net, inputs, precision: str, reference=None, device: str | None = "cuda",
+            **kw) -> dict:
+    """One case: the CPU kernels' result and the CUDA form's (`device`; None: that of
+    `gpu.default_device`), their errors and times; with a float64 CPU `reference`, each one's
+    own error against it too (float32's rounding, which the two devices meet apart). The row
+    keeps the CPU result under "result" (not saved)."""
     checked = check(net)
     start = time.perf_counter()
-    cpu = sm.simulate(checked, inputs, precision=precision, **kw)
+    cpu = sm.simulate(checked, inputs, precision=precision, device="cpu", **kw)
     mid = time.perf_counter()
-    cuda = sm.simulate(checked, inputs, precision=precision, device="cuda", **kw)
+    cuda = sm.simulate(checked, inputs, precision=precision, device=device, **kw)
     end = time.perf_counter()
     errs = errors(cpu, cuda)
     worst = max(errs.values())
@@ -116,7 +118,8 @@ def compare(name: str, net, inputs, precision: str, reference=None, **kw) -> dic
 
 def tiny() -> list[dict]:
     """The every-kind network in the three force forms (written out, loops, split over 3
-    threads a run), two tableaux, both precisions, with its steps streamed over many calls."""
+    threads a run), two tableaux, both precisions, with its steps streamed over many calls;
+    then once on the default device (`gpu.default_device`)."""
     net = every_kind()
     u = smooth_inputs(3, 2, 90, seed=0)
     out = []
@@ -132,6 +135,11 @@ def tiny() -> list[dict]:
                           write_out=False)
             out.append({k: v for k, v in row.items() if k != "result"})
     cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = saved
+    with gpu.default_device("cuda"):  # a simulation that names no device runs there
+        row = compare("every kind, the default device", net, u, "float64", device=None,
+                      method="rk4", substeps=1, reductions=REDUCE, outrate=5e3,
+                      write_out=False)
+    out.append({k: v for k, v in row.items() if k != "result"})
     return out
 
 

@@ -5,8 +5,9 @@ network, `springc.kws.features.massspring`) on synthetic clips, timed on a devic
 
 The clips are speech-like random signals (`springc.bench.suite.speech_like` at the corpus
 level, 1 s at 16 kHz: a chirp with pitch-like modulation and noise), not recordings. Phi is
-simulated as `massspring.simulate_phi` does (its method, substeps and horizon), after a
-compiling call on two clips. Shorter clips (`--seconds`) are scaled to 1 s ones by the
+simulated by `massspring.simulate_phi` (its method, substeps and horizon) inside
+`gpu.default_device`, as `springc train --device` simulates it, after a compiling call on two
+clips. Shorter clips (`--seconds`) are scaled to 1 s ones by the
 ratio of their horizons (the steps simulated), and the time for a corpus of `--corpus`
 clips (default 20,000) from the clips per second; both printed as scaled.
 """
@@ -25,18 +26,14 @@ from cuda_compare import split_threads  # noqa: E402
 
 from springc.bench import suite  # noqa: E402
 from springc.kws.features import massspring as msp  # noqa: E402
-from springc.sim.simulate import simulate  # noqa: E402
+from springc.sim import gpu  # noqa: E402
 
 
 def phi(signals, s: msp.MassSpringSettings, device: str, precision: str):
-    """Phi (clips, N) as `massspring.simulate_phi` computes it, on `device`."""
-    net = msp.feature_network(s)
-    res = simulate(msp.checked_features(s), signals[:, None, :], msp.INPUT_RATE,
-                   reductions=[msp.phi_reduction(net, s)],
-                   tstop=msp.horizon(s, signals.shape[1] / msp.INPUT_RATE), probes=[],
-                   batch=len(signals), method=s.method, substeps=s.substeps,
-                   precision=precision, device=device)
-    return res.reductions["phi"]
+    """Phi (clips, N) by `massspring.simulate_phi`, the feature pass of `springc train`, with
+    its simulations on `device` (`gpu.default_device`)."""
+    with gpu.default_device(device):
+        return msp.simulate_phi(signals, s, precision=precision)
 
 
 def main(argv: list[str] | None = None) -> int:

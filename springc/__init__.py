@@ -4,7 +4,7 @@
 
 __version__ = "0.1.0"
 
-__all__ = ["Netlist", "Result", "load"]
+__all__ = ["Netlist", "Result", "default_device", "load"]
 
 
 def __getattr__(name: str):

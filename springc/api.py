@@ -26,6 +26,7 @@ from springc.errors import NetlistError, UsageError
 from springc.grad.params import ParamNetlist
 from springc.lang import ast, load_text, parse, read_source, variation
 from springc.lang.ir import FlatNetlist
+from springc.sim.gpu import default_device  # noqa: F401  (springc.default_device)
 
 
 def load(source: str | Path, *, params: Mapping[str, float] | None = None,
@@ -123,7 +124,7 @@ class Netlist:
                  reduce: Sequence[str] = (), probes: Sequence[str] | None = None,
                  outrate: float | None = None, channel: int | None = None,
                  input_rate: float | None = None, batch: int | None = None,
-                 kernel: str = "auto", device: str = "cpu",
+                 kernel: str = "auto", device: str | None = None,
                  progress: bool = False, temp: float | None = None,
                  seed: int | None = None) -> Result:
         """Simulate every input (None: one run without input; an array (runs, channels,
@@ -134,7 +135,8 @@ class Netlist:
         (default `springc.sim.plan.DEFAULT_TOLERANCE`), reported in `Result.choice`.
         `reduce`: streaming reductions (`springc sim --reduce` specs). `kernel`: auto,
         written-out or shared (`springc sim --kernel`). `device`:
-        cpu, cuda or auto (`springc sim --device`). `temp` (kelvin) and `seed`: the
+        cpu, cuda or auto (`springc sim --device`), or None: that of the innermost
+        `springc.default_device` (the CPU outside one). `temp` (kelvin) and `seed`: the
         dampers' thermal noise, overriding `.options temp=`/`seed=` (`springc sim --temp`).
 
         With `.step`/`.mc` every point is simulated (`springc.sim.points`: the points of

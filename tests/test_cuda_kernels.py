@@ -31,14 +31,15 @@ NO_GPU = pytest.mark.skipif(gpu.cuda_present(simulator=False), reason="a GPU is 
 def test_cuda_form_gives_the_cpu_kernels_probes_and_reductions(tmp_path):
     """Every term kind, every reduction the CUDA form sums, RK4 and Heun3 (its stage of weight
     0), float64 and float32, the three force forms (written out, loops, a run split over a
-    block's threads), the steps streamed over many kernel calls."""
+    block's threads), the steps streamed over many kernel calls; and a simulation that names
+    no device inside `gpu.default_device('cuda')`."""
     out = tmp_path / "cases.json"
     env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1"}
     proc = subprocess.run([sys.executable, str(SCRIPT), "tiny", "--json", str(out)], env=env,
                           capture_output=True, text=True, timeout=900, cwd=ROOT)
     assert out.exists(), proc.stdout + proc.stderr
     cases = json.loads(out.read_text())
-    assert len(cases) == 9
+    assert len(cases) == 10
     for case in cases:
         assert set(case["errors"]) >= {"x(a)", "x(d)", "v(b)", "work:in", "dissipated:all",
                                        "energy", "gram:0.005:a,c,d", "msq:v(d):0.002:0.006"}
@@ -118,3 +119,40 @@ def test_auto_runs_on_the_cpu_what_the_cuda_form_does_not(monkeypatch):
     np.testing.assert_array_equal(auto["x(a)"], cpu["x(a)"])
     with pytest.raises(UsageError, match="Runge-Kutta tableaux only"):
         net.simulate(u, method="exp-rk4", substeps=1, device="cuda")
+
+
+@NO_GPU
+@pytest.mark.parametrize("args", [["train", "--data", "D", "-o", "M"], ["eval", "M"],
+                                  ["classify", "M", "a.wav"], ["cv", "--data", "D", "-o", "O"]])
+def test_kws_commands_take_device_cuda_without_a_gpu_as_a_user_error(args):
+    """--device on the commands that simulate data sets: cuda without a GPU exits 1 with the
+    reason before any work."""
+    res = CliRunner().invoke(main, args + ["--device", "cuda"])
+    assert res.exit_code == 1, res.output
+    assert "--device cuda: no CUDA GPU is available here" in res.output
+    assert "Traceback" not in res.output
+
+
+@NO_GPU
+def test_default_device_resolves_nests_and_restores():
+    assert gpu.current() == "cpu"
+    with gpu.default_device("auto") as outer:
+        assert outer == gpu.current() == "cpu"
+        with pytest.raises(UsageError, match="no CUDA GPU"):
+            with gpu.default_device("cuda"):
+                pass
+        assert gpu.current() == "cpu"
+    assert gpu.current() == "cpu"
+
+
+def test_data_set_batches_run_in_this_process_on_the_gpu(monkeypatch):
+    """Inside default_device('cuda') the batches are not sent to Dask workers (the GPU is this
+    process's) and no cluster starts."""
+    from springc.kws.features import distributed
+
+    monkeypatch.setattr(gpu, "_DEFAULT", ["cpu", "cuda"])
+    monkeypatch.setattr(distributed, "_client", lambda *a: pytest.fail("a cluster started"))
+    with distributed.session(None, 2):
+        got = distributed.map_batches(lambda b: (os.getpid(), sum(b)), [[1, 2], [3], [4, 5]],
+                                      workers=2)
+    assert got == [(os.getpid(), 3), (os.getpid(), 3), (os.getpid(), 9)]

@@ -13,6 +13,8 @@ on the device at a time: a recording of any length fits. numba's CUDA simulator
 from __future__ import annotations
 
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -25,6 +27,26 @@ from springc.sim import sources
 
 DEVICES = ("cpu", "cuda", "auto")
 STEPS_PER_CALL = 4096  # steps per kernel call: the input, signals and records on the device
+_DEFAULT = ["cpu"]  # the device of the innermost `default_device`: what `simulate` uses
+
+
+@contextmanager
+def default_device(device: str) -> Iterator[str]:
+    """Within it, `simulate` calls that name no device run on `device` ('auto': CUDA where a
+    GPU is present; UsageError for 'cuda' where none is), falling back to the CPU for what
+    the CUDA form does not run, and data-set simulations (`springc.kws.features.distributed`)
+    run in this process, batch after batch, instead of on Dask workers. Yields the device
+    resolved ('cpu' or 'cuda')."""
+    _DEFAULT.append(resolve(device))
+    try:
+        yield _DEFAULT[-1]
+    finally:
+        _DEFAULT.pop()
+
+
+def current() -> str:
+    """The device of the innermost `default_device` ('cpu' outside any)."""
+    return _DEFAULT[-1]
 
 
 def _numpy_compat() -> None:

@@ -182,7 +182,8 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
              chunk: int | None = None, write_out: bool | None = None,
              record_into: np.ndarray | None = None, check_step: bool = True,
              node_threads: bool | None = None, temp: float | None = None,
-             seed: int | None = None, device: str = "cpu", first_run: int = 0) -> SimResult:
+             seed: int | None = None, device: str | None = None,
+             first_run: int = 0) -> SimResult:
     """Simulate the checked netlist for every input signal (`springc.check.check(net)`).
 
     `inputs`: None (one run, no input), an array (runs, channels, samples) sampled at
@@ -205,11 +206,12 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
     (`springc.sim.thermal`), run r's the same whatever the batch or kernel form. `batch`:
     runs per kernel call, rounded up to whole chunks of the kernel's lanes, so that run r is in
     lane r mod lanes and its result is bitwise the same whatever the batch. `device`:
-    'cpu', 'cuda' (the CUDA kernel form, `springc.sim.gpu`; UsageError where no GPU is) or
-    'auto' (CUDA where a GPU is present); on CUDA every run is one batch unless `batch` is
-    given. `first_run`: the index of this call's first run in a larger population, whose
-    noise streams run r draws as run `first_run` + r (`springc.sim.points`: each device its
-    own)."""
+    'cpu', 'cuda' (the CUDA kernel form, `springc.sim.gpu`; UsageError where no GPU is),
+    'auto' (CUDA where a GPU is present and the CUDA form runs the method and the noise) or
+    None (that of `gpu.default_device`, falling back as 'auto' does; the CPU outside one);
+    on CUDA every run is one batch unless `batch` is given. `first_run`: the index of this
+    call's first run in a larger population, whose noise streams run r draws as run
+    `first_run` + r (`springc.sim.points`: each device its own)."""
     options = {k: v for k, v in locals().items() if k not in ("checked", "inputs",
                                                                "input_rate")}
     return _simulate([require_checked(checked, "simulate")], None, inputs, input_rate,
@@ -247,7 +249,7 @@ def _simulate(group: list[CheckedNetlist], labels: list[str] | None, inputs, inp
               tstep=None, tstop=None, substeps=None, method=None, precision=None, outrate=None,
               probes=None, reductions=(), batch=None, channel=None, progress=False,
               chunk=None, write_out=None, record_into=None, check_step=True,
-              node_threads=None, temp=None, seed=None, device="cpu",
+              node_threads=None, temp=None, seed=None, device=None,
               first_run=0) -> SimResult:
     """`simulate` of the first netlist of `group` or, with `labels`, `simulate_lanes` of
     them all."""
@@ -265,9 +267,9 @@ def _simulate(group: list[CheckedNetlist], labels: list[str] | None, inputs, inp
     rplan = reductions_plan(list(reductions), net)
     require_memory(len(plist), st.nsteps // st.rec_every + 1, len(names), st.precision,
                    record_into)
-    dev = gpu.resolve(device)
-    if dev == "cuda" and device == "auto" and not gpu.serves(net, st.method):
-        dev = "cpu"  # auto: the CPU where the CUDA form does not run the method or the noise
+    dev = gpu.resolve(device or gpu.current())
+    if dev == "cuda" and device in ("auto", None) and not gpu.serves(net, st.method):
+        dev = "cpu"  # chosen, not asked for: the CPU where the CUDA form does not serve
     if labels is not None:
         _lanes_serve(net, rplan, dev)
     if dev == "cuda":

@@ -35,23 +35,32 @@ def map_batches(fn: Callable[[Any], Any], batches: Sequence[Any], scheduler: str
                 sizes: Sequence[int] | None = None) -> list[Any]:
     """[fn(b) for b in batches], computed on Dask; progress in clips (`sizes[k]` per batch) or
     batches. `scheduler`: None for a local cluster of `workers` processes (default: all
-    cores; 1 runs here, without Dask), or the address of a running scheduler."""
+    cores; 1 runs here, without Dask), or the address of a running scheduler. Inside
+    `gpu.default_device('cuda')` the batches run here, one after the other: the GPU is this
+    process's."""
     workers = workers or cores()
     bar = tqdm(total=int(sum(sizes)) if sizes is not None else len(batches), desc=desc,
                unit="clip" if sizes is not None else "batch", file=sys.stderr, disable=None,
                smoothing=0.1)
     step = (lambda k: sizes[k]) if sizes is not None else (lambda k: 1)
     with bar:
-        if _OPEN:
-            return _gather(_OPEN[-1], fn, batches, bar, step)
-        if scheduler is None and (workers == 1 or len(batches) <= 1):
+        if on_gpu() or not _OPEN and scheduler is None and (workers == 1 or len(batches) <= 1):
             out = []
             for k, b in enumerate(batches):
                 out.append(fn(b))
                 bar.update(step(k))
             return out
+        if _OPEN:
+            return _gather(_OPEN[-1], fn, batches, bar, step)
         with _client(scheduler, workers) as client:
             return _gather(client, fn, batches, bar, step)
+
+
+def on_gpu() -> bool:
+    """Whether simulations run on the GPU (`gpu.default_device`): in this process, then."""
+    from springc.sim import gpu
+
+    return gpu.current() == "cuda"
 
 
 _OPEN: list = []  # the client of the `session` in progress, which `map_batches` uses
@@ -78,9 +87,10 @@ def _quietly(fn: Callable[..., Any], *args: Any) -> None:
 def session(scheduler: str | None = None, workers: int | None = None) -> Iterator[None]:
     """One Dask client for every `map_batches` call inside: a local cluster starts (and its
     workers import springc and load their kernels) once per command, not once per split. No
-    cluster for one local worker; a session inside a session is the outer one."""
+    cluster for one local worker or on the GPU; a session inside a session is the outer
+    one."""
     workers = workers or cores()
-    if _OPEN or (scheduler is None and workers == 1):
+    if _OPEN or on_gpu() or (scheduler is None and workers == 1):
         yield
         return
     with _client(scheduler, workers) as client:

@@ -518,6 +518,7 @@ def physical_settings(fs, given=None) -> MassSpringSettings:
 # -- data sets: batches of clips through the network on Dask --------------------------------
 
 BATCH = 16  # clips simulated in lockstep by one worker (SIMD lanes; one progress tick)
+GPU_BATCH = 4096  # clips a batch on the GPU: one launch of a block a clip fills an H100
 
 
 def load_signals(clips: list, augment: bool, seed: int, noise_files: list) -> np.ndarray:
@@ -598,9 +599,9 @@ def _map_rows(work: Callable[..., dict], items, tries: slice, desc: str,
               scheduler: str | None, workers: int | None) -> dict[str, np.ndarray]:
     from functools import partial
 
-    from springc.kws.features.distributed import map_batches
+    from springc.kws.features.distributed import map_batches, on_gpu
 
-    parts = batches(items)
+    parts = batches(items, GPU_BATCH if on_gpu() else BATCH)
     got = map_batches(partial(work, tries=tries), parts, scheduler, workers=workers, desc=desc,
                       sizes=[len(p) for p in parts])
     return {key: np.concatenate([g[key] for g in got]) for key in got[0]}

@@ -33,10 +33,11 @@ REDUCE = ["final:x(c)", "final:v(b)", "msq:x(a)", "msq:v(d):0.002:0.006", "work:
           "dissipated:all", "energy", "gram:0.005:a,c,d"]
 
 
-def every_kind():
+def every_kind(scattered: bool = True):
     """Four masses: a, b damped, c, d undamped; springs; a coupling a-b; quadratic couplings
     a->c, b->c; a Duffing term on d; a dashpot b-d; a monomial a^2 b^2 and one c^4 (P); inputs
-    on a (in(0)), b (in(1)), c (in(0), twice); a sine drive on d."""
+    on a (in(0)), b (in(1)), c (in(0), twice); a sine drive on d. Without `scattered`, no
+    monomials and no sine drive (the terms the split form adds after its node loop)."""
     w = 2 * np.pi * 80.0
     b = IRBuilder("every term kind", "<cuda_compare.every_kind>")
     for name, node, m, damp in (("1", "a", 1.0, 30.0), ("2", "b", 2.0, 10.0),
@@ -48,13 +49,15 @@ def every_kind():
     b.quad("Q2", "b", "c", 1e3, a=2.0)
     b.duffing("D1", "d", 1e7)
     b.dashpot("B1", "b", "d", 5.0)
-    b.monomial("P1", 1e6, [("a", 2), ("b", 2)])
-    b.monomial("P2", 1e7, [("c", 4)])
+    if scattered:
+        b.monomial("P1", 1e6, [("a", 2), ("b", 2)])
+        b.monomial("P2", 1e7, [("c", 4)])
     b.force("F1", "a", Source("in", channel=0), 1e3)
     b.force("F2", "b", Source("in", channel=1), 2e3)
     b.force("F3", "c", Source("in", channel=0), 5e2)
     b.force("F4", "c", Source("in", channel=0), -2e2)
-    b.force("F5", "d", Source("sin", (50.0, 60.0)))
+    if scattered:
+        b.force("F5", "d", Source("sin", (50.0, 60.0)))
     for node in "abcd":
         b.probe("x", node)
     b.probe("v", "b")
@@ -119,7 +122,8 @@ def compare(name: str, net, inputs, precision: str, reference=None, device: str 
 def tiny() -> list[dict]:
     """The every-kind network in the three force forms (written out, loops, split over 3
     threads a run), two tableaux, both precisions, with its steps streamed over many calls;
-    then once on the default device (`gpu.default_device`)."""
+    split without monomials and shared signals (its combine folded into the last stage); then
+    once on the default device (`gpu.default_device`)."""
     net = every_kind()
     u = smooth_inputs(3, 2, 90, seed=0)
     out = []
@@ -134,6 +138,11 @@ def tiny() -> list[dict]:
                           method=method, substeps=sub, reductions=REDUCE, outrate=5e3,
                           write_out=False)
             out.append({k: v for k, v in row.items() if k != "result"})
+    # split, no term added after the node loop: the combine folded into the last stage's
+    cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = 0, 1, 3
+    row = compare("unscattered kinds, split, rk4 x1", every_kind(False), u, "float64",
+                  method="rk4", substeps=1, reductions=REDUCE, outrate=5e3, write_out=False)
+    out.append({k: v for k, v in row.items() if k != "result"})
     cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = saved
     with gpu.default_device("cuda"):  # a simulation that names no device runs there
         row = compare("every kind, the default device", net, u, "float64", device=None,

@@ -31,15 +31,16 @@ NO_GPU = pytest.mark.skipif(gpu.cuda_present(simulator=False), reason="a GPU is 
 def test_cuda_form_gives_the_cpu_kernels_probes_and_reductions(tmp_path):
     """Every term kind, every reduction the CUDA form sums, RK4 and Heun3 (its stage of weight
     0), float64 and float32, the three force forms (written out, loops, a run split over a
-    block's threads), the steps streamed over many kernel calls; and a simulation that names
-    no device inside `gpu.default_device('cuda')`."""
+    block's threads; split without monomials and shared signals, its combine folded into the
+    last stage), the steps streamed over many kernel calls; and a simulation that names no
+    device inside `gpu.default_device('cuda')`."""
     out = tmp_path / "cases.json"
     env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1"}
     proc = subprocess.run([sys.executable, str(SCRIPT), "tiny", "--json", str(out)], env=env,
                           capture_output=True, text=True, timeout=900, cwd=ROOT)
     assert out.exists(), proc.stdout + proc.stderr
     cases = json.loads(out.read_text())
-    assert len(cases) == 10
+    assert len(cases) == 11
     for case in cases:
         assert set(case["errors"]) >= {"x(a)", "x(d)", "v(b)", "work:in", "dissipated:all",
                                        "energy", "gram:0.005:a,c,d", "msq:v(d):0.002:0.006"}
@@ -74,6 +75,7 @@ def test_generated_text_is_specialised_to_the_network():
     split = cudagen.generate(net, cudagen.CudaOptions("rk4", "float64", 1, 0, probes=1,
                                                       vneed=(True,), threads=4))
     assert "x = cuda.shared.array(N, FT)" in split and "for i in range(t, N, T):" in split
+    assert "kv2 = cuda.shared" in split and "kv3 = cuda.shared" not in split  # folded
     assert split.count("cuda.syncthreads()") == 8  # RK4: 3 stage states, 2 forces, the
     # combine, the start and the divergence check
 

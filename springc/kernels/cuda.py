@@ -76,11 +76,24 @@ class CudaOptions:
     threads: int = 1  # threads per run: > 1, the split form
 
 
-def shared_bytes(n: int, precision: str, method: str, gram: int = 0) -> int:
+def shared_bytes(n: int, precision: str, method: str, gram: int = 0,
+                 folded: bool = True) -> int:
     """The split form's shared memory per block: positions, velocities, their stage values
-    and every stage's forces, n each, and the Gram sums."""
+    and the stages' forces, n each (`folded`: the last stage's kept in a register,
+    `_folds`), and the Gram sums."""
     size = 8 if precision == "float64" else 4
-    return (4 + get_tableau(method).stages) * n * size + 8 * gram + 64
+    stages = get_tableau(method).stages
+    arrays = 4 + stages - (folded and stages > 1)
+    return arrays * n * size + 8 * gram + 64
+
+
+def _folds(feat: Features, opts: CudaOptions, tab: Tableau) -> bool:
+    """Whether the split form folds the combine into the last stage's force loop: each node's
+    new state from its last stage force as soon as it is summed, kept in a register rather
+    than in shared memory (not where monomials or shared signals add to the forces after
+    the loop)."""
+    return (opts.threads > 1 and tab.stages > 1 and not feat.monomials
+            and not feat.common_forces)
 
 
 def run_args(feat: Features, opts: CudaOptions) -> list[str]:
@@ -178,7 +191,7 @@ def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
     c("    k0 += 1")
     for s in range(tab.stages):
         _emit_stage(c, feat, opts, tab, s)
-    _emit_combine(c, opts, tab)
+    _emit_combine(c, feat, opts, tab)
     _emit_step_end(c, opts)
     c.dedent()
     _emit_store(c, feat, opts)
@@ -224,7 +237,8 @@ def _emit_state(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau) -> No
     reductions' sums (split: thread 0's)."""
     split = opts.threads > 1
     where = "shared" if split else "local"
-    for name in ["x", "v", "xs", "vs"] + [f"kv{s}" for s in range(tab.stages)]:
+    stages = tab.stages - _folds(feat, opts, tab)
+    for name in ["x", "v", "xs", "vs"] + [f"kv{s}" for s in range(stages)]:
         c(f"{name} = cuda.{where}.array(N, FT)")
     c("uc = cuda.local.array(NCH, FT)")
     c(_node_loop(opts))
@@ -299,6 +313,8 @@ def _emit_stage(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau, s: in
     if feat.common_forces:
         c(f"grow = g[step - s0, {s}]")
     text = force_code(feat, opts)
+    if s == tab.stages - 1 and _folds(feat, opts, tab):
+        text = _fold_combine(text, tab)
     for line in text:
         c(_rename(line, xa, va, f"kv{s}"))
     if tab.b[s] != 0.0 and (opts.dampers or opts.work and (feat.in_forces
@@ -308,6 +324,18 @@ def _emit_stage(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau, s: in
         _end_first(c, opts)
     if s > 0 and s < tab.stages - 1:
         _sync(c, opts)
+
+
+def _fold_combine(text: list[str], tab: Tableau) -> list[str]:
+    """The split force code with the node's store of its last stage force replaced by the
+    combine, that force read from the accumulator A0 (`_folds`)."""
+    last = tab.stages - 1
+    xterm, vterm = combine_terms(tab, "V", lambda k: "A0" if k == last else f"kv{k}[i]")
+    store = "    ka[i] = A0"
+    assert text.count(store) == 1, "the split force code stores each node once"
+    at = text.index(store)
+    return text[:at] + ["    V = v[i]", f"    x[i] = x[i] + ({xterm})",
+                        f"    v[i] = V + ({vterm})"] + text[at + 1:]
 
 
 def _rename(line: str, xa: str, va: str, ka: str) -> str:
@@ -446,9 +474,12 @@ def _emit_stage_reductions(c: _Code, feat: Features, opts: CudaOptions, s: int,
         c(f"    dsacc[d] += hbd{s} * ds_b[d] * dv * dv")
 
 
-def _emit_combine(c: _Code, opts: CudaOptions, tab: Tableau) -> None:
-    """The step's new state from its stages (split: each thread its nodes, then a barrier
-    before anyone reads them)."""
+def _emit_combine(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau) -> None:
+    """The step's new state from its stages (split: each thread its nodes, or folded into
+    the last stage's force loop, then a barrier before anyone reads them)."""
+    if _folds(feat, opts, tab):
+        _sync(c, opts)
+        return
     _sync_before_combine(c, opts, tab)
     xterm, vterm = combine_terms(tab, "V", lambda k: f"kv{k}[i]")
     for i, line in _per_node(opts):

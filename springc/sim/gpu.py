@@ -133,8 +133,9 @@ def options(net: FlatNetlist, method: str, precision: str, coeffs: dict, probes:
     nodes = terms.node_terms(coeffs, net.n) if net.n <= cudagen.WRITE_OUT_MAX else None
     feat = features(net)
     gram = sum(r.gram.groups for r in rplan.gram)
+    folded = not (feat.monomials or feat.common_forces)
     split = (nodes is None and net.n >= cudagen.SPLIT_MIN and cudagen.shared_bytes(
-        net.n, precision, method, gram) <= cudagen.SHARED_BYTES)
+        net.n, precision, method, gram, folded) <= cudagen.SHARED_BYTES)
     return cudagen.CudaOptions(
         method, precision, net.n, sources.channels_used(net),
         inputs=len(sources.input_forces(net)) if feat.in_forces else 0,

@@ -158,3 +158,32 @@ def test_data_set_batches_run_in_this_process_on_the_gpu(monkeypatch):
         got = distributed.map_batches(lambda b: (os.getpid(), sum(b)), [[1, 2], [3], [4, 5]],
                                       workers=2)
     assert got == [(os.getpid(), 3), (os.getpid(), 3), (os.getpid(), 9)]
+
+
+def test_on_the_gpu_the_integration_choice_leaves_out_what_it_does_not_run(monkeypatch):
+    """The keyword spotter's integration choice on the GPU: the exponential schemes would run
+    on one CPU core there (the data set is not on Dask workers), so they are not candidates."""
+    from springc.check import check
+    from springc.kws.features import integration
+
+    checked = check(_one_mass())
+    assert integration.served(checked, integration.METHODS) == integration.METHODS
+    monkeypatch.setattr(gpu, "_DEFAULT", ["cpu", "cuda"])
+    assert integration.served(checked, integration.METHODS) == ("rk4",)
+
+
+def test_on_the_gpu_the_automatic_integrator_is_one_the_cuda_form_runs(monkeypatch):
+    """`simulate` choosing its integrator for a tolerance: on the GPU among the methods the
+    CUDA form runs (the feature extractor's Mel filter pairs, which an exponential scheme
+    integrates best on the CPU)."""
+    from springc.bench import suite
+    from springc.check.accuracy import choose
+    from springc.sim import plan
+
+    net = suite.feature_extractor()
+    cpu = choose(net, 1 / 16000, 0.05, 1e-3, plan.candidates(net, "cpu"))
+    assert not gpu.serves(net, cpu.method), cpu  # an exponential scheme
+    monkeypatch.setattr(gpu, "resolve", lambda device: "cuda")
+    methods = plan.candidates(net, None)
+    assert methods and all(gpu.serves(net, m) for m in methods)
+    assert choose(net, 1 / 16000, 0.05, 1e-3, methods).method in methods

@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
-# The CUDA kernel form on a machine with an NVIDIA GPU (no network there): threads per run of
-# the split form on the 8x3 feature network, JAX and diffrax on the same GPU and network, the
-# CUDA form against the CPU kernels on the networks it splits, runs per second of every bench
-# network, and the keyword-spotting feature pass (the 2-core CPU figures: scripts/
-# cpu_reference.py on a 2-core machine). Sized to finish in under 10 minutes; each stage is
-# timed and bounded, a failed stage is reported and the later ones still run. Everything
-# printed goes to $OUT/gpu_check.log and each stage's JSON to $OUT (the folder given as the
-# first argument, else $OUT, else ./gpu_check_out).
+# The CUDA kernel form on a machine with an NVIDIA GPU (no network there): threads per run of the
+# split form on the 8x3 feature network, JAX and diffrax on the same GPU and network, the CUDA
+# form against the CPU kernels on the networks it splits, runs per second of every bench network,
+# the keyword-spotting feature pass, and a mass-spring spotter trained and evaluated with its
+# simulations on the GPU against the same on the CPU (the 2-core CPU figures:
+# scripts/cpu_reference.py on a 2-core machine). Sized to finish in under 10 minutes; each stage
+# is timed and bounded, a failed stage is reported and the later ones still run. Everything
+# printed goes to $OUT/gpu_check.log and each stage's JSON to $OUT (the folder given as the first
+# argument, else $OUT, else ./gpu_check_out).
 #
 # The wheels the GPU image lacks (lark, soundfile, dask and theirs) travel in .whl/:
 #   python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 \
@@ -68,10 +69,10 @@ except Exception as err:
 EOF
 
 # 1. the 8x3 feature network at 10,000 runs: one run per thread (1) against runs split
-#    over blocks of 32..512 threads; the fastest split is used below
-stage "split threads" 120 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
+#    over blocks of 128..512 threads; the fastest split is used below
+stage "split threads" 80 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
     --seconds 0.02 --repeat 1 --only "pipeline features 8x3" --precision float64 \
-    --threads 1 32 64 128 256 512 --json "$OUT_DIR/split_threads.json"
+    --threads 1 128 256 512 --json "$OUT_DIR/split_threads.json"
 T=$($PY - "$OUT_DIR/split_threads.json" <<'EOF' 2>/dev/null || echo 64
 import json, sys
 rows = [r for r in json.load(open(sys.argv[1]))["rows"]
@@ -89,13 +90,16 @@ stage "cuda vs cpu kernels" 110 $PY scripts/cuda_compare.py bench --seconds 0.02
     --only "pipeline features 8x3" "564-dof kws network" "long delay line" \
     "pipeline classifier 8x3" --json "$OUT_DIR/compare.json"
 # 4. runs per second of every bench network, 10,000 runs each
-stage "cuda throughput" 150 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
+stage "cuda throughput" 120 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
     --seconds 0.02 --repeat 2 --threads "$T" --json "$OUT_DIR/cuda_throughput.json"
-stage "peers: 564-dof kws network" 50 $PY scripts/gpu_peers.py --network "564-dof kws network" \
+stage "peers: 564-dof kws network" 45 $PY scripts/gpu_peers.py --network "564-dof kws network" \
     --runs 10000 --seconds 0.02 --threads "$T" --json "$OUT_DIR/peers_kws.json"
 # 5. the keyword-spotting feature pass: clips per second, scaled to a 20,000-clip corpus
 stage "kws feature pass" 70 $PY scripts/kws_feature_pass.py --device cuda --clips 20000 \
     --seconds 0.1 --corpus 20000 --check 4 --threads "$T" --json "$OUT_DIR/kws_pass.json"
+# 6. springc train and eval of a mass-spring spotter with --device cuda, against the CPU
+stage "train and eval on the device" 100 $PY scripts/gpu_train_check.py --device cuda \
+    --json "$OUT_DIR/train_eval.json"
 
 say ""
 if [ ${#FAILED[@]} -eq 0 ]; then

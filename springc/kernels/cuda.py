@@ -41,12 +41,12 @@ from springc.kernels.integrators import Tableau, get_tableau
 from springc.lang.ir import FlatNetlist
 
 CUDA_VERSION = 2  # bump when the generated text or its calling convention changes
-BLOCK = 32  # threads (runs) per block: 10,000 runs make 313 blocks, every SM busy
+BLOCK = 32  # threads (runs) per block where each run is one thread
 # Networks up to this many nodes get their force code written out per node (constant
-# indices, coefficients in scalars); larger ones loop over the runtime index arrays.
+# indices, coefficients in scalars), one run per thread; larger ones loop over the runtime
+# index arrays, each run split over a block's threads (`CudaOptions.threads`) where its state
+# fits a block's static shared memory (`shared_bytes`), else one run per thread.
 WRITE_OUT_MAX = terms.NODES_MAX
-# Larger ones are split over a block's threads (`CudaOptions.threads`) where their state fits
-# a block's static shared memory, else loop one run per thread.
 SPLIT_MIN = WRITE_OUT_MAX + 1
 SPLIT_THREADS = 256  # threads per run of the split form: the fastest of 32-512 (docs/bench-gpu.md)
 SHARED_BYTES = 48 * 1024
@@ -273,7 +273,7 @@ def _sums(feat: Features, opts: CudaOptions) -> list[tuple[str, str, int]]:
         out.append(("w_in", "work_in", "fi_node.shape[0]"))
     if opts.work and feat.common_forces:
         out.append(("w_c", "work_c", "fc_node.shape[0]"))
-    gram = 0 if opts.threads > 1 else opts.gram  # split: in shared memory (`_emit_gram`)
+    gram = 0 if opts.threads > 1 else opts.gram  # split: shared (`_emit_split_gram`)
     out += [(loc, dev, size) for loc, dev, size in (("dsacc", "diss", opts.dampers),
                                                   ("msacc", "msq", opts.msq),
                                                   ("gracc", "gram", gram)) if size]

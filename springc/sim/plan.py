@@ -64,9 +64,10 @@ def integration(checked: CheckedNetlist, tolerance: float | None, method: str | 
         return Steps(method, substeps)
     duration = tstop or (net.tran.tstop if net.tran else 1.0)
     tol = DEFAULT_TOLERANCE if default else tolerance
+    methods = candidates(net, device)  # a device that is not there says so, not the target
     try:
-        chosen = verify(checked, choose(net, tstep, duration, tol, candidates(net, device)),
-                        tstep, duration, tol, first_run(inputs), channel, input_rate)
+        chosen = verify(checked, choose(net, tstep, duration, tol, methods), tstep, duration,
+                        tol, first_run(inputs), channel, input_rate)
     except UsageError as err:
         if not default:
             raise

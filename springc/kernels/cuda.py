@@ -19,8 +19,8 @@ same description of the step as the CPU kernels (this module never imports numba
   (`terms.node_ends`, the CPU kernels' parallel form, so the sums round alike); the run's
   state in shared memory, the threads meeting at a barrier wherever one reads what another
   wrote. One run per thread keeps a 10,000-run launch to a few warps per multiprocessor,
-  each waiting on its local memory; split, the same launch fills the GPU and its state stays
-  on the chip.
+  each waiting on its local memory; split, the same launch runs many warps on each and the
+  state stays on the chip (docs/bench-gpu.md).
 - Records and the reductions `work`, `dissipation`, `msq`, `gram` (and, on the host, `final`,
   `energy`, `loss`) as the shared kernel accumulates them.
 

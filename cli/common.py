@@ -33,7 +33,7 @@ def on_device(fn: Callable) -> Callable:
         show_default=True,
         help="Where the mass-spring simulations run: cpu (the CPU kernels, on Dask workers); "
              "cuda (the CUDA kernel form in this process, each batch of clips one launch; "
-             "what it does not run, such as thermal noise or the exponential schemes, stays "
+             "what it does not run, such as thermal noise or Strang splitting, stays "
              "on the CPU; needs springc[cuda] and an NVIDIA GPU); auto: cuda where a GPU is "
              "present, else cpu.")(wrapper)
 

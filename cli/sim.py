@@ -59,7 +59,7 @@ REDUCE_HELP = (
                    "structure: for sweeps of short runs); shared: never.")
 @click.option("--device", type=click.Choice(["cpu", "cuda", "auto"]), default="cpu",
               help="cpu: the CPU kernels; cuda: the CUDA kernel form, one run per GPU thread "
-                   "(a block of threads per run above 48 masses; Runge-Kutta methods; needs "
+                   "(a block of threads per run above 48 masses; Runge-Kutta and Lawson; needs "
                    "springc[cuda] and an NVIDIA GPU); auto: cuda where a GPU is present and "
                    "serves the method, else cpu.")
 @click.option("--temp", type=float, default=None,

@@ -7,11 +7,11 @@ classifier networks, on the CPU kernels (the reference) or the CUDA form.
 `--threads` sets the CUDA form's threads per run for networks split over a block
 (`springc.kernels.cuda.SPLIT_THREADS`; 1: one run per thread), each value a row.
 
-Each network runs RK4 (the substeps of `cuda_compare.BENCH_SUBSTEPS`) for `--seconds` of
-speech-like input (`springc.bench.suite.speech_like`), recording nothing and summing the final
-energy, in float64 and float32 (the classifier float64 only). A first call compiles the
-kernel and is not timed; the best of `--repeat` timed calls gives runs per second. The CPU
-uses every core this process may use (`springc.sim.simulate.threads`).
+Each network runs RK4 (or `--method`; the substeps of `cuda_compare.BENCH_SUBSTEPS`) for
+`--seconds` of speech-like input (`springc.bench.suite.speech_like`), recording nothing and
+summing the final energy, in float64 and float32 (the classifier float64 only). A first call
+compiles the kernel and is not timed; the best of `--repeat` timed calls gives runs per second.
+The CPU uses every core this process may use (`springc.sim.simulate.threads`).
 """
 
 from __future__ import annotations
@@ -35,10 +35,10 @@ from springc.sim import simulate as sm  # noqa: E402
 
 
 def measure(name: str, net, inputs, tstep: float, seconds: float, precision: str,
-            device: str, repeat: int) -> dict:
+            device: str, repeat: int, method: str = "rk4") -> dict:
     """Runs per second of one network (best of `repeat` calls after a compiling one)."""
     checked = check(net)
-    kw = dict(method="rk4", substeps=BENCH_SUBSTEPS.get(name, 1), tstep=tstep, tstop=seconds,
+    kw = dict(method=method, substeps=BENCH_SUBSTEPS.get(name, 1), tstep=tstep, tstop=seconds,
               precision=precision, probes=[], reductions=["energy"], device=device,
               check_step=False)
     runs = len(inputs)
@@ -52,11 +52,12 @@ def measure(name: str, net, inputs, tstep: float, seconds: float, precision: str
         best = min(best, time.perf_counter() - start)
     threads = cudagen.SPLIT_THREADS if net.n >= cudagen.SPLIT_MIN else 1
     row = {"network": name, "dofs": net.n, "precision": precision, "device": device,
+           "method": method,
            "threads_per_run": threads if device == "cuda" else None,
            "runs": runs, "seconds": seconds, "substeps": kw["substeps"], "wall_s": best,
            "runs_per_s": runs / best, "run_seconds_per_s": runs * seconds / best}
     shown = f"{device} T={threads}" if device == "cuda" else device
-    print(f"{name:28s} {precision} {shown}: {runs} runs of {seconds} s in {best:.3f} s = "
+    print(f"{name:28s} {precision} {method} {shown}: {runs} runs of {seconds} s in {best:.3f} s = "
           f"{runs / best:,.0f} runs/s", flush=True)
     return row
 
@@ -76,6 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=2)
     parser.add_argument("--only", nargs="*", help="network names to run (default: all)")
     parser.add_argument("--precision", nargs="*", default=["float64", "float32"])
+    parser.add_argument("--method", default="rk4", help="rk4, or a Lawson scheme (exp-rk4)")
     parser.add_argument("--threads", nargs="*", type=int, default=[cudagen.SPLIT_THREADS],
                         help="cuda: threads per run of the split form (1: one run a thread)")
     parser.add_argument("--json", help="write the rows here")
@@ -94,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
                 split_threads(threads)
                 try:
                     rows.append(measure(name, net, u, tstep, args.seconds, precision,
-                                        args.device, args.repeat))
+                                        args.device, args.repeat, args.method))
                 except Exception as err:  # report and go on: one must not stop the rest
                     print(f"{name} {precision}: FAILED {type(err).__name__}: {err}",
                           flush=True)

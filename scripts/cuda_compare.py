@@ -144,11 +144,33 @@ def tiny() -> list[dict]:
                   method="rk4", substeps=1, reductions=REDUCE, outrate=5e3, write_out=False)
     out.append({k: v for k, v in row.items() if k != "result"})
     cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = saved
+    out += lawson()
     with gpu.default_device("cuda"):  # a simulation that names no device runs there
         row = compare("every kind, the default device", net, u, "float64", device=None,
                       method="rk4", substeps=1, reductions=REDUCE, outrate=5e3,
                       write_out=False)
     out.append({k: v for k, v in row.items() if k != "result"})
+    return out
+
+
+def lawson() -> list[dict]:
+    """The Lawson schemes on the feature extractor (eight exact filter pairs, quadratic
+    couplings and low-passes in the rest), one run per thread and split over 3 threads; its
+    probes, input work, dissipation and energy."""
+    from springc.bench import suite
+
+    net = suite.feature_extractor()
+    u = smooth_inputs(3, 1, 50, seed=1) * 30.0
+    out = []
+    saved = cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS
+    for form, split_min in (("a run a thread", 10**9), ("split", 1)):
+        cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = split_min, 3
+        for method in ("exp-rk4", "exp-heun3"):
+            row = compare(f"feature extractor, {form}, {method} x1", net, u, "float64",
+                          method=method, substeps=1, tstep=1e-4, tstop=0.004,
+                          reductions=["work:in", "dissipated:all", "energy"])
+            out.append({k: v for k, v in row.items() if k != "result"})
+    cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = saved
     return out
 
 
@@ -191,9 +213,10 @@ BENCH_SUBSTEPS = {"stiff block": 32, "pipeline features 8x3": 8,
                   "pipeline classifier 8x3": 8, "duffing resonator": 2}
 
 
-def bench(seconds: float, runs: int, only: list[str] | None = None) -> list[dict]:
-    """Every bench network (or those named in `only`), RK4 in float64 and float32, its final
-    state and energy too."""
+def bench(seconds: float, runs: int, only: list[str] | None = None,
+          method: str = "rk4") -> list[dict]:
+    """Every bench network (or those named in `only`), RK4 (or `method`) in float64 and
+    float32, its final state and energy too."""
     out = []
     for name, net, u, tstep in bench_cases(seconds, runs):
         if only and name not in only:
@@ -203,7 +226,7 @@ def bench(seconds: float, runs: int, only: list[str] | None = None) -> list[dict
         for precision in ("float64", "float32"):
             if name == "pipeline classifier 8x3" and precision == "float32":
                 continue  # its multipliers' cancellation: float32 is not used for it
-            row = compare(name, net, u, precision, reference, method="rk4", substeps=sub,
+            row = compare(name, net, u, precision, reference, method=method, substeps=sub,
                           tstep=tstep, tstop=seconds, reductions=["energy"], check_step=False)
             reference = row.pop("result")
             out.append(row)
@@ -217,13 +240,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs", type=int, default=64, help="bench: runs per network")
     parser.add_argument("--json", help="write every case's errors here")
     parser.add_argument("--only", nargs="*", help="bench: network names to run (default: all)")
+    parser.add_argument("--method", default="rk4", help="bench: rk4, or a Lawson scheme")
     args = parser.parse_args(argv)
     if args.json:
         JSON_PATH.append(args.json)
     # numba's CUDA simulator runs a block's threads as Python threads that meet at barriers:
     # at the interpreter's default switch interval (5 ms) each barrier waits that long
     sys.setswitchinterval(1e-4)
-    cases = tiny() if args.which == "tiny" else bench(args.seconds, args.runs, args.only)
+    cases = (tiny() if args.which == "tiny"
+             else bench(args.seconds, args.runs, args.only, args.method))
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(cases, fh, indent=1)

@@ -156,7 +156,7 @@ class Netlist:
         pointset = self._points_to_run()
         checked = self.checked if pointset is None else pointset.checked[worst(pointset)]
         steps = plan.integration(checked, tolerance, method, substeps, tstep, tstop,
-                                 inputs, channel, input_rate, device)
+                                 inputs, channel, input_rate)
         options = dict(tstep=tstep, tstop=tstop, substeps=steps.substeps, method=steps.method,
                        precision=precision, outrate=outrate,
                        probes=list(probes) if probes else None, reductions=list(reduce),

@@ -32,18 +32,22 @@ def test_cuda_form_gives_the_cpu_kernels_probes_and_reductions(tmp_path):
     """Every term kind, every reduction the CUDA form sums, RK4 and Heun3 (its stage of weight
     0), float64 and float32, the three force forms (written out, loops, a run split over a
     block's threads; split without monomials and shared signals, its combine folded into the
-    last stage), the steps streamed over many kernel calls; and a simulation that names no
-    device inside `gpu.default_device('cuda')`."""
+    last stage), the steps streamed over many kernel calls; the Lawson schemes on the feature
+    extractor, a run a thread and split; and a simulation that names no device inside
+    `gpu.default_device('cuda')`."""
     out = tmp_path / "cases.json"
     env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1"}
     proc = subprocess.run([sys.executable, str(SCRIPT), "tiny", "--json", str(out)], env=env,
                           capture_output=True, text=True, timeout=900, cwd=ROOT)
     assert out.exists(), proc.stdout + proc.stderr
     cases = json.loads(out.read_text())
-    assert len(cases) == 11
+    assert len(cases) == 15
     for case in cases:
-        assert set(case["errors"]) >= {"x(a)", "x(d)", "v(b)", "work:in", "dissipated:all",
-                                       "energy", "gram:0.005:a,c,d", "msq:v(d):0.002:0.006"}
+        want = ({"x(f0a)", "x(lp7)", "work:in", "dissipated:all", "energy"}
+                if case["case"].startswith("feature extractor") else
+                {"x(a)", "x(d)", "v(b)", "work:in", "dissipated:all", "energy",
+                 "gram:0.005:a,c,d", "msq:v(d):0.002:0.006"})
+        assert set(case["errors"]) >= want
         assert case["worst"] <= TOLERANCE[case["precision"]], case
     assert proc.returncode == 0, proc.stdout + proc.stderr
 
@@ -80,9 +84,10 @@ def test_generated_text_is_specialised_to_the_network():
     # combine, the start and the divergence check
 
 
-def test_split_schemes_are_refused():
-    with pytest.raises(UsageError, match="Runge-Kutta tableaux only"):
-        gpu.require(_one_mass(), "exp-rk4")
+def test_strang_splitting_is_refused():
+    gpu.require(_one_mass(), "exp-rk4")  # a Lawson scheme runs
+    with pytest.raises(UsageError, match="Runge-Kutta tableaux and the Lawson schemes"):
+        gpu.require(_one_mass(), "strang-rk4")
 
 
 @NO_GPU
@@ -106,21 +111,21 @@ def test_auto_is_the_cpu_without_a_gpu():
 
 
 def test_auto_runs_on_the_cpu_what_the_cuda_form_does_not(monkeypatch):
-    """With a GPU, `auto` still takes the CPU for a splitting scheme or thermal noise (`cuda`
+    """With a GPU, `auto` still takes the CPU for Strang splitting or thermal noise (`cuda`
     refuses them): the run equals the plain CPU run."""
     import numpy as np
 
     import springc
 
     net = springc.load("Ma a m=1 b=3\nKa a k=100\nFa a in(0)\n.probe x(a)\n.tran 1e-3 0.02\n")
-    assert not gpu.serves(net.flat, "exp-rk4") and gpu.serves(net.flat, "rk4")
+    assert not gpu.serves(net.flat, "strang-rk4") and gpu.serves(net.flat, "exp-rk4")
     u = np.ones((2, 1, 21))
-    cpu = net.simulate(u, method="exp-rk4", substeps=1)
+    cpu = net.simulate(u, method="strang-rk4", substeps=1)
     monkeypatch.setattr(gpu, "resolve", lambda device: "cuda")
-    auto = net.simulate(u, method="exp-rk4", substeps=1, device="auto")
+    auto = net.simulate(u, method="strang-rk4", substeps=1, device="auto")
     np.testing.assert_array_equal(auto["x(a)"], cpu["x(a)"])
-    with pytest.raises(UsageError, match="Runge-Kutta tableaux only"):
-        net.simulate(u, method="exp-rk4", substeps=1, device="cuda")
+    with pytest.raises(UsageError, match="Runge-Kutta tableaux and the Lawson schemes"):
+        net.simulate(u, method="strang-rk4", substeps=1, device="cuda")
 
 
 @NO_GPU
@@ -159,31 +164,3 @@ def test_data_set_batches_run_in_this_process_on_the_gpu(monkeypatch):
                                       workers=2)
     assert got == [(os.getpid(), 3), (os.getpid(), 3), (os.getpid(), 9)]
 
-
-def test_on_the_gpu_the_integration_choice_leaves_out_what_it_does_not_run(monkeypatch):
-    """The keyword spotter's integration choice on the GPU: the exponential schemes would run
-    on one CPU core there (the data set is not on Dask workers), so they are not candidates."""
-    from springc.check import check
-    from springc.kws.features import integration
-
-    checked = check(_one_mass())
-    assert integration.served(checked, integration.METHODS) == integration.METHODS
-    monkeypatch.setattr(gpu, "_DEFAULT", ["cpu", "cuda"])
-    assert integration.served(checked, integration.METHODS) == ("rk4",)
-
-
-def test_on_the_gpu_the_automatic_integrator_is_one_the_cuda_form_runs(monkeypatch):
-    """`simulate` choosing its integrator for a tolerance: on the GPU among the methods the
-    CUDA form runs (the feature extractor's Mel filter pairs, which an exponential scheme
-    integrates best on the CPU)."""
-    from springc.bench import suite
-    from springc.check.accuracy import choose
-    from springc.sim import plan
-
-    net = suite.feature_extractor()
-    cpu = choose(net, 1 / 16000, 0.05, 1e-3, plan.candidates(net, "cpu"))
-    assert not gpu.serves(net, cpu.method), cpu  # an exponential scheme
-    monkeypatch.setattr(gpu, "resolve", lambda device: "cuda")
-    methods = plan.candidates(net, None)
-    assert methods and all(gpu.serves(net, m) for m in methods)
-    assert choose(net, 1 / 16000, 0.05, 1e-3, methods).method in methods

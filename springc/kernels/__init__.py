@@ -23,9 +23,9 @@ cache and compiles it. `springc.sim.simulate` picks the form (`kernel_form`, `ke
                               generate)                   exact, the rest in the shared form;
                                                           work and dissipation: Lawson only
     CUDA: one run per GPU     cuda.generate               --device cuda (springc.sim.gpu):
-      thread                  (numba.cuda source)         Runge-Kutta tableaux, every term
-                                                          kind, records, work, dissipation,
-                                                          msq and gram sums
+      thread, or per block    (numba.cuda source)         Runge-Kutta tableaux and Lawson
+      above 48 nodes                                      schemes, every term kind, records,
+                                                          work, dissipation, msq and gram
 
 Every form is generated for `lower.kernel_netlist` (P c x^2 terms as linear springs), from
 one description of the step: the force of every term kind in `terms` (rendered as element

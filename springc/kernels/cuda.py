@@ -24,8 +24,12 @@ same description of the step as the CPU kernels (this module never imports numba
 - Records and the reductions `work`, `dissipation`, `msq`, `gram` (and, on the host, `final`,
   `energy`, `loss`) as the shared kernel accumulates them.
 
-Runge-Kutta only: the exponential and splitting schemes (`springc.kernels.expint`) and
-thermal noise have no CUDA form.
+- Lawson schemes (`springc.kernels.expint`: exp-rk4, exp-heun3): the Runge-Kutta part of the
+  split netlist as above, its rows of the exact blocks skipped, and each block's exact flow
+  to every stage and to the step's end (`_emit_blocks`, summed as `expint`'s kernels sum it),
+  the input interpolated at each fraction of the step the scheme reads.
+
+Strang splitting and thermal noise have no CUDA form.
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from springc.kernels import terms
+from springc.kernels import expint, terms
 from springc.kernels.codegen import (Features, LaneLayout, _Code, accel_args, combine_terms,
                                      emit_coefficients, emit_linear, features, gather_args,
                                      nystrom_coefficients, source_hash, stage_terms)
@@ -74,6 +78,17 @@ class CudaOptions:
     vneed: tuple[bool, ...] = ()
     nodes: tuple | None = None
     threads: int = 1  # threads per run: > 1, the split form
+    blocks: tuple[int, ...] = ()  # a Lawson scheme's exact blocks: their sizes (nodes)
+    block_channels: int = 1  # the input channels of their propagators
+
+
+def tableau(method: str) -> Tableau:
+    """The Runge-Kutta tableau of `method` (a Lawson scheme's: its inner one)."""
+    return expint.SCHEMES[method].tableau if expint.is_split(method) else get_tableau(method)
+
+
+def _lawson(opts: CudaOptions) -> bool:
+    return expint.is_split(opts.method)
 
 
 def shared_bytes(n: int, precision: str, method: str, gram: int = 0,
@@ -82,7 +97,7 @@ def shared_bytes(n: int, precision: str, method: str, gram: int = 0,
     and the stages' forces, n each (`folded`: the last stage's kept in a register,
     `_folds`), and the Gram sums."""
     size = 8 if precision == "float64" else 4
-    stages = get_tableau(method).stages
+    stages = tableau(method).stages
     arrays = 4 + stages - (folded and stages > 1)
     return arrays * n * size + 8 * gram + 64
 
@@ -93,7 +108,7 @@ def _folds(feat: Features, opts: CudaOptions, tab: Tableau) -> bool:
     than in shared memory (not where monomials or shared signals add to the forces after
     the loop)."""
     return (opts.threads > 1 and tab.stages > 1 and not feat.monomials
-            and not feat.common_forces)
+            and not feat.common_forces and not _lawson(opts))
 
 
 def run_args(feat: Features, opts: CudaOptions) -> list[str]:
@@ -105,6 +120,9 @@ def run_args(feat: Features, opts: CudaOptions) -> list[str]:
     names += accel_args(feat) + ["vneed"]
     if opts.threads > 1:
         names += gather_args(feat)
+    if _lawson(opts):
+        names += ["frz"] + [f"lw{m}_{k}" for m in opts.blocks for k in ("node", "e", "p0", "p1")]
+        names += ["fi_w"] if opts.work and feat.in_forces else []
     names += ["rec_every", "rec_node", "rec_isv", "rec", "rbase"]
     names += ["work_in", "work_c", "ds_i", "ds_j", "ds_b", "diss"]
     names += ["ms_node", "ms_isv", "ms_lo", "ms_hi", "msq"]
@@ -121,7 +139,7 @@ def generate(net: FlatNetlist, opts: CudaOptions) -> str:
     feat = features(net)
     if getattr(feat, "thermal", False):
         raise ValueError("thermal noise has no CUDA kernel form")
-    tab = get_tableau(opts.method)
+    tab = tableau(opts.method)
     body = _body(feat, opts, tab)
     shown = {k: v for k, v in vars(opts).items() if k not in ("nodes", "vneed")}
     header = [
@@ -177,6 +195,8 @@ def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
     c("if r >= xst.shape[1] or status[r] != 0:")
     c("    return")
     _emit_constants(c, tab)
+    if _lawson(opts):
+        c("hh = FT(h)")
     if opts.nodes is not None:
         for i, node in enumerate(opts.nodes):
             for line in terms.scalar_loads(i, node):
@@ -189,6 +209,8 @@ def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
     c("if sub == substeps:")
     c("    sub = 0")
     c("    k0 += 1")
+    if _lawson(opts):
+        _emit_lawson_inputs(c, opts, tab)
     for s in range(tab.stages):
         _emit_stage(c, feat, opts, tab, s)
     _emit_combine(c, feat, opts, tab)
@@ -241,6 +263,9 @@ def _emit_state(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau) -> No
     for name in ["x", "v", "xs", "vs"] + [f"kv{s}" for s in range(stages)]:
         c(f"{name} = cuda.{where}.array(N, FT)")
     c("uc = cuda.local.array(NCH, FT)")
+    if _lawson(opts):
+        for k in range(len(expint.lawson_fractions(tab)[1])):
+            c(f"ut{k} = cuda.local.array(NCH, FT)")
     c(_node_loop(opts))
     c("    x[i] = xst[i, r]")
     c("    v[i] = vst[i, r]")
@@ -297,12 +322,18 @@ def _emit_counters(c: _Code) -> None:
 def _emit_stage(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau, s: int) -> None:
     """Stage s: its state (Nystrom form), its input, its forces, its reductions. Split, the
     run's threads meet after the stage state (the forces read every node's) and after forces
-    that read the stage state, before the next stage overwrites it."""
+    that read the stage state, before the next stage overwrites it (with a Lawson scheme
+    after every stage's forces: a block's thread reads its nodes' forces)."""
     c(f"# stage {s} (c = {tab.c[s]!r})")
+    power = opts.work or opts.dampers
     if s > 0:
         _emit_stage_state(c, opts, tab, s)
+        if _lawson(opts):  # the blocks' exact flow to the stage, their rows of xs (and vs)
+            _emit_blocks(c, opts, tab, s, "xs", "vs" if power else None)
         _sync(c, opts)
-    if feat.in_forces and (s == 0 or tab.c[s] != tab.c[s - 1]):
+    if feat.in_forces and _lawson(opts):
+        c(f"uc = ut{expint.lawson_fractions(tab)[1].index(tab.c[s])}")
+    elif feat.in_forces and (s == 0 or tab.c[s] != tab.c[s - 1]):
         c(f"pos = (sub + {tab.c[s]!r}) / substeps")
         c("kk = k0 + int(pos) - ubase")
         c("fr = FT(pos - int(pos))")
@@ -322,7 +353,8 @@ def _emit_stage(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau, s: in
         _first(c, opts)
         _emit_stage_reductions(c, feat, opts, s, va)
         _end_first(c, opts)
-    if s > 0 and s < tab.stages - 1:
+    # a Lawson scheme's blocks read their nodes' stage forces in threads of their own
+    if _lawson(opts) or 0 < s < tab.stages - 1:
         _sync(c, opts)
 
 
@@ -338,6 +370,67 @@ def _fold_combine(text: list[str], tab: Tableau) -> list[str]:
                         f"    v[i] = V + ({vterm})"] + text[at + 1:]
 
 
+def _emit_lawson_inputs(c: _Code, opts: CudaOptions, tab: Tableau) -> None:
+    """The input at every fraction of the step a Lawson scheme reads it (`ut{k}`, as
+    `expint`'s kernels interpolate it)."""
+    for k, frac in enumerate(expint.lawson_fractions(tab)[1]):
+        c(f"pos = (sub + {frac!r}) / substeps")
+        c("kk = k0 + int(pos) - ubase")
+        c("fr = FT(pos - int(pos))")
+        c("gr = FT(1.0) - fr")
+        c("for ch in range(NCH):")
+        c(f"    ut{k}[ch] = gr * u[ch, kk, r] + fr * u[ch, kk + 1, r]")
+
+
+def _emit_blocks(c: _Code, opts: CudaOptions, tab: Tableau, stage: int | None, xo: str,
+                 vo: str | None) -> None:
+    """A Lawson scheme's exact blocks, from the step's start to stage `stage` (None: its end):
+    the free flow E, the input through P0 and P1, and the stage forces on the block's nodes
+    carried by E (`expint._Lawson.step`), written into their rows of `xo` (and `vo`) as
+    `expint`'s kernels sum them. Split, each thread its share of the blocks."""
+    fracs, ufracs = expint.lawson_fractions(tab)
+    step = expint._Lawson(tab, fracs, ufracs, list(opts.blocks), opts.block_channels,
+                          LaneLayout(1, 1)).step(stage)
+    for m in opts.blocks:
+        _emit_block_size(c, opts, step, m, xo, vo)
+
+
+def _emit_block_size(c: _Code, opts: CudaOptions, step, m: int, xo: str,
+                     vo: str | None) -> None:
+    rows = 2 * m if vo else m  # output rows: positions, then velocities
+    first = "t, " if opts.threads > 1 else ""
+    stride = ", T" if opts.threads > 1 else ""
+    c(f"for q in range({first}lw{m}_node.shape[0]{stride}):")
+    c.indent()
+    for r in range(m):
+        c(f"i{r} = lw{m}_node[q, {r}]")
+    for r in range(m):
+        c(f"Z{r} = x[i{r}]")
+        c(f"Z{m + r} = v[i{r}]")
+    for t in step.terms:
+        c(f"hw{t.j} = {t.weight}")
+        for r in range(m):
+            c(f"S{t.j}_{r} = hw{t.j} * {t.kv}[i{r}]")
+    f0 = step.f0
+    for r in range(rows):
+        parts = [f"lw{m}_e[q, {f0}, {r}, {k}] * Z{k}" for k in range(2 * m)]
+        parts += [f"lw{m}_p0[q, {f0}, {r}, {ch}] * ut0[{ch}] + "
+                  f"lw{m}_p1[q, {f0}, {r}, {ch}] * {step.input}[{ch}]"
+                  for ch in range(opts.block_channels)]
+        for t in step.terms:
+            if t.fraction is not None:
+                parts += [f"lw{m}_e[q, {t.fraction}, {r}, {m + k}] * S{t.j}_{k}"
+                          for k in range(m)]
+            elif r >= m:
+                parts.append(f"S{t.j}_{r - m}")
+        c(f"O{r} = {' + '.join(parts)}")
+    for r in range(m):
+        c(f"{xo}[i{r}] = O{r}")
+        if vo:
+            c(f"{vo}[i{r}] = O{m + r}")
+    c.dedent()
+
+
 def _rename(line: str, xa: str, va: str, ka: str) -> str:
     """A force-code line with the stage's arrays in place of xa, va, ka."""
     line = re.sub(r"\bxa\[", f"{xa}[", line)
@@ -350,6 +443,9 @@ def _emit_stage_state(c: _Code, opts: CudaOptions, tab: Tableau, s: int) -> None
     xterm, vterm = stage_terms(tab, s, "v[i]", lambda k: f"kv{k}[i]")
     for i, line in _per_node(opts):
         c(line)
+        if i is None and _lawson(opts):
+            c("    if frz[i]:  # an exact block's: `_emit_blocks`")
+            c("        continue")
         if i is None:
             c("    xs[i] = x[i] + (" + xterm + ")")
             c("    if vneed[i]:")
@@ -460,7 +556,9 @@ def _emit_stage_reductions(c: _Code, feat: Features, opts: CudaOptions, s: int,
     """Stage s's share of the input work and dissipation (`codegen.emit_stage_reductions`)."""
     if opts.work and feat.in_forces:
         c("for e in range(NFI):")
-        c(f"    fw = hbd{s} * (fi_gm[e] / minv[fi_node[e]])")
+        # a Lawson kernel's rest has its blocks' inputs at gain 0: their own gains, fi_w
+        gain = "fi_w[e]" if _lawson(opts) else "(fi_gm[e] / minv[fi_node[e]])"
+        c(f"    fw = hbd{s} * {gain}")
         c(f"    w_in[e] += fw * uc[fi_chan[e]] * {va}[fi_node[e]]")
     if opts.work and feat.common_forces:
         c("for e in range(NFC):")
@@ -484,12 +582,17 @@ def _emit_combine(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau) -> 
     xterm, vterm = combine_terms(tab, "V", lambda k: f"kv{k}[i]")
     for i, line in _per_node(opts):
         c(line)
+        if i is None and _lawson(opts):
+            c("    if frz[i]:  # an exact block's: `_emit_blocks`")
+            c("        continue")
         pad = "    " if i is None else ""
         fix = (lambda e: e) if i is None else (lambda e: _at(e, i))
         idx = "i" if i is None else str(i)
         c(f"{pad}V = v[{idx}]")
         c(f"{pad}x[{idx}] = x[{idx}] + (" + fix(xterm) + ")")
         c(f"{pad}v[{idx}] = V + (" + fix(vterm) + ")")
+    if _lawson(opts):
+        _emit_blocks(c, opts, tab, None, "x", "v")
     _sync(c, opts)
 
 

@@ -94,16 +94,21 @@ def resolve(device: str) -> str:
             raise UsageError(f"unknown device {device!r}", hint="cpu, cuda or auto")
 
 
+def _strang(method: str) -> bool:
+    return expint.is_split(method) and expint.SCHEMES[method].kind != "lawson"
+
+
 def serves(net: FlatNetlist, method: str) -> bool:
     """Whether the CUDA form runs `method` with `net`'s options (`require`'s refusals)."""
-    return not expint.is_split(method) and float(net.options.get("temp", 0.0)) == 0
+    return not _strang(method) and float(net.options.get("temp", 0.0)) == 0
 
 
 def require(net: FlatNetlist, method: str) -> None:
-    """Refuse what the CUDA form does not run: splitting schemes and thermal noise."""
-    if expint.is_split(method):
-        raise UsageError(f"--device cuda runs Runge-Kutta tableaux only, not {method}",
-                         hint="use --method rk4 (or another tableau) or --device cpu")
+    """Refuse what the CUDA form does not run: Strang splitting and thermal noise."""
+    if _strang(method):
+        raise UsageError(f"--device cuda runs Runge-Kutta tableaux and the Lawson schemes, not "
+                         f"{method}", hint="use --method exp-rk4, rk4 (or another tableau) or "
+                                           "--device cpu")
     if float(net.options.get("temp", 0.0)) > 0:
         raise UsageError("--device cuda does not simulate thermal noise (.options temp=)",
                          hint="use --device cpu")
@@ -127,13 +132,26 @@ def vneed(net: FlatNetlist, coeffs: dict, work: bool) -> tuple[bool, ...]:
     return tuple(bool(b) for b in out)
 
 
+def force_netlist(net: FlatNetlist, method: str) -> FlatNetlist:
+    """The netlist whose forces the kernel computes: a Lawson scheme's Runge-Kutta part (its
+    exact blocks' linear terms and inputs split off, `expint.split_netlist`), else `net`."""
+    return expint.split_netlist(net, expint.find_blocks(net)) if expint.is_split(method) else net
+
+
 def options(net: FlatNetlist, method: str, precision: str, coeffs: dict, probes: int,
             rplan) -> cudagen.CudaOptions:
-    """The CUDA kernel's options for the kernel netlist `net` and a reduction plan."""
-    nodes = terms.node_terms(coeffs, net.n) if net.n <= cudagen.WRITE_OUT_MAX else None
+    """The CUDA kernel's options for the kernel netlist `net` and a reduction plan (a Lawson
+    scheme: `coeffs` its kernel arrays, `simulate.kernel_arrays`). A Lawson scheme's force
+    code is never written out (the CPU kernels' choice too: its block updates dominate)."""
+    lawson = expint.is_split(method)
+    blocks = expint.find_blocks(net) if lawson else None
+    channels = _block_channels(net, blocks) if lawson else 1
+    net = force_netlist(net, method)
+    small = net.n <= cudagen.WRITE_OUT_MAX and not lawson
+    nodes = terms.node_terms(coeffs, net.n) if small else None
     feat = features(net)
     gram = sum(r.gram.groups for r in rplan.gram)
-    folded = not (feat.monomials or feat.common_forces)
+    folded = not (feat.monomials or feat.common_forces or lawson)
     split = (nodes is None and net.n >= cudagen.SPLIT_MIN and cudagen.shared_bytes(
         net.n, precision, method, gram, folded) <= cudagen.SHARED_BYTES)
     return cudagen.CudaOptions(
@@ -143,13 +161,21 @@ def options(net: FlatNetlist, method: str, precision: str, coeffs: dict, probes:
         probes=probes, work=rplan.work, dampers=len(rplan.damper_rows),
         msq=len(rplan.msq), gram=gram,
         vneed=vneed(net, coeffs, rplan.work), nodes=nodes,
-        threads=cudagen.SPLIT_THREADS if split else 1)
+        threads=cudagen.SPLIT_THREADS if split else 1,
+        blocks=tuple(expint.block_sizes(blocks)) if lawson else (),
+        block_channels=channels)
+
+
+def _block_channels(net: FlatNetlist, blocks) -> int:
+    """The input channels of the exact blocks' propagators (`expint.lawson_arrays`)."""
+    return max(1, max((net.forces.source[e].channel for fs in blocks.forces for e in fs),
+                      default=0) + 1)
 
 
 def load(net: FlatNetlist, opts: cudagen.CudaOptions) -> loader.Kernel:
     """The CUDA kernel for `net` under `opts`, written to the kernel cache and imported
     (compiled by numba.cuda at its first launch)."""
-    return loader.load(cudagen.generate(net, opts))
+    return loader.load(cudagen.generate(force_netlist(net, opts.method), opts))
 
 
 _STATE = ("x0", "v0")

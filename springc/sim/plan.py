@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from springc.check import CheckedNetlist
-from springc.check.accuracy import CANDIDATES, choose
+from springc.check.accuracy import choose
 from springc.errors import UsageError
 from springc.sim.sources import expand_inputs
 from springc.sim.stepcheck import verify
@@ -33,25 +33,13 @@ class Steps:
     choice: str | None = None
 
 
-def candidates(net, device: str | None) -> tuple[str, ...]:
-    """The candidate methods on `device` (None: `gpu.default_device`'s): on the GPU those the
-    CUDA form runs (all where it runs none: the CPU then)."""
-    from springc.sim import gpu
-
-    if gpu.resolve(device or gpu.current()) != "cuda":
-        return CANDIDATES
-    return tuple(m for m in CANDIDATES if gpu.serves(net, m)) or CANDIDATES
-
-
 def integration(checked: CheckedNetlist, tolerance: float | None, method: str | None,
                 substeps: int | None, tstep: float | None, tstop: float | None, inputs=None,
-                channel: int | None = None, input_rate: float | None = None,
-                device: str | None = None) -> Steps:
+                channel: int | None = None, input_rate: float | None = None) -> Steps:
     """The method and substeps to simulate with: as given, as the netlist's `.options` set
     them, or chosen for `tolerance` (`DEFAULT_TOLERANCE` when the caller and the netlist name
     neither), by the per-mode estimate and, on nonlinear terms, step doubling over the start
-    of the first run (`springc.sim.stepcheck`); on the GPU (`device`, as `simulate` takes
-    it) among the methods the CUDA form runs."""
+    of the first run (`springc.sim.stepcheck`)."""
     net = checked.net
     if tolerance is not None and (method or substeps):
         raise UsageError("--tolerance chooses the method and substeps itself",
@@ -64,10 +52,9 @@ def integration(checked: CheckedNetlist, tolerance: float | None, method: str | 
         return Steps(method, substeps)
     duration = tstop or (net.tran.tstop if net.tran else 1.0)
     tol = DEFAULT_TOLERANCE if default else tolerance
-    methods = candidates(net, device)  # a device that is not there says so, not the target
     try:
-        chosen = verify(checked, choose(net, tstep, duration, tol, methods), tstep, duration,
-                        tol, first_run(inputs), channel, input_rate)
+        chosen = verify(checked, choose(net, tstep, duration, tol), tstep, duration, tol,
+                        first_run(inputs), channel, input_rate)
     except UsageError as err:
         if not default:
             raise

@@ -89,17 +89,6 @@ def from_dict(data: dict | None, where: str = "settings.json") -> Integration:
 Outputs = Callable[[np.ndarray, str, int, str], np.ndarray]
 
 
-def served(checked: CheckedNetlist, methods: tuple[str, ...]) -> tuple[str, ...]:
-    """`methods`, less those the device in use does not run (on the GPU, `gpu.default_device`:
-    the exponential schemes, which would fall back to the CPU in this one process); all of
-    them where it runs none (thermal noise: the CPU in any case)."""
-    from springc.sim import gpu
-
-    if gpu.current() != "cuda":
-        return methods
-    return tuple(m for m in methods if gpu.serves(checked.net, m)) or methods
-
-
 def choose(checked: CheckedNetlist, signals: np.ndarray, outputs: Outputs, duration: float,
            tol: float = TOLERANCE, precision: str = "float32",
            methods: tuple[str, ...] = METHODS,
@@ -113,7 +102,7 @@ def choose(checked: CheckedNetlist, signals: np.ndarray, outputs: Outputs, durat
     it runs while the workers compile the candidates' kernels."""
     if not tol > 0:
         raise UsageError(f"tolerance must be positive, got {tol}")
-    todo = candidates(checked, 1.0 / 16000.0, duration, tol, served(checked, methods))
+    todo = candidates(checked, 1.0 / 16000.0, duration, tol, methods)
     _compile_ahead(outputs, signals, todo, precision)
     method, substeps, prec = REFERENCE
     _say(f"integration: reference {method} x{substeps} {prec} on {len(signals)} clip(s)")

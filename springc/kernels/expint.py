@@ -438,8 +438,7 @@ def lawson_arrays(net: FlatNetlist, blocks: Blocks, h: float, tab: Tableau,
     """Per block size m: node table (Q, m), E (Q, F, 2m, 2m), P0 and P1 (Q, F, 2m, channels)
     for the fractions F of `lawson_fractions`; and the frozen-row mask `frz`."""
     fracs, _ = lawson_fractions(tab)
-    nch = max(1, max((net.forces.source[e].channel for fs in blocks.forces for e in fs),
-                     default=0) + 1)
+    nch = block_channels(net, blocks)
     out: dict[str, np.ndarray] = {}
     for m in block_sizes(blocks):
         idx = [q for q, nodes in enumerate(blocks.nodes) if len(nodes) == m]
@@ -461,6 +460,12 @@ def lawson_arrays(net: FlatNetlist, blocks: Blocks, h: float, tab: Tableau,
     frz[blocks.node_set()] = True
     out["frz"] = frz
     return out
+
+
+def block_channels(net: FlatNetlist, blocks: Blocks) -> int:
+    """The input channels the blocks' propagators take (their largest channel + 1)."""
+    return max(1, max((net.forces.source[e].channel for fs in blocks.forces for e in fs),
+                      default=0) + 1)
 
 
 def block_sizes(blocks: Blocks) -> list[int]:
@@ -730,9 +735,7 @@ def kernel_source(net: FlatNetlist, opts: KernelOptions) -> str:
     blocks = find_blocks(net)
     rest = split_netlist(net, blocks)
     if SCHEMES[opts.method].kind == "lawson":
-        nch = max((net.forces.source[e].channel for fs in blocks.forces for e in fs),
-                  default=0) + 1
-        return generate_lawson(rest, opts, block_sizes(blocks), nch)
+        return generate_lawson(rest, opts, block_sizes(blocks), block_channels(net, blocks))
     return generate(rest, opts)
 
 

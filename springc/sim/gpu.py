@@ -145,7 +145,7 @@ def options(net: FlatNetlist, method: str, precision: str, coeffs: dict, probes:
     code is never written out (the CPU kernels' choice too: its block updates dominate)."""
     lawson = expint.is_split(method)
     blocks = expint.find_blocks(net) if lawson else None
-    channels = _block_channels(net, blocks) if lawson else 1
+    channels = expint.block_channels(net, blocks) if lawson else 1
     net = force_netlist(net, method)
     small = net.n <= cudagen.WRITE_OUT_MAX and not lawson
     nodes = terms.node_terms(coeffs, net.n) if small else None
@@ -165,11 +165,6 @@ def options(net: FlatNetlist, method: str, precision: str, coeffs: dict, probes:
         blocks=tuple(expint.block_sizes(blocks)) if lawson else (),
         block_channels=channels)
 
-
-def _block_channels(net: FlatNetlist, blocks) -> int:
-    """The input channels of the exact blocks' propagators (`expint.lawson_arrays`)."""
-    return max(1, max((net.forces.source[e].channel for fs in blocks.forces for e in fs),
-                      default=0) + 1)
 
 
 def load(net: FlatNetlist, opts: cudagen.CudaOptions) -> loader.Kernel:

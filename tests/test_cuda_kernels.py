@@ -164,3 +164,22 @@ def test_data_set_batches_run_in_this_process_on_the_gpu(monkeypatch):
                                       workers=2)
     assert got == [(os.getpid(), 3), (os.getpid(), 3), (os.getpid(), 9)]
 
+
+
+def test_lanes_of_a_population_stay_on_the_cpu_under_the_gpu_default(monkeypatch):
+    """`simulate_lanes` (a population's devices in the lanes of one call, `springc eval --mc`)
+    inside default_device('cuda'): the CUDA form takes no per-run coefficients, so the call
+    runs on the CPU, as it does without a GPU, instead of being refused."""
+    import numpy as np
+
+    import springc
+    from springc.sim.simulate import simulate_lanes
+
+    text = "Ma a m=1 b=3\nKa a k={k}\nFa a in(0)\n.probe x(a)\n.tran 1e-3 0.02\n"
+    members = [springc.load(text.format(k=k)).checked for k in (100.0, 120.0)]
+    u = np.ones((1, 1, 21))
+    cpu = simulate_lanes(members, ["soft", "stiff"], u, method="rk4", substeps=1)
+    monkeypatch.setattr(gpu, "_DEFAULT", ["cpu", "cuda"])
+    monkeypatch.setattr(gpu, "resolve", lambda device: "cpu" if device == "cpu" else "cuda")
+    on_gpu = simulate_lanes(members, ["soft", "stiff"], u, method="rk4", substeps=1)
+    np.testing.assert_array_equal(on_gpu.probes["x(a)"], cpu.probes["x(a)"])

@@ -235,8 +235,9 @@ def simulate_lanes(members: Sequence[CheckedNetlist], labels: Sequence[str], inp
     number of runs and a batch is rounded up to whole chunks, so that each run's lane, and
     its result to the bit, is the same whatever the batch and the threads. `options`:
     `simulate`'s. Raises `LanesRefused` (before any work) where the members cannot share a
-    call: the CUDA form, a Strang split scheme whose exact blocks differ between members, and
-    thermal noise whose noisy dampers differ (one with b = 0 in some member). With thermal
+    call: `device` 'cuda' (inside `gpu.default_device`, the call takes the CPU instead), a
+    Strang split scheme whose exact blocks differ between members, and thermal noise whose
+    noisy dampers differ (one with b = 0 in some member). With thermal
     noise each run draws its own streams (run r of the call those of run `first_run` + r),
     so every device of a population meets its own noise."""
     if len(members) != len(labels):
@@ -270,6 +271,8 @@ def _simulate(group: list[CheckedNetlist], labels: list[str] | None, inputs, inp
     dev = gpu.resolve(device or gpu.current())
     if dev == "cuda" and device in ("auto", None) and not gpu.serves(net, st.method):
         dev = "cpu"  # chosen, not asked for: the CPU where the CUDA form does not serve
+    if labels is not None and dev == "cuda" and device in ("auto", None):
+        dev = "cpu"  # per-run coefficients have no CUDA form: chosen, not asked for
     if labels is not None:
         _lanes_serve(net, rplan, dev)
     if dev == "cuda":

@@ -73,7 +73,7 @@ EOF
 stage "split threads" 55 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
     --seconds 0.02 --repeat 1 --only "pipeline features 8x3" --precision float64 \
     --threads 1 128 256 512 --json "$OUT_DIR/split_threads.json"
-T=$($PY - "$OUT_DIR/split_threads.json" <<'EOF' 2>/dev/null || echo 64
+T=$($PY - "$OUT_DIR/split_threads.json" <<'EOF' 2>/dev/null || echo 256
 import json, sys
 rows = [r for r in json.load(open(sys.argv[1]))["rows"]
         if "runs_per_s" in r and (r["threads_per_run"] or 1) > 1]

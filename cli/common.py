@@ -16,6 +16,9 @@ from springc.errors import DataError, SpringcError
 REPORT_URL = "the springc issue tracker"
 
 
+DEVICES = click.Choice(["cpu", "cuda", "auto"])  # --device (`springc.sim.gpu.DEVICES`)
+
+
 def on_device(fn: Callable) -> Callable:
     """Give a command `--device cpu|cuda|auto`: its simulations run there
     (`springc.sim.gpu.default_device`: on the GPU, in this process; `cuda` without a GPU is a
@@ -29,7 +32,7 @@ def on_device(fn: Callable) -> Callable:
             return fn(*args, **kwargs)
 
     return click.option(
-        "--device", type=click.Choice(["cpu", "cuda", "auto"]), default="cpu",
+        "--device", type=DEVICES, default="cpu",
         show_default=True,
         help="Where the mass-spring simulations run: cpu (the CPU kernels, on Dask workers); "
              "cuda (the CUDA kernel form in this process, each batch of clips one launch; "

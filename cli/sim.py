@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import click
-from springc_cli.common import check_output_file, plot_option, precision_option, run_user_errors
+from springc_cli.common import (DEVICES, check_output_file, plot_option, precision_option,
+                                run_user_errors)
 
 from springc.kernels.expint import SCHEMES
 from springc.kernels.integrators import TABLEAUX
@@ -57,7 +58,7 @@ REDUCE_HELP = (
                    "up to 8, else one kernel shared by every netlist of the same element "
                    "kinds; written-out: always where it serves (compiled once per netlist "
                    "structure: for sweeps of short runs); shared: never.")
-@click.option("--device", type=click.Choice(["cpu", "cuda", "auto"]), default="cpu",
+@click.option("--device", type=DEVICES, default="cpu",
               help="cpu: the CPU kernels; cuda: the CUDA kernel form, one run per GPU thread "
                    "(a block of threads per run above 48 masses; Runge-Kutta and Lawson; needs "
                    "springc[cuda] and an NVIDIA GPU); auto: cuda where a GPU is present and "

@@ -70,7 +70,7 @@ def test_generated_text_is_specialised_to_the_network():
 
     net = kernel_netlist(_one_mass())
     co = coefficient_arrays(net, "float64")
-    opts = gpu.options(net, "rk4", "float64", co, 1, reductions.plan([], net))
+    opts = gpu.options(net, None, "rk4", "float64", co, 1, reductions.plan([], net))
     text = cudagen.generate(net, opts)
     assert "bm0 = bm[0]" in text and "kv0[0] = - (bm0 * v[0] + km0 * x[0])" in text
     loops = cudagen.generate(net, cudagen.CudaOptions("rk4", "float64", 1, 0, probes=1,

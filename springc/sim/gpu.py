@@ -132,21 +132,23 @@ def vneed(net: FlatNetlist, coeffs: dict, work: bool) -> tuple[bool, ...]:
     return tuple(bool(b) for b in out)
 
 
-def force_netlist(net: FlatNetlist, method: str) -> FlatNetlist:
-    """The netlist whose forces the kernel computes: a Lawson scheme's Runge-Kutta part (its
-    exact blocks' linear terms and inputs split off, `expint.split_netlist`), else `net`."""
-    return expint.split_netlist(net, expint.find_blocks(net)) if expint.is_split(method) else net
+def force_netlist(net: FlatNetlist, method: str) -> tuple[FlatNetlist, expint.Blocks | None]:
+    """The netlist whose forces the kernel computes, and a Lawson scheme's exact blocks: its
+    Runge-Kutta part (the blocks' linear terms and inputs split off, `expint.split_netlist`;
+    the force table, and so the input channels, kept), else `net` and None."""
+    if not expint.is_split(method):
+        return net, None
+    blocks = expint.find_blocks(net)
+    return expint.split_netlist(net, blocks), blocks
 
 
-def options(net: FlatNetlist, method: str, precision: str, coeffs: dict, probes: int,
-            rplan) -> cudagen.CudaOptions:
-    """The CUDA kernel's options for the kernel netlist `net` and a reduction plan (a Lawson
-    scheme: `coeffs` its kernel arrays, `simulate.kernel_arrays`). A Lawson scheme's force
-    code is never written out (the CPU kernels' choice too: its block updates dominate)."""
-    lawson = expint.is_split(method)
-    blocks = expint.find_blocks(net) if lawson else None
-    channels = expint.block_channels(net, blocks) if lawson else 1
-    net = force_netlist(net, method)
+def options(net: FlatNetlist, blocks: expint.Blocks | None, method: str, precision: str,
+            coeffs: dict, probes: int, rplan) -> cudagen.CudaOptions:
+    """The CUDA kernel's options for the force netlist `net` and a Lawson scheme's `blocks`
+    (`force_netlist`) and a reduction plan (`coeffs`: the kernel arrays,
+    `simulate.kernel_arrays`). A Lawson scheme's force code is never written out (the CPU
+    kernels' choice too: its block updates dominate)."""
+    lawson = blocks is not None
     small = net.n <= cudagen.WRITE_OUT_MAX and not lawson
     nodes = terms.node_terms(coeffs, net.n) if small else None
     feat = features(net)
@@ -163,14 +165,13 @@ def options(net: FlatNetlist, method: str, precision: str, coeffs: dict, probes:
         vneed=vneed(net, coeffs, rplan.work), nodes=nodes,
         threads=cudagen.SPLIT_THREADS if split else 1,
         blocks=tuple(expint.block_sizes(blocks)) if lawson else (),
-        block_channels=channels)
-
+        block_channels=expint.block_channels(net, blocks) if lawson else 1)
 
 
 def load(net: FlatNetlist, opts: cudagen.CudaOptions) -> loader.Kernel:
-    """The CUDA kernel for `net` under `opts`, written to the kernel cache and imported
-    (compiled by numba.cuda at its first launch)."""
-    return loader.load(cudagen.generate(force_netlist(net, opts.method), opts))
+    """The CUDA kernel for the force netlist `net` (`force_netlist`) under `opts`, written to
+    the kernel cache and imported (compiled by numba.cuda at its first launch)."""
+    return loader.load(cudagen.generate(net, opts))
 
 
 _STATE = ("x0", "v0")

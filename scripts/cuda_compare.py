@@ -122,8 +122,9 @@ def compare(name: str, net, inputs, precision: str, reference=None, device: str 
 def tiny() -> list[dict]:
     """The every-kind network in the three force forms (written out, loops, split over 3
     threads a run), two tableaux, both precisions, with its steps streamed over many calls;
-    split without monomials and shared signals (its combine folded into the last stage); then
-    once on the default device (`gpu.default_device`)."""
+    split without monomials and shared signals (its combine folded into the last stage), and
+    with one term of each list in registers (the rest looped); then once on the default
+    device (`gpu.default_device`)."""
     net = every_kind()
     u = smooth_inputs(3, 2, 90, seed=0)
     out = []
@@ -143,6 +144,13 @@ def tiny() -> list[dict]:
     row = compare("unscattered kinds, split, rk4 x1", every_kind(False), u, "float64",
                   method="rk4", substeps=1, reductions=REDUCE, outrate=5e3, write_out=False)
     out.append({k: v for k, v in row.items() if k != "result"})
+    # one term of each list in registers: a node's further terms read in the loops
+    slot_max, cudagen.SLOT_MAX = cudagen.SLOT_MAX, 1
+    row = compare("every kind, split, one term a list in registers, rk4 x1", net, u,
+                  "float64", method="rk4", substeps=1, reductions=REDUCE, outrate=5e3,
+                  write_out=False)
+    out.append({k: v for k, v in row.items() if k != "result"})
+    cudagen.SLOT_MAX = slot_max
     cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = saved
     out += lawson()
     with gpu.default_device("cuda"):  # a simulation that names no device runs there

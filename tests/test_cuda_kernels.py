@@ -32,7 +32,8 @@ def test_cuda_form_gives_the_cpu_kernels_probes_and_reductions(tmp_path):
     """Every term kind, every reduction the CUDA form sums, RK4 and Heun3 (its stage of weight
     0), float64 and float32, the three force forms (written out, loops, a run split over a
     block's threads; split without monomials and shared signals, its combine folded into the
-    last stage), the steps streamed over many kernel calls; the Lawson schemes on the feature
+    last stage; one term of each list in registers, the rest looped), the steps streamed over
+    many kernel calls; the Lawson schemes on the feature
     extractor, a run a thread and split; and a simulation that names no device inside
     `gpu.default_device('cuda')`."""
     out = tmp_path / "cases.json"
@@ -41,7 +42,7 @@ def test_cuda_form_gives_the_cpu_kernels_probes_and_reductions(tmp_path):
                           capture_output=True, text=True, timeout=900, cwd=ROOT)
     assert out.exists(), proc.stdout + proc.stderr
     cases = json.loads(out.read_text())
-    assert len(cases) == 15
+    assert len(cases) == 16
     for case in cases:
         want = ({"x(f0a)", "x(lp7)", "work:in", "dissipated:all", "energy"}
                 if case["case"].startswith("feature extractor") else
@@ -50,6 +51,61 @@ def test_cuda_form_gives_the_cpu_kernels_probes_and_reductions(tmp_path):
         assert set(case["errors"]) >= want
         assert case["worst"] <= TOLERANCE[case["precision"]], case
     assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_slot_tables_hold_each_nodes_first_terms_in_its_sum_order(monkeypatch):
+    """The split form's register tables against the CSR rows and node ends they are read
+    from: entry q of node i is the node's q-th term of the list (zero past its count), an
+    element kind's coefficients read through the end's element; the kernel reads them into
+    scalars once and loops over the terms past them."""
+    import numpy as np
+
+    from springc.kernels import terms
+    from springc.kernels.codegen import features
+    from springc.kernels.lower import kernel_netlist
+    from springc.sim import reductions
+    from springc.sim.simulate import coefficient_arrays
+
+    b = IRBuilder("triangle", "<test>")
+    for node in "abc":
+        b.mass(f"M{node}", node, 1.0, 0.0)
+        b.spring(f"K{node}", node, 100.0)
+    b.coupling("C1", "a", "b", 5.0, a=1.5)
+    b.coupling("C2", "a", "c", 7.0, a=0.5)
+    b.quad("Q1", "a", "c", 2e3, a=0.5)
+    b.quad("Q2", "b", "c", 1e3, a=2.0)
+    b.dashpot("B1", "b", "0", 3.0)
+    b.probe("x", "a")
+    b.tran = Tran(1e-3, 0.01, None)
+    net = kernel_netlist(b.finish())
+    co = coefficient_arrays(net, "float64")
+    monkeypatch.setattr(cudagen, "SLOT_MAX", 1)
+    slots = gpu.slots(features(net), co, net.n)
+    assert slots == (("row", 1, True), ("quad", 1, True), ("dashpot", 1, False))
+    opts = cudagen.CudaOptions("rk4", "float64", net.n, 0, probes=1, vneed=(True,) * net.n,
+                               threads=2, slots=slots)
+    mod_spec = cudagen._slot_spec(features(net), opts)
+    args = {**co, **terms.node_ends(co, net.n)}
+    tables = gpu._slot_tables(args, mod_spec, net.n)
+    for i in range(net.n):
+        row = range(int(co["l_ptr"][i]), int(co["l_ptr"][i + 1]))
+        assert tables["sl_n"][0, i] == len(row)
+        assert tables["sl_row_c"][0, i] == (co["l_col"][row[0]] if row else 0)
+        assert tables["sl_row_w"][0, i] == (co["l_val"][row[0]] if row else 0.0)
+        ends = range(int(args["quad_ptr"][i]), int(args["quad_ptr"][i + 1]))
+        assert tables["sl_n"][1, i] == len(ends)
+        if ends:
+            e = args["quad_e"][ends[0]]
+            assert tables["sl_quad_o"][0, i] == args["quad_o"][ends[0]]
+            assert tables["sl_quad_end"][0, i] == args["quad_end"][ends[0]]
+            assert (tables["sl_quad_a"][0, i], tables["sl_quad_gj"][0, i]) == (
+                co["q_a"][e], co["q_gj"][e])
+    assert tables["sl_dashpot_o"][0, 1] == -1  # b's dashpot: to ground
+    assert max(tables["sl_n"][0]) == 2  # a's row: b and c, one held, one looped
+    text = cudagen.generate(net, opts)
+    assert "s_row0_0_w = sl_row_w[0, s_c0]" in text
+    assert "for q_ in range(l_ptr[i] + np.uint64(1), l_ptr[i + 1]):" in text
+    assert "dashpot_ptr[i] + np.uint64" not in text  # no node has two dashpot ends
 
 
 def _one_mass():

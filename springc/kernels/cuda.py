@@ -44,7 +44,7 @@ from springc.kernels.codegen import (Features, LaneLayout, _Code, accel_args, co
 from springc.kernels.integrators import Tableau, get_tableau
 from springc.lang.ir import FlatNetlist
 
-CUDA_VERSION = 2  # bump when the generated text or its calling convention changes
+CUDA_VERSION = 3  # bump when the generated text or its calling convention changes
 BLOCK = 32  # threads (runs) per block where each run is one thread
 # Networks up to this many nodes get their force code written out per node (constant
 # indices, coefficients in scalars), one run per thread; larger ones loop over the runtime
@@ -53,6 +53,9 @@ BLOCK = 32  # threads (runs) per block where each run is one thread
 WRITE_OUT_MAX = terms.NODES_MAX
 SPLIT_MIN = WRITE_OUT_MAX + 1
 SPLIT_THREADS = 256  # threads per run of the split form: the fastest of 32-512 (docs/bench-gpu.md)
+# Split form: each thread holds this many of each node's terms of each list (`slot_lists`) in
+# registers for the whole launch, read once; a node's further terms are read in a loop.
+SLOT_MAX = 8
 SHARED_BYTES = 48 * 1024
 
 
@@ -80,6 +83,46 @@ class CudaOptions:
     threads: int = 1  # threads per run: > 1, the split form
     blocks: tuple[int, ...] = ()  # a Lawson scheme's exact blocks: their sizes (nodes)
     block_channels: int = 1  # the input channels of their propagators
+    # split form: each list's (`slot_lists`) terms a node holds in registers, and whether
+    # some node has more (then read in a loop); () : every term read in a loop
+    slots: tuple[tuple[str, int, bool], ...] = ()
+
+
+@dataclass(frozen=True)
+class SlotList:
+    """One list of a node's terms, in its sum's order, that the split form reads into
+    registers (`CudaOptions.slots`): each node's range of entries (`ptr`), the element of an
+    entry (`elem`, for element kinds) and its fields (name, array, whether that array is
+    indexed by the element rather than the entry)."""
+
+    name: str
+    ptr: str
+    elem: str | None
+    fields: tuple[tuple[str, str, bool], ...]
+
+    def index(self, field: str) -> bool:
+        """Whether `field` is an index (a node, channel or end), not a coefficient."""
+        return field in ("c", "o", "end")
+
+
+def slot_lists(feat: Features) -> list[SlotList]:
+    """A node's lists of terms after its own, in the order its sum adds them: its stiffness
+    row, its inputs, its ends of each element kind (`terms.LOOP_ORDER`, `terms.node_ends`)."""
+    out = []
+    if feat.couplings:
+        out.append(SlotList("row", "l_ptr", None, (("c", "l_col", False), ("w", "l_val", False))))
+    if feat.in_forces:
+        out.append(SlotList("in", "fi_ptr", None, (("c", "fi_chan", False),
+                                                   ("w", "fi_gm", False))))
+    for kind in terms.LOOP_ORDER:
+        if not getattr(feat, kind.feature):
+            continue
+        names = terms.gather_args(kind)
+        ends = ((("o", names[2], False), ("end", names[3], False))
+                if kind.node_j is not None else ())
+        out.append(SlotList(kind.name, names[0], names[1],
+                            ends + tuple((f, arr, True) for f, arr in kind.coefs)))
+    return out
 
 
 def tableau(method: str) -> Tableau:
@@ -120,6 +163,9 @@ def run_args(feat: Features, opts: CudaOptions) -> list[str]:
     names += accel_args(feat) + ["vneed"]
     if opts.threads > 1:
         names += gather_args(feat)
+    if opts.slots:
+        names += ["sl_n"] + [f"sl_{sl.name}_{f}" for sl, (_, k, _) in
+                             zip(slot_lists(feat), opts.slots) if k for f, _, _ in sl.fields]
     if _lawson(opts):
         names += ["frz"] + [f"lw{m}_{k}" for m in opts.blocks for k in ("node", "e", "p0", "p1")]
         names += ["fi_w"] if opts.work and feat.in_forces else []
@@ -180,6 +226,8 @@ def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
     c("CUDA = True")
     c("LANES = 1  # runs per thread")
     c(f"VNEED = {tuple(opts.vneed)!r}  # whether anything reads a node's stage velocity")
+    c("# the register lists' tables the host builds: (list, entries, ptr, elem, fields)")
+    c(f"SLOTS = {_slot_spec(feat, opts)!r}")
     c("")
     c("")
     c("@cuda.jit")
@@ -202,6 +250,8 @@ def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
             for line in terms.scalar_loads(i, node):
                 c(line)
     _emit_state(c, feat, opts, tab)
+    if opts.slots:
+        _emit_slot_loads(c, feat, opts)
     _emit_counters(c)
     c("for step in range(s0, s1):")
     c.indent()
@@ -359,15 +409,20 @@ def _emit_stage(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau, s: in
 
 
 def _fold_combine(text: list[str], tab: Tableau) -> list[str]:
-    """The split force code with the node's store of its last stage force replaced by the
+    """The split force code with each node's store of its last stage force replaced by the
     combine, that force read from the accumulator A0 (`_folds`)."""
     last = tab.stages - 1
     xterm, vterm = combine_terms(tab, "V", lambda k: "A0" if k == last else f"kv{k}[i]")
-    store = "    ka[i] = A0"
-    assert text.count(store) == 1, "the split force code stores each node once"
-    at = text.index(store)
-    return text[:at] + ["    V = v[i]", f"    x[i] = x[i] + ({xterm})",
-                        f"    v[i] = V + ({vterm})"] + text[at + 1:]
+    combine = ["V = v[i]", f"x[i] = x[i] + ({xterm})", f"v[i] = V + ({vterm})"]
+    out = []
+    for line in text:
+        if line.strip() != "ka[i] = A0":
+            out.append(line)
+            continue
+        pad = line[:len(line) - len(line.lstrip())]
+        out += [pad + part for part in combine]
+    assert len(out) > len(text), "the split force code stores each node's force"
+    return out
 
 
 def _emit_lawson_inputs(c: _Code, opts: CudaOptions, tab: Tableau) -> None:
@@ -491,19 +546,118 @@ def force_code(feat: Features, opts: CudaOptions) -> list[str]:
 
 def _split_force_code(feat: Features, opts: CudaOptions) -> list[str]:
     """The split form's forces: each thread's nodes sum their own terms and element ends
-    (`codegen.emit_linear`'s parallel form, one lane); monomials and shared signals, which
-    scatter, are then added by thread 0 alone, after a barrier, and the run's threads meet
-    again before anyone reads them."""
-    sub = _Code()
-    emit_linear(sub, feat, LaneLayout(1, 1), parallel=True)
-    out = [re.sub(r", 0\]", "]", line.replace("for i in nb.prange(n):", _node_loop(opts)))
-           for line in sub.lines]
+    (`codegen.emit_linear`'s parallel form, one lane; with `opts.slots`, `_slot_force_code`);
+    monomials and shared signals, which scatter, are then added by thread 0 alone, after a
+    barrier, and the run's threads meet again before anyone reads them."""
+    if opts.slots:
+        out = _slot_force_code(feat, opts)
+    else:
+        sub = _Code()
+        emit_linear(sub, feat, LaneLayout(1, 1), parallel=True)
+        out = [re.sub(r", 0\]", "]", line.replace("for i in nb.prange(n):", _node_loop(opts)))
+               for line in sub.lines]
     scattered = (_monomials() if feat.monomials else []) + (
         _kind_loop(terms.COMMON) if feat.common_forces else [])
     if scattered:
         out += ["cuda.syncthreads()", "if t == 0:"] + ["    " + line for line in scattered]
         out += ["cuda.syncthreads()"]
     return out
+
+
+def _slot_spec(feat: Features, opts: CudaOptions) -> tuple:
+    """The tables of `opts.slots` (`springc.sim.gpu` builds them): per list, its name, its
+    entries per node, its `ptr` and `elem` arrays and its fields."""
+    return tuple((sl.name, k, sl.ptr, sl.elem, sl.fields)
+                 for sl, (_, k, _) in zip(slot_lists(feat), opts.slots))
+
+
+def _slot_count(opts: CudaOptions) -> int:
+    """The nodes each thread of the split form holds (its slots)."""
+    return -(-opts.n // opts.threads)
+
+
+def _emit_slot_loads(c: _Code, feat: Features, opts: CudaOptions) -> None:
+    """Each of the thread's nodes (slot j: node t + j T) and its terms' fields, read once per
+    launch into scalars (`sl_{list}_{field}`: entry q of node i at [q, i]; a node's count of
+    each list in `sl_n`). A thread past the last node reads the last node's (not used)."""
+    for j in range(_slot_count(opts)):
+        c(f"s_i{j} = t + {j * opts.threads}")
+        c(f"s_c{j} = s_i{j} if s_i{j} < N else N - 1")
+        c(f"s_bm{j} = bm[s_c{j}]")
+        c(f"s_km{j} = km[s_c{j}]")
+        for row, (sl, (_, k, _)) in enumerate(zip(slot_lists(feat), opts.slots)):
+            if not k:
+                continue
+            c(f"s_n{sl.name}{j} = sl_n[{row}, s_c{j}]")
+            for q in range(k):
+                for f, _, _ in sl.fields:
+                    c(f"s_{sl.name}{j}_{q}_{f} = sl_{sl.name}_{f}[{q}, s_c{j}]")
+
+
+def _slot_force_code(feat: Features, opts: CudaOptions) -> list[str]:
+    """The split form's force code with each of the thread's nodes written out (slot j), its
+    terms' fields in the registers `_emit_slot_loads` filled, each term guarded by the
+    node's count, the terms past a list's registers read in a loop: the same sum in the same
+    order as `codegen.emit_linear`'s parallel form, so that it rounds alike."""
+    out: list[str] = []
+    last = _slot_count(opts) - 1
+    for j in range(last + 1):
+        body = [f"i = s_i{j}"] + _slot_node(feat, opts, j) + ["ka[i] = A0"]
+        if j == last and opts.n % opts.threads:
+            out += [f"if s_i{j} < N:"] + ["    " + line for line in body]
+        else:
+            out += body
+    return out
+
+
+def _slot_node(feat: Features, opts: CudaOptions, j: int) -> list[str]:
+    """Slot j's node's sum A0: own terms, then each list's terms."""
+    own = terms.own_sum(True, True, f"s_bm{j}", f"s_km{j}", "va[i]", "xa[i]")
+    spring = terms.own_sum(False, True, f"s_bm{j}", f"s_km{j}", "va[i]", "xa[i]")
+    out = [f"if s_bm{j} != 0.0:", f"    A0 = {own}", "else:", f"    A0 = {spring}"]
+    for sl, (_, k, looped) in zip(slot_lists(feat), opts.slots):
+        for q in range(k):
+            scalars = {f: f"s_{sl.name}{j}_{q}_{f}" for f, _, _ in sl.fields}
+            out += [f"if s_n{sl.name}{j} > {q}:"] + [
+                "    " + line for line in _slot_term(sl, scalars)]
+        if looped:
+            out += _slot_loop(sl, k)
+    return out
+
+
+def _slot_loop(sl: SlotList, k: int) -> list[str]:
+    """A node's terms of list `sl` past its first k, read from the arrays."""
+    at = f"{sl.elem}[q_]" if sl.elem else "q_"
+    fields = {f: f"{arr}[{at if by_elem else 'q_'}]" for f, arr, by_elem in sl.fields}
+    head = [f"for q_ in range({sl.ptr}[i] + np.uint64({k}), {sl.ptr}[i + 1]):"]
+    return head + ["    " + line for line in _slot_term(sl, fields)]
+
+
+def _slot_term(sl: SlotList, fields: dict[str, str]) -> list[str]:
+    """One term of list `sl` added to A0, its fields read from the expressions `fields`."""
+    if sl.name == "row":
+        return ["A0 = A0 " + terms.ROW.format(w=fields["w"], xj=f"xa[{fields['c']}]")]
+    if sl.name == "in":
+        return ["A0 = A0 " + terms.INPUT.format(gm=fields["w"], u=f"uc[{fields['c']}]")]
+    kind = terms.BY_NAME[sl.name]
+
+    def end(code: terms.LoopCode) -> list[str]:
+        lines = code.head + code.loads + code.arith
+        for f, arr in kind.coefs:
+            lines = [line.replace(f"{arr}[e]", fields[f]) for line in lines]
+        # one lane, numbered 0 as the accumulator A0 is
+        return ["    " + re.sub(r", \{b\}\]", "]", line).replace("{b}", "0") for line in lines]
+
+    if kind.node_j is None:
+        return [line[4:] for line in end(terms.gather_end(kind, "i"))]
+    out = [f"o = {fields['o']}", f"if {fields['end']} == 0:"]
+    if kind.ground is not None:
+        out += ["    if o < 0:  # to ground"] + ["    " + line for line in
+                                                 end(terms.gather_end(kind, "i", True))]
+        out += ["    else:"] + ["    " + line for line in end(terms.gather_end(kind, "i"))]
+    else:
+        out += end(terms.gather_end(kind, "i"))
+    return out + ["else:"] + end(terms.gather_end(kind, "j"))
 
 
 def _linear(feat: Features) -> list[str]:

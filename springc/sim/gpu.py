@@ -164,8 +164,24 @@ def options(net: FlatNetlist, blocks: expint.Blocks | None, method: str, precisi
         msq=len(rplan.msq), gram=gram,
         vneed=vneed(net, coeffs, rplan.work), nodes=nodes,
         threads=cudagen.SPLIT_THREADS if split else 1,
+        slots=slots(feat, coeffs, net.n) if split else (),
         blocks=tuple(expint.block_sizes(blocks)) if lawson else (),
         block_channels=expint.block_channels(net, blocks) if lawson else 1)
+
+
+def slots(feat, coeffs: dict, n: int) -> tuple[tuple[str, int, bool], ...]:
+    """The split form's register lists (`cudagen.CudaOptions.slots`): per list, the terms a
+    node holds (its most, at most `cudagen.SLOT_MAX`) and whether a node has more; none
+    with SLOT_MAX 0 (every term read in the loops)."""
+    if not cudagen.SLOT_MAX:
+        return ()
+    ptrs = {**coeffs, **terms.node_ends(coeffs, n)}
+    out = []
+    for sl in cudagen.slot_lists(feat):
+        most = int(np.diff(ptrs[sl.ptr].astype(np.int64)).max(initial=0))
+        k = min(most, cudagen.SLOT_MAX)
+        out.append((sl.name, k, most > k))
+    return tuple(out)
 
 
 def load(net: FlatNetlist, opts: cudagen.CudaOptions) -> loader.Kernel:
@@ -192,6 +208,8 @@ def run(kernel: loader.Kernel, args: dict, runs: int) -> None:
     dtype = args["x0"].dtype
     if "gr_ptr" in mod.ARGS:
         args = {**args, **_pairs_by_group(args)}
+    if mod.SLOTS:
+        args = {**args, **_slot_tables(args, mod.SLOTS, len(mod.VNEED))}
     dev = {name: _to_device(args[name]) for name in mod.ARGS if name in args
            and name not in ("u", "g", "rec") and isinstance(args[name], np.ndarray)}
     dev["vneed"] = cuda.to_device(np.array(mod.VNEED, np.bool_))
@@ -237,6 +255,29 @@ def _pairs_by_group(args: dict) -> dict:
            for name in ("gr_i", "gr_j", "gr_g", "gr_w")}
     groups = len(args["gr_decay"])
     out["gr_ptr"] = np.searchsorted(out["gr_g"], np.arange(groups + 1)).astype(np.int64)
+    return out
+
+
+def _slot_tables(args: dict, spec: tuple, n: int) -> dict:
+    """The split form's register lists as tables (the kernel's `SLOTS`): each node's count
+    per list (`sl_n`, (lists, n)) and the fields of its first entries per list
+    (`sl_{list}_{field}`, (entries, n): neighbouring threads read neighbouring words), indices
+    as int64, zeros past a node's count."""
+    counts = np.zeros((len(spec), n), np.int64)
+    out = {"sl_n": counts}
+    for row, (name, k, ptr, elem, fields) in enumerate(spec):
+        start = args[ptr][:n].astype(np.int64)
+        counts[row] = args[ptr][1:n + 1].astype(np.int64) - start
+        for field, array, by_elem in fields:
+            src = args[array]
+            dtype = src.dtype if src.dtype.kind == "f" else np.dtype(np.int64)
+            table = np.zeros((k, n), dtype)
+            for q in range(k):
+                has = counts[row] > q
+                entry = start[has] + q
+                at = args[elem][entry].astype(np.int64) if by_elem else entry
+                table[q, has] = src[at]
+            out[f"sl_{name}_{field}"] = table
     return out
 
 

@@ -58,12 +58,10 @@ def test_slot_tables_hold_each_nodes_first_terms_in_its_sum_order(monkeypatch):
     from: entry q of node i is the node's q-th term of the list (zero past its count), an
     element kind's coefficients read through the end's element; the kernel reads them into
     scalars once and loops over the terms past them."""
-    import numpy as np
 
     from springc.kernels import terms
     from springc.kernels.codegen import features
     from springc.kernels.lower import kernel_netlist
-    from springc.sim import reductions
     from springc.sim.simulate import coefficient_arrays
 
     b = IRBuilder("triangle", "<test>")

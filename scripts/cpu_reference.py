@@ -5,7 +5,9 @@ classifier networks, on the CPU kernels (the reference) or the CUDA form.
     python scripts/cpu_reference.py --device cuda --runs 10000 --json gpu.json
 
 `--threads` sets the CUDA form's threads per run for networks split over a block
-(`springc.kernels.cuda.SPLIT_THREADS`; 1: one run per thread), each value a row.
+(`springc.kernels.cuda.SPLIT_THREADS`; 1: one run per thread) and `--slot-max` the terms of
+each list a split run's node holds in registers (`springc.kernels.cuda.SLOT_MAX`; 0: none,
+every term read in a loop), each pair of values a row.
 
 Each network runs RK4 (or `--method`; the substeps of `cuda_compare.BENCH_SUBSTEPS`) for
 `--seconds` of speech-like input (`springc.bench.suite.speech_like`), recording nothing and
@@ -17,6 +19,7 @@ The CPU uses every core this process may use (`springc.sim.simulate.threads`).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import platform
@@ -54,9 +57,10 @@ def measure(name: str, net, inputs, tstep: float, seconds: float, precision: str
     row = {"network": name, "dofs": net.n, "precision": precision, "device": device,
            "method": method,
            "threads_per_run": threads if device == "cuda" else None,
+           "slot_max": cudagen.SLOT_MAX if device == "cuda" and threads > 1 else None,
            "runs": runs, "seconds": seconds, "substeps": kw["substeps"], "wall_s": best,
            "runs_per_s": runs / best, "run_seconds_per_s": runs * seconds / best}
-    shown = f"{device} T={threads}" if device == "cuda" else device
+    shown = f"{device} T={threads} S={cudagen.SLOT_MAX}" if device == "cuda" else device
     print(f"{name:28s} {precision} {method} {shown}: {runs} runs of {seconds} s in {best:.3f} s = "
           f"{runs / best:,.0f} runs/s", flush=True)
     return row
@@ -80,6 +84,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--method", default="rk4", help="rk4, or a Lawson scheme (exp-rk4)")
     parser.add_argument("--threads", nargs="*", type=int, default=[cudagen.SPLIT_THREADS],
                         help="cuda: threads per run of the split form (1: one run a thread)")
+    parser.add_argument("--slot-max", nargs="*", type=int, default=[cudagen.SLOT_MAX],
+                        help="cuda: a split node's terms of each list in registers (0: none)")
     parser.add_argument("--json", help="write the rows here")
     args = parser.parse_args(argv)
     runs = args.runs or (10000 if args.device == "cuda" else 8 * sm.threads())
@@ -92,8 +98,9 @@ def main(argv: list[str] | None = None) -> int:
         for precision in args.precision:
             if name == "pipeline classifier 8x3" and precision == "float32":
                 continue
-            for threads in args.threads:
+            for threads, slot_max in itertools.product(args.threads, args.slot_max):
                 split_threads(threads)
+                cudagen.SLOT_MAX = slot_max
                 try:
                     rows.append(measure(name, net, u, tstep, args.seconds, precision,
                                         args.device, args.repeat, args.method))

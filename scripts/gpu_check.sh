@@ -4,7 +4,7 @@
 # form against the CPU kernels on the networks it splits, runs per second of every bench network,
 # the keyword-spotting feature pass, and a mass-spring spotter trained and evaluated with its
 # simulations on the GPU against the same on the CPU (the 2-core CPU figures:
-# scripts/cpu_reference.py on a 2-core machine). Sized to finish in under 10 minutes; each stage
+# scripts/cpu_reference.py on a 2-core machine). Sized to finish in under 9.5 minutes; each stage
 # is timed and bounded, a failed stage is reported and the later ones still run. Everything
 # printed goes to $OUT/gpu_check.log and each stage's JSON to $OUT (the folder given as the first
 # argument, else $OUT, else ./gpu_check_out).
@@ -68,44 +68,46 @@ except Exception as err:
     print("jax/diffrax:", err)
 EOF
 
-# 1. the 8x3 feature network at 10,000 runs: one run per thread (1) against runs split
-#    over blocks of 128..512 threads; the fastest split is used below
-stage "split threads" 55 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
-    --seconds 0.02 --repeat 1 --only "pipeline features 8x3" --precision float64 \
-    --threads 1 128 256 512 --json "$OUT_DIR/split_threads.json"
-T=$($PY - "$OUT_DIR/split_threads.json" <<'EOF' 2>/dev/null || echo 256
+# 1. the 8x3 feature network at 10,000 runs, split over blocks of 128..512 threads, each node's
+#    terms read in loops (slot max 0) or its first 8 of each list held in registers; the
+#    fastest pair is used below
+stage "split threads and register terms" 85 $PY scripts/cpu_reference.py --device cuda \
+    --runs 10000 --seconds 0.02 --repeat 1 --only "pipeline features 8x3" --precision float64 \
+    --threads 128 256 512 --slot-max 0 8 --json "$OUT_DIR/split_threads.json"
+read -r T S < <($PY - "$OUT_DIR/split_threads.json" <<'EOF' 2>/dev/null || echo "256 8"
 import json, sys
-rows = [r for r in json.load(open(sys.argv[1]))["rows"]
-        if "runs_per_s" in r and (r["threads_per_run"] or 1) > 1]
-print(max(rows, key=lambda r: r["runs_per_s"])["threads_per_run"])
+rows = [r for r in json.load(open(sys.argv[1]))["rows"] if "runs_per_s" in r]
+best = max(rows, key=lambda r: r["runs_per_s"])
+print(best["threads_per_run"], best["slot_max"])
 EOF
 )
-say "threads per split run from here on: $T"
+export SPRINGC_SLOT_MAX=$S
+say "threads per split run from here on: $T; register terms per list: $S"
 # 2. the peers on the same GPU and network, at the same scheme and step (equal error)
-stage "peers: pipeline features" 55 $PY scripts/gpu_peers.py --network "pipeline features 8x3" \
+stage "peers: pipeline features" 50 $PY scripts/gpu_peers.py --network "pipeline features 8x3" \
     --runs 10000 --seconds 0.02 --threads "$T" --json "$OUT_DIR/peers_features.json"
 # 3. the CUDA form against the CPU kernels on the networks the split form runs (the others'
 #    forms are those docs/bench-gpu.md measured before); compiles the CPU kernels too
-stage "cuda vs cpu kernels" 100 $PY scripts/cuda_compare.py bench --seconds 0.02 --runs 64 \
+stage "cuda vs cpu kernels" 95 $PY scripts/cuda_compare.py bench --seconds 0.02 --runs 64 \
     --only "pipeline features 8x3" "564-dof kws network" "long delay line" \
     "pipeline classifier 8x3" --json "$OUT_DIR/compare.json"
 # 4. runs per second of every bench network, 10,000 runs each
-stage "cuda throughput" 100 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
+stage "cuda throughput" 90 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
     --seconds 0.02 --repeat 2 --threads "$T" --json "$OUT_DIR/cuda_throughput.json"
-stage "peers: 564-dof kws network" 45 $PY scripts/gpu_peers.py --network "564-dof kws network" \
+stage "peers: 564-dof kws network" 40 $PY scripts/gpu_peers.py --network "564-dof kws network" \
     --runs 10000 --seconds 0.02 --threads "$T" --json "$OUT_DIR/peers_kws.json"
-# 5. the keyword-spotting feature pass: clips per second, scaled to a 20,000-clip corpus
-stage "kws feature pass" 65 $PY scripts/kws_feature_pass.py --device cuda --clips 20000 \
-    --seconds 0.1 --corpus 20000 --check 4 --threads "$T" --json "$OUT_DIR/kws_pass.json"
-# 6. a Lawson scheme (exp-rk4): against the CPU kernels, and runs per second at 10,000 runs
-stage "lawson vs cpu kernels" 40 $PY scripts/cuda_compare.py bench --seconds 0.02 --runs 64 \
+# 5. a Lawson scheme (exp-rk4): against the CPU kernels, and runs per second at 10,000 runs
+stage "lawson vs cpu kernels" 35 $PY scripts/cuda_compare.py bench --seconds 0.02 --runs 64 \
     --only "feature extractor" --method exp-rk4 --json "$OUT_DIR/compare_lawson.json"
-stage "lawson throughput" 40 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
+stage "lawson throughput" 35 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
     --seconds 0.02 --repeat 1 --only "feature extractor" "pipeline features 8x3" \
     --precision float64 --method exp-rk4 --threads "$T" --json "$OUT_DIR/lawson_throughput.json"
-# 7. springc train and eval of a mass-spring spotter with --device cuda, against the CPU
-stage "train and eval on the device" 70 $PY scripts/gpu_train_check.py --device cuda \
+# 6. springc train and eval of a mass-spring spotter with --device cuda, against the CPU
+stage "train and eval on the device" 60 $PY scripts/gpu_train_check.py --device cuda \
     --json "$OUT_DIR/train_eval.json"
+# 7. the keyword-spotting feature pass: clips per second, scaled to a 20,000-clip corpus
+stage "kws feature pass" 50 $PY scripts/kws_feature_pass.py --device cuda --clips 20000 \
+    --seconds 0.1 --corpus 20000 --check 4 --threads "$T" --json "$OUT_DIR/kws_pass.json"
 
 say ""
 if [ ${#FAILED[@]} -eq 0 ]; then

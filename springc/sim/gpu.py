@@ -262,15 +262,15 @@ def _slot_tables(args: dict, spec: tuple, n: int) -> dict:
     """The split form's register lists as tables (the kernel's `SLOTS`): each node's count
     per list (`sl_n`, (lists, n)) and the fields of its first entries per list
     (`sl_{list}_{field}`, (entries, n): neighbouring threads read neighbouring words), indices
-    as int64, zeros past a node's count."""
-    counts = np.zeros((len(spec), n), np.int64)
+    as int32 (half the registers of int64), zeros past a node's count."""
+    counts = np.zeros((len(spec), n), np.int32)
     out = {"sl_n": counts}
     for row, (name, k, ptr, elem, fields) in enumerate(spec):
         start = args[ptr][:n].astype(np.int64)
         counts[row] = args[ptr][1:n + 1].astype(np.int64) - start
         for field, array, by_elem in fields:
             src = args[array]
-            dtype = src.dtype if src.dtype.kind == "f" else np.dtype(np.int64)
+            dtype = src.dtype if src.dtype.kind == "f" else np.dtype(np.int32)
             table = np.zeros((k, n), dtype)
             for q in range(k):
                 has = counts[row] > q

@@ -70,8 +70,9 @@ EOF
 
 # 1. the 8x3 feature network at 10,000 runs, split over blocks of 128..512 threads, each node's
 #    terms read in loops (slot max 0) or its first 8 of each list held in registers; the
-#    fastest pair is used below
-stage "split threads and register terms" 85 $PY scripts/cpu_reference.py --device cuda \
+#    fastest pair is used below, its threads only for this network under RK4 (512 threads do
+#    not launch for the 564-dof network, nor for the 8x3 under exp-rk4: too many registers)
+stage "split threads and register terms" 70 $PY scripts/cpu_reference.py --device cuda \
     --runs 10000 --seconds 0.02 --repeat 1 --only "pipeline features 8x3" --precision float64 \
     --threads 128 256 512 --slot-max 0 8 --json "$OUT_DIR/split_threads.json"
 read -r T S < <($PY - "$OUT_DIR/split_threads.json" <<'EOF' 2>/dev/null || echo "256 8"
@@ -82,31 +83,31 @@ print(best["threads_per_run"], best["slot_max"])
 EOF
 )
 export SPRINGC_SLOT_MAX=$S
-say "threads per split run from here on: $T; register terms per list: $S"
+say "threads per split run of the 8x3 network under RK4: $T; register terms per list: $S"
 # 2. the peers on the same GPU and network, at the same scheme and step (equal error)
-stage "peers: pipeline features" 50 $PY scripts/gpu_peers.py --network "pipeline features 8x3" \
+stage "peers: pipeline features" 45 $PY scripts/gpu_peers.py --network "pipeline features 8x3" \
     --runs 10000 --seconds 0.02 --threads "$T" --json "$OUT_DIR/peers_features.json"
 # 3. the CUDA form against the CPU kernels on the networks the split form runs (the others'
 #    forms are those docs/bench-gpu.md measured before); compiles the CPU kernels too
-stage "cuda vs cpu kernels" 95 $PY scripts/cuda_compare.py bench --seconds 0.02 --runs 64 \
+stage "cuda vs cpu kernels" 100 $PY scripts/cuda_compare.py bench --seconds 0.02 --runs 64 \
     --only "pipeline features 8x3" "564-dof kws network" "long delay line" \
     "pipeline classifier 8x3" --json "$OUT_DIR/compare.json"
 # 4. runs per second of every bench network, 10,000 runs each
-stage "cuda throughput" 90 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
-    --seconds 0.02 --repeat 2 --threads "$T" --json "$OUT_DIR/cuda_throughput.json"
+stage "cuda throughput" 100 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
+    --seconds 0.02 --repeat 2 --json "$OUT_DIR/cuda_throughput.json"
 stage "peers: 564-dof kws network" 40 $PY scripts/gpu_peers.py --network "564-dof kws network" \
-    --runs 10000 --seconds 0.02 --threads "$T" --json "$OUT_DIR/peers_kws.json"
+    --runs 10000 --seconds 0.02 --json "$OUT_DIR/peers_kws.json"
 # 5. a Lawson scheme (exp-rk4): against the CPU kernels, and runs per second at 10,000 runs
-stage "lawson vs cpu kernels" 35 $PY scripts/cuda_compare.py bench --seconds 0.02 --runs 64 \
+stage "lawson vs cpu kernels" 40 $PY scripts/cuda_compare.py bench --seconds 0.02 --runs 64 \
     --only "feature extractor" --method exp-rk4 --json "$OUT_DIR/compare_lawson.json"
 stage "lawson throughput" 35 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
     --seconds 0.02 --repeat 1 --only "feature extractor" "pipeline features 8x3" \
-    --precision float64 --method exp-rk4 --threads "$T" --json "$OUT_DIR/lawson_throughput.json"
+    --precision float64 --method exp-rk4 --json "$OUT_DIR/lawson_throughput.json"
 # 6. springc train and eval of a mass-spring spotter with --device cuda, against the CPU
-stage "train and eval on the device" 60 $PY scripts/gpu_train_check.py --device cuda \
+stage "train and eval on the device" 90 $PY scripts/gpu_train_check.py --device cuda \
     --json "$OUT_DIR/train_eval.json"
 # 7. the keyword-spotting feature pass: clips per second, scaled to a 20,000-clip corpus
-stage "kws feature pass" 50 $PY scripts/kws_feature_pass.py --device cuda --clips 20000 \
+stage "kws feature pass" 40 $PY scripts/kws_feature_pass.py --device cuda --clips 20000 \
     --seconds 0.1 --corpus 20000 --check 4 --threads "$T" --json "$OUT_DIR/kws_pass.json"
 
 say ""

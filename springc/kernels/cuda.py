@@ -54,8 +54,12 @@ WRITE_OUT_MAX = terms.NODES_MAX
 SPLIT_MIN = WRITE_OUT_MAX + 1
 SPLIT_THREADS = 256  # threads per run of the split form: the fastest of 32-512 (docs/bench-gpu.md)
 # Split form: each thread holds this many of each node's terms of each list (`slot_lists`) in
-# registers for the whole launch, read once; a node's further terms are read in a loop.
+# registers for the whole launch, read once; a node's further terms are read in a loop. Only
+# while the code written out per thread stays under SLOT_CODE_MAX term blocks (`slot_code`):
+# numba-cuda compiled 16 (the 8x3 feature network) in about 8 s, 75 (the 564-dof network) in
+# about 70 s (docs/bench-gpu.md).
 SLOT_MAX = 8
+SLOT_CODE_MAX = 32
 SHARED_BYTES = 48 * 1024
 
 
@@ -123,6 +127,20 @@ def slot_lists(feat: Features) -> list[SlotList]:
         out.append(SlotList(kind.name, names[0], names[1],
                             ends + tuple((f, arr, True) for f, arr in kind.coefs)))
     return out
+
+
+def slot_code(lists: list[SlotList], held: list[int], n: int, threads: int) -> int:
+    """The term blocks the split form's force code writes out per thread when each node holds
+    `held` terms of each of `lists`: per node the thread holds, per term, one block per end
+    variant of its kind (two-node kinds two, three with a ground end)."""
+    def variants(sl: SlotList) -> int:
+        kind = terms.BY_NAME.get(sl.name)
+        if kind is None or kind.node_j is None:
+            return 1
+        return 3 if kind.ground is not None else 2
+
+    nodes = -(-n // threads)
+    return nodes * sum(k * variants(sl) for sl, k in zip(lists, held))
 
 
 def tableau(method: str) -> Tableau:

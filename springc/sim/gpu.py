@@ -172,16 +172,16 @@ def options(net: FlatNetlist, blocks: expint.Blocks | None, method: str, precisi
 def slots(feat, coeffs: dict, n: int) -> tuple[tuple[str, int, bool], ...]:
     """The split form's register lists (`cudagen.CudaOptions.slots`): per list, the terms a
     node holds (its most, at most `cudagen.SLOT_MAX`) and whether a node has more; none
-    with SLOT_MAX 0 (every term read in the loops)."""
-    if not cudagen.SLOT_MAX:
-        return ()
+    with SLOT_MAX 0, or where the code written out per thread would exceed
+    `cudagen.SLOT_CODE_MAX` term blocks (every term then read in the loops)."""
+    lists = cudagen.slot_lists(feat)
     ptrs = {**coeffs, **terms.node_ends(coeffs, n)}
-    out = []
-    for sl in cudagen.slot_lists(feat):
-        most = int(np.diff(ptrs[sl.ptr].astype(np.int64)).max(initial=0))
-        k = min(most, cudagen.SLOT_MAX)
-        out.append((sl.name, k, most > k))
-    return tuple(out)
+    most = [int(np.diff(ptrs[sl.ptr].astype(np.int64)).max(initial=0)) for sl in lists]
+    held = [min(m, cudagen.SLOT_MAX) for m in most]
+    if not cudagen.SLOT_MAX or cudagen.slot_code(
+            lists, held, n, cudagen.SPLIT_THREADS) > cudagen.SLOT_CODE_MAX:
+        return ()
+    return tuple((sl.name, k, m > k) for sl, k, m in zip(lists, held, most))
 
 
 def load(net: FlatNetlist, opts: cudagen.CudaOptions) -> loader.Kernel:

@@ -69,7 +69,8 @@ class CudaOptions:
     the precision, the sizes of the per-thread arrays (dofs, input channels, input and
     shared-signal forces, probes, damper rows, mean-square rows, Gram groups; 0: not
     accumulated), whether input work is summed, the nodes whose stage
-    velocity is read (`vneed`) and, for small networks, each node's terms (`nodes`)."""
+    velocity is read (`vneed`) and, for small networks, each node's terms (`nodes`); for the
+    split form its threads per run and the terms a node holds in registers (`slots`)."""
 
     method: str
     precision: str
@@ -103,10 +104,6 @@ class SlotList:
     ptr: str
     elem: str | None
     fields: tuple[tuple[str, str, bool], ...]
-
-    def index(self, field: str) -> bool:
-        """Whether `field` is an index (a node, channel or end), not a coefficient."""
-        return field in ("c", "o", "end")
 
 
 def slot_lists(feat: Features) -> list[SlotList]:

@@ -21,7 +21,7 @@ import numpy as np
 from springc.errors import UsageError
 from springc.kernels import cuda as cudagen
 from springc.kernels import expint, loader, terms
-from springc.kernels.codegen import features
+from springc.kernels.codegen import Features, features
 from springc.lang.ir import FlatNetlist
 from springc.sim import sources
 
@@ -169,7 +169,7 @@ def options(net: FlatNetlist, blocks: expint.Blocks | None, method: str, precisi
         block_channels=expint.block_channels(net, blocks) if lawson else 1)
 
 
-def slots(feat, coeffs: dict, n: int) -> tuple[tuple[str, int, bool], ...]:
+def slots(feat: Features, coeffs: dict, n: int) -> tuple[tuple[str, int, bool], ...]:
     """The split form's register lists (`cudagen.CudaOptions.slots`): per list, the terms a
     node holds (its most, at most `cudagen.SLOT_MAX`) and whether a node has more; none
     with SLOT_MAX 0, or where the code written out per thread would exceed

@@ -51,7 +51,7 @@ def measure(name: str, net, inputs, tstep: float, seconds: float, precision: str
     best = float("inf")
     for _ in range(repeat):
         start = time.perf_counter()
-        sm.simulate(checked, inputs, **kw)
+        res = sm.simulate(checked, inputs, **kw)
         best = min(best, time.perf_counter() - start)
     threads = cudagen.SPLIT_THREADS if net.n >= cudagen.SPLIT_MIN else 1
     row = {"network": name, "dofs": net.n, "precision": precision, "device": device,
@@ -60,10 +60,32 @@ def measure(name: str, net, inputs, tstep: float, seconds: float, precision: str
            "slot_max": cudagen.SLOT_MAX if device == "cuda" and threads > 1 else None,
            "runs": runs, "seconds": seconds, "substeps": kw["substeps"], "wall_s": best,
            "runs_per_s": runs / best, "run_seconds_per_s": runs * seconds / best}
+    if device == "cuda":
+        row["kernel"] = kernel_resources(res.info["kernel"])
     shown = f"{device} T={threads} S={cudagen.SLOT_MAX}" if device == "cuda" else device
+    if row.get("kernel"):
+        shown += f" ({row['kernel'].get('regs_per_thread', '?')} registers a thread)"
     print(f"{name:28s} {precision} {method} {shown}: {runs} runs of {seconds} s in {best:.3f} s = "
           f"{runs / best:,.0f} runs/s", flush=True)
     return row
+
+
+def kernel_resources(path: str) -> dict:
+    """The compiled CUDA kernel's registers a thread, shared and local memory (what bounds the
+    blocks a multiprocessor holds); empty under the simulator or where numba-cuda lacks them."""
+    from springc.kernels import loader
+
+    out = {}
+    for kernel in loader._LOADED.values():
+        if str(kernel.path) != str(path):
+            continue
+        for name in ("regs_per_thread", "shared_mem_per_block", "local_mem_per_thread",
+                     "max_threads_per_block"):
+            try:
+                out[name] = int(getattr(kernel.module.run, f"get_{name}")())
+            except Exception:  # noqa: BLE001  (a report, not a measurement)
+                pass
+    return out
 
 
 def info(device: str, rows: list[dict]) -> dict:

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 import click
-from springc_cli.common import run_user_errors
+from springc_cli.common import on_device, run_user_errors
 
 RENDER_COMMAND = "springc bench --render docs/bench/bench.json --out docs"
 CASE_NAMES = ("feature", "kws", "delay", "stiff", "duffing", "kws-features", "kws-classifier")
@@ -51,6 +51,7 @@ CASE_NAMES = ("feature", "kws", "delay", "stiff", "duffing", "kws-features", "kw
                    "(springc.bench.noise); writes OUT/bench-noise.md and OUT/bench/noise.json. "
                    "With --quick: 8 runs of 0.02 s, a short oscillator.")
 @run_user_errors
+@on_device
 def bench_cmd(case_names, outdir, quick, render_from, issue3, seconds, batch, stretch,
               json_path, scaling, population, noise):
     """Speed against error: on each reference network (feature extractor, 8x3 keyword
@@ -59,7 +60,9 @@ def bench_cmd(case_names, outdir, quick, render_from, issue3, seconds, batch, st
     1e-6, numpy RK4, ngspice when installed), with per-probe errors against a tight reference,
     wall, compile time, throughput and its fraction of the measured arithmetic ceiling and of
     the machine's FMA peak. Writes OUT/bench.md, OUT/bench/bench.json and OUT/bench/<case>.png;
-    prints the Markdown. With --render, writes the same from a stored bench.json instead."""
+    prints the Markdown. With --render, writes the same from a stored bench.json instead.
+    With --device cuda, springc's kernels run in the CUDA form (the peers on the CPU; the
+    ceiling and FMA peak stay the CPU's); the page names the device."""
     if issue3:
         _issue3(seconds, batch, stretch, json_path)
         return
@@ -74,12 +77,14 @@ def bench_cmd(case_names, outdir, quick, render_from, issue3, seconds, batch, st
         return
     from springc.bench import report
     from springc.bench import suite as benchsuite
+    from springc.sim import gpu
 
     if render_from is not None:
         _echo(report.render(Path(render_from), Path(outdir)))
         return
 
     machine = benchsuite.machine_info()
+    machine["device"] = gpu.device_name()
     start = time.perf_counter()
 
     def say(message: str) -> None:  # elapsed time first: the suite runs for minutes

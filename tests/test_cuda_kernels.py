@@ -243,3 +243,29 @@ def test_lanes_of_a_population_stay_on_the_cpu_under_the_gpu_default(monkeypatch
     monkeypatch.setattr(gpu, "resolve", lambda device: "cpu" if device == "cpu" else "cuda")
     on_gpu = simulate_lanes(members, ["soft", "stiff"], u, method="rk4", substeps=1)
     np.testing.assert_array_equal(on_gpu.probes["x(a)"], cpu.probes["x(a)"])
+
+
+@NO_GPU
+def test_bench_on_cuda_without_a_gpu_exits_1_and_writes_nothing(tmp_path):
+    out = tmp_path / "bench-out"
+    res = CliRunner().invoke(main, ["bench", "--quick", "--case", "duffing", "--out", str(out),
+                                    "--device", "cuda"])
+    assert res.exit_code == 1, res.output
+    assert "--device cuda: no CUDA GPU is available here" in res.output
+    assert "Traceback" not in res.output
+    assert not out.exists()
+
+
+def test_bench_page_names_the_device_springcs_kernels_ran_on():
+    """`springc bench --device cuda` records the GPU; a CPU run's page (and the stored
+    bench.json of runs before the option, which has no device) says nothing of it."""
+    from springc.bench import report
+
+    machine = {"when": "2026-11-27 20:00:00", "cpus": 16, "load": 0.1}
+    cpu = report._lead([], machine)
+    assert report._lead([], {**machine, "device": "cpu"}) == cpu
+    gpu_page = report._lead([], {**machine, "device": "NVIDIA H200"})
+    assert "springc's kernels in the CUDA form on NVIDIA H200 (the peers" in gpu_page
+    assert gpu_page.replace(report._device_md({"device": "NVIDIA H200"}), "") == cpu
+    with gpu.default_device("cpu"):
+        assert gpu.device_name() == "cpu"

@@ -140,10 +140,20 @@ def _lead(results: list[CaseResult], machine: dict) -> str:
             f"Measured {machine.get('when')} on {machine.get('cpus')} CPUs (load average "
             f"{machine.get('load')} at the start"
             + (f" and {machine['load_end']} at the end" if "load_end" in machine else "")
-            + (f"; the suite took {took / 60:.1f} min" if took else "") + "). "
+            + (f"; the suite took {took / 60:.1f} min" if took else "") + ")"
+            + _device_md(machine) + ". "
             f"Render this page again from its stored numbers: `{RENDER_COMMAND}`; measure "
             "again: `make bench`. The CUDA kernel form on a GPU, against these CPU kernels and "
             "JAX: [bench-gpu.md](bench-gpu.md).")
+
+
+def _device_md(machine: dict) -> str:
+    """Where springc's kernels ran, where not the CPU (`springc bench --device`)."""
+    device = machine.get("device", "cpu")
+    if device == "cpu":
+        return ""
+    return (f", springc's kernels in the CUDA form on {device} (the peers, the arithmetic "
+            "ceiling and the FMA peak on the CPU)")
 
 
 def _legend() -> str:

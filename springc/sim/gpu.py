@@ -49,6 +49,18 @@ def current() -> str:
     return _DEFAULT[-1]
 
 
+def device_name() -> str:
+    """What the innermost `default_device` is, in words: 'cpu', or the GPU's name."""
+    if current() == "cpu":
+        return "cpu"
+    from numba import config, cuda
+
+    if config.ENABLE_CUDASIM:
+        return "numba's CUDA simulator"
+    name = cuda.get_current_device().name
+    return name.decode() if isinstance(name, bytes) else str(name)
+
+
 def _numpy_compat() -> None:
     """numba-cuda 0.30 registers an overload of `np.row_stack`, which numpy 2.4 removed: its
     first kernel compile fails with AttributeError there unless the old name (an alias of

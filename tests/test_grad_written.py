@@ -55,13 +55,23 @@ def _gradient(monkeypatch, use_written: bool, every: int | None = None, runs: in
                                 every=every)
 
 
-@pytest.mark.parametrize(("every", "runs", "width"), [(None, 2, 1), (7, 2, 1), (7, 5, 4)])
-def test_written_kernels_match_the_element_loops(monkeypatch, every, runs, width):
+RK38 = ".options substeps=2 method=rk38\n"
+
+
+@pytest.mark.parametrize(("every", "runs", "width", "options"),
+                         [(None, 2, 1, ""), (7, 2, 1, ""), (7, 5, 4, RK38)],
+                         ids=["whole", "every7", "every7-5runs-rk38x2"])
+def test_written_kernels_match_the_element_loops(monkeypatch, every, runs, width, options):
     """Whole or checkpointed; chunks of one run, and 5 runs in a 4-lane chunk and a padded
-    one."""
-    ours = _gradient(monkeypatch, True, every, runs)
+    one. The last case also takes another tableau and substeps: rk38 (stages reading two
+    earlier ones, two stages at one time) at 2 substeps a sample, the inputs interpolated
+    between samples as the element loops do (one written kernel for both: each is a compile
+    of 6-8 s)."""
+    ours = _gradient(monkeypatch, True, every, runs, options)
     assert ours.info["lanes"] == width and written.eligible(check(load_text(NET)).net)
-    loops = _gradient(monkeypatch, False, every, runs)
+    assert ours.info["settings"].substeps == (2 if options else 1)
+    assert ours.info["settings"].method == ("rk38" if options else "rk4")
+    loops = _gradient(monkeypatch, False, every, runs, options)
     for spec in SPECS:
         np.testing.assert_allclose(ours.values[spec], loops.values[spec], rtol=1e-12)
     for key, want in loops.coefficients.items():
@@ -69,18 +79,6 @@ def test_written_kernels_match_the_element_loops(monkeypatch, every, runs, width
             continue
         scale = max(np.abs(want).max(), 1e-300)
         assert np.abs(ours.coefficients[key] - want).max() <= 1e-11 * scale, key
-
-
-def test_another_tableau_and_substeps(monkeypatch):
-    """rk38 (stages reading two earlier ones, two stages at one time) at 2 substeps a
-    sample: the inputs interpolated between samples as the element loops do."""
-    options = ".options substeps=2 method=rk38\n"
-    ours = _gradient(monkeypatch, True, options=options)
-    loops = _gradient(monkeypatch, False, options=options)
-    assert ours.info["settings"].substeps == 2
-    for key, want in loops.coefficients.items():
-        if want.size:
-            assert np.abs(ours.coefficients[key] - want).max() <= 1e-11 * np.abs(want).max()
 
 
 def test_monomials_are_not_written_out():

@@ -86,13 +86,15 @@ def test_j_does_not_depend_on_the_weights(env):
 def test_a_refitted_folder_is_what_eval_simulates(env):
     root, _, model_dir = env
     out = root / "refitted"
+    # 16 of the 59 training clips: the refit's simulations are most of this test's time
     result = CliRunner().invoke(main, ["tune", str(model_dir), "-o", str(out), "--epochs", "0",
-                                       "--val-clips", "0", "-j", "1"])
+                                       "--val-clips", "0", "--refit-clips", "16", "-j", "1"])
     assert result.exit_code == 0, result.output
     assert "heads refitted on the exact response" in result.output
     settings = json.loads((out / "settings.json").read_text())
     kept = settings["tune"]["refit_kept"]
     assert ("not kept" in result.output) != kept
+    assert "exact response of 16 clips" in result.output
     model = load_model(out)
     _, heads = tr.model_heads(model)
     if kept:  # the folder's heads are the refit's, designed as the transfer designs its own
@@ -114,7 +116,7 @@ def test_a_refitted_folder_is_what_eval_simulates(env):
     readme = (out / "README.md").read_text()
     assert ("heads refitted first on the transferred network's exact response"
             in readme) == kept
-    assert "--epochs 0" in readme and "--refit-clips 0" in readme
+    assert "--epochs 0" in readme and "--refit-clips 16" in readme
     nothing = CliRunner().invoke(main, ["tune", str(model_dir), "-o", str(root / "none"),
                                         "--epochs", "0", "--no-refit"])
     assert nothing.exit_code == 1 and "nothing to tune" in nothing.output

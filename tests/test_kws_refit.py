@@ -6,6 +6,7 @@ simulates."""
 
 from __future__ import annotations
 
+import functools
 import json
 
 import numpy as np
@@ -47,6 +48,14 @@ def respond(s, heads, sig, plan, eps):
     return rf.response(net, heads, s, sig, plan, jobs=1)
 
 
+@functools.lru_cache(maxsize=None)
+def transferred(model_dir, eps: float):
+    """`network_at` and the transferred network's response, once per eps for the module
+    (the readout test and the reweighting test read the same one at eps 1e-2)."""
+    s, heads, sig, plan = network_at(model_dir, eps)
+    return s, heads, sig, plan, respond(s, heads, sig, plan, eps)
+
+
 def lam(heads):
     return [h.lam[h.keep] for h in heads], [h.intercept for h in heads]
 
@@ -56,8 +65,7 @@ def test_decisions_are_the_linear_readout_of_j(env, eps):
     """The readout is a linear oscillator driven by sum_e gamma_e y_e^2: its decision is
     sum_e lambda_e J_e + b, with J the leaky integrals at its slow pole, squaring ideal or
     not."""
-    s, heads, sig, plan = network_at(env[2], eps)
-    got = respond(s, heads, sig, plan, eps)
+    s, heads, sig, plan, got = transferred(env[2], eps)
     d = rf.decide(got.j, heads, *lam(heads))
     scale = np.median(np.abs(got.decisions))
     assert np.abs(d - got.decisions).max() < 1e-3 * scale
@@ -69,8 +77,7 @@ def test_j_does_not_depend_on_the_weights(env):
     same J, so the refit's decisions predicted from the transferred network's J are the
     reweighted network's."""
     eps = 1e-2
-    s, heads, sig, plan = network_at(env[2], eps)
-    before = respond(s, heads, sig, plan, eps)
+    s, heads, sig, plan, before = transferred(env[2], eps)
     rng = np.random.default_rng(3)
     weights = [rng.normal(size=len(h.keep)) * np.abs(h.lam[h.keep]).max() for h in heads]
     intercepts = [float(v) for v in rng.normal(size=len(heads))]

@@ -4,10 +4,11 @@ classifier networks, on the CPU kernels (the reference) or the CUDA form.
     python scripts/cpu_reference.py --json cpu.json                     # this machine's cores
     python scripts/cpu_reference.py --device cuda --runs 10000 --json gpu.json
 
-`--threads` sets the CUDA form's threads per run for networks split over a block
-(`springc.kernels.cuda.SPLIT_THREADS`; 1: one run per thread) and `--slot-max` the terms of
-each list a split run's node holds in registers (`springc.kernels.cuda.SLOT_MAX`; 0: none,
-every term read in a loop), each pair of values a row.
+For the CUDA form's split runs (networks split over a block), `--threads` sets the threads
+per run (`springc.kernels.cuda.SPLIT_THREADS`; 1: one run per thread), `--slot-max` the terms
+of each list a node holds in registers (`SLOT_MAX`; 0: every term read in a loop) and
+`--max-registers` the registers a thread (`MAX_REGISTERS`; 0: ptxas's choice); each
+combination is a row.
 
 Each network runs RK4 (or `--method`; the substeps of `cuda_compare.BENCH_SUBSTEPS`) for
 `--seconds` of speech-like input (`springc.bench.suite.speech_like`), recording nothing and
@@ -58,11 +59,13 @@ def measure(name: str, net, inputs, tstep: float, seconds: float, precision: str
            "method": method,
            "threads_per_run": threads if device == "cuda" else None,
            "slot_max": cudagen.SLOT_MAX if device == "cuda" and threads > 1 else None,
+           "max_registers": cudagen.MAX_REGISTERS if device == "cuda" and threads > 1 else None,
            "runs": runs, "seconds": seconds, "substeps": kw["substeps"], "wall_s": best,
            "runs_per_s": runs / best, "run_seconds_per_s": runs * seconds / best}
     if device == "cuda":
         row["kernel"] = kernel_resources(res.info["kernel"])
-    shown = f"{device} T={threads} S={cudagen.SLOT_MAX}" if device == "cuda" else device
+    shown = (f"{device} T={threads} S={cudagen.SLOT_MAX} R={cudagen.MAX_REGISTERS}"
+             if device == "cuda" else device)
     if row.get("kernel"):
         shown += f" ({row['kernel'].get('regs_per_thread', '?')} registers a thread)"
     print(f"{name:28s} {precision} {method} {shown}: {runs} runs of {seconds} s in {best:.3f} s = "
@@ -108,6 +111,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="cuda: threads per run of the split form (1: one run a thread)")
     parser.add_argument("--slot-max", nargs="*", type=int, default=[cudagen.SLOT_MAX],
                         help="cuda: a split node's terms of each list in registers (0: none)")
+    parser.add_argument("--max-registers", nargs="*", type=int, default=[0],
+                        help="cuda: a split run's registers a thread (0: ptxas's choice)")
     parser.add_argument("--json", help="write the rows here")
     args = parser.parse_args(argv)
     runs = args.runs or (10000 if args.device == "cuda" else 8 * sm.threads())
@@ -120,9 +125,10 @@ def main(argv: list[str] | None = None) -> int:
         for precision in args.precision:
             if name == "pipeline classifier 8x3" and precision == "float32":
                 continue
-            for threads, slot_max in itertools.product(args.threads, args.slot_max):
+            for threads, slot_max, regs in itertools.product(args.threads, args.slot_max,
+                                                             args.max_registers):
                 split_threads(threads)
-                cudagen.SLOT_MAX = slot_max
+                cudagen.SLOT_MAX, cudagen.MAX_REGISTERS = slot_max, regs or None
                 try:
                     rows.append(measure(name, net, u, tstep, args.seconds, precision,
                                         args.device, args.repeat, args.method))

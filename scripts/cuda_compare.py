@@ -30,8 +30,10 @@ from springc.sim import gpu
 from springc.sim import simulate as sm
 
 TOLERANCE = {"float64": 1e-12, "float32": 1e-5}
-# the measuring scripts' register terms of the split form (gpu_check.sh sets the fastest)
+# the measuring scripts' register terms and registers a thread of the split form
+# (gpu_check.sh sets the fastest of its sweep)
 cudagen.SLOT_MAX = int(os.environ.get("SPRINGC_SLOT_MAX", cudagen.SLOT_MAX))
+cudagen.MAX_REGISTERS = int(os.environ.get("SPRINGC_MAX_REGISTERS", 0)) or cudagen.MAX_REGISTERS
 REDUCE = ["final:x(c)", "final:v(b)", "msq:x(a)", "msq:v(d):0.002:0.006", "work:in",
           "dissipated:all", "energy", "gram:0.005:a,c,d"]
 

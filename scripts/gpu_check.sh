@@ -68,24 +68,27 @@ except Exception as err:
     print("jax/diffrax:", err)
 EOF
 
-# 1. the 8x3 feature network at 10,000 runs, split over blocks of 128..512 threads, each node's
-#    terms read in loops (slot max 0) or its first 8 of each list held in registers; the
-#    fastest pair is used below, its threads only for this network under RK4 (512 threads do
-#    not launch for the 564-dof network, nor for the 8x3 under exp-rk4: too many registers)
-stage "split threads and register terms" 70 $PY scripts/cpu_reference.py --device cuda \
+# 1. the 8x3 feature network at 10,000 runs, split over blocks of 256 or 512 threads, each
+#    node's terms read in loops (slot max 0) or its first 8 of each list held in registers,
+#    ptxas's registers a thread or at most 64 (spilled to local memory;
+#    scripts/cuda_resources.py counts them offline); the fastest is used below, its threads
+#    and registers only for this network under RK4 (512 threads do not launch for the
+#    564-dof network, nor for the 8x3 under exp-rk4: too many registers)
+stage "split threads, register terms, registers" 85 $PY scripts/cpu_reference.py --device cuda \
     --runs 10000 --seconds 0.02 --repeat 1 --only "pipeline features 8x3" --precision float64 \
-    --threads 128 256 512 --slot-max 0 8 --json "$OUT_DIR/split_threads.json"
-read -r T S < <($PY - "$OUT_DIR/split_threads.json" <<'EOF' 2>/dev/null || echo "256 8"
+    --threads 256 512 --slot-max 0 8 --max-registers 0 64 --json "$OUT_DIR/split_threads.json"
+read -r T S R < <($PY - "$OUT_DIR/split_threads.json" <<'EOF' 2>/dev/null || echo "256 8 0"
 import json, sys
 rows = [r for r in json.load(open(sys.argv[1]))["rows"] if "runs_per_s" in r]
 best = max(rows, key=lambda r: r["runs_per_s"])
-print(best["threads_per_run"], best["slot_max"])
+print(best["threads_per_run"], best["slot_max"], best["max_registers"] or 0)
 EOF
 )
 export SPRINGC_SLOT_MAX=$S
-say "threads per split run of the 8x3 network under RK4: $T; register terms per list: $S"
+say "the 8x3 network under RK4 from here on: $T threads a run, at most $R registers (0: any);"
+say "register terms per list, every network: $S"
 # 2. the peers on the same GPU and network, at the same scheme and step (equal error)
-stage "peers: pipeline features" 45 $PY scripts/gpu_peers.py --network "pipeline features 8x3" \
+stage "peers: pipeline features" 45 env SPRINGC_MAX_REGISTERS="$R" $PY scripts/gpu_peers.py --network "pipeline features 8x3" \
     --runs 10000 --seconds 0.02 --threads "$T" --json "$OUT_DIR/peers_features.json"
 # 3. the CUDA form against the CPU kernels on the networks the split form runs (the others'
 #    forms are those docs/bench-gpu.md measured before); compiles the CPU kernels too
@@ -93,7 +96,7 @@ stage "cuda vs cpu kernels" 100 $PY scripts/cuda_compare.py bench --seconds 0.02
     --only "pipeline features 8x3" "564-dof kws network" "long delay line" \
     "pipeline classifier 8x3" --json "$OUT_DIR/compare.json"
 # 4. runs per second of every bench network, 10,000 runs each
-stage "cuda throughput" 100 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
+stage "cuda throughput" 90 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
     --seconds 0.02 --repeat 2 --json "$OUT_DIR/cuda_throughput.json"
 stage "peers: 564-dof kws network" 40 $PY scripts/gpu_peers.py --network "564-dof kws network" \
     --runs 10000 --seconds 0.02 --json "$OUT_DIR/peers_kws.json"
@@ -104,10 +107,10 @@ stage "lawson throughput" 35 $PY scripts/cpu_reference.py --device cuda --runs 1
     --seconds 0.02 --repeat 1 --only "feature extractor" "pipeline features 8x3" \
     --precision float64 --method exp-rk4 --json "$OUT_DIR/lawson_throughput.json"
 # 6. springc train and eval of a mass-spring spotter with --device cuda, against the CPU
-stage "train and eval on the device" 90 $PY scripts/gpu_train_check.py --device cuda \
+stage "train and eval on the device" 80 $PY scripts/gpu_train_check.py --device cuda \
     --json "$OUT_DIR/train_eval.json"
 # 7. the keyword-spotting feature pass: clips per second, scaled to a 20,000-clip corpus
-stage "kws feature pass" 40 $PY scripts/kws_feature_pass.py --device cuda --clips 20000 \
+stage "kws feature pass" 40 env SPRINGC_MAX_REGISTERS="$R" $PY scripts/kws_feature_pass.py --device cuda --clips 20000 \
     --seconds 0.1 --corpus 20000 --check 4 --threads "$T" --json "$OUT_DIR/kws_pass.json"
 
 say ""

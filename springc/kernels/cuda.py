@@ -60,6 +60,11 @@ SPLIT_THREADS = 256  # threads per run of the split form: the fastest of 32-512 
 # about 70 s (docs/bench-gpu.md).
 SLOT_MAX = 8
 SLOT_CODE_MAX = 32
+# The split form's registers a thread, where set: numba-cuda's max_registers (ptxas spills the
+# rest to local memory); None: ptxas's choice. Offline (ptxas, sm_90) the 8x3 feature
+# network's register form takes 165 registers a thread at 256 threads and 110 at 512, one
+# block a multiprocessor; whether fewer, spilled, pay is for a GPU to say (docs/bench-gpu.md).
+MAX_REGISTERS: int | None = None
 SHARED_BYTES = 48 * 1024
 
 
@@ -91,6 +96,7 @@ class CudaOptions:
     # split form: each list's (`slot_lists`) terms a node holds in registers, and whether
     # some node has more (then read in a loop); () : every term read in a loop
     slots: tuple[tuple[str, int, bool], ...] = ()
+    max_registers: int | None = None  # numba-cuda's limit (`MAX_REGISTERS`); not simulated
 
 
 @dataclass(frozen=True)
@@ -245,7 +251,7 @@ def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
     c(f"SLOTS = {_slot_spec(feat, opts)!r}")
     c("")
     c("")
-    c("@cuda.jit")
+    c(f"@cuda.jit(max_registers={opts.max_registers})" if opts.max_registers else "@cuda.jit")
     c(f"def run({', '.join(run_args(feat, opts))}):")
     c.indent()
     if split:

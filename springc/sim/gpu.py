@@ -177,6 +177,7 @@ def options(net: FlatNetlist, blocks: expint.Blocks | None, method: str, precisi
         vneed=vneed(net, coeffs, rplan.work), nodes=nodes,
         threads=cudagen.SPLIT_THREADS if split else 1,
         slots=slots(feat, coeffs, net.n) if split else (),
+        max_registers=cudagen.MAX_REGISTERS if split else None,
         blocks=tuple(expint.block_sizes(blocks)) if lawson else (),
         block_channels=expint.block_channels(net, blocks) if lawson else 1)
 

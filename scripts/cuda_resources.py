@@ -1,0 +1,173 @@
+"""Registers, spills and compile time of the CUDA form's kernels, offline: no GPU, only
+numba-cuda and NVIDIA's compiler wheels (`pip install -e .[cuda] nvidia-cuda-nvcc-cu12`).
+
+    python scripts/cuda_resources.py --only "pipeline features 8x3" --threads 256 512 \\
+        --slot-max 0 8 --max-registers 0 64 --json regs.json
+
+A child process under numba's CUDA simulator generates each kernel (the bench network of
+`cuda_compare.bench_cases`, RK4 at its `BENCH_SUBSTEPS`, float64, recording nothing, as
+`cpu_reference.py` times it) and records the types of the arguments its launch passes; this
+process compiles each to PTX with numba-cuda (timed: numba's front end and NVVM) and then to
+machine code with ptxas (`-v`, for `--arch`; with each `--max-registers`, as numba-cuda's
+`max_registers` asks ptxas), printing the registers a thread, the spilled bytes and the shared
+memory a block. Which blocks a multiprocessor then holds follows from these; how fast they
+run is for a GPU to say (`gpu_check.sh`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import itertools
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+
+def capture(only: list[str], threads: list[int], slot_max: list[int], out: str) -> None:
+    """Under the simulator: each kernel's file and its launch's argument types, to `out`."""
+    from cuda_compare import BENCH_SUBSTEPS, bench_cases, split_threads
+
+    from springc.check import check
+    from springc.kernels import cuda as cudagen
+    from springc.sim import gpu
+    from springc.sim import simulate as sm
+
+    specs = []
+    plain_run = gpu.run
+
+    def recording_run(kernel, args, runs):
+        module = kernel.module
+
+        class Launch:  # stands for the kernel: records the argument types, runs nothing
+            def __getitem__(self, config):
+                def launch(*values):
+                    specs[-1]["args"] = [_arg_type(v) for v in values]
+                return launch
+
+        real, module.run = module.run, Launch()
+        try:
+            plain_run(kernel, args, runs)
+        finally:
+            module.run = real
+        specs[-1]["path"] = str(kernel.path)
+
+    gpu.run = recording_run
+    for name, net, u, tstep in bench_cases(0.0005, 2):
+        if name not in only:
+            continue
+        checked = check(net)
+        for t, s in itertools.product(threads, slot_max):
+            split_threads(t)
+            cudagen.SLOT_MAX, cudagen.SLOT_CODE_MAX = s, 10**9  # every size measured
+            specs.append({"network": name, "threads": t, "slot_max": s})
+            sm.simulate(checked, u, device="cuda", method="rk4", tstep=tstep, tstop=0.0005,
+                        substeps=BENCH_SUBSTEPS.get(name, 1), probes=[],
+                        reductions=["energy"], check_step=False)
+    Path(out).write_text(json.dumps(specs, indent=1))
+
+
+def _arg_type(value) -> tuple[str, int]:
+    """(dtype, ndim) of a launch argument (ndim 0: a scalar)."""
+    if hasattr(value, "dtype") and hasattr(value, "ndim"):
+        return str(value.dtype), int(value.ndim)
+    return ("float64" if isinstance(value, float) else "int64"), 0
+
+
+def compile_one(spec: dict, arch: str, registers: list[int], ptxas: str) -> dict:
+    """PTX of one captured kernel (timed), then ptxas's report for each register limit."""
+    from numba import cuda, types
+    from numba.np.numpy_support import from_dtype
+
+    loaded = importlib.util.spec_from_file_location(f"kernel_{id(spec)}", spec["path"])
+    module = importlib.util.module_from_spec(loaded)
+    loaded.loader.exec_module(module)
+    sig = tuple(from_dtype(np.dtype(dt)) if nd == 0 else
+                types.Array(from_dtype(np.dtype(dt)), nd, "C") for dt, nd in spec["args"])
+    start = time.perf_counter()
+    ptx, _ = cuda.compile_ptx(module.run.py_func, sig, cc=(int(arch[3]), int(arch[4:])))
+    row = {**{k: spec[k] for k in ("network", "threads", "slot_max")},
+           "ptx_s": time.perf_counter() - start, "ptx_lines": ptx.count("\n")}
+    with tempfile.NamedTemporaryFile("w", suffix=".ptx", delete=False) as fh:
+        fh.write(ptx)
+    try:
+        for limit in registers:
+            flags = [f"-maxrregcount={limit}"] if limit else []
+            start = time.perf_counter()
+            rep = subprocess.run([ptxas, "-v", f"-arch={arch}", *flags, fh.name, "-o",
+                                  os.devnull], capture_output=True, text=True, check=True).stderr
+            row[f"ptxas_{limit or 'free'}"] = {
+                "s": time.perf_counter() - start,
+                "registers": _number(r"Used (\d+) registers", rep),
+                "spill_stores": _number(r"(\d+) bytes spill stores", rep),
+                "spill_loads": _number(r"(\d+) bytes spill loads", rep),
+                "shared": _number(r"(\d+) bytes smem", rep)}
+    finally:
+        os.unlink(fh.name)
+    return row
+
+
+def _number(pattern: str, text: str) -> int | None:
+    found = re.search(pattern, text)
+    return int(found.group(1)) if found else None
+
+
+def _ptxas() -> str:
+    """ptxas from PATH or from the nvidia-cuda-nvcc wheel."""
+    found = shutil.which("ptxas")
+    if found:
+        return found
+    import nvidia.cuda_nvcc
+
+    return str(Path(list(nvidia.cuda_nvcc.__path__)[0]) / "bin" / "ptxas")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", nargs="+", default=["pipeline features 8x3"])
+    parser.add_argument("--threads", nargs="+", type=int, default=[256])
+    parser.add_argument("--slot-max", nargs="+", type=int, default=[0, 8])
+    parser.add_argument("--max-registers", nargs="+", type=int, default=[0])
+    parser.add_argument("--arch", default="sm_90", help="ptxas's target (sm_90: H100, H200)")
+    parser.add_argument("--json", help="write the rows here")
+    parser.add_argument("--capture", help=argparse.SUPPRESS)  # the child's output file
+    args = parser.parse_args(argv)
+    if args.capture:
+        capture(args.only, args.threads, args.slot_max, args.capture)
+        return 0
+    with tempfile.TemporaryDirectory() as tmp:
+        specs_path = str(Path(tmp) / "specs.json")
+        env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1",
+               "SPRINGC_CACHE": os.environ.get("SPRINGC_CACHE", str(Path(tmp) / "cache"))}
+        subprocess.run([sys.executable, __file__, "--capture", specs_path, "--only", *args.only,
+                        "--threads", *map(str, args.threads), "--slot-max",
+                        *map(str, args.slot_max)], env=env, check=True)
+        specs = json.loads(Path(specs_path).read_text())
+        ptxas, rows = _ptxas(), []
+        for spec in specs:
+            row = compile_one(spec, args.arch, args.max_registers, ptxas)
+            rows.append(row)
+            reports = ", ".join(
+                f"limit {k.removeprefix('ptxas_')}: {v['registers']} registers, spills "
+                f"{v['spill_stores']}/{v['spill_loads']} B" for k, v in row.items()
+                if k.startswith("ptxas_"))
+            print(f"{row['network']} T={row['threads']} S={row['slot_max']}: PTX in "
+                  f"{row['ptx_s']:.1f} s; {reports}", flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps({"arch": args.arch, "rows": rows}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,5 +1,5 @@
 """Registers, spills and compile time of the CUDA form's kernels, offline: no GPU, only
-numba-cuda and NVIDIA's compiler wheels (`pip install -e .[cuda] nvidia-cuda-nvcc-cu12`).
+numba-cuda and NVIDIA's compiler wheel (`pip install -e .[cuda-offline]`).
 
     python scripts/cuda_resources.py --only "pipeline features 8x3" --threads 256 512 \\
         --slot-max 0 8 --max-registers 0 64 --json regs.json

@@ -13,7 +13,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PROJECT = {"springc", "springc_cli", "cli", "tests", "conftest"}
 # import names that differ from the distribution's name
-ALIAS = {"sklearn": "scikit-learn", "soundfile": "soundfile", "yaml": "pyyaml", "PIL": "pillow"}
+ALIAS = {"sklearn": "scikit-learn", "soundfile": "soundfile", "yaml": "pyyaml", "PIL": "pillow",
+         "nvidia": "nvidia-cuda-nvcc-cu12"}
 
 
 def normalise(name: str) -> str:
@@ -68,10 +69,15 @@ def test_the_package_imports_only_declared_dependencies() -> None:
 
 def test_tests_and_scripts_import_only_declared_dependencies() -> None:
     allowed = declared(ROOT / "pyproject.toml", extras=("dev",))
-    # the extra gpu-peers (jax, diffrax) serves the GPU peers' script alone
+    # the extras gpu-peers (jax, diffrax) and cuda-offline (NVIDIA's compiler) serve one
+    # script each
     peers = declared(ROOT / "pyproject.toml", extras=("gpu-peers",)) - allowed
+    offline = {"nvidia"}  # the import name of cuda-offline's nvidia-cuda-nvcc-cu12
+    assert declared(ROOT / "pyproject.toml", extras=("cuda-offline",)) >= {
+        normalise(ALIAS[name]) for name in offline}
     assert undeclared([ROOT / "tests", ROOT / "scripts"], allowed) == {
-        name: ["scripts/gpu_peers.py"] for name in sorted(peers)}
+        **{name: ["scripts/gpu_peers.py"] for name in sorted(peers)},
+        **{name: ["scripts/cuda_resources.py"] for name in offline}}
 
 
 def test_an_undeclared_lazy_import_is_found(tmp_path: Path) -> None:

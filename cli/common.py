@@ -34,11 +34,11 @@ def on_device(fn: Callable) -> Callable:
     return click.option(
         "--device", type=DEVICES, default="cpu",
         show_default=True,
-        help="Where the mass-spring simulations run: cpu (the CPU kernels, on Dask workers); "
-             "cuda (the CUDA kernel form in this process, each batch of clips one launch; "
-             "what it does not run, such as thermal noise or Strang splitting, stays "
-             "on the CPU; needs springc[cuda] and an NVIDIA GPU); auto: cuda where a GPU is "
-             "present, else cpu.")(wrapper)
+        help="Where the mass-spring simulations run: cpu (the CPU kernels; a data set's "
+             "batches on Dask workers); cuda (the CUDA kernel form, in this process, a data "
+             "set's batch of clips one launch; what it does not run, such as thermal noise "
+             "or Strang splitting, stays on the CPU; needs springc[cuda] and an NVIDIA GPU); "
+             "auto: cuda where a GPU is present, else cpu.")(wrapper)
 
 
 def run_user_errors(fn: Callable) -> Callable:

@@ -77,19 +77,19 @@ def test_slot_tables_hold_each_nodes_first_terms_in_its_sum_order(monkeypatch):
     b.tran = Tran(1e-3, 0.01, None)
     net = kernel_netlist(b.finish())
     co = coefficient_arrays(net, "float64")
+    args = {**co, **terms.node_ends(co, net.n)}
     monkeypatch.setattr(cudagen, "SLOT_MAX", 1)
-    slots = gpu.slots(features(net), co, net.n)
+    slots = gpu.slots(features(net), args, net.n)
     assert slots == (("row", 1, True), ("quad", 1, True), ("dashpot", 1, False))
     # written out per thread (one node at 256 threads): a row term, a quad's two end
     # variants, a dashpot's three (to ground too); over the limit, every term is looped
     code = cudagen.slot_code(cudagen.slot_lists(features(net)), [1, 1, 1], net.n, 256)
     assert code == 6
     monkeypatch.setattr(cudagen, "SLOT_CODE_MAX", code - 1)
-    assert gpu.slots(features(net), co, net.n) == ()
+    assert gpu.slots(features(net), args, net.n) == ()
     opts = cudagen.CudaOptions("rk4", "float64", net.n, 0, probes=1, vneed=(True,) * net.n,
                                threads=2, slots=slots)
     mod_spec = cudagen._slot_spec(features(net), opts)
-    args = {**co, **terms.node_ends(co, net.n)}
     tables = gpu._slot_tables(args, mod_spec, net.n)
     for i in range(net.n):
         row = range(int(co["l_ptr"][i]), int(co["l_ptr"][i + 1]))

@@ -158,8 +158,9 @@ def options(net: FlatNetlist, blocks: expint.Blocks | None, method: str, precisi
             coeffs: dict, probes: int, rplan) -> cudagen.CudaOptions:
     """The CUDA kernel's options for the force netlist `net` and a Lawson scheme's `blocks`
     (`force_netlist`) and a reduction plan (`coeffs`: the kernel arrays,
-    `simulate.kernel_arrays`). A Lawson scheme's force code is never written out (the CPU
-    kernels' choice too: its block updates dominate)."""
+    `simulate.kernel_arrays`, with their node ends, `terms.node_ends`). A Lawson scheme's
+    force code is never written out (the CPU kernels' choice too: its block updates
+    dominate)."""
     lawson = blocks is not None
     small = net.n <= cudagen.WRITE_OUT_MAX and not lawson
     nodes = terms.node_terms(coeffs, net.n) if small else None
@@ -183,13 +184,13 @@ def options(net: FlatNetlist, blocks: expint.Blocks | None, method: str, precisi
 
 
 def slots(feat: Features, coeffs: dict, n: int) -> tuple[tuple[str, int, bool], ...]:
-    """The split form's register lists (`cudagen.CudaOptions.slots`): per list, the terms a
-    node holds (its most, at most `cudagen.SLOT_MAX`) and whether a node has more; none
-    with SLOT_MAX 0, or where the code written out per thread would exceed
-    `cudagen.SLOT_CODE_MAX` term blocks (every term then read in the loops)."""
+    """The split form's register lists (`cudagen.CudaOptions.slots`) from the kernel arrays
+    with their node ends (`terms.node_ends`): per list, the terms a node holds (its most, at
+    most `cudagen.SLOT_MAX`) and whether a node has more; none with SLOT_MAX 0, or where the
+    code written out per thread would exceed `cudagen.SLOT_CODE_MAX` term blocks (every term
+    then read in the loops)."""
     lists = cudagen.slot_lists(feat)
-    ptrs = {**coeffs, **terms.node_ends(coeffs, n)}
-    most = [int(np.diff(ptrs[sl.ptr].astype(np.int64)).max(initial=0)) for sl in lists]
+    most = [int(np.diff(coeffs[sl.ptr].astype(np.int64)).max(initial=0)) for sl in lists]
     held = [min(m, cudagen.SLOT_MAX) for m in most]
     if not cudagen.SLOT_MAX or cudagen.slot_code(
             lists, held, n, cudagen.SPLIT_THREADS) > cudagen.SLOT_CODE_MAX:

@@ -302,11 +302,11 @@ def _simulate(group: list[CheckedNetlist], labels: list[str] | None, inputs, inp
                                  per_run=tuple(sorted(lanes.per_run)) if lanes else ())
     opts = kernel_form(knet, opts, coeffs, st, len(names), write_out, node_threads)
     copts = None
+    if dev == "cuda" or opts.parallel:  # nodes gather their element ends (CUDA: if split)
+        coeffs = {**coeffs, **terms.node_ends(coeffs, knet.n)}
     if dev == "cuda":
         fnet, blocks = gpu.force_netlist(knet, st.method)
         copts = gpu.options(fnet, blocks, st.method, st.precision, coeffs, len(plist), rplan)
-    if (copts.threads > 1) if copts else opts.parallel:  # nodes gather their element ends
-        coeffs = {**coeffs, **terms.node_ends(coeffs, knet.n)}
     start = time.perf_counter()
     kernel = gpu.load(fnet, copts) if copts else loader.load(kernel_source(knet, opts))
     rec = _records(len(plist), st.nsteps // st.rec_every + 1, len(names),

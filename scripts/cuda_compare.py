@@ -1,6 +1,7 @@
 """The CUDA kernel form against the CPU kernels: the same probes and reductions.
 
     NUMBA_ENABLE_CUDASIM=1 python scripts/cuda_compare.py tiny     # numba's CUDA simulator
+    NUMBA_ENABLE_CUDASIM=1 NUMBA_DISABLE_JIT=1 python scripts/cuda_compare.py tiny
     python scripts/cuda_compare.py bench --json out.json          # a GPU: every bench network
 
 `tiny`: a four-mass network of every term kind (M K D C Q B P F; sine and in() inputs) with
@@ -10,7 +11,9 @@ the steps split over many kernel calls (the streamed inputs). `bench`: the bench
 networks (`springc.bench.networks`, `springc.bench.suite`) on speech-like inputs. Each
 comparison is max |cuda - cpu| over max |cpu| per probe or reduction; the tolerance is
 1e-12 in float64 and 1e-5 in float32. Prints one line per case and, with --json, writes
-every error; exits 1 if any exceeds its tolerance.
+every error; exits 1 if any exceeds its tolerance. Under `NUMBA_DISABLE_JIT=1` (as the test
+suite runs `tiny`) the CPU kernels run as Python too, uncompiled: the simulated CUDA form then
+does the same arithmetic in the same order, and every error is 0.
 """
 
 from __future__ import annotations

@@ -8,6 +8,11 @@ omega_0 = 1 rad/s), b = m (Q = 1)."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import scipy.signal
@@ -137,6 +142,29 @@ def test_every_kernel_form_runs_the_same_noise() -> None:
     for method, tol in (("exp-rk4", 1e-5), ("strang-rk4", 2e-3)):
         got = run_net(method=method, batch=1)
         assert np.abs(got - ref).max() < tol * scale, method
+
+
+# the forms of the test above whose intrinsics have Python stand-ins: streaming stores (16
+# lanes), the aligned frame (register kernel) and the generator's square root and leading zeros
+AS_PYTHON = {"shared-16": dict(write_out=False, chunk=16), "register": dict(batch=1),
+             "exp-rk4": dict(method="exp-rk4", batch=1)}
+
+
+def test_kernels_run_as_python_under_numba_disable_jit(tmp_path) -> None:
+    """`NUMBA_DISABLE_JIT=1`, numba's switch for stepping through code in a debugger, runs the
+    generated kernels as Python: the compiled kernels' runs to rounding (FMA contraction)."""
+    code = ("import sys, numpy as np\n"
+            f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+            "from test_thermal_noise import AS_PYTHON, run_net\n"
+            "np.savez(sys.argv[1], **{k: run_net(runs=16, **kw) for k, kw in AS_PYTHON.items()})")
+    out = tmp_path / "python.npz"
+    proc = subprocess.run([sys.executable, "-c", code, str(out)], capture_output=True,
+                          text=True, env={**os.environ, "NUMBA_DISABLE_JIT": "1"}, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    with np.load(out) as python:
+        for name, kw in AS_PYTHON.items():
+            compiled = run_net(runs=16, **kw)
+            assert np.abs(python[name] - compiled).max() < 1e-13 * np.abs(compiled).max(), name
 
 
 def kernel_text(text: str, temp: float | None = None) -> str:

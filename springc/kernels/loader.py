@@ -27,6 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 
+import numpy as np
+
 from springc.kernels.codegen import kernel_hash, shared_text
 
 _LOADED: dict[str, "Kernel"] = {}
@@ -127,6 +129,14 @@ def numba_threads(count: int) -> Iterator[None]:
             numba.set_num_threads(before)
 
 
+def as_python() -> bool:
+    """Whether kernels run as Python (`NUMBA_DISABLE_JIT=1`: numba's decorators and
+    springc's intrinsics then leave plain functions, which a debugger steps through)."""
+    from numba.core import config
+
+    return bool(config.DISABLE_JIT)
+
+
 def cache_dir() -> Path:
     """The kernel cache folder (created if missing)."""
     folder = Path(os.environ.get("SPRINGC_CACHE") or Path.home() / ".cache/springc/kernels")
@@ -159,6 +169,10 @@ class Kernel:
         values = [arrays[name] for name in self.args]
         if self.compile_s is None:
             self.compile(values)
+        if as_python():  # the noise generator's uint64 products wrap, as when compiled
+            with np.errstate(over="ignore"):
+                self.module.run(*values)
+            return
         with slp_vectorize():
             self.module.run(*values)
 
@@ -170,7 +184,8 @@ class Kernel:
         start = time.perf_counter()
         signature = tuple(numba.typeof(v) for v in values)
         with compiling(self.path):
-            self.module.run.compile(signature)
+            if not as_python():
+                self.module.run.compile(signature)
         self.compile_s = time.perf_counter() - start
 
 

@@ -10,6 +10,7 @@ The measurements: docs/performance.md#the-float32-row-and-the-stack-frame.
 from __future__ import annotations
 
 from numba import types
+from numba.core import config
 from numba.extending import intrinsic
 
 FRAME_ALIGN = 64  # bytes: a 512-bit vector, and a cache line
@@ -30,3 +31,8 @@ def align_stack(typingctx):
         return context.get_dummy_value()
 
     return sig, codegen
+
+
+if config.DISABLE_JIT:  # NUMBA_DISABLE_JIT=1: a kernel runs as Python, with Python's frame
+    def align_stack() -> None:  # noqa: F811
+        pass

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from llvmlite import ir
 from numba import types
-from numba.core import cgutils
+from numba.core import cgutils, config
 from numba.extending import intrinsic
 
 
@@ -57,3 +57,11 @@ def store_fence(typingctx):
         return context.get_dummy_value()
 
     return sig, codegen
+
+
+if config.DISABLE_JIT:  # NUMBA_DISABLE_JIT=1: a kernel runs as Python, these as what they do
+    def stream_store(arr, i, j, k, values) -> None:  # noqa: F811
+        arr[i, j, k:k + len(values)] = values
+
+    def store_fence() -> None:  # noqa: F811
+        pass

@@ -6,8 +6,12 @@ its leading-zero count lives in numba's internals.
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 from llvmlite import ir
 from numba import types
+from numba.core import config
 from numba.extending import intrinsic
 
 
@@ -36,3 +40,11 @@ def clz(typingctx, k):
         return builder.ctlz(args[0], ir.Constant(ir.IntType(1), 0))
 
     return sig, codegen
+
+
+if config.DISABLE_JIT:  # NUMBA_DISABLE_JIT=1: a kernel runs as Python, these as what they do
+    def sqrt_(x: float) -> float:  # noqa: F811
+        return math.sqrt(x) if x >= 0 else math.nan
+
+    def clz(k):  # noqa: F811
+        return np.uint64(64 - int(k).bit_length())

@@ -34,6 +34,12 @@ LANE_CHOICES = (32, 16, 4, 1)  # compile-time lane widths a kernel is generated 
 # per-element index and loop work spread over more lanes)
 STAGE_BLOCK = 32  # steps of input samples staged at a time
 FASTMATH = '{"contract"}'  # FMA contraction only
+# the node-split kernels' parallel options: their explicit prange loops only; numba's search
+# for array expressions to turn into parallel loops, and for loops to fuse, finds none in the
+# generated text and cost a third of the compile (docs/performance.md, "One run on every core")
+PARALLEL = ('{"prange": True, "comprehension": False, "reduction": False, '
+            '"inplace_binop": False, "setitem": False, "numpy": False, "stencil": False, '
+            '"fusion": False}')
 
 
 @dataclass(frozen=True)
@@ -281,8 +287,8 @@ def _module_hash(module: str) -> str:
 def decorator(parallel: bool = False) -> str:
     """The njit decorator of every generated function."""
     if parallel:
-        return ('@nb.njit(parallel=True, cache=True, error_model="numpy", nogil=True, '
-                f'fastmath={FASTMATH})')
+        return (f'@nb.njit(parallel={PARALLEL}, cache=True, error_model="numpy", '
+                f'nogil=True, fastmath={FASTMATH})')
     return f'@nb.njit(cache=True, error_model="numpy", nogil=True, fastmath={FASTMATH})'
 
 

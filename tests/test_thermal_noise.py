@@ -144,9 +144,11 @@ def test_every_kernel_form_runs_the_same_noise() -> None:
         assert np.abs(got - ref).max() < tol * scale, method
 
 
-# the forms of the test above whose intrinsics have Python stand-ins: streaming stores (16
-# lanes), the aligned frame (register kernel) and the generator's square root and leading zeros
-AS_PYTHON = {"shared-16": dict(write_out=False, chunk=16), "register": dict(batch=1),
+# kernels of the test above that call every intrinsic with a Python stand-in: streaming
+# stores and the aligned frame (the 32-lane register kernel), the generator's square root and
+# leading zeros (all of them)
+AS_PYTHON = {"shared, 16 lanes": dict(write_out=False, chunk=16),
+             "register, 32 lanes": dict(write_out=True),
              "exp-rk4": dict(method="exp-rk4", batch=1)}
 
 
@@ -156,15 +158,18 @@ def test_kernels_run_as_python_under_numba_disable_jit(tmp_path) -> None:
     code = ("import sys, numpy as np\n"
             f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
             "from test_thermal_noise import AS_PYTHON, run_net\n"
-            "np.savez(sys.argv[1], **{k: run_net(runs=16, **kw) for k, kw in AS_PYTHON.items()})")
+            "from springc.kernels.loader import as_python\n"
+            "assert as_python()\n"
+            "np.savez(sys.argv[1], *[run_net(**kw) for kw in AS_PYTHON.values()])")
     out = tmp_path / "python.npz"
     proc = subprocess.run([sys.executable, "-c", code, str(out)], capture_output=True,
                           text=True, env={**os.environ, "NUMBA_DISABLE_JIT": "1"}, timeout=300)
     assert proc.returncode == 0, proc.stderr
     with np.load(out) as python:
-        for name, kw in AS_PYTHON.items():
-            compiled = run_net(runs=16, **kw)
-            assert np.abs(python[name] - compiled).max() < 1e-13 * np.abs(compiled).max(), name
+        for k, (name, kw) in enumerate(AS_PYTHON.items()):
+            compiled = run_net(**kw)
+            got = python[f"arr_{k}"]
+            assert np.abs(got - compiled).max() < 1e-13 * np.abs(compiled).max(), name
 
 
 def kernel_text(text: str, temp: float | None = None) -> str:

@@ -10,9 +10,11 @@ import json
 import os
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from springc import lang
 from springc.check import check
@@ -59,6 +61,18 @@ def test_a_kernel_compiles_only_the_signature_it_is_called_with(tmp_path, monkey
     np.testing.assert_array_equal(first.probes["x(x)"], again.probes["x(x)"])
 
 
+def test_on_own_thread_returns_the_value_and_raises_the_error_of_its_call() -> None:
+    here = threading.get_ident()
+    assert loader.on_own_thread(lambda: threading.get_ident()) != here
+    assert loader.on_own_thread(lambda: 6 * 7) == 42
+
+    def fails():
+        raise ValueError("from the compile thread")
+
+    with pytest.raises(ValueError, match="from the compile thread"):
+        loader.on_own_thread(fails)
+
+
 def test_a_kernel_file_is_written_once(tmp_path, monkeypatch) -> None:
     monkeypatch.setenv("SPRINGC_CACHE", str(tmp_path))
     source = "import numpy as np\nARGS = ()\n"
@@ -71,7 +85,8 @@ def test_a_kernel_file_is_written_once(tmp_path, monkeypatch) -> None:
     assert list(tmp_path.iterdir()) == [path]
 
 
-def test_the_collector_is_paused_while_a_kernel_compiles(tmp_path, monkeypatch) -> None:
+def test_the_collector_is_paused_while_a_kernel_compiles_on_a_thread_of_its_own(
+        tmp_path, monkeypatch) -> None:
     net = lang.load_file(EXAMPLE)
     monkeypatch.setenv("SPRINGC_CACHE", str(tmp_path / "a"))
     first = simulate(check(net), tstop=0.05, method="ssprk3")
@@ -87,9 +102,17 @@ def test_the_collector_is_paused_while_a_kernel_compiles(tmp_path, monkeypatch) 
             seen.append(gc.isenabled())  # inside `compiling`, once numba has compiled
 
     monkeypatch.setattr(loader, "compile_lock", watching)
+    compiled_on = []
+    real_thread = loader.on_own_thread
+
+    def recording(call):
+        return real_thread(lambda: (compiled_on.append(threading.get_ident()), call())[1])
+
+    monkeypatch.setattr(loader, "on_own_thread", recording)
     assert gc.isenabled()
     again = simulate(check(net), tstop=0.05, method="ssprk3")
     assert seen == [False] and gc.isenabled()
+    assert len(compiled_on) == 1 and compiled_on[0] != threading.get_ident()
     np.testing.assert_array_equal(first.probes["x(x)"], again.probes["x(x)"])
     with loader.gc_paused():  # nested: on again only when the outer scope ends
         with loader.gc_paused():

@@ -24,7 +24,7 @@ from pathlib import Path
 from types import ModuleType
 
 from springc.grad import adjoint
-from springc.kernels.loader import cache_dir, compiling
+from springc.kernels.loader import cache_dir, compiling, on_own_thread
 
 CHOICES = (8, 4, 2, 1)  # lane counts compiled (each is a compile of its own)
 _LOADED: dict[int, ModuleType] = {}
@@ -182,11 +182,12 @@ def _names(expr) -> set[str]:
 
 def call(mod: ModuleType, name: str, *args) -> None:
     """mod.name(*args); its first call per process compiles (or loads from numba's cache)
-    under the file's lock with the SLP vectoriser on (`loader.compiling`)."""
+    under the file's lock with the SLP vectoriser on (`loader.compiling`), on a thread of
+    its own (`loader.on_own_thread`)."""
     fn = getattr(mod, name)
     if name not in mod.COMPILED:
         with compiling(Path(mod.__file__)):
-            fn(*args)
+            on_own_thread(lambda: fn(*args))
         mod.COMPILED.add(name)
         return
     fn(*args)

@@ -7,8 +7,9 @@ real file, so numba's `cache=True` stores the machine code beside it for the nex
 and imported by path. The cache is `$SPRINGC_CACHE` or `~/.cache/springc/kernels`; processes
 share it safely: a kernel file appears once and whole, and each kernel compiles under its own
 lock file. LLVM's SLP vectoriser, which the generated lane code is written for (numba leaves
-it off), is switched on only while a kernel's own first call compiles it, and Python's cyclic
-garbage collector is paused while numba compiles (`compiling`).
+it off), is switched on only while a kernel's own first call compiles it, Python's cyclic
+garbage collector is paused while numba compiles (`compiling`), and the compiler runs on a
+thread of its own (`on_own_thread`).
 """
 
 from __future__ import annotations
@@ -26,12 +27,14 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
+from typing import TypeVar
 
 import numpy as np
 
 from springc.kernels.codegen import kernel_hash, shared_text
 
 _LOADED: dict[str, "Kernel"] = {}
+T = TypeVar("T")
 
 
 class _HeldSetting:
@@ -100,6 +103,31 @@ def compiling(path: Path) -> Iterator[None]:
     the kernel file's lock (`compile_lock`), the SLP vectoriser on, the collector paused."""
     with gc_paused(), compile_lock(path), slp_vectorize():
         yield
+
+
+def on_own_thread(call: Callable[[], T]) -> T:
+    """call() on a new thread: its result, or its exception raised here.
+
+    The numba compiler runs there. CPython 3.11 holds a thread's frames in 16 KB chunks and
+    frees a chunk as soon as the stack drops below it, so a compile that starts deep in its
+    caller's stack (a test, a command) can sit on a chunk boundary at a hot call depth and
+    pay an mmap and a munmap per call there (python/cpython#142183, fixed in 3.13 and 3.14):
+    up to half of a compile in system time. A new thread starts the compiler at the same
+    shallow depth whatever the caller (docs/performance.md, "Cold-cache compiles")."""
+    out: dict[str, object] = {}
+
+    def body() -> None:
+        try:
+            out["value"] = call()
+        except BaseException as exc:  # re-raised in the caller's thread
+            out["error"] = exc
+
+    thread = threading.Thread(target=body, name="springc-compile", daemon=True)
+    thread.start()
+    thread.join()
+    if "error" in out:
+        raise out["error"]  # type: ignore[misc]
+    return out.get("value")  # type: ignore[return-value]
 
 
 _PARALLEL_LOCK = threading.Lock()
@@ -185,7 +213,7 @@ class Kernel:
         signature = tuple(numba.typeof(v) for v in values)
         with compiling(self.path):
             if not as_python():
-                self.module.run.compile(signature)
+                on_own_thread(lambda: self.module.run.compile(signature))
         self.compile_s = time.perf_counter() - start
 
 

@@ -10,11 +10,11 @@ here, so its thread pool is limited directly as well.
 
 At a session's end pytest runs full garbage collections (to report objects whose finaliser
 failed) and so does the interpreter at exit. A worker that compiled dozens of kernels holds
-millions of objects, and those passes kept both workers busy for about 9 s after the last
-test of a cold run (docs/performance.md, "Where a cold test run's time goes"). The objects
-alive when the session ends are frozen out of them (`gc.freeze`), so a finaliser that fails
-in a cycle still alive then goes unreported; every test's own leftovers were collected (and
-reported) during the run.
+millions of objects, and those passes kept both workers busy for about 9 s after the last test
+of a cold run (docs/performance.md, "Where a cold test run's time goes"). The objects alive
+when the session ends are frozen out of them (`gc.freeze`), so a finaliser that fails in a
+cycle still alive then goes unreported; the collector ran on its own schedule through the
+tests, reporting what it found.
 """
 
 import gc

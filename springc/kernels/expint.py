@@ -609,36 +609,28 @@ class _Lawson:
         per block here."""
         name: dict[str, str] = {}
         lane_loads: list[str] = []
-        flat: dict[tuple[str, str], str] = {}
 
-        def load(var: str, array: str, frac: str, r: int, k: int, cols: int) -> None:
-            if array not in self.per_run:
+        def load(var: str, array: str, index: str) -> None:
+            if array in self.per_run:
+                name[var] = f"{var}_{{b}}"
+                lane_loads.append(f"{var}_{{b}} = {lane_array(array)}[{index}, {{b}}]")
+            else:
                 name[var] = var
-                c(f"{var} = {array}[q, {frac}, {r}, {k}]")
-                return
-            # a lane reads the block's entries at this fraction through a flat view, (row,
-            # column, lane) in one index: numba types and lowers each index of a subscript
-            # apart, and five per lane made the largest share of such a kernel's compile
-            if (array, frac) not in flat:
-                flat[array, frac] = f"pv{len(flat)}_"
-                c(f"{flat[array, frac]} = {lane_array(array)}[q, {frac}].ravel()")
-            name[var] = f"{var}_{{b}}"
-            entry = (r * cols + k) * self.ln.width
-            lane_loads.append(f"{var}_{{b}} = {flat[array, frac]}[{entry} + {{b}}]")
+                c(f"{var} = {array}[{index}]")
 
         f0 = step.f0
         for r in range(rows):
             for k in range(2 * m):
-                load(f"e{r}_{k}", f"lw{m}_e", f0, r, k, 2 * m)
+                load(f"e{r}_{k}", f"lw{m}_e", f"q, {f0}, {r}, {k}")
             for ch in range(self.nch):
-                load(f"pa{r}_{ch}", f"lw{m}_p0", f0, r, ch, self.nch)
-                load(f"pb{r}_{ch}", f"lw{m}_p1", f0, r, ch, self.nch)
+                load(f"pa{r}_{ch}", f"lw{m}_p0", f"q, {f0}, {r}, {ch}")
+                load(f"pb{r}_{ch}", f"lw{m}_p1", f"q, {f0}, {r}, {ch}")
         for t in step.terms:
             c(f"hw{t.j} = {t.weight}")  # FT: a float64 here would promote the lanes
             if t.fraction is not None:
                 for r in range(rows):
                     for k in range(m):
-                        load(f"g{t.j}_{r}_{k}", f"lw{m}_e", t.fraction, r, m + k, 2 * m)
+                        load(f"g{t.j}_{r}_{k}", f"lw{m}_e", f"q, {t.fraction}, {r}, {m + k}")
         return name, lane_loads
 
     def _emit_size(self, c: _Code, step: _BlockStep, m: int, xo: str, vo: str | None

@@ -818,9 +818,9 @@ def emit_lane_coefficients(c: _Code, per_run: tuple[str, ...]) -> None:
 
 def _emit_lane_propagators(c: _Code, name: str, local: str) -> None:
     """A Lawson kernel's per-run propagator array (blocks, fractions, rows, columns, runs),
-    `springc.kernels.expint`, into its chunk copy with LANES columns: `load_lanes` on both
-    seen as (entries, columns)."""
-    c(f"{local} = np.empty({name}.shape[:4] + (LANES,), {name}.dtype)")
+    `springc.kernels.expint`, into its chunk copy with LANES columns, flat (the kernel reads
+    it with one index): `load_lanes` on both seen as (entries, columns)."""
+    c(f"{local} = np.empty({name}.size // {name}.shape[4] * LANES, {name}.dtype)")
     c(f"load_lanes({local}.reshape((-1, LANES)), {name}.reshape((-1, {name}.shape[4])), "
       "lo_, nv_)")
 

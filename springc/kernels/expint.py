@@ -609,28 +609,38 @@ class _Lawson:
         per block here."""
         name: dict[str, str] = {}
         lane_loads: list[str] = []
+        starts: dict[tuple[str, str], str] = {}
+        width = self.ln.width
 
-        def load(var: str, array: str, index: str) -> None:
-            if array in self.per_run:
-                name[var] = f"{var}_{{b}}"
-                lane_loads.append(f"{var}_{{b}} = {lane_array(array)}[{index}, {{b}}]")
-            else:
+        def load(var: str, array: str, frac: str, r: int, k: int, cols: int) -> None:
+            if array not in self.per_run:
                 name[var] = var
-                c(f"{var} = {array}[{index}]")
+                c(f"{var} = {array}[q, {frac}, {r}, {k}]")
+                return
+            # the chunk's copy is flat (`codegen.emit_lane_coefficients`): one index a read,
+            # not five (numba types and lowers each index of a subscript apart)
+            if (array, frac) not in starts:
+                starts[array, frac] = f"ps{len(starts)}_"
+                c(f"{starts[array, frac]} = (q * {len(self.fracs)} + {frac}) * "
+                  f"{2 * m * cols * width}")
+            name[var] = f"{var}_{{b}}"
+            entry = (r * cols + k) * width
+            lane_loads.append(f"{var}_{{b}} = {lane_array(array)}"
+                              f"[{starts[array, frac]} + ({entry} + {{b}})]")
 
         f0 = step.f0
         for r in range(rows):
             for k in range(2 * m):
-                load(f"e{r}_{k}", f"lw{m}_e", f"q, {f0}, {r}, {k}")
+                load(f"e{r}_{k}", f"lw{m}_e", f0, r, k, 2 * m)
             for ch in range(self.nch):
-                load(f"pa{r}_{ch}", f"lw{m}_p0", f"q, {f0}, {r}, {ch}")
-                load(f"pb{r}_{ch}", f"lw{m}_p1", f"q, {f0}, {r}, {ch}")
+                load(f"pa{r}_{ch}", f"lw{m}_p0", f0, r, ch, self.nch)
+                load(f"pb{r}_{ch}", f"lw{m}_p1", f0, r, ch, self.nch)
         for t in step.terms:
             c(f"hw{t.j} = {t.weight}")  # FT: a float64 here would promote the lanes
             if t.fraction is not None:
                 for r in range(rows):
                     for k in range(m):
-                        load(f"g{t.j}_{r}_{k}", f"lw{m}_e", f"q, {t.fraction}, {r}, {m + k}")
+                        load(f"g{t.j}_{r}_{k}", f"lw{m}_e", t.fraction, r, m + k, 2 * m)
         return name, lane_loads
 
     def _emit_size(self, c: _Code, step: _BlockStep, m: int, xo: str, vo: str | None

@@ -113,21 +113,23 @@ def on_own_thread(call: Callable[[], T]) -> T:
     caller's stack (a test, a command) can sit on a chunk boundary at a hot call depth and
     pay an mmap and a munmap per call there (python/cpython#142183, fixed in 3.13 and 3.14):
     up to half of a compile in system time. A new thread starts the compiler at the same
-    shallow depth whatever the caller (docs/performance.md, "Cold-cache compiles")."""
-    out: dict[str, object] = {}
+    shallow depth whatever the caller (docs/performance.md, "Cold-cache compiles in
+    mass-spring training")."""
+    result: list[T] = []
+    error: list[BaseException] = []
 
     def body() -> None:
         try:
-            out["value"] = call()
+            result.append(call())
         except BaseException as exc:  # re-raised in the caller's thread
-            out["error"] = exc
+            error.append(exc)
 
     thread = threading.Thread(target=body, name="springc-compile", daemon=True)
     thread.start()
     thread.join()
-    if "error" in out:
-        raise out["error"]  # type: ignore[misc]
-    return out.get("value")  # type: ignore[return-value]
+    if error:
+        raise error[0]
+    return result[0]
 
 
 _PARALLEL_LOCK = threading.Lock()

@@ -106,7 +106,11 @@ def test_the_collector_is_paused_while_a_kernel_compiles_on_a_thread_of_its_own(
     real_thread = loader.on_own_thread
 
     def recording(call):
-        return real_thread(lambda: (compiled_on.append(threading.get_ident()), call())[1])
+        def traced():
+            compiled_on.append(threading.get_ident())
+            return call()
+
+        return real_thread(traced)
 
     monkeypatch.setattr(loader, "on_own_thread", recording)
     assert gc.isenabled()

@@ -63,6 +63,10 @@ REDUCE_HELP = (
                    "(a block of threads per run above 48 masses; Runge-Kutta and Lawson; needs "
                    "springc[cuda] and an NVIDIA GPU); auto: cuda where a GPU is present and "
                    "serves the method, else cpu.")
+@click.option("--fma/--no-fma", default=True,
+              help="--no-fma: round every product and sum on its own, none fused into one "
+                   "fused multiply-add, on the CPU and the GPU alike, so that --device cpu and "
+                   "cuda (and any two CPUs) give the same bits; slower, and no more accurate.")
 @click.option("--temp", type=float, default=None,
               help="Temperature in kelvin of every damper's thermal noise force, drawn per "
                    "integration step (overrides .options temp=; 0: no noise).")
@@ -77,7 +81,7 @@ REDUCE_HELP = (
 @run_user_errors
 def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precision, method,
             outrate, reduce_, channel, batch, tolerance, kernel_form, temp, seed, device,
-            stats):
+            stats, fma):
     """Simulate NETLIST for every input signal and write the probes and reductions.
 
     Runs are integrated together in lockstep by a kernel generated for the netlist; inputs
@@ -107,7 +111,8 @@ def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precisio
     res = net.simulate(list(inputs) or None, tstep=tstep, tstop=tstop, substeps=substeps,
                        method=method, tolerance=tolerance, precision=precision,
                        outrate=outrate, reduce=list(reduce_), batch=batch, channel=channel,
-                       progress=True, kernel=kernel_form, device=device, temp=temp, seed=seed)
+                       progress=True, kernel=kernel_form, device=device, temp=temp, seed=seed,
+                       fma=fma)
     if res.choice:
         click.echo(res.choice)
     report = res.stats() if stats else None  # its errors come before any output

@@ -2,12 +2,18 @@
 
     NUMBA_ENABLE_CUDASIM=1 python scripts/cuda_compare.py tiny     # numba's CUDA simulator
     NUMBA_ENABLE_CUDASIM=1 NUMBA_DISABLE_JIT=1 python scripts/cuda_compare.py tiny
+    NUMBA_ENABLE_CUDASIM=1 python scripts/cuda_compare.py rounding
     python scripts/cuda_compare.py bench --json out.json          # a GPU: every bench network
+    python scripts/cuda_compare.py bench --no-fma --only "stiff block"   # products unfused
 
 `tiny`: a four-mass network of every term kind (M K D C Q B P F; sine and in() inputs) with
 every reduction the CUDA form computes, under RK4 and Heun3 in float64 and RK4 in float32,
 each with the force code written out per node and looped over the index arrays, and with
-the steps split over many kernel calls (the streamed inputs). `bench`: the bench suite's
+the steps split over many kernel calls (the streamed inputs); its float32 cases and one
+Lawson scheme with no product fused into a fused multiply-add (`fma` False: the CUDA form's
+products as `mul_rn`). `rounding`: the stiff block with no product fused, the compiled CPU
+kernels against the simulated CUDA form (IEEE operations one by one, as NumPy's scalars do
+them), float64 and float32: equal to the bit. `bench`: the bench suite's
 networks (`springc.bench.networks`, `springc.bench.suite`) on speech-like inputs. Each
 comparison is max |cuda - cpu| over max |cpu| per probe or reduction; the tolerance is
 1e-12 in float64 and 1e-5 in float32. Prints one line per case and, with --json, writes
@@ -147,8 +153,10 @@ def tiny() -> list[dict]:
             held = 1 if form == "split" and precision == "float32" else cudagen.SLOT_MAX
             slot_max, cudagen.SLOT_MAX = cudagen.SLOT_MAX, held
             name = f"every kind, {form}{', one term a list in registers' * (held == 1)}"
-            row = compare(f"{name}, {method} x{sub}", net, u, precision, method=method,
-                          substeps=sub, reductions=REDUCE, outrate=5e3, write_out=False)
+            fma = precision == "float64"  # float32: the products rounded alone (mul_rn)
+            row = compare(f"{name}, {method} x{sub}{', no fma' * (not fma)}", net, u, precision,
+                          method=method, substeps=sub, reductions=REDUCE, outrate=5e3,
+                          write_out=False, fma=fma)
             cudagen.SLOT_MAX = slot_max
             out.append({k: v for k, v in row.items() if k != "result"})
     # split, no term added after the node loop: the combine folded into the last stage's
@@ -179,9 +187,11 @@ def lawson() -> list[dict]:
     for form, split_min in (("a run a thread", 10**9), ("split", 1)):
         cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = split_min, 3
         for method in ("exp-rk4", "exp-heun3"):
-            row = compare(f"feature extractor, {form}, {method} x1", net, u, "float64",
-                          method=method, substeps=1, tstep=1e-4, tstop=0.004,
-                          reductions=["work:in", "dissipated:all", "energy"])
+            fma = method == "exp-rk4"  # exp-heun3: the products rounded alone (mul_rn)
+            row = compare(f"feature extractor, {form}, {method} x1{', no fma' * (not fma)}",
+                          net, u, "float64", method=method, substeps=1, tstep=1e-4,
+                          tstop=0.004, reductions=["work:in", "dissipated:all", "energy"],
+                          fma=fma)
             out.append({k: v for k, v in row.items() if k != "result"})
     cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = saved
     return out
@@ -226,10 +236,28 @@ BENCH_SUBSTEPS = {"stiff block": 32, "pipeline features 8x3": 8,
                   "pipeline classifier 8x3": 8, "duffing resonator": 2}
 
 
+def rounding() -> list[dict]:
+    """The stiff block (24 masses, written out per node), RK4 x2 for 2 ms, 3 runs, with no
+    product fused (`fma` False), float64 and float32: the CPU kernels compiled (run this
+    without NUMBA_DISABLE_JIT) against the CUDA form in the simulator."""
+    from springc.bench import suite
+
+    net = suite.stiff_block()
+    u = suite.speech_like(0.002, 16000.0, 3, 3)
+    out = []
+    for precision in ("float64", "float32"):
+        row = compare("stiff block, rk4 x2, no fma", net, u, precision, method="rk4",
+                      substeps=2, tstep=1 / 16000.0, tstop=0.002, reductions=["energy"],
+                      check_step=False, fma=False)
+        out.append({k: v for k, v in row.items() if k != "result"})
+    return out
+
+
 def bench(seconds: float, runs: int, only: list[str] | None = None,
-          method: str = "rk4") -> list[dict]:
+          method: str = "rk4", fma: bool = True) -> list[dict]:
     """Every bench network (or those named in `only`), RK4 (or `method`) in float64 and
-    float32, its final state and energy too."""
+    float32, its final state and energy too; `fma` False: no product fused with an add on
+    either device."""
     out = []
     for name, net, u, tstep in bench_cases(seconds, runs):
         if only and name not in only:
@@ -239,8 +267,9 @@ def bench(seconds: float, runs: int, only: list[str] | None = None,
         for precision in ("float64", "float32"):
             if name == "pipeline classifier 8x3" and precision == "float32":
                 continue  # its multipliers' cancellation: float32 is not used for it
-            row = compare(name, net, u, precision, reference, method=method, substeps=sub,
-                          tstep=tstep, tstop=seconds, reductions=["energy"], check_step=False)
+            row = compare(f"{name}{', no fma' * (not fma)}", net, u, precision, reference,
+                          method=method, substeps=sub, tstep=tstep, tstop=seconds,
+                          reductions=["energy"], check_step=False, fma=fma)
             reference = row.pop("result")
             out.append(row)
     return out
@@ -248,20 +277,22 @@ def bench(seconds: float, runs: int, only: list[str] | None = None,
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("which", choices=["tiny", "bench"])
+    parser.add_argument("which", choices=["tiny", "rounding", "bench"])
     parser.add_argument("--seconds", type=float, default=0.02, help="bench: simulated time")
     parser.add_argument("--runs", type=int, default=64, help="bench: runs per network")
     parser.add_argument("--json", help="write every case's errors here")
     parser.add_argument("--only", nargs="*", help="bench: network names to run (default: all)")
     parser.add_argument("--method", default="rk4", help="bench: rk4, or a Lawson scheme")
+    parser.add_argument("--no-fma", action="store_true",
+                        help="bench: no product fused with an add, on either device")
     args = parser.parse_args(argv)
     if args.json:
         JSON_PATH.append(args.json)
     # numba's CUDA simulator runs a block's threads as Python threads that meet at barriers:
     # at the interpreter's default switch interval (5 ms) each barrier waits that long
     sys.setswitchinterval(1e-4)
-    cases = (tiny() if args.which == "tiny"
-             else bench(args.seconds, args.runs, args.only, args.method))
+    cases = (tiny() if args.which == "tiny" else rounding() if args.which == "rounding"
+             else bench(args.seconds, args.runs, args.only, args.method, not args.no_fma))
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(cases, fh, indent=1)

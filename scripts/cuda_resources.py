@@ -2,7 +2,7 @@
 numba-cuda and NVIDIA's compiler wheel (`pip install -e .[cuda-offline]`).
 
     python scripts/cuda_resources.py --only "pipeline features 8x3" --threads 256 512 \\
-        --slot-max 0 8 --max-registers 0 64 --json regs.json
+        --slot-max 0 8 --max-registers 0 64 --fma 1 0 --json regs.json
 
 A child process under numba's CUDA simulator generates each kernel (the bench network of
 `cuda_compare.bench_cases`, RK4 at its `BENCH_SUBSTEPS`, float64, recording nothing, as
@@ -10,8 +10,9 @@ A child process under numba's CUDA simulator generates each kernel (the bench ne
 process compiles each to PTX with numba-cuda (timed: numba's front end and NVVM) and then to
 machine code with ptxas (`-v`, for `--arch`; with each `--max-registers`, as numba-cuda's
 `max_registers` asks ptxas), printing the registers a thread, the spilled bytes and the shared
-memory a block. Which blocks a multiprocessor then holds follows from these; how fast they
-run is for a GPU to say (`gpu_check.sh`).
+memory a block, and the fused multiply-adds in the PTX (`--fma 0`: the form whose products
+round on their own, `CudaOptions.fma` False, must have none). Which blocks a multiprocessor
+then holds follows from these; how fast they run is for a GPU to say (`gpu_check.sh`).
 """
 
 from __future__ import annotations
@@ -35,7 +36,8 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 
-def capture(only: list[str], threads: list[int], slot_max: list[int], out: str) -> None:
+def capture(only: list[str], threads: list[int], slot_max: list[int], fmas: list[int],
+            out: str) -> None:
     """Under the simulator: each kernel's file and its launch's argument types, to `out`."""
     from cuda_compare import BENCH_SUBSTEPS, bench_cases, split_threads
 
@@ -68,13 +70,13 @@ def capture(only: list[str], threads: list[int], slot_max: list[int], out: str) 
         if name not in only:
             continue
         checked = check(net)
-        for t, s in itertools.product(threads, slot_max):
+        for t, s, fma in itertools.product(threads, slot_max, fmas):
             split_threads(t)
             cudagen.SLOT_MAX, cudagen.SLOT_CODE_MAX = s, 10**9  # every size measured
-            specs.append({"network": name, "threads": t, "slot_max": s})
+            specs.append({"network": name, "threads": t, "slot_max": s, "fma": bool(fma)})
             sm.simulate(checked, u, device="cuda", method="rk4", tstep=tstep, tstop=0.0005,
                         substeps=BENCH_SUBSTEPS.get(name, 1), probes=[],
-                        reductions=["energy"], check_step=False)
+                        reductions=["energy"], check_step=False, fma=bool(fma))
     Path(out).write_text(json.dumps(specs, indent=1))
 
 
@@ -97,8 +99,10 @@ def compile_one(spec: dict, arch: str, registers: list[int], ptxas: str) -> dict
                 types.Array(from_dtype(np.dtype(dt)), nd, "C") for dt, nd in spec["args"])
     start = time.perf_counter()
     ptx, _ = cuda.compile_ptx(module.run.py_func, sig, cc=(int(arch[3]), int(arch[4:])))
-    row = {**{k: spec[k] for k in ("network", "threads", "slot_max")},
-           "ptx_s": time.perf_counter() - start, "ptx_lines": ptx.count("\n")}
+    row = {**{k: spec[k] for k in ("network", "threads", "slot_max", "fma")},
+           "ptx_s": time.perf_counter() - start, "ptx_lines": ptx.count("\n"),
+           "fma_instructions": len(re.findall(r"\bfma\.rn\.f(?:32|64)\b", ptx)),
+           "rounded_products": len(re.findall(r"\bmul\.rn\.f(?:32|64)\b", ptx))}
     with tempfile.NamedTemporaryFile("w", suffix=".ptx", delete=False) as fh:
         fh.write(ptx)
     try:
@@ -139,12 +143,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", nargs="+", type=int, default=[256])
     parser.add_argument("--slot-max", nargs="+", type=int, default=[0, 8])
     parser.add_argument("--max-registers", nargs="+", type=int, default=[0])
+    parser.add_argument("--fma", nargs="+", type=int, default=[1],
+                        help="1: products may fuse with adds (the default form); 0: not")
     parser.add_argument("--arch", default="sm_90", help="ptxas's target (sm_90: H100, H200)")
     parser.add_argument("--json", help="write the rows here")
     parser.add_argument("--capture", help=argparse.SUPPRESS)  # the child's output file
     args = parser.parse_args(argv)
     if args.capture:
-        capture(args.only, args.threads, args.slot_max, args.capture)
+        capture(args.only, args.threads, args.slot_max, args.fma, args.capture)
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         specs_path = str(Path(tmp) / "specs.json")
@@ -152,7 +158,8 @@ def main(argv: list[str] | None = None) -> int:
                "SPRINGC_CACHE": os.environ.get("SPRINGC_CACHE", str(Path(tmp) / "cache"))}
         subprocess.run([sys.executable, __file__, "--capture", specs_path, "--only", *args.only,
                         "--threads", *map(str, args.threads), "--slot-max",
-                        *map(str, args.slot_max)], env=env, check=True)
+                        *map(str, args.slot_max), "--fma", *map(str, args.fma)], env=env,
+                       check=True)
         specs = json.loads(Path(specs_path).read_text())
         ptxas, rows = _ptxas(), []
         for spec in specs:
@@ -162,8 +169,10 @@ def main(argv: list[str] | None = None) -> int:
                 f"limit {k.removeprefix('ptxas_')}: {v['registers']} registers, spills "
                 f"{v['spill_stores']}/{v['spill_loads']} B" for k, v in row.items()
                 if k.startswith("ptxas_"))
-            print(f"{row['network']} T={row['threads']} S={row['slot_max']}: PTX in "
-                  f"{row['ptx_s']:.1f} s; {reports}", flush=True)
+            print(f"{row['network']} T={row['threads']} S={row['slot_max']} "
+                  f"fma={int(row['fma'])}: PTX in {row['ptx_s']:.1f} s, "
+                  f"{row['fma_instructions']} fma.rn, {row['rounded_products']} mul.rn; "
+                  f"{reports}", flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps({"arch": args.arch, "rows": rows}, indent=1))
     return 0

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The CUDA kernel form on a machine with an NVIDIA GPU (no network there): threads per run of the
-# split form on the 8x3 feature network, JAX and diffrax on the same GPU and network, the CUDA
-# form against the CPU kernels on the networks it splits, runs per second of every bench network,
+# split form on the 8x3 feature network, the CUDA form against the CPU kernels with no product
+# fused on either (--no-fma), JAX and diffrax on the same GPU and network, the CUDA form against
+# the CPU kernels on the networks it splits, runs per second of every bench network,
 # the keyword-spotting feature pass, and a mass-spring spotter trained and evaluated with its
 # simulations on the GPU against the same on the CPU (the 2-core CPU figures:
 # scripts/cpu_reference.py on a 2-core machine). Sized to finish in under 9.5 minutes; each stage
@@ -88,6 +89,13 @@ EOF
 export SPRINGC_SLOT_MAX=$S
 say "the 8x3 network under RK4 from here on: $T threads a run, at most $R registers (0: any);"
 say "register terms per list, every network: $S"
+# 1b. no product fused with an add on either device (--no-fma: the CUDA form's products as
+#    mul.rn, the CPU kernels without LLVM's contraction): float32 and float64 to the bit?
+#    (With fusion the stiff block's float32 probes differ by 1.9e-4; the 8x3 network last,
+#    the slowest to compile.)
+stage "rounding: no fma, cuda vs cpu kernels" 60 $PY scripts/cuda_compare.py bench --no-fma \
+    --seconds 0.02 --runs 64 --only "stiff block" "feature extractor" "long delay line" \
+    "duffing resonator" "pipeline features 8x3" --json "$OUT_DIR/compare_no_fma.json"
 # 2. the peers on the same GPU and network, at the same scheme and step (equal error)
 stage "peers: pipeline features" 45 env SPRINGC_MAX_REGISTERS="$R" $PY scripts/gpu_peers.py --network "pipeline features 8x3" \
     --runs 10000 --seconds 0.02 --threads "$T" --json "$OUT_DIR/peers_features.json"
@@ -97,7 +105,7 @@ stage "cuda vs cpu kernels" 100 $PY scripts/cuda_compare.py bench --seconds 0.02
     --only "pipeline features 8x3" "564-dof kws network" "long delay line" \
     "pipeline classifier 8x3" --json "$OUT_DIR/compare.json"
 # 4. runs per second of every bench network, 10,000 runs each
-stage "cuda throughput" 90 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
+stage "cuda throughput" 70 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
     --seconds 0.02 --repeat 2 --json "$OUT_DIR/cuda_throughput.json"
 stage "peers: 564-dof kws network" 40 $PY scripts/gpu_peers.py --network "564-dof kws network" \
     --runs 10000 --seconds 0.02 --json "$OUT_DIR/peers_kws.json"
@@ -107,12 +115,13 @@ stage "lawson vs cpu kernels" 40 $PY scripts/cuda_compare.py bench --seconds 0.0
 stage "lawson throughput" 35 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
     --seconds 0.02 --repeat 1 --only "feature extractor" "pipeline features 8x3" \
     --precision float64 --method exp-rk4 --json "$OUT_DIR/lawson_throughput.json"
-# 6. springc train and eval of a mass-spring spotter with --device cuda, against the CPU
-stage "train and eval on the device" 80 $PY scripts/gpu_train_check.py --device cuda \
-    --json "$OUT_DIR/train_eval.json"
-# 7. the keyword-spotting feature pass: clips per second, scaled to a 20,000-clip corpus
+# 6. the keyword-spotting feature pass: clips per second, scaled to a 20,000-clip corpus
 stage "kws feature pass" 40 env SPRINGC_MAX_REGISTERS="$R" $PY scripts/kws_feature_pass.py --device cuda --clips 20000 \
     --seconds 0.1 --corpus 20000 --check 4 --threads "$T" --json "$OUT_DIR/kws_pass.json"
+# 7. springc train and eval of a mass-spring spotter with --device cuda, against the CPU
+#    (last: it has run out of its time before)
+stage "train and eval on the device" 50 $PY scripts/gpu_train_check.py --device cuda \
+    --json "$OUT_DIR/train_eval.json"
 
 say ""
 if [ ${#FAILED[@]} -eq 0 ]; then

@@ -126,7 +126,7 @@ class Netlist:
                  input_rate: float | None = None, batch: int | None = None,
                  kernel: str = "auto", device: str | None = None,
                  progress: bool = False, temp: float | None = None,
-                 seed: int | None = None) -> Result:
+                 seed: int | None = None, fma: bool = True) -> Result:
         """Simulate every input (None: one run without input; an array (runs, channels,
         samples) at `input_rate`; or sound files and folders, one run per file).
 
@@ -138,6 +138,8 @@ class Netlist:
         cpu, cuda or auto (`springc sim --device`), or None: that of the innermost
         `springc.default_device` (the CPU outside one). `temp` (kelvin) and `seed`: the
         dampers' thermal noise, overriding `.options temp=`/`seed=` (`springc sim --temp`).
+        `fma` False: every product and sum rounded on its own, none fused into a fused
+        multiply-add, so that the CPU and a GPU give the same bits (`springc sim --no-fma`).
 
         With `.step`/`.mc` every point is simulated (`springc.sim.points`: the points of
         one structure in the lanes of one kernel call, or where that form cannot take them
@@ -161,7 +163,7 @@ class Netlist:
                        precision=precision, outrate=outrate,
                        probes=list(probes) if probes else None, reductions=list(reduce),
                        batch=batch, channel=channel, progress=progress, device=device,
-                       write_out=plan.KERNEL_FORMS[kernel], temp=temp, seed=seed)
+                       write_out=plan.KERNEL_FORMS[kernel], temp=temp, seed=seed, fma=fma)
         if pointset is None:
             res = simulate(self.checked, inputs, input_rate, **options)
         else:

@@ -82,6 +82,31 @@ def test_kernel_form_reaches_simulate(case, monkeypatch, form, write_out):
     np.testing.assert_array_equal(np.load(case / f"{form}.npz")["x(a)"], lib.probes["x(a)"])
 
 
+def test_no_fma_reaches_simulate_and_changes_only_the_rounding(case, monkeypatch):
+    """`--no-fma`: the kernel fuses no product with an add (`simulate(fma=False)`); the
+    trajectories are the fused kernel's to rounding."""
+    from springc.sim import simulate as sm
+
+    seen = []
+    real = sm.simulate
+
+    def spy(*args, **kw):
+        seen.append(kw["fma"])
+        return real(*args, **kw)
+
+    monkeypatch.setattr(sm, "simulate", spy)
+    res = invoke(case / "osc.spr", "-i", case / "inputs", "-o", case / "exact.npz",
+                 "--method", "rk4", "--no-fma")
+    assert res.exit_code == 0, res.output
+    assert seen == [False]
+    got = np.load(case / "exact.npz")["x(a)"]
+    lib = real(check(load_file(case / "osc.spr")), [case / "inputs"], fma=False)
+    np.testing.assert_array_equal(got, lib.probes["x(a)"])
+    fused = real(check(load_file(case / "osc.spr")), [case / "inputs"])
+    np.testing.assert_allclose(got, fused.probes["x(a)"], rtol=0,
+                               atol=1e-12 * np.abs(got).max())
+
+
 def test_csv_long_format_and_overrides(case):
     out = case / "out.csv"
     res = invoke(case / "osc.spr", "-o", out, "--tstop", "0.01", "--outrate", "5000",

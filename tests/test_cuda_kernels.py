@@ -36,9 +36,10 @@ def test_cuda_form_gives_the_cpu_kernels_probes_and_reductions(tmp_path):
     last stage; in float32 one term of each list in registers, the rest looped), the steps
     streamed over many kernel calls; the Lawson schemes on the feature
     extractor, a run a thread and split; and a simulation that names no device inside
-    `gpu.default_device('cuda')`. Both run as Python: the same operations in the same order,
-    so every probe and reduction is equal to the bit, in float32 too (on a GPU, against the
-    compiled CPU kernels, to 1e-12 and 1e-5)."""
+    `gpu.default_device('cuda')`. The float32 cases and exp-heun3 with no product fused
+    (`fma` False: the CUDA form's products as `mul_rn`). Both run as Python: the same
+    operations in the same order, so every probe and reduction is equal to the bit, in
+    float32 too (on a GPU, against the compiled CPU kernels, to 1e-12 and 1e-5)."""
     out = tmp_path / "cases.json"
     env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1", "NUMBA_DISABLE_JIT": "1"}
     proc = subprocess.run([sys.executable, str(SCRIPT), "tiny", "--json", str(out)], env=env,
@@ -150,6 +151,59 @@ def test_generated_text_is_specialised_to_the_network():
                                                        vneed=(True,), threads=4,
                                                        max_registers=64))
     assert "@cuda.jit(max_registers=64)\n" in capped
+
+
+def test_unfused_form_rounds_every_product_inside_the_kernel_alone():
+    """`fma` False: every product inside the kernel function, and every `*=`, becomes a
+    `mul_rn` call (NVVM then fuses none into a fused multiply-add); array sizes, which must
+    stay compile-time constants, and module-level constants keep their products. The CPU
+    kernel of the same netlist is compiled without LLVM's contraction."""
+    from springc.kernels import codegen
+    from springc.kernels.lower import kernel_netlist
+    from springc.sim import reductions
+    from springc.sim.simulate import coefficient_arrays
+
+    text = cudagen.rounded_products(
+        "M = 2 * 3\n"
+        "def run(a, b, i):\n"
+        "    s = cuda.local.array(2 * M, FT)\n"
+        "    s[i * 2] = a * b + a * (b * a)\n"
+        "    s[0] *= a - b\n")
+    assert [line for line in text.splitlines() if line] == [
+        "M = 2 * 3", "def run(a, b, i):", "    s = cuda.local.array(2 * M, FT)",
+        "    s[mul_rn(i, 2)] = mul_rn(a, b) + mul_rn(a, mul_rn(b, a))",
+        "    s[0] = mul_rn(s[0], a - b)"]
+    net = kernel_netlist(_one_mass())
+    co = coefficient_arrays(net, "float64")
+    opts = gpu.options(net, None, "rk4", "float64", co, 1, reductions.plan([], net), fma=False)
+    kernel = cudagen.generate(net, opts)
+    assert "from springc.kernels.cudamul import mul_rn" in kernel
+    body = kernel.split("def run(", 1)[1]
+    assert "mul_rn(bm0, v[0])" in body and " * " not in body
+    assert cudagen.generate(net, gpu.options(net, None, "rk4", "float64", co, 1,
+                                             reductions.plan([], net))).count("mul_rn") == 0
+    assert 'fastmath=False' in codegen.decorator(fma=False)
+    assert 'fastmath={"contract"}' in codegen.decorator()
+
+
+def test_unfused_cpu_kernels_give_the_bits_of_the_simulated_cuda_form(tmp_path):
+    """The stiff block with no product fused (`fma` False), float64 and float32: the CPU
+    kernels compiled by numba against the CUDA form run by numba's simulator, which does
+    each IEEE operation on its own as NumPy's scalars do. Equal to the bit; with LLVM's
+    contraction (the default) this block's float32 probes move by about 2e-4
+    (docs/bench-gpu.md#fused-multiply-add), more than the issue's 1e-5 between devices."""
+    out = tmp_path / "rounding.json"
+    env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1"}
+    env.pop("NUMBA_DISABLE_JIT", None)
+    proc = subprocess.run([sys.executable, str(SCRIPT), "rounding", "--json", str(out)],
+                          env=env, capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert out.exists(), proc.stdout + proc.stderr
+    cases = json.loads(out.read_text())
+    assert [c["precision"] for c in cases] == ["float64", "float32"]
+    for case in cases:
+        assert set(case["errors"]) == {"x(s0)", "x(s23)", "energy"}
+        assert case["worst"] == 0.0, case
+    assert proc.returncode == 0, proc.stdout + proc.stderr
 
 
 def test_strang_splitting_is_refused():

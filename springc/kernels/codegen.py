@@ -59,7 +59,9 @@ class KernelOptions:
     passed with a column per run, (entries, runs), sorted (the points of a `.step`/`.mc`
     group in the lanes of one call, `springc.sim.simulate.simulate_lanes`): each chunk
     copies its lanes' columns (`emit_lane_coefficients`) and the force code reads them per
-    lane. Empty: every run shares the arrays (and the text is the one without points)."""
+    lane. Empty: every run shares the arrays (and the text is the one without points).
+    `fma`: whether LLVM may fuse a product and an add (False: each rounds on its own, as the
+    CUDA form with `CudaOptions.fma` False rounds them, so that the two agree to the bit)."""
 
     method: str = "rk4"
     precision: str = "float64"
@@ -73,6 +75,7 @@ class KernelOptions:
     registers: tuple | None = None
     parallel: bool = False
     per_run: tuple[str, ...] = ()
+    fma: bool = True
 
 
 @dataclass(frozen=True)
@@ -284,12 +287,14 @@ def _module_hash(module: str) -> str:
     return hashlib.sha256(Path(origin).read_bytes()).hexdigest()[:16]
 
 
-def decorator(parallel: bool = False) -> str:
-    """The njit decorator of every generated function."""
+def decorator(parallel: bool = False, fma: bool = True) -> str:
+    """The njit decorator of every generated function (`fma` False: LLVM may not contract a
+    product and an add into a fused multiply-add, so each rounds on its own)."""
+    fast = FASTMATH if fma else "False"
     if parallel:
         return (f'@nb.njit(parallel={PARALLEL}, cache=True, error_model="numpy", '
-                f'nogil=True, fastmath={FASTMATH})')
-    return f'@nb.njit(cache=True, error_model="numpy", nogil=True, fastmath={FASTMATH})'
+                f'nogil=True, fastmath={fast})')
+    return f'@nb.njit(cache=True, error_model="numpy", nogil=True, fastmath={fast})'
 
 
 def preamble(c: _Code, opts: KernelOptions, args: list[str], stages: int) -> None:
@@ -324,7 +329,7 @@ def _body(feat: Features, opts: KernelOptions, tab: Tableau) -> str:
     preamble(c, opts, run_args(feat, opts), tab.stages)
     c("")
     if feat.thermal:
-        thermal.emit_helpers(c, decorator())
+        thermal.emit_helpers(c, decorator(fma=opts.fma))
     _emit_run(c, feat, opts, tab)
     return c.text()
 
@@ -738,7 +743,8 @@ def _emit_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> No
 def emit_run_head(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> None:
     """The kernel function's decorator, signature and docstring, then its h-scaled
     coefficients (the body follows, indented)."""
-    emit_def(c, run_args(feat, opts), "nsteps steps of h", aligned_frame(opts), opts.parallel)
+    emit_def(c, run_args(feat, opts), "nsteps steps of h", aligned_frame(opts), opts.parallel,
+             opts.fma)
     emit_coefficients(c, tab)
     emit_nystrom_coefficients(c, tab)
     if opts.work or opts.dissipation:
@@ -754,14 +760,14 @@ def aligned_frame(opts: KernelOptions) -> bool:
 
 
 def emit_def(c: _Code, args: list[str], steps: str, align: bool = False,
-             parallel: bool = False) -> None:
+             parallel: bool = False, fma: bool = True) -> None:
     """The kernel function's decorator, signature and docstring (integrating for `steps`),
     and with `align`, the alignment of its frame; `parallel`: numba's parallel=True, for
     the node loops' `prange`."""
     # Serial and nogil: the runtime runs chunks on threads (numba's parallel=True over the
     # chunks was no faster and compiles several times slower:
     # docs/performance.md#measured-and-not-taken); over the nodes it serves a single run.
-    c(decorator(parallel))
+    c(decorator(parallel, fma))
     c(f"def run({', '.join(args)}):")
     c.indent()
     c(f'"""Integrate chunks c0..c1-1 of LANES runs (columns of x0) for {steps}."""')

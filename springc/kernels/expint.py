@@ -323,15 +323,15 @@ def generate(rest: FlatNetlist, options: KernelOptions) -> str:
     c(f"MAX_BLOCK = {MAX_BLOCK}")
     c("")
     if feat.thermal:
-        thermal.emit_helpers(c, codegen.decorator())
-    _emit_blocks(c)
+        thermal.emit_helpers(c, codegen.decorator(fma=options.fma))
+    _emit_blocks(c, options.fma)
     c("")
     _emit_run(c, feat, options, tab)
     return _header(rest, options, scheme, tab, c.text())
 
 
-def _emit_blocks(c: _Code) -> None:
-    c(codegen.decorator())
+def _emit_blocks(c: _Code, fma: bool) -> None:
+    c(codegen.decorator(fma=fma))
     c("def blocks(x, v, zt, zn, ua, ub, bk_ptr, bk_node, bk_eoff, bk_e, bk_fptr, bk_fchan, "
       "bk_poff, bk_p0, bk_p1):")
     c.indent()
@@ -375,7 +375,7 @@ def _emit_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab: Tablea
     scheme = SCHEMES[opts.method]
     ln = codegen.lane_layout(opts)
     bk_args = ", ".join(BLOCK_ARGS[1:])
-    codegen.emit_def(c, run_args(feat, opts), "nsteps split steps")
+    codegen.emit_def(c, run_args(feat, opts), "nsteps split steps", fma=opts.fma)
     codegen.emit_coefficients(c, tab)
     codegen.emit_nystrom_coefficients(c, tab)
     codegen.velocity_needed(c, feat, opts)
@@ -496,7 +496,7 @@ def generate_lawson(rest: FlatNetlist, options: KernelOptions, sizes: list[int],
     codegen.preamble(c, options, lawson_args(feat, options, sizes), tab.stages)
     c("")
     if feat.thermal:
-        thermal.emit_helpers(c, codegen.decorator())
+        thermal.emit_helpers(c, codegen.decorator(fma=options.fma))
     lw = _Lawson(tab, fracs, ufracs, sizes, max(nch, 1), ln, frozenset(options.per_run))
     _emit_lawson_run(c, feat, options, tab, lw)
     return _header(rest, options, scheme, tab, c.text(),
@@ -681,7 +681,8 @@ class _Lawson:
 
 def _emit_lawson_run(c: _Code, feat: codegen.Features, opts: KernelOptions, tab: Tableau,
                      lw: _Lawson) -> None:
-    codegen.emit_def(c, lawson_args(feat, opts, lw.sizes), "nsteps exponential RK steps of h")
+    codegen.emit_def(c, lawson_args(feat, opts, lw.sizes), "nsteps exponential RK steps of h",
+                     fma=opts.fma)
     codegen.emit_coefficients(c, tab)
     codegen.emit_nystrom_coefficients(c, tab)
     if opts.work or opts.dissipation:

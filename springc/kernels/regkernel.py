@@ -58,7 +58,7 @@ def _body(feat: Features, opts: KernelOptions) -> tuple[str, str]:
     preamble(c, opts, run_args(feat, opts), tab.stages)
     c("")
     if feat.thermal:
-        thermal.emit_helpers(c, decorator())
+        thermal.emit_helpers(c, decorator(fma=opts.fma))
     emit_run_head(c, feat, opts, tab)
     _emit_scalars(c, opts.registers, frozenset(opts.per_run))
     if opts.lanes == 1:

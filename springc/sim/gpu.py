@@ -155,10 +155,11 @@ def force_netlist(net: FlatNetlist, method: str) -> tuple[FlatNetlist, expint.Bl
 
 
 def options(net: FlatNetlist, blocks: expint.Blocks | None, method: str, precision: str,
-            coeffs: dict, probes: int, rplan) -> cudagen.CudaOptions:
+            coeffs: dict, probes: int, rplan, fma: bool = True) -> cudagen.CudaOptions:
     """The CUDA kernel's options for the force netlist `net` and a Lawson scheme's `blocks`
     (`force_netlist`) and a reduction plan (`coeffs`: the kernel arrays,
-    `simulate.kernel_arrays`, with their node ends, `terms.node_ends`). A Lawson scheme's
+    `simulate.kernel_arrays`, with their node ends, `terms.node_ends`) and whether a product
+    may be fused with an add (`fma`, `CudaOptions.fma`). A Lawson scheme's
     force code is never written out (the CPU kernels' choice too: its block updates
     dominate)."""
     lawson = blocks is not None
@@ -180,7 +181,7 @@ def options(net: FlatNetlist, blocks: expint.Blocks | None, method: str, precisi
         slots=slots(feat, coeffs, net.n) if split else (),
         max_registers=cudagen.MAX_REGISTERS if split else None,
         blocks=tuple(expint.block_sizes(blocks)) if lawson else (),
-        block_channels=expint.block_channels(net, blocks) if lawson else 1)
+        block_channels=expint.block_channels(net, blocks) if lawson else 1, fma=fma)
 
 
 def slots(feat: Features, coeffs: dict, n: int) -> tuple[tuple[str, int, bool], ...]:

@@ -183,7 +183,7 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
              record_into: np.ndarray | None = None, check_step: bool = True,
              node_threads: bool | None = None, temp: float | None = None,
              seed: int | None = None, device: str | None = None,
-             first_run: int = 0) -> SimResult:
+             first_run: int = 0, fma: bool = True) -> SimResult:
     """Simulate the checked netlist for every input signal (`springc.check.check(net)`).
 
     `inputs`: None (one run, no input), an array (runs, channels, samples) sampled at
@@ -211,7 +211,10 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
     None (that of `gpu.default_device`, falling back as 'auto' does; the CPU outside one);
     on CUDA every run is one batch unless `batch` is given. `first_run`: the index of this
     call's first run in a larger population, whose noise streams run r draws as run
-    `first_run` + r (`springc.sim.points`: each device its own)."""
+    `first_run` + r (`springc.sim.points`: each device its own). `fma` False: no product is
+    fused with an add into one fused multiply-add (which rounds once where the two round
+    twice), on the CPU and on CUDA alike, so that a run gives the same bits on either, and on
+    any CPU; slower, and no more accurate (docs/bench-gpu.md#fused-multiply-add)."""
     options = {k: v for k, v in locals().items() if k not in ("checked", "inputs",
                                                                "input_rate")}
     return _simulate([require_checked(checked, "simulate")], None, inputs, input_rate,
@@ -251,7 +254,7 @@ def _simulate(group: list[CheckedNetlist], labels: list[str] | None, inputs, inp
               probes=None, reductions=(), batch=None, channel=None, progress=False,
               chunk=None, write_out=None, record_into=None, check_step=True,
               node_threads=None, temp=None, seed=None, device=None,
-              first_run=0) -> SimResult:
+              first_run=0, fma=True) -> SimResult:
     """`simulate` of the first netlist of `group` or, with `labels`, `simulate_lanes` of
     them all."""
     nets = [thermal.with_overrides(c.net, temp, seed) for c in group]
@@ -299,14 +302,16 @@ def _simulate(group: list[CheckedNetlist], labels: list[str] | None, inputs, inp
                                  record=bool(plist), work=rplan.work,
                                  dissipation=bool(rplan.damper_rows), msq=bool(rplan.msq),
                                  gram=bool(rplan.gram),
-                                 per_run=tuple(sorted(lanes.per_run)) if lanes else ())
+                                 per_run=tuple(sorted(lanes.per_run)) if lanes else (),
+                                 fma=fma)
     opts = kernel_form(knet, opts, coeffs, st, len(names), write_out, node_threads)
     copts = None
     if dev == "cuda" or opts.parallel:  # nodes gather their element ends (CUDA: if split)
         coeffs = {**coeffs, **terms.node_ends(coeffs, knet.n)}
     if dev == "cuda":
         fnet, blocks = gpu.force_netlist(knet, st.method)
-        copts = gpu.options(fnet, blocks, st.method, st.precision, coeffs, len(plist), rplan)
+        copts = gpu.options(fnet, blocks, st.method, st.precision, coeffs, len(plist), rplan,
+                            fma)
     start = time.perf_counter()
     kernel = gpu.load(fnet, copts) if copts else loader.load(kernel_source(knet, opts))
     rec = _records(len(plist), st.nsteps // st.rec_every + 1, len(names),

@@ -66,7 +66,7 @@ REDUCE_HELP = (
 @click.option("--fma/--no-fma", default=True,
               help="--no-fma: round every product and sum on its own, none fused into one "
                    "fused multiply-add, on the CPU and the GPU alike, so that --device cpu and "
-                   "cuda (and any two CPUs) give the same bits; slower, and no more accurate.")
+                   "cuda give the same bits; no more accurate.")
 @click.option("--temp", type=float, default=None,
               help="Temperature in kelvin of every damper's thermal noise force, drawn per "
                    "integration step (overrides .options temp=; 0: no noise).")

@@ -213,8 +213,8 @@ def simulate(checked: CheckedNetlist, inputs=None, input_rate: float | None = No
     call's first run in a larger population, whose noise streams run r draws as run
     `first_run` + r (`springc.sim.points`: each device its own). `fma` False: no product is
     fused with an add into one fused multiply-add (which rounds once where the two round
-    twice), on the CPU and on CUDA alike, so that a run gives the same bits on either, and on
-    any CPU; slower, and no more accurate (docs/bench-gpu.md#fused-multiply-add)."""
+    twice), on the CPU and on CUDA alike, so that a run gives the same bits on either; no
+    more accurate (docs/bench-gpu.md#fused-multiply-add)."""
     options = {k: v for k, v in locals().items() if k not in ("checked", "inputs",
                                                                "input_rate")}
     return _simulate([require_checked(checked, "simulate")], None, inputs, input_rate,

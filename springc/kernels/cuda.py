@@ -49,7 +49,7 @@ from springc.kernels.codegen import (Features, LaneLayout, _Code, accel_args, co
 from springc.kernels.integrators import Tableau, get_tableau
 from springc.lang.ir import FlatNetlist
 
-CUDA_VERSION = 3  # bump when the generated text or its calling convention changes
+CUDA_VERSION = 4  # bump when the generated text or its calling convention changes
 BLOCK = 32  # threads (runs) per block where each run is one thread
 # Networks up to this many nodes get their force code written out per node (constant
 # indices, coefficients in scalars), one run per thread; larger ones loop over the runtime
@@ -331,8 +331,8 @@ def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
     c("if sub == substeps:")
     c("    sub = 0")
     c("    k0 += 1")
-    if _lawson(opts):
-        _emit_lawson_inputs(c, opts, tab)
+    if _reads_inputs(feat, opts):
+        _emit_step_inputs(c, _input_fractions(opts, tab))
     for s in range(tab.stages):
         _emit_stage(c, feat, opts, tab, s)
     _emit_combine(c, feat, opts, tab)
@@ -385,8 +385,8 @@ def _emit_state(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau) -> No
     for name in ["x", "v", "xs", "vs"] + [f"kv{s}" for s in range(stages)]:
         c(f"{name} = cuda.{where}.array(N, FT)")
     c("uc = cuda.local.array(NCH, FT)")
-    if _lawson(opts):
-        for k in range(len(expint.lawson_fractions(tab)[1])):
+    if _reads_inputs(feat, opts):
+        for k in range(len(_input_fractions(opts, tab))):
             c(f"ut{k} = cuda.local.array(NCH, FT)")
     c(_node_loop(opts))
     c("    x[i] = xst[i, r]")
@@ -453,15 +453,8 @@ def _emit_stage(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau, s: in
         if _lawson(opts):  # the blocks' exact flow to the stage, their rows of xs (and vs)
             _emit_blocks(c, opts, tab, s, "xs", "vs" if power else None)
         _sync(c, opts)
-    if feat.in_forces and _lawson(opts):
-        c(f"uc = ut{expint.lawson_fractions(tab)[1].index(tab.c[s])}")
-    elif feat.in_forces and (s == 0 or tab.c[s] != tab.c[s - 1]):
-        c(f"pos = (sub + {tab.c[s]!r}) / substeps")
-        c("kk = k0 + int(pos) - ubase")
-        c("fr = FT(pos - int(pos))")
-        c("gr = FT(1.0) - fr")
-        c(f"for ch in range({max(opts.channels, 1)}):")
-        c("    uc[ch] = gr * u[ch, kk, r] + fr * u[ch, kk + 1, r]")
+    if feat.in_forces:
+        c(f"uc = ut{_input_fractions(opts, tab).index(tab.c[s])}")
     xa, va = ("x", "v") if s == 0 else ("xs", "vs")
     if feat.common_forces:
         c(f"grow = g[step - s0, {s}]")
@@ -497,10 +490,23 @@ def _fold_combine(text: list[str], tab: Tableau) -> list[str]:
     return out
 
 
-def _emit_lawson_inputs(c: _Code, opts: CudaOptions, tab: Tableau) -> None:
-    """The input at every fraction of the step a Lawson scheme reads it (`ut{k}`, as
-    `expint`'s kernels interpolate it)."""
-    for k, frac in enumerate(expint.lawson_fractions(tab)[1]):
+def _reads_inputs(feat: Features, opts: CudaOptions) -> bool:
+    """Whether the step reads the input samples: input forces, or a Lawson scheme's blocks."""
+    return feat.in_forces or _lawson(opts)
+
+
+def _input_fractions(opts: CudaOptions, tab: Tableau) -> list[float]:
+    """The fractions of the step where it reads the input: the tableau's stage times, and a
+    Lawson scheme's blocks' (`expint.lawson_fractions`)."""
+    return expint.lawson_fractions(tab)[1] if _lawson(opts) else sorted(set(tab.c))
+
+
+def _emit_step_inputs(c: _Code, fractions: list[float]) -> None:
+    """The input at every fraction of the step where it is read (`ut{k}`, interpolated as the
+    CPU kernels interpolate it), all at the step's start: the loads of the later stages'
+    samples wait on nothing, where read stage by stage each would wait for the barrier
+    before its stage (the split form) and then hold up the stage."""
+    for k, frac in enumerate(fractions):
         c(f"pos = (sub + {frac!r}) / substeps")
         c("kk = k0 + int(pos) - ubase")
         c("fr = FT(pos - int(pos))")

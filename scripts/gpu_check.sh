@@ -71,14 +71,14 @@ EOF
 
 # 1. the 8x3 feature network at 10,000 runs, split over blocks of 256 or 512 threads, the
 #    first 8 terms of each node's lists held in registers (terms in loops measured slower on
-#    the H200), ptxas's registers a thread or at most 64 or 128 (spilled to local memory;
-#    scripts/cuda_resources.py counts them offline: 128 at 256 threads and 64 at 512 let a
-#    multiprocessor hold two runs instead of one); the fastest is used below, its threads
-#    and registers only for this network under RK4 (512 threads do not launch for the
-#    564-dof network, nor for the 8x3 under exp-rk4: too many registers)
-stage "split threads, register terms, registers" 85 $PY scripts/cpu_reference.py --device cuda \
+#    the H200), ptxas's registers a thread or at most 64, 80 or 128 (spilled to local
+#    memory; scripts/cuda_resources.py counts them offline: 128 at 256 threads and 64 at 512
+#    let a multiprocessor hold two runs instead of one, 80 at 256 three); the fastest is used
+#    below, its threads and registers only for this network under RK4 (512 threads do not
+#    launch for the 564-dof network, nor for the 8x3 under exp-rk4: too many registers)
+stage "split threads, register terms, registers" 100 $PY scripts/cpu_reference.py --device cuda \
     --runs 10000 --seconds 0.02 --repeat 1 --only "pipeline features 8x3" --precision float64 \
-    --threads 256 512 --slot-max 8 --max-registers 0 64 128 --json "$OUT_DIR/split_threads.json"
+    --threads 256 512 --slot-max 8 --max-registers 0 64 80 128 --json "$OUT_DIR/split_threads.json"
 read -r T S R < <($PY - "$OUT_DIR/split_threads.json" <<'EOF' 2>/dev/null || echo "256 8 0"
 import json, sys
 rows = [r for r in json.load(open(sys.argv[1]))["rows"] if "runs_per_s" in r]
@@ -105,7 +105,7 @@ stage "cuda vs cpu kernels" 100 $PY scripts/cuda_compare.py bench --seconds 0.02
     --only "pipeline features 8x3" "564-dof kws network" "long delay line" \
     "pipeline classifier 8x3" --json "$OUT_DIR/compare.json"
 # 4. runs per second of every bench network, 10,000 runs each
-stage "cuda throughput" 70 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
+stage "cuda throughput" 55 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
     --seconds 0.02 --repeat 2 --json "$OUT_DIR/cuda_throughput.json"
 stage "peers: 564-dof kws network" 40 $PY scripts/gpu_peers.py --network "564-dof kws network" \
     --runs 10000 --seconds 0.02 --json "$OUT_DIR/peers_kws.json"

@@ -9,7 +9,8 @@ same description of the step as the CPU kernels (this module never imports numba
   the coefficients read once per thread into scalars.
 - Stages: the Runge-Kutta-Nystrom stage and combine terms of `codegen.stage_terms` and
   `combine_terms` over the tableau (any of `integrators.TABLEAUX`), the stages unrolled.
-- Inputs: linearly interpolated at each stage time as `codegen.emit_interp` does.
+- Inputs: linearly interpolated at each stage time as `codegen.emit_interp` does, every
+  stage's at the step's start (`_emit_step_inputs`).
 - State: each thread's positions, velocities and stage forces in local arrays of the
   network's size (a compile-time constant), read from and written back to device arrays
   (n, runs) at each call, so that the host can integrate a long recording call by call over

@@ -206,6 +206,7 @@ def main(argv: list[str] | None = None) -> int:
               "substeps": sub, "precision": args.precision,
               "springc_cuda": {"wall_s": wall, "runs_per_s": len(u) / wall}}
     print(f"springc cuda: {len(u) / wall:,.0f} runs/s", flush=True)
+    save(args.json, result)
     final = sm.simulate(checked, u[:64], **{**kw, "reductions": [
         f"final:x({node})" for node in net.nodes]})
     want = np.stack([final.reductions[f"final:x({node})"] for node in net.nodes], axis=1)
@@ -222,9 +223,14 @@ def main(argv: list[str] | None = None) -> int:
         except Exception as exc:  # a peer that fails is reported, the others still run
             result[peer] = {"error": f"{type(exc).__name__}: {exc}"}
             print(f"{peer}: FAILED {type(exc).__name__}: {exc}", flush=True)
-    if args.json:
-        Path(args.json).write_text(json.dumps(result, indent=1))
+        save(args.json, result)
     return 0
+
+
+def save(path: str | None, result: dict) -> None:
+    """Write what is measured so far (a run stopped at its time limit keeps it)."""
+    if path:
+        Path(path).write_text(json.dumps(result, indent=1))
 
 
 if __name__ == "__main__":

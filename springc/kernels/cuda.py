@@ -190,7 +190,7 @@ def run_args(feat: Features, opts: CudaOptions) -> list[str]:
              "check_every", "limit"]
     names += accel_args(feat) + ["vneed"]
     if opts.threads > 1:
-        names += gather_args(feat)
+        names += gather_args(feat) + ["deal"]
     if opts.slots:
         names += ["sl_n"] + [f"sl_{sl.name}_{f}" for sl, (_, k, _) in
                              zip(slot_lists(feat), opts.slots) if k for f, _, _ in sl.fields]
@@ -301,6 +301,8 @@ def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
     c(f"VNEED = {tuple(opts.vneed)!r}  # whether anything reads a node's stage velocity")
     c("# the register lists' tables the host builds: (list, entries, ptr, elem, fields)")
     c(f"SLOTS = {_slot_spec(feat, opts)!r}")
+    c("# split: the node lists whose counts the host deals the nodes by (`deal`)")
+    c(f"DEAL = {tuple(sl.ptr for sl in slot_lists(feat)) if split else ()!r}")
     c("")
     c("")
     c(f"@cuda.jit(max_registers={opts.max_registers})" if opts.max_registers else "@cuda.jit")
@@ -410,8 +412,9 @@ def _emit_state(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau) -> No
 
 
 def _node_loop(opts: CudaOptions) -> str:
-    """The loop over the run's nodes (split: this thread's share)."""
-    return "for i in range(t, N, T):" if opts.threads > 1 else "for i in range(N):"
+    """The loop over the run's nodes (split: this thread's share, the nodes dealt to it:
+    positions t, t + T, ... of the host's order `deal`)."""
+    return "for i in deal[t:N:T]:" if opts.threads > 1 else "for i in range(N):"
 
 
 def _sums(feat: Features, opts: CudaOptions) -> list[tuple[str, str, int]]:
@@ -656,11 +659,13 @@ def _slot_count(opts: CudaOptions) -> int:
 
 
 def _emit_slot_loads(c: _Code, feat: Features, opts: CudaOptions) -> None:
-    """Each of the thread's nodes (slot j: node t + j T) and its terms' fields, read once per
-    launch into scalars (`sl_{list}_{field}`: entry q of node i at [q, i]; a node's count of
-    each list in `sl_n`). A thread past the last node reads the last node's (not used)."""
+    """Each of the thread's nodes (slot j: the node at position t + j T of the host's order
+    `deal`) and its terms' fields, read once per launch into scalars (`sl_{list}_{field}`:
+    entry q of node i at [q, i]; a node's count of each list in `sl_n`). A thread past the
+    last node reads the last node's (not used)."""
     for j in range(_slot_count(opts)):
-        c(f"s_i{j} = t + {j * opts.threads}")
+        p = f"t + {j * opts.threads}"
+        c(f"s_i{j} = deal[{p}] if {p} < N else N")
         c(f"s_c{j} = s_i{j} if s_i{j} < N else N - 1")
         c(f"s_bm{j} = bm[s_c{j}]")
         c(f"s_km{j} = km[s_c{j}]")

@@ -225,6 +225,8 @@ def run(kernel: loader.Kernel, args: dict, runs: int) -> None:
         args = {**args, **_pairs_by_group(args)}
     if mod.SLOTS:
         args = {**args, **_slot_tables(args, mod.SLOTS, len(mod.VNEED))}
+    if "deal" in mod.ARGS:
+        args = {**args, "deal": deal(args, mod.DEAL, len(mod.VNEED))}
     dev = {name: _to_device(args[name]) for name in mod.ARGS if name in args
            and name not in ("u", "g", "rec") and isinstance(args[name], np.ndarray)}
     dev["vneed"] = cuda.to_device(np.array(mod.VNEED, np.bool_))
@@ -271,6 +273,17 @@ def _pairs_by_group(args: dict) -> dict:
     groups = len(args["gr_decay"])
     out["gr_ptr"] = np.searchsorted(out["gr_g"], np.arange(groups + 1)).astype(np.int64)
     return out
+
+
+def deal(args: dict, ptrs: tuple[str, ...], n: int) -> np.ndarray:
+    """The split form's order of its nodes (thread t takes those at positions t, t + T, ...):
+    nodes with the same count of each list (`ptrs`: the CSR ranges of a node's stiffness row,
+    inputs and element ends) and the same damping side by side, so that a warp's threads
+    mostly run the same terms: a warp runs each term that any of its threads has (a node's
+    sum and its order do not depend on the thread that sums it)."""
+    keys = [np.diff(args[p][:n + 1].astype(np.int64)) for p in ptrs]
+    keys.append((np.asarray(args["bm"][:n]) != 0).astype(np.int64))
+    return np.lexsort([np.arange(n)] + keys[::-1]).astype(np.int32)
 
 
 def _slot_tables(args: dict, spec: tuple, n: int) -> dict:

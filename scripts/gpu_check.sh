@@ -105,10 +105,12 @@ stage "cuda vs cpu kernels" 100 $PY scripts/cuda_compare.py bench --seconds 0.02
     --only "pipeline features 8x3" "564-dof kws network" "long delay line" \
     "pipeline classifier 8x3" --json "$OUT_DIR/compare.json"
 # 4. runs per second at 10,000 runs of the two large networks the sweep above does not run (the
-#    whole suite ran out of its time twice; its small networks were measured on the H100)
+#    whole suite ran out of its time twice; its small networks were measured on the H100), at
+#    128, 256 and 512 threads a run (terms in loops: 48 registers a thread offline, so up to
+#    five runs a multiprocessor at 256)
 stage "cuda throughput" 55 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
     --seconds 0.02 --repeat 1 --only "564-dof kws network" "pipeline classifier 8x3" \
-    --precision float64 --json "$OUT_DIR/cuda_throughput.json"
+    --precision float64 --threads 256 128 512 --json "$OUT_DIR/cuda_throughput.json"
 stage "peers: 564-dof kws network" 40 $PY scripts/gpu_peers.py --network "564-dof kws network" \
     --runs 10000 --seconds 0.02 --json "$OUT_DIR/peers_kws.json"
 # 5. a Lawson scheme (exp-rk4): against the CPU kernels, and runs per second at 10,000 runs

@@ -177,11 +177,11 @@ def test_generated_text_is_specialised_to_the_network():
     assert "kv2 = cuda.shared" in split and "kv3 = cuda.shared" not in split  # folded
     assert split.count("cuda.syncthreads()") == 8  # RK4: 3 stage states, 2 forces, the
     # combine, the start and the divergence check
-    assert "@cuda.jit\n" in split
+    assert "@cuda.jit(cache=True)\n" in split
     capped = cudagen.generate(net, cudagen.CudaOptions("rk4", "float64", 1, 0, probes=1,
                                                        vneed=(True,), threads=4,
                                                        max_registers=64))
-    assert "@cuda.jit(max_registers=64)\n" in capped
+    assert "@cuda.jit(cache=True, max_registers=64)\n" in capped
 
 
 def test_unfused_form_rounds_every_product_inside_the_kernel_alone():

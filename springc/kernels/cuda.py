@@ -305,7 +305,11 @@ def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
     c(f"DEAL = {tuple(sl.ptr for sl in slot_lists(feat)) if split else ()!r}")
     c("")
     c("")
-    c(f"@cuda.jit(max_registers={opts.max_registers})" if opts.max_registers else "@cuda.jit")
+    # cache=True: numba-cuda keeps the compiled kernel beside this file (keyed on the GPU's
+    # architecture and the CUDA version), so a network compiles once per machine, not once
+    # per process (the 8x3 feature network's register form: about 8 s)
+    registers = f", max_registers={opts.max_registers}" if opts.max_registers else ""
+    c(f"@cuda.jit(cache=True{registers})")
     c(f"def run({', '.join(run_args(feat, opts))}):")
     c.indent()
     if split:

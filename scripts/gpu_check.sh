@@ -141,4 +141,7 @@ summary = {p.stem: json.loads(p.read_text()) for p in sorted(out.glob("*.json"))
 (out / "summary.json").write_text(json.dumps(summary, indent=1))
 print("summary:", out / "summary.json", "holds", ", ".join(summary))
 EOF
+say ""
+say "issue 41's targets from this run:"
+$PY scripts/gpu_targets.py "$OUT_DIR" 2>&1 | tee -a "$LOG" || true
 [ ${#FAILED[@]} -eq 0 ]

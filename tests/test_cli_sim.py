@@ -61,19 +61,26 @@ def test_npz_holds_t_probes_and_reductions_as_the_library_computes(case):
     assert (case / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-@pytest.mark.parametrize("form, write_out", [("auto", None), ("written-out", True),
-                                             ("shared", False)])
-def test_kernel_form_reaches_simulate(case, monkeypatch, form, write_out):
+def _spy_simulate(monkeypatch, key: str):
+    """Replace `springc.sim.simulate.simulate` by a wrapper recording each call's `key`
+    keyword: (the values seen, the real function)."""
     from springc.sim import simulate as sm
 
     seen = []
     real = sm.simulate
 
     def spy(*args, **kw):
-        seen.append(kw["write_out"])
+        seen.append(kw[key])
         return real(*args, **kw)
 
     monkeypatch.setattr(sm, "simulate", spy)
+    return seen, real
+
+
+@pytest.mark.parametrize("form, write_out", [("auto", None), ("written-out", True),
+                                             ("shared", False)])
+def test_kernel_form_reaches_simulate(case, monkeypatch, form, write_out):
+    seen, real = _spy_simulate(monkeypatch, "write_out")
     res = invoke(case / "osc.spr", "-i", case / "inputs", "-o", case / f"{form}.npz",
                  "--kernel", form, "--method", "rk4")
     assert res.exit_code == 0, res.output
@@ -85,16 +92,7 @@ def test_kernel_form_reaches_simulate(case, monkeypatch, form, write_out):
 def test_no_fma_reaches_simulate_and_changes_only_the_rounding(case, monkeypatch):
     """`--no-fma`: the kernel fuses no product with an add (`simulate(fma=False)`); the
     trajectories are the fused kernel's to rounding."""
-    from springc.sim import simulate as sm
-
-    seen = []
-    real = sm.simulate
-
-    def spy(*args, **kw):
-        seen.append(kw["fma"])
-        return real(*args, **kw)
-
-    monkeypatch.setattr(sm, "simulate", spy)
+    seen, real = _spy_simulate(monkeypatch, "fma")
     res = invoke(case / "osc.spr", "-i", case / "inputs", "-o", case / "exact.npz",
                  "--method", "rk4", "--no-fma")
     assert res.exit_code == 0, res.output

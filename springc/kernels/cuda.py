@@ -391,8 +391,7 @@ def _emit_state(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau) -> No
     stages = tab.stages - _folds(feat, opts, tab)
     for name in ["x", "v", "xs", "vs"] + [f"kv{s}" for s in range(stages)]:
         c(f"{name} = cuda.{where}.array(N, FT)")
-    c("uc = cuda.local.array(NCH, FT)")
-    if _reads_inputs(feat, opts):
+    if _reads_inputs(feat, opts):  # a stage's input `uc` is one of these (`_emit_stage`)
         for k in range(len(_input_fractions(opts, tab))):
             c(f"ut{k} = cuda.local.array(NCH, FT)")
     c(_node_loop(opts))

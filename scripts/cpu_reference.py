@@ -5,10 +5,11 @@ classifier networks, on the CPU kernels (the reference) or the CUDA form.
     python scripts/cpu_reference.py --device cuda --runs 10000 --json gpu.json
 
 For the CUDA form's split runs (networks split over a block), `--threads` sets the threads
-per run (`springc.kernels.cuda.SPLIT_THREADS`; 1: one run per thread), `--slot-max` the terms
-of each list a node holds in registers (`SLOT_MAX`; 0: every term read in a loop) and
-`--max-registers` the registers a thread (`MAX_REGISTERS`; 0: ptxas's choice); each
-combination is a row.
+per run (`springc.kernels.cuda.SPLIT_THREADS`; 0: springc's choice, one node a thread where
+the register form fits; 1: one run per thread), `--slot-max` the terms of each list a node
+holds in registers (`SLOT_MAX`; 0: every term read in a loop) and `--max-registers` the
+registers a thread (`MAX_REGISTERS`; 0: ptxas's choice, capped where a block would not fit);
+each combination is a row, which reports the layout the kernel took.
 
 Each network runs RK4 (or `--method`; the substeps of `cuda_compare.BENCH_SUBSTEPS`) for
 `--seconds` of speech-like input (`springc.bench.suite.speech_like`), recording nothing and
@@ -54,18 +55,19 @@ def measure(name: str, net, inputs, tstep: float, seconds: float, precision: str
         start = time.perf_counter()
         res = sm.simulate(checked, inputs, **kw)
         best = min(best, time.perf_counter() - start)
-    threads = cudagen.SPLIT_THREADS if net.n >= cudagen.SPLIT_MIN else 1
     row = {"network": name, "dofs": net.n, "precision": precision, "device": device,
-           "method": method,
-           "threads_per_run": threads if device == "cuda" else None,
-           "slot_max": cudagen.SLOT_MAX if device == "cuda" and threads > 1 else None,
-           "max_registers": cudagen.MAX_REGISTERS if device == "cuda" and threads > 1 else None,
+           "method": method, "threads_per_run": None, "slot_max": None, "max_registers": None,
            "runs": runs, "seconds": seconds, "substeps": kw["substeps"], "wall_s": best,
            "runs_per_s": runs / best, "run_seconds_per_s": runs * seconds / best}
+    shown = device
     if device == "cuda":
-        row["kernel"] = kernel_resources(res.info["kernel"])
-    shown = (f"{device} T={threads} S={cudagen.SLOT_MAX} R={cudagen.MAX_REGISTERS}"
-             if device == "cuda" else device)
+        module = _module(res.info["kernel"])
+        split = module.T > 1
+        row.update(threads_per_run=module.T, slot_max=cudagen.SLOT_MAX if split else None,
+                   registers_held=bool(module.SLOTS), max_registers=module.MAX_REGISTERS,
+                   kernel=kernel_resources(module))
+        shown = (f"cuda T={module.T} S={cudagen.SLOT_MAX if module.SLOTS else 0} "
+                 f"R={module.MAX_REGISTERS}")
     if row.get("kernel"):
         shown += f" ({row['kernel'].get('regs_per_thread', '?')} registers a thread)"
     print(f"{name:28s} {precision} {method} {shown}: {runs} runs of {seconds} s in {best:.3f} s = "
@@ -73,21 +75,23 @@ def measure(name: str, net, inputs, tstep: float, seconds: float, precision: str
     return row
 
 
-def kernel_resources(path: str) -> dict:
-    """The compiled CUDA kernel's registers a thread, shared and local memory (what bounds the
-    blocks a multiprocessor holds); empty under the simulator or where numba-cuda lacks them."""
+def _module(path: str):
+    """The loaded CUDA kernel module of the file `path` (its layout: T, SLOTS, MAX_REGISTERS)."""
     from springc.kernels import loader
 
+    return next(k.module for k in loader._LOADED.values() if str(k.path) == str(path))
+
+
+def kernel_resources(module) -> dict:
+    """The compiled CUDA kernel's registers a thread, shared and local memory (what bounds the
+    blocks a multiprocessor holds); empty under the simulator or where numba-cuda lacks them."""
     out = {}
-    for kernel in loader._LOADED.values():
-        if str(kernel.path) != str(path):
-            continue
-        for name in ("regs_per_thread", "shared_mem_per_block", "local_mem_per_thread",
-                     "max_threads_per_block"):
-            try:
-                out[name] = int(getattr(kernel.module.run, f"get_{name}")())
-            except Exception:  # noqa: BLE001  (a report, not a measurement)
-                pass
+    for name in ("regs_per_thread", "shared_mem_per_block", "local_mem_per_thread",
+                 "max_threads_per_block"):
+        try:
+            out[name] = int(getattr(module.run, f"get_{name}")())
+        except Exception:  # noqa: BLE001  (a report, not a measurement)
+            pass
     return out
 
 
@@ -107,12 +111,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--only", nargs="*", help="network names to run (default: all)")
     parser.add_argument("--precision", nargs="*", default=["float64", "float32"])
     parser.add_argument("--method", default="rk4", help="rk4, or a Lawson scheme (exp-rk4)")
-    parser.add_argument("--threads", nargs="*", type=int, default=[cudagen.SPLIT_THREADS],
-                        help="cuda: threads per run of the split form (1: one run a thread)")
+    parser.add_argument("--threads", nargs="*", type=int, default=[0],
+                        help="cuda: threads per run of the split form (0: springc's choice; "
+                             "1: one run a thread)")
     parser.add_argument("--slot-max", nargs="*", type=int, default=[cudagen.SLOT_MAX],
                         help="cuda: a split node's terms of each list in registers (0: none)")
     parser.add_argument("--max-registers", nargs="*", type=int, default=[0],
-                        help="cuda: a split run's registers a thread (0: ptxas's choice)")
+                        help="cuda: a split run's registers a thread (0: ptxas's choice, "
+                             "capped where a block would not fit)")
     parser.add_argument("--json", help="write the rows here")
     args = parser.parse_args(argv)
     runs = args.runs or (10000 if args.device == "cuda" else 8 * sm.threads())

@@ -25,10 +25,13 @@ does the same arithmetic in the same order, and every error is 0.
 from __future__ import annotations
 
 import argparse
+import ast
 import json
 import os
+import re
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -101,6 +104,21 @@ PROGRESS: list[dict] = []  # every case so far, written to --json after each one
 JSON_PATH: list[str] = []
 
 
+def layout(path: str | None) -> dict:
+    """A CUDA kernel file's threads per run, register limit and whether it holds terms in
+    registers (its module constants)."""
+    if not path or not str(path).endswith(".py"):
+        return {}
+    text = Path(path).read_text()
+    found = {k: re.search(rf"^{k} = (\S+)", text, re.M) for k in ("T", "MAX_REGISTERS")}
+    slots = re.search(r"^SLOTS = (.*)$", text, re.M)
+    if not found["T"] or "CUDA = True" not in text:
+        return {}
+    return {"threads_per_run": int(found["T"].group(1)),
+            "max_registers": ast.literal_eval(found["MAX_REGISTERS"].group(1)),
+            "registers_held": bool(slots and ast.literal_eval(slots.group(1)))}
+
+
 def compare(name: str, net, inputs, precision: str, reference=None, device: str | None = "cuda",
             **kw) -> dict:
     """One case: the CPU kernels' result and the CUDA form's (`device`; None: that of
@@ -118,7 +136,7 @@ def compare(name: str, net, inputs, precision: str, reference=None, device: str 
     ok = worst <= TOLERANCE[precision]
     own = ""
     row = {"case": name, "precision": precision, "worst": worst, "ok": ok, "errors": errs,
-           "cpu_s": mid - start, "cuda_s": end - mid}
+           "cpu_s": mid - start, "cuda_s": end - mid, **layout(cuda.info.get("kernel"))}
     if reference is not None:
         row["cpu_vs_float64"] = max(errors(reference, cpu).values())
         row["cuda_vs_float64"] = max(errors(reference, cuda).values())
@@ -137,7 +155,8 @@ def tiny() -> list[dict]:
     """The every-kind network in the three force forms (written out, loops, split over 3
     threads a run), two tableaux, both precisions, with its steps streamed over many calls;
     split in float32 with one term of each list in registers (the rest looped); split
-    without monomials and shared signals (its combine folded into the last stage); then once
+    without monomials and shared signals (its combine folded into the last stage) in springc's
+    layout, a node a thread, with a register limit in its text; then once
     on the default device (`gpu.default_device`)."""
     net = every_kind()
     u = smooth_inputs(3, 2, 90, seed=0)
@@ -159,12 +178,18 @@ def tiny() -> list[dict]:
                           write_out=False, fma=fma)
             cudagen.SLOT_MAX = slot_max
             out.append({k: v for k, v in row.items() if k != "result"})
-    # split, no term added after the node loop: the combine folded into the last stage's
-    cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = 0, 1, 3
-    row = compare("unscattered kinds, split, rk4 x1", every_kind(False), u, "float64",
-                  method="rk4", substeps=1, reductions=REDUCE, outrate=5e3, write_out=False)
+    # split, no term added after the node loop: the combine folded into the last stage's;
+    # springc's layout (a node a thread: a warp, most of its threads without a node) and a
+    # register limit in the text (which the simulator, taking none, leaves out)
+    cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = 0, 1, None
+    cudagen.MAX_REGISTERS, registers = 64, cudagen.MAX_REGISTERS
+    row = compare("unscattered kinds, split, a node a thread, at most 64 registers, rk4 x1",
+                  every_kind(False),
+                  u, "float64", method="rk4", substeps=1, reductions=REDUCE, outrate=5e3,
+                  write_out=False)
     out.append({k: v for k, v in row.items() if k != "result"})
     cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = saved
+    cudagen.MAX_REGISTERS = registers
     out += lawson()
     with gpu.default_device("cuda"):  # a simulation that names no device runs there
         row = compare("every kind, the default device", net, u, "float64", device=None,
@@ -225,11 +250,12 @@ def bench_cases(seconds: float, runs: int) -> list[tuple[str, object, np.ndarray
 
 def split_threads(threads: int) -> None:
     """The CUDA form's threads per run for networks split over a block
-    (`springc.kernels.cuda.SPLIT_THREADS`; 1: none split, one run per thread)."""
+    (`springc.kernels.cuda.SPLIT_THREADS`; 0: springc's choice; 1: none split, one run per
+    thread)."""
     if threads == 1:
         cudagen.SPLIT_MIN = 10**9
     else:
-        cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = cudagen.WRITE_OUT_MAX + 1, threads
+        cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = cudagen.WRITE_OUT_MAX + 1, threads or None
 
 
 BENCH_SUBSTEPS = {"stiff block": 32, "pipeline features 8x3": 8,

@@ -5,14 +5,16 @@ numba-cuda and NVIDIA's compiler wheel (`pip install -e .[cuda-offline]`).
         --slot-max 0 8 --max-registers 0 64 --fma 1 0 --json regs.json
 
 A child process under numba's CUDA simulator generates each kernel (the bench network of
-`cuda_compare.bench_cases`, RK4 at its `BENCH_SUBSTEPS`, float64, recording nothing, as
-`cpu_reference.py` times it) and records the types of the arguments its launch passes; this
+`cuda_compare.bench_cases`, RK4 or `--method` at its `BENCH_SUBSTEPS`, float64, recording
+nothing, as `cpu_reference.py` times it; `--threads 0`, the default: the threads per run and
+register lists springc chooses) and records the types of the arguments its launch passes; this
 process compiles each to PTX with numba-cuda (timed: numba's front end and NVVM) and then to
 machine code with ptxas (`-v`, for `--arch`; with each `--max-registers`, as numba-cuda's
-`max_registers` asks ptxas), printing the registers a thread, the spilled bytes and the shared
-memory a block, and the fused multiply-adds in the PTX (`--fma 0`: the form whose products
-round on their own, `CudaOptions.fma` False, must have none). Which blocks a multiprocessor
-then holds follows from these; how fast they run is for a GPU to say (`gpu_check.sh`).
+`max_registers` asks ptxas, and with the kernel's own limit where it sets one), printing the
+registers a thread, the spilled bytes and the shared memory a block, and the fused
+multiply-adds in the PTX (`--fma 0`: the form whose products round on their own,
+`CudaOptions.fma` False, must have none). Which blocks a multiprocessor then holds follows from
+these; how fast they run is for a GPU to say (`gpu_check.sh`).
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ sys.path.insert(0, str(HERE))
 
 
 def capture(only: list[str], threads: list[int], slot_max: list[int], fmas: list[int],
-            out: str) -> None:
+            method: str, out: str) -> None:
     """Under the simulator: each kernel's file and its launch's argument types, to `out`."""
     from cuda_compare import BENCH_SUBSTEPS, bench_cases, split_threads
 
@@ -63,18 +65,21 @@ def capture(only: list[str], threads: list[int], slot_max: list[int], fmas: list
             plain_run(kernel, args, runs)
         finally:
             module.run = real
-        specs[-1]["path"] = str(kernel.path)
+        specs[-1].update(path=str(kernel.path), threads=module.T, held=bool(module.SLOTS),
+                         kernel_limit=module.MAX_REGISTERS)
 
     gpu.run = recording_run
+    code_max = cudagen.SLOT_CODE_MAX
     for name, net, u, tstep in bench_cases(0.0005, 2):
         if name not in only:
             continue
         checked = check(net)
         for t, s, fma in itertools.product(threads, slot_max, fmas):
             split_threads(t)
-            cudagen.SLOT_MAX, cudagen.SLOT_CODE_MAX = s, 10**9  # every size measured
-            specs.append({"network": name, "threads": t, "slot_max": s, "fma": bool(fma)})
-            sm.simulate(checked, u, device="cuda", method="rk4", tstep=tstep, tstop=0.0005,
+            # a set thread count measures its register form at every size; 0 as springc chooses
+            cudagen.SLOT_MAX, cudagen.SLOT_CODE_MAX = s, 10**9 if t else code_max
+            specs.append({"network": name, "method": method, "slot_max": s, "fma": bool(fma)})
+            sm.simulate(checked, u, device="cuda", method=method, tstep=tstep, tstop=0.0005,
                         substeps=BENCH_SUBSTEPS.get(name, 1), probes=[],
                         reductions=["energy"], check_step=False, fma=bool(fma))
     Path(out).write_text(json.dumps(specs, indent=1))
@@ -99,14 +104,15 @@ def compile_one(spec: dict, arch: str, registers: list[int], ptxas: str) -> dict
                 types.Array(from_dtype(np.dtype(dt)), nd, "C") for dt, nd in spec["args"])
     start = time.perf_counter()
     ptx, _ = cuda.compile_ptx(module.run.py_func, sig, cc=(int(arch[3]), int(arch[4:])))
-    row = {**{k: spec[k] for k in ("network", "threads", "slot_max", "fma")},
+    row = {**{k: spec[k] for k in ("network", "method", "threads", "slot_max", "held", "fma",
+                                   "kernel_limit")},
            "ptx_s": time.perf_counter() - start, "ptx_lines": ptx.count("\n"),
            "fma_instructions": len(re.findall(r"\bfma\.rn\.f(?:32|64)\b", ptx)),
            "rounded_products": len(re.findall(r"\bmul\.rn\.f(?:32|64)\b", ptx))}
     with tempfile.NamedTemporaryFile("w", suffix=".ptx", delete=False) as fh:
         fh.write(ptx)
     try:
-        for limit in registers:
+        for limit in dict.fromkeys([*registers, spec["kernel_limit"] or 0]):
             flags = [f"-maxrregcount={limit}"] if limit else []
             start = time.perf_counter()
             rep = subprocess.run([ptxas, "-v", f"-arch={arch}", *flags, fh.name, "-o",
@@ -140,7 +146,9 @@ def _ptxas() -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", nargs="+", default=["pipeline features 8x3"])
-    parser.add_argument("--threads", nargs="+", type=int, default=[256])
+    parser.add_argument("--threads", nargs="+", type=int, default=[0],
+                        help="threads per run of the split form (0: springc's choice)")
+    parser.add_argument("--method", default="rk4", help="rk4, or a Lawson scheme (exp-rk4)")
     parser.add_argument("--slot-max", nargs="+", type=int, default=[0, 8])
     parser.add_argument("--max-registers", nargs="+", type=int, default=[0])
     parser.add_argument("--fma", nargs="+", type=int, default=[1],
@@ -150,14 +158,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--capture", help=argparse.SUPPRESS)  # the child's output file
     args = parser.parse_args(argv)
     if args.capture:
-        capture(args.only, args.threads, args.slot_max, args.fma, args.capture)
+        capture(args.only, args.threads, args.slot_max, args.fma, args.method, args.capture)
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         specs_path = str(Path(tmp) / "specs.json")
         env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1",
                "SPRINGC_CACHE": os.environ.get("SPRINGC_CACHE", str(Path(tmp) / "cache"))}
         subprocess.run([sys.executable, __file__, "--capture", specs_path, "--only", *args.only,
-                        "--threads", *map(str, args.threads), "--slot-max",
+                        "--threads", *map(str, args.threads), "--method", args.method,
+                        "--slot-max",
                         *map(str, args.slot_max), "--fma", *map(str, args.fma)], env=env,
                        check=True)
         specs = json.loads(Path(specs_path).read_text())
@@ -169,8 +178,10 @@ def main(argv: list[str] | None = None) -> int:
                 f"limit {k.removeprefix('ptxas_')}: {v['registers']} registers, spills "
                 f"{v['spill_stores']}/{v['spill_loads']} B" for k, v in row.items()
                 if k.startswith("ptxas_"))
-            print(f"{row['network']} T={row['threads']} S={row['slot_max']} "
-                  f"fma={int(row['fma'])}: PTX in {row['ptx_s']:.1f} s, "
+            held = row["slot_max"] if row["held"] else 0
+            print(f"{row['network']} {row['method']} T={row['threads']} S={held} "
+                  f"fma={int(row['fma'])} (kernel's limit {row['kernel_limit']}): PTX in "
+                  f"{row['ptx_s']:.1f} s, "
                   f"{row['fma_instructions']} fma.rn, {row['rounded_products']} mul.rn; "
                   f"{reports}", flush=True)
     if args.json:

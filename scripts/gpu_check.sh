@@ -73,10 +73,10 @@ EOF
 #    first 8 terms of each node's lists held in registers (terms in loops measured slower on
 #    the H200), ptxas's registers a thread or at most 64, 80 or 128 (spilled to local
 #    memory; scripts/cuda_resources.py counts them offline: 128 at 256 threads and 64 at 512
-#    let a multiprocessor hold two runs instead of one, 80 at 256 three); the fastest is used
-#    below, its threads and registers only for this network under RK4 (512 threads do not
-#    launch for the 564-dof network, nor for the 8x3 under exp-rk4: too many registers)
-stage "split threads, register terms, registers" 100 $PY scripts/cpu_reference.py --device cuda \
+#    let a multiprocessor hold two runs instead of one, 80 at 256 three; at 512 threads, 0
+#    is springc's cap, 128, so that a block fits); the fastest is used below, its threads
+#    and registers only for this network under RK4
+stage "split threads, register terms, registers" 85 $PY scripts/cpu_reference.py --device cuda \
     --runs 10000 --seconds 0.02 --repeat 1 --only "pipeline features 8x3" --precision float64 \
     --threads 256 512 --slot-max 8 --max-registers 0 64 80 128 --json "$OUT_DIR/split_threads.json"
 read -r T S R < <($PY - "$OUT_DIR/split_threads.json" <<'EOF' 2>/dev/null || echo "256 8 0"
@@ -93,30 +93,37 @@ say "register terms per list, every network: $S"
 #    mul.rn, the CPU kernels without LLVM's contraction): float32 and float64 to the bit?
 #    (With fusion the stiff block's float32 probes differ by 1.9e-4; the 8x3 network last,
 #    the slowest to compile.)
-stage "rounding: no fma, cuda vs cpu kernels" 60 $PY scripts/cuda_compare.py bench --no-fma \
+stage "rounding: no fma, cuda vs cpu kernels" 55 $PY scripts/cuda_compare.py bench --no-fma \
     --seconds 0.02 --runs 64 --only "stiff block" "feature extractor" "long delay line" \
     "duffing resonator" "pipeline features 8x3" --json "$OUT_DIR/compare_no_fma.json"
 # 2. the peers on the same GPU and network, at the same scheme and step (equal error)
-stage "peers: pipeline features" 45 env SPRINGC_MAX_REGISTERS="$R" $PY scripts/gpu_peers.py --network "pipeline features 8x3" \
+stage "peers: pipeline features" 40 env SPRINGC_MAX_REGISTERS="$R" $PY scripts/gpu_peers.py --network "pipeline features 8x3" \
     --runs 10000 --seconds 0.02 --threads "$T" --json "$OUT_DIR/peers_features.json"
 # 3. the CUDA form against the CPU kernels on the networks the split form runs (the others'
 #    forms are those docs/bench-gpu.md measured before); compiles the CPU kernels too
-stage "cuda vs cpu kernels" 100 $PY scripts/cuda_compare.py bench --seconds 0.02 --runs 64 \
+stage "cuda vs cpu kernels" 95 $PY scripts/cuda_compare.py bench --seconds 0.02 --runs 64 \
     --only "pipeline features 8x3" "564-dof kws network" "long delay line" \
     "pipeline classifier 8x3" --json "$OUT_DIR/compare.json"
 # 4. runs per second at 10,000 runs of the two large networks the sweep above does not run (the
-#    whole suite ran out of its time twice; its small networks were measured on the H100), at
-#    128, 256 and 512 threads a run (terms in loops: 48 registers a thread offline, so up to
-#    five runs a multiprocessor at 256)
-stage "cuda throughput" 55 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
-    --seconds 0.02 --repeat 1 --only "564-dof kws network" "pipeline classifier 8x3" \
-    --precision float64 --threads 256 128 512 --json "$OUT_DIR/cuda_throughput.json"
+#    whole suite ran out of its time twice; its small networks were measured on the H100):
+#    springc's layout now, one node a thread with 8 or 4 terms of each list in registers
+#    (576 threads and at most 112 registers for the 564-dof network, 800 and 80 for the
+#    classifier: offline, 472 and 1024 B spilled at 8 terms, 36 and 708 B at 4), against the
+#    layout before, 256 threads and every term in loops (48 registers offline)
+stage "cuda throughput: a node a thread" 70 $PY scripts/cpu_reference.py --device cuda \
+    --runs 10000 --seconds 0.02 --repeat 1 --only "564-dof kws network" \
+    "pipeline classifier 8x3" --precision float64 --threads 0 --slot-max 8 4 \
+    --json "$OUT_DIR/cuda_throughput.json"
+stage "cuda throughput: loops at 256" 25 $PY scripts/cpu_reference.py --device cuda \
+    --runs 10000 --seconds 0.02 --repeat 1 --only "564-dof kws network" \
+    "pipeline classifier 8x3" --precision float64 --threads 256 --slot-max 0 \
+    --json "$OUT_DIR/cuda_throughput_loops.json"
 stage "peers: 564-dof kws network" 40 $PY scripts/gpu_peers.py --network "564-dof kws network" \
     --runs 10000 --seconds 0.02 --json "$OUT_DIR/peers_kws.json"
 # 5. a Lawson scheme (exp-rk4): against the CPU kernels, and runs per second at 10,000 runs
-stage "lawson vs cpu kernels" 40 $PY scripts/cuda_compare.py bench --seconds 0.02 --runs 64 \
+stage "lawson vs cpu kernels" 30 $PY scripts/cuda_compare.py bench --seconds 0.02 --runs 64 \
     --only "feature extractor" --method exp-rk4 --json "$OUT_DIR/compare_lawson.json"
-stage "lawson throughput" 35 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
+stage "lawson throughput" 30 $PY scripts/cpu_reference.py --device cuda --runs 10000 \
     --seconds 0.02 --repeat 1 --only "feature extractor" "pipeline features 8x3" \
     --precision float64 --method exp-rk4 --json "$OUT_DIR/lawson_throughput.json"
 # 6. the keyword-spotting feature pass: clips per second, scaled to a 20,000-clip corpus

@@ -24,7 +24,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from cuda_compare import BENCH_SUBSTEPS, bench_cases, split_threads  # noqa: E402
+from cuda_compare import BENCH_SUBSTEPS, bench_cases, layout, split_threads  # noqa: E402
 
 from springc.check import check  # noqa: E402
 from springc.kernels.lower import kernel_netlist  # noqa: E402
@@ -200,12 +200,13 @@ def main(argv: list[str] | None = None) -> int:
     checked = check(net)
     sm.simulate(checked, u[:2], **kw)
     start = time.perf_counter()
-    sm.simulate(checked, u, **kw)
+    res = sm.simulate(checked, u, **kw)
     wall = time.perf_counter() - start
+    shape = layout(res.info["kernel"])  # threads per run, register limit
     result = {"network": name, "dofs": net.n, "runs": len(u), "seconds": args.seconds,
               "substeps": sub, "precision": args.precision,
-              "springc_cuda": {"wall_s": wall, "runs_per_s": len(u) / wall}}
-    print(f"springc cuda: {len(u) / wall:,.0f} runs/s", flush=True)
+              "springc_cuda": {"wall_s": wall, "runs_per_s": len(u) / wall, **shape}}
+    print(f"springc cuda {shape}: {len(u) / wall:,.0f} runs/s", flush=True)
     save(args.json, result)
     final = sm.simulate(checked, u[:64], **{**kw, "reductions": [
         f"final:x({node})" for node in net.nodes]})

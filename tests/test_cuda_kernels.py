@@ -55,6 +55,9 @@ def test_cuda_form_gives_the_cpu_kernels_probes_and_reductions(tmp_path):
                  "gram:0.005:a,c,d", "msq:v(d):0.002:0.006"})
         assert set(case["errors"]) >= want
         assert case["worst"] == 0.0, case
+    limited = [c for c in cases if "at most 64 registers" in c["case"]]
+    assert [(c["threads_per_run"], c["max_registers"], c["registers_held"])
+            for c in limited] == [(32, 64, True)]
     assert proc.returncode == 0, proc.stdout + proc.stderr
 
 
@@ -84,14 +87,15 @@ def test_slot_tables_hold_each_nodes_first_terms_in_its_sum_order(monkeypatch):
     co = coefficient_arrays(net, "float64")
     args = {**co, **terms.node_ends(co, net.n)}
     monkeypatch.setattr(cudagen, "SLOT_MAX", 1)
-    slots = gpu.slots(features(net), args, net.n)
+    threads, slots = gpu.split_layout(features(net), args, net.n)
     assert slots == (("row", 1, True), ("quad", 1, True), ("dashpot", 1, False))
+    assert threads == 32  # one node a thread: a warp
     # written out per thread (one node at 256 threads): a row term, a quad's two end
     # variants, a dashpot's three (to ground too); over the limit, every term is looped
     code = cudagen.slot_code(cudagen.slot_lists(features(net)), [1, 1, 1], net.n, 256)
     assert code == 6
     monkeypatch.setattr(cudagen, "SLOT_CODE_MAX", code - 1)
-    assert gpu.slots(features(net), args, net.n) == ()
+    assert gpu.split_layout(features(net), args, net.n) == (cudagen.LOOP_THREADS, ())
     opts = cudagen.CudaOptions("rk4", "float64", net.n, 0, probes=1, vneed=(True,) * net.n,
                                threads=2, slots=slots)
     mod_spec = cudagen._slot_spec(features(net), opts)
@@ -156,6 +160,42 @@ def test_the_split_form_deals_nodes_of_the_same_terms_to_neighbouring_threads():
     assert kinds_a_warp(order) <= 3 < 6 <= kinds_a_warp(np.arange(net.n))
 
 
+@pytest.mark.parametrize("name, threads, held, limit", [
+    ("long delay line", 224, True, None),  # 201 nodes
+    ("pipeline features 8x3", 512, True, 128),  # 488 nodes: 512 threads measured fastest
+    ("564-dof kws network", 576, True, 112),
+    ("pipeline classifier 8x3", 800, True, 80),  # 788 nodes
+])
+def test_split_runs_take_a_node_a_thread_within_a_multiprocessors_registers(
+        name, threads, held, limit):
+    """The split form's layout (`gpu.options`): one node a thread (the nodes rounded up to a
+    warp) where the register form's code fits there, and registers a thread capped so that a
+    block fits a multiprocessor's 65,536 (given out eight a thread, a warp at a time): an
+    uncapped 134 a thread at 512 threads did not launch. Past 1024 nodes, 256 threads and
+    the loops."""
+    from springc.bench import networks as bn
+    from springc.check import check
+    from springc.kernels import terms
+    from springc.kernels.codegen import features
+    from springc.kernels.lower import kernel_netlist
+    from springc.sim import reductions
+    from springc.sim.simulate import coefficient_arrays
+
+    net = {"long delay line": bn.long_delay_line, "pipeline features 8x3": bn.pipeline_features,
+           "564-dof kws network": bn.kws_network,
+           "pipeline classifier 8x3": bn.pipeline_classifier}[name]()
+    net = kernel_netlist(check(net).net)
+    co = coefficient_arrays(net, "float64")
+    co = {**co, **terms.node_ends(co, net.n)}
+    opts = gpu.options(net, None, "rk4", "float64", co, 0, reductions.plan([], net))
+    assert (opts.threads, bool(opts.slots), opts.max_registers) == (threads, held, limit)
+    assert cudagen.slot_code(cudagen.slot_lists(features(net)), [k for _, k, _ in opts.slots],
+                             net.n, threads) <= cudagen.SLOT_CODE_MAX
+    assert threads * (opts.max_registers or 255) <= cudagen.REGISTERS or threads <= 256
+    assert cudagen.node_threads(1024) == 1024 and cudagen.node_threads(1025) is None
+    assert [cudagen.register_limit(t) for t in (32, 256, 288, 1024)] == [None, None, 224, 64]
+
+
 def test_generated_text_is_specialised_to_the_network():
     """The per-node form reads the coefficients into scalars once and indexes by constants;
     the loop form loops over the index arrays."""
@@ -177,11 +217,11 @@ def test_generated_text_is_specialised_to_the_network():
     assert "kv2 = cuda.shared" in split and "kv3 = cuda.shared" not in split  # folded
     assert split.count("cuda.syncthreads()") == 8  # RK4: 3 stage states, 2 forces, the
     # combine, the start and the divergence check
-    assert "@cuda.jit(cache=True)\n" in split
+    assert "MAX_REGISTERS = None " in split and "@cuda.jit(cache=True, **JIT)\n" in split
     capped = cudagen.generate(net, cudagen.CudaOptions("rk4", "float64", 1, 0, probes=1,
                                                        vneed=(True,), threads=4,
                                                        max_registers=64))
-    assert "@cuda.jit(cache=True, max_registers=64)\n" in capped
+    assert "MAX_REGISTERS = 64 " in capped
 
 
 def test_unfused_form_rounds_every_product_inside_the_kernel_alone():

@@ -170,6 +170,7 @@ def options(net: FlatNetlist, blocks: expint.Blocks | None, method: str, precisi
     folded = not (feat.monomials or feat.common_forces or lawson)
     split = (nodes is None and net.n >= cudagen.SPLIT_MIN and cudagen.shared_bytes(
         net.n, precision, method, gram, folded) <= cudagen.SHARED_BYTES)
+    threads, held = split_layout(feat, coeffs, net.n) if split else (1, ())
     return cudagen.CudaOptions(
         method, precision, net.n, sources.channels_used(net),
         inputs=len(sources.input_forces(net)) if feat.in_forces else 0,
@@ -177,26 +178,35 @@ def options(net: FlatNetlist, blocks: expint.Blocks | None, method: str, precisi
         probes=probes, work=rplan.work, dampers=len(rplan.damper_rows),
         msq=len(rplan.msq), gram=gram,
         vneed=vneed(net, coeffs, rplan.work), nodes=nodes,
-        threads=cudagen.SPLIT_THREADS if split else 1,
-        slots=slots(feat, coeffs, net.n) if split else (),
-        max_registers=cudagen.MAX_REGISTERS if split else None,
+        threads=threads if split else 1, slots=held if split else (),
+        max_registers=cudagen.register_limit(threads) if split else None,
         blocks=tuple(expint.block_sizes(blocks)) if lawson else (),
         block_channels=expint.block_channels(net, blocks) if lawson else 1, fma=fma)
 
 
-def slots(feat: Features, coeffs: dict, n: int) -> tuple[tuple[str, int, bool], ...]:
-    """The split form's register lists (`cudagen.CudaOptions.slots`) from the kernel arrays
-    with their node ends (`terms.node_ends`): per list, the terms a node holds (its most, at
-    most `cudagen.SLOT_MAX`) and whether a node has more; none with SLOT_MAX 0, or where the
-    code written out per thread would exceed `cudagen.SLOT_CODE_MAX` term blocks (every term
-    then read in the loops)."""
+def split_layout(feat: Features, coeffs: dict, n: int) -> tuple[int, tuple]:
+    """The split form's threads per run and register lists (`cudagen.CudaOptions.slots`)
+    from the kernel arrays with their node ends (`terms.node_ends`). Per list a node holds
+    its most terms, at most `cudagen.SLOT_MAX`, and notes whether a node has more; none with
+    SLOT_MAX 0, or where the code written out per thread would exceed
+    `cudagen.SLOT_CODE_MAX` term blocks (every term then read in the loops). Threads:
+    `cudagen.SPLIT_THREADS` where set; else one node a thread (`cudagen.node_threads`) where
+    the register lists' code fits there, else `cudagen.LOOP_THREADS`."""
     lists = cudagen.slot_lists(feat)
     most = [int(np.diff(coeffs[sl.ptr].astype(np.int64)).max(initial=0)) for sl in lists]
     held = [min(m, cudagen.SLOT_MAX) for m in most]
-    if not cudagen.SLOT_MAX or cudagen.slot_code(
-            lists, held, n, cudagen.SPLIT_THREADS) > cudagen.SLOT_CODE_MAX:
-        return ()
-    return tuple((sl.name, k, m > k) for sl, k, m in zip(lists, held, most))
+
+    def fits(threads: int | None) -> bool:
+        return bool(threads and cudagen.SLOT_MAX and cudagen.slot_code(
+            lists, held, n, threads) <= cudagen.SLOT_CODE_MAX)
+
+    threads = cudagen.SPLIT_THREADS
+    if threads is None:
+        one = cudagen.node_threads(n)
+        threads = one if fits(one) else cudagen.LOOP_THREADS
+    if not fits(threads):
+        return threads, ()
+    return threads, tuple((sl.name, k, m > k) for sl, k, m in zip(lists, held, most))
 
 
 def load(net: FlatNetlist, opts: cudagen.CudaOptions) -> loader.Kernel:

@@ -184,9 +184,8 @@ def tiny() -> list[dict]:
     cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = 0, 1, None
     cudagen.MAX_REGISTERS, registers = 64, cudagen.MAX_REGISTERS
     row = compare("unscattered kinds, split, a node a thread, at most 64 registers, rk4 x1",
-                  every_kind(False),
-                  u, "float64", method="rk4", substeps=1, reductions=REDUCE, outrate=5e3,
-                  write_out=False)
+                  every_kind(False), u[:2, :, :70], "float64",  # a warp: ten times the threads
+                  method="rk4", substeps=1, reductions=REDUCE, outrate=5e3, write_out=False)
     out.append({k: v for k, v in row.items() if k != "result"})
     cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = saved
     cudagen.MAX_REGISTERS = registers
@@ -201,22 +200,26 @@ def tiny() -> list[dict]:
 
 def lawson() -> list[dict]:
     """The Lawson schemes on the feature extractor (eight exact filter pairs, quadratic
-    couplings and low-passes in the rest), one run per thread and split over 3 threads; its
-    probes, input work, dissipation and energy."""
+    couplings and low-passes in the rest), one run per thread, split over 3 threads and
+    split a node a thread (24 nodes: 32 threads); its probes, input work, dissipation and
+    energy."""
     from springc.bench import suite
 
     net = suite.feature_extractor()
     u = smooth_inputs(3, 1, 50, seed=1) * 30.0
     out = []
     saved = cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS
-    for form, split_min in (("a run a thread", 10**9), ("split", 1)):
-        cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = split_min, 3
-        for method in ("exp-rk4", "exp-heun3"):
+    for form, split_min, threads, methods in (
+            ("a run a thread", 10**9, 3, ("exp-rk4", "exp-heun3")),
+            ("split", 1, 3, ("exp-rk4", "exp-heun3")),
+            ("split, a node a thread", 1, None, ("exp-rk4",))):  # springc's layout: a warp
+        cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = split_min, threads
+        for method in methods:
             fma = method == "exp-rk4"  # exp-heun3: the products rounded alone (mul_rn)
             row = compare(f"feature extractor, {form}, {method} x1{', no fma' * (not fma)}",
                           net, u, "float64", method=method, substeps=1, tstep=1e-4,
-                          tstop=0.004, reductions=["work:in", "dissipated:all", "energy"],
-                          fma=fma)
+                          tstop=0.004 if threads else 0.0015,  # a warp: 10 times the threads
+                          reductions=["work:in", "dissipated:all", "energy"], fma=fma)
             out.append({k: v for k, v in row.items() if k != "result"})
     cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = saved
     return out

@@ -47,7 +47,7 @@ def test_cuda_form_gives_the_cpu_kernels_probes_and_reductions(tmp_path):
                           capture_output=True, text=True, timeout=900, cwd=ROOT)
     assert out.exists(), proc.stdout + proc.stderr
     cases = json.loads(out.read_text())
-    assert len(cases) == 15
+    assert len(cases) == 16
     for case in cases:
         want = ({"x(f0a)", "x(lp7)", "work:in", "dissipated:all", "energy"}
                 if case["case"].startswith("feature extractor") else
@@ -58,6 +58,8 @@ def test_cuda_form_gives_the_cpu_kernels_probes_and_reductions(tmp_path):
     limited = [c for c in cases if "at most 64 registers" in c["case"]]
     assert [(c["threads_per_run"], c["max_registers"], c["registers_held"])
             for c in limited] == [(32, 64, True)]
+    warp = [c for c in cases if "feature extractor, split, a node a thread" in c["case"]]
+    assert [(c["threads_per_run"], c["registers_held"]) for c in warp] == [(32, True)]
     assert proc.returncode == 0, proc.stdout + proc.stderr
 
 

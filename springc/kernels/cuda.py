@@ -74,7 +74,7 @@ SLOT_MAX = 8
 SLOT_CODE_MAX = 32
 # The split form's registers a thread, where set: numba-cuda's max_registers (ptxas spills the
 # rest to local memory); None: ptxas's choice, capped where a block of more than 256 threads
-# would not fit a multiprocessor's REGISTERS (`register_cap`: such a launch fails).
+# would not fit a multiprocessor's REGISTERS (`register_limit`: such a launch fails).
 MAX_REGISTERS: int | None = None
 REGISTERS = 65536  # a multiprocessor's (and a block's) 32-bit registers, sm_70 to sm_90
 SHARED_BYTES = 48 * 1024

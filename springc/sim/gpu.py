@@ -178,7 +178,7 @@ def options(net: FlatNetlist, blocks: expint.Blocks | None, method: str, precisi
         probes=probes, work=rplan.work, dampers=len(rplan.damper_rows),
         msq=len(rplan.msq), gram=gram,
         vneed=vneed(net, coeffs, rplan.work), nodes=nodes,
-        threads=threads if split else 1, slots=held if split else (),
+        threads=threads, slots=held,
         max_registers=cudagen.register_limit(threads) if split else None,
         blocks=tuple(expint.block_sizes(blocks)) if lawson else (),
         block_channels=expint.block_channels(net, blocks) if lawson else 1, fma=fma)

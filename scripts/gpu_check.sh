@@ -99,6 +99,9 @@ stage "rounding: no fma, cuda vs cpu kernels" 55 $PY scripts/cuda_compare.py ben
 # 2. the peers on the same GPU and network, at the same scheme and step (equal error)
 stage "peers: pipeline features" 40 env SPRINGC_MAX_REGISTERS="$R" $PY scripts/gpu_peers.py --network "pipeline features 8x3" \
     --runs 10000 --seconds 0.02 --threads "$T" --json "$OUT_DIR/peers_features.json"
+# 2b. the same on the 564-dof network, in springc's layout (a node a thread, register terms)
+stage "peers: 564-dof kws network" 40 $PY scripts/gpu_peers.py --network "564-dof kws network" \
+    --runs 10000 --seconds 0.02 --json "$OUT_DIR/peers_kws.json"
 # 3. the CUDA form against the CPU kernels on the networks the split form runs (the others'
 #    forms are those docs/bench-gpu.md measured before); compiles the CPU kernels too
 stage "cuda vs cpu kernels" 95 $PY scripts/cuda_compare.py bench --seconds 0.02 --runs 64 \
@@ -108,7 +111,7 @@ stage "cuda vs cpu kernels" 95 $PY scripts/cuda_compare.py bench --seconds 0.02 
 #    whole suite ran out of its time twice; its small networks were measured on the H100):
 #    springc's layout now, one node a thread with 8 or 4 terms of each list in registers
 #    (576 threads and at most 112 registers for the 564-dof network, 800 and 80 for the
-#    classifier: offline, 472 and 1024 B spilled at 8 terms, 36 and 708 B at 4), against the
+#    classifier: offline, 472 and 1024 B of spilled loads at 8 terms, 36 and 456 B at 4), against the
 #    layout before, 256 threads and every term in loops (48 registers offline)
 stage "cuda throughput: a node a thread" 70 $PY scripts/cpu_reference.py --device cuda \
     --runs 10000 --seconds 0.02 --repeat 1 --only "564-dof kws network" \
@@ -118,8 +121,6 @@ stage "cuda throughput: loops at 256" 25 $PY scripts/cpu_reference.py --device c
     --runs 10000 --seconds 0.02 --repeat 1 --only "564-dof kws network" \
     "pipeline classifier 8x3" --precision float64 --threads 256 --slot-max 0 \
     --json "$OUT_DIR/cuda_throughput_loops.json"
-stage "peers: 564-dof kws network" 40 $PY scripts/gpu_peers.py --network "564-dof kws network" \
-    --runs 10000 --seconds 0.02 --json "$OUT_DIR/peers_kws.json"
 # 5. a Lawson scheme (exp-rk4): against the CPU kernels, and runs per second at 10,000 runs
 stage "lawson vs cpu kernels" 30 $PY scripts/cuda_compare.py bench --seconds 0.02 --runs 64 \
     --only "feature extractor" --method exp-rk4 --json "$OUT_DIR/compare_lawson.json"

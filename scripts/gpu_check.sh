@@ -111,8 +111,8 @@ stage "cuda vs cpu kernels" 95 $PY scripts/cuda_compare.py bench --seconds 0.02 
 #    whole suite ran out of its time twice; its small networks were measured on the H100):
 #    springc's layout now, one node a thread with 8 or 4 terms of each list in registers
 #    (576 threads and at most 112 registers for the 564-dof network, 800 and 80 for the
-#    classifier: offline, 472 and 1024 B of spilled loads at 8 terms, 36 and 456 B at 4), against the
-#    layout before, 256 threads and every term in loops (48 registers offline)
+#    classifier: offline, 472 and 1024 B of spilled loads at 8 terms, 36 and 456 B at 4),
+#    against the layout before, 256 threads and every term in loops (48 registers offline)
 stage "cuda throughput: a node a thread" 70 $PY scripts/cpu_reference.py --device cuda \
     --runs 10000 --seconds 0.02 --repeat 1 --only "564-dof kws network" \
     "pipeline classifier 8x3" --precision float64 --threads 0 --slot-max 8 4 \

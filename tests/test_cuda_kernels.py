@@ -173,8 +173,7 @@ def test_split_runs_take_a_node_a_thread_within_a_multiprocessors_registers(
     """The split form's layout (`gpu.options`): one node a thread (the nodes rounded up to a
     warp) where the register form's code fits there, and registers a thread capped so that a
     block fits a multiprocessor's 65,536 (given out eight a thread, a warp at a time): an
-    uncapped 134 a thread at 512 threads did not launch. Past 1024 nodes, 256 threads and
-    the loops."""
+    uncapped 134 a thread at 512 threads did not launch."""
     from springc.bench import networks as bn
     from springc.check import check
     from springc.kernels import terms
@@ -194,8 +193,32 @@ def test_split_runs_take_a_node_a_thread_within_a_multiprocessors_registers(
     assert cudagen.slot_code(cudagen.slot_lists(features(net)), [k for _, k, _ in opts.slots],
                              net.n, threads) <= cudagen.SLOT_CODE_MAX
     assert threads * (opts.max_registers or 255) <= cudagen.REGISTERS or threads <= 256
-    assert cudagen.node_threads(1024) == 1024 and cudagen.node_threads(1025) is None
     assert [cudagen.register_limit(t) for t in (32, 256, 288, 1024)] == [None, None, 224, 64]
+
+
+def test_a_run_of_more_nodes_than_a_block_has_threads_takes_256():
+    """Past 1024 nodes (a block's most threads; in float32 only, a float64 run of so many
+    exceeds a block's shared memory) the split form runs at `LOOP_THREADS`, its register
+    lists where their code fits there."""
+    from springc.kernels import terms
+    from springc.kernels.codegen import features
+    from springc.kernels.lower import kernel_netlist
+    from springc.sim.simulate import coefficient_arrays
+
+    chain = IRBuilder("chain", "<test>")
+    for k in range(1100):
+        chain.mass(f"M{k}", f"n{k}", 1.0, 0.0)
+        chain.spring(f"K{k}", f"n{k}", 100.0)
+        if k:
+            chain.coupling(f"C{k}", f"n{k - 1}", f"n{k}", 5.0)
+    chain.probe("x", "n0")
+    chain.tran = Tran(1e-3, 0.01, None)
+    long = kernel_netlist(chain.finish())
+    co = coefficient_arrays(long, "float32")
+    threads, held = gpu.split_layout(features(long), {**co, **terms.node_ends(co, long.n)},
+                                     long.n)
+    assert cudagen.node_threads(long.n) is None and threads == cudagen.LOOP_THREADS
+    assert held == (("row", 2, False),)  # 5 nodes a thread of 2 row terms each: code fits
 
 
 def test_generated_text_is_specialised_to_the_network():

@@ -15,6 +15,8 @@ from springc.sim import simulate as sm
 from springc.sim.simulate import simulate
 from springc.kernels.stackalign import align_stack
 from springc.check import check
+from springc.kernels.codegen import KernelOptions
+from springc.kernels.lower import kernel_netlist
 
 
 def _sum(a):
@@ -46,16 +48,7 @@ def test_align_stack_realigns_the_frame_and_leaves_the_result():
     assert "alignstack(64)" in next(iter(aligned.inspect_llvm().values()))
 
 
-@pytest.mark.parametrize("method, write_out, runs, aligned", [
-    ("rk4", True, 16, True),  # a register kernel for lanes: its lane loop spills vectors
-    ("rk4", False, 16, False),  # the shared kernel
-    ("rk4", True, 1, False),  # a register kernel for one run: scalars
-    ("strang-rk4", None, 16, False),  # split: exact blocks and RK4
-    ("exp-heun3", None, 16, False),  # Lawson
-])
-def test_register_kernels_for_lanes_align_their_frame_first(method, write_out, runs, aligned,
-                                                            monkeypatch):
-    monkeypatch.setattr(sm, "threads", lambda: 2)  # 16 runs: lanes as on two cores
+def _two_masses():
     b = IRBuilder("two coupled masses")
     for node, k in (("a", 100.0), ("c", 150.0)):
         b.mass(f"M{node}", node, 1.0, 1.0, x0=0.1)
@@ -63,11 +56,31 @@ def test_register_kernels_for_lanes_align_their_frame_first(method, write_out, r
         b.probe("x", node)
     b.coupling("C1", "a", "c", 20.0)
     b.tran = Tran(1e-3, 0.01, None)
-    res = simulate(check(b.finish()), np.zeros((runs, 1, 11)), method=method, write_out=write_out)
+    return check(b.finish())
+
+
+@pytest.mark.parametrize("runs, aligned", [
+    (16, True),  # a register kernel for lanes: its lane loop spills vectors
+    (1, False),  # a register kernel for one run: scalars
+])
+def test_register_kernels_for_lanes_align_their_frame_first(runs, aligned, monkeypatch):
+    monkeypatch.setattr(sm, "threads", lambda: 2)  # 16 runs: lanes as on two cores
+    res = simulate(_two_masses(), np.zeros((runs, 1, 11)), method="rk4", write_out=True)
     assert np.isfinite(res.probes["x(c)"]).all() and res.probes["x(c)"].any()
     lines = Path(res.info["kernel"]).read_text().splitlines()
     assert ("LANES = 1 " in "\n".join(lines)) == (runs == 1)
+    assert lines[2].startswith("# force code: written out per node, the state in registers")
     head = next(i for i, line in enumerate(lines) if line.startswith("def run("))
     assert (lines[head + 2].strip() == "align_stack()") == aligned
     assert any(line.startswith("from springc.kernels.stackalign import align_stack  # ")
                for line in lines) == aligned
+
+
+@pytest.mark.parametrize("method", ["rk4", "strang-rk4", "exp-heun3"])
+def test_other_kernels_for_lanes_keep_their_frame(method):
+    """The shared kernel and the split schemes' (exact blocks and RK4; Lawson) for 4 lanes,
+    as generated (their text: `aligned_frame` holds for every form's generator)."""
+    net = kernel_netlist(_two_masses().net)
+    text = sm.kernel_source(net, KernelOptions(method=method, lanes=4))
+    assert "LANES = 4 " in text and "def run(" in text
+    assert "align_stack" not in text

@@ -32,7 +32,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np  # noqa: E402
-from cuda_compare import BENCH_SUBSTEPS, bench_cases, split_threads  # noqa: E402
+from cuda_compare import BENCH_SUBSTEPS, bench_cases, layout, split_threads  # noqa: E402
 
 from springc.check import check  # noqa: E402
 from springc.kernels import cuda as cudagen  # noqa: E402
@@ -60,14 +60,13 @@ def measure(name: str, net, inputs, tstep: float, seconds: float, precision: str
            "runs": runs, "seconds": seconds, "substeps": kw["substeps"], "wall_s": best,
            "runs_per_s": runs / best, "run_seconds_per_s": runs * seconds / best}
     shown = device
-    if device == "cuda":
-        module = _module(res.info["kernel"])
-        split = module.T > 1
-        row.update(threads_per_run=module.T, slot_max=cudagen.SLOT_MAX if split else None,
-                   registers_held=bool(module.SLOTS), max_registers=module.MAX_REGISTERS,
-                   kernel=kernel_resources(module))
-        shown = (f"cuda T={module.T} S={cudagen.SLOT_MAX if module.SLOTS else 0} "
-                 f"R={module.MAX_REGISTERS}")
+    if device == "cuda":  # the layout the kernel took (its text's constants)
+        shape = layout(res.info["kernel"])
+        held = shape["registers_held"]
+        row.update(shape, slot_max=cudagen.SLOT_MAX if shape["threads_per_run"] > 1 else None,
+                   kernel=kernel_resources(res.info["kernel"]))
+        shown = (f"cuda T={shape['threads_per_run']} S={cudagen.SLOT_MAX if held else 0} "
+                 f"R={shape['max_registers']}")
     if row.get("kernel"):
         shown += f" ({row['kernel'].get('regs_per_thread', '?')} registers a thread)"
     print(f"{name:28s} {precision} {method} {shown}: {runs} runs of {seconds} s in {best:.3f} s = "
@@ -75,23 +74,21 @@ def measure(name: str, net, inputs, tstep: float, seconds: float, precision: str
     return row
 
 
-def _module(path: str):
-    """The loaded CUDA kernel module of the file `path` (its layout: T, SLOTS, MAX_REGISTERS)."""
-    from springc.kernels import loader
-
-    return next(k.module for k in loader._LOADED.values() if str(k.path) == str(path))
-
-
-def kernel_resources(module) -> dict:
+def kernel_resources(path: str) -> dict:
     """The compiled CUDA kernel's registers a thread, shared and local memory (what bounds the
     blocks a multiprocessor holds); empty under the simulator or where numba-cuda lacks them."""
+    from springc.kernels import loader
+
     out = {}
-    for name in ("regs_per_thread", "shared_mem_per_block", "local_mem_per_thread",
-                 "max_threads_per_block"):
-        try:
-            out[name] = int(getattr(module.run, f"get_{name}")())
-        except Exception:  # noqa: BLE001  (a report, not a measurement)
-            pass
+    for kernel in loader._LOADED.values():
+        if str(kernel.path) != str(path):
+            continue
+        for name in ("regs_per_thread", "shared_mem_per_block", "local_mem_per_thread",
+                     "max_threads_per_block"):
+            try:
+                out[name] = int(getattr(kernel.module.run, f"get_{name}")())
+            except Exception:  # noqa: BLE001  (a report, not a measurement)
+                pass
     return out
 
 

@@ -101,10 +101,10 @@ def sim_cmd(netlist, inputs, output, plot_path, tstep, tstop, substeps, precisio
     for path in (output, plot_path):  # a failed command leaves no output: check both first
         if path:
             check_output_file(path, make_parents=True)
-    chosen = tolerance is not None or not (method or substeps)
-    # a step springc chooses is judged when it is taken; one the user names, at load
+    # a step springc chooses is judged when it is taken; one the user pins, at load
+    # (--tolerance chooses whatever the netlist's .options say)
     net = springc.load(netlist, method=method, tstep=tstep, substeps=substeps,
-                       judge_step=not chosen)
+                       judge_step=False if tolerance is not None else None)
     if stats and net.variation.samples is None:
         raise UsageError(f"--stats: {netlist} has no .mc line, so no samples",
                          hint="add .mc N [seed=S] and random functions (gauss, agauss, ...)")

@@ -264,9 +264,12 @@ def test_rk4_limit_of_an_oscillator() -> None:
 
 
 def test_unstable_step_names_the_mode_and_the_largest_stable_step() -> None:
+    """A pinned step (here the method named) above the limit is refused; unpinned, the
+    checks leave it to the integration the simulator chooses."""
     w = 2 * np.pi * 1000
+    assert checks.check(_oscillator(w, tstep=1e-3)).tstep == 1e-3
     with pytest.raises(CheckError) as info:
-        checks.check(_oscillator(w, tstep=1e-3))
+        checks.check(_oscillator(w, tstep=1e-3), "rk4")
     diag, = info.value.diagnostics
     assert diag.loc.line == 3
     assert diag.message == (
@@ -506,7 +509,7 @@ def test_rk4_rejects_fast_filter_pairs_with_the_step_they_need() -> None:
     # about 2 sqrt 2 / omega of the 8.8 kHz mode (its damping, 200/s, moves it by 0.3%)
     assert 2 * np.sqrt(2) / (1.1 * 2 * np.pi * 8000) == pytest.approx(need, rel=5e-3)
     with pytest.raises(CheckError) as info:
-        checks.check(net)
+        checks.check(net, "rk4")
     diag = _unstable_step(info.value, "rk4: the oscillating mode at 8800 Hz (55292 rad/s), "
                           "damping rate 200 1/s", "xc (1.00), xd (1.00)", need)
     assert diag.hint.endswith(".options substeps=2")

@@ -6,13 +6,17 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 from springc_cli.main import main
 
+import springc
 from springc.design.filters import two_mode_response
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "netlists" / "examples"
 
 FILTER = """\
 .title two-mode band-pass filter
@@ -89,13 +93,53 @@ def test_a_library_summary_shows_defaults_as_written(tmp_path) -> None:
 
 
 def test_build_error_exits_1_with_location_and_caret(tmp_path) -> None:
+    """A step the netlist pins (`.options method=`) above its stability limit is refused."""
     bad = tmp_path / "bad.spr"
-    bad.write_text(FILTER.replace("64000", "1000"))
+    bad.write_text(FILTER.replace("64000", "1000") + ".options method=rk4\n")
     res = _run("build", bad)
     assert res.exit_code == 1
     assert f"{bad}:11:1: error: time step 0.001 s is unstable for rk4" in res.output
     assert "   11 | .tran {1/1000} 1\n      | ^" in res.output
     assert "Traceback" not in res.output
+
+
+STIFF = "* one stiff mass\nM1 n1 m=1 b=0.1 x0=1\nK1 n1 k=1e8\n.probe x(n1)\n.tran 1m 1\n"
+
+
+def test_build_reports_the_integration_sim_chooses(tmp_path) -> None:
+    """Unpinned, a step above RK4's limit (sqrt(8) / 1e4 s for k = 1e8) is not an error: build
+    reports what sim takes, the cheapest (method, substeps) of `accuracy.choose`, and sim
+    takes exactly that; the same step pinned by --method is refused by both."""
+    path = tmp_path / "stiff.spr"
+    path.write_text(STIFF)
+    data = json.loads(_run("build", path, "--json").output)
+    chosen = data["integration"]
+    assert chosen["chosen"] and chosen["tolerance"] == 1e-3
+    # RK4 reaches 2 sqrt(2) on the imaginary axis; the damping (0.05/s against 1e4 rad/s)
+    # moves the eigenvalue off it by 5e-6 of its size, and the limit by about as much
+    assert data["dt_max"] == pytest.approx(np.sqrt(8) / 1e4, rel=1e-4)
+    assert chosen["h"] == 1e-3 / chosen["substeps"] <= data["dt_max"]
+    res = _run("sim", path, "-o", tmp_path / "out.npz")
+    assert res.exit_code == 0, res.output
+    assert (f"chose {chosen['method']} with {chosen['substeps']} substep(s)"
+            in res.output)
+    for command in (["build", path], ["sim", path, "-o", tmp_path / "pinned.npz"]):
+        res = _run(*command, "--method", "rk4")
+        assert res.exit_code == 1 and "is unstable for rk4" in res.output
+    assert not (tmp_path / "pinned.npz").exists()
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in EXAMPLES.glob("*.spr")))
+def test_build_and_sim_agree_on_every_example(name) -> None:
+    """`springc build` and `springc sim` (here: their library calls) name the same
+    integration for every example netlist: the netlist's own where it pins one, else the
+    choice for 1e-3, which step doubling confirms on the nonlinear examples."""
+    net = springc.load(EXAMPLES / name)
+    report = net.summary(as_dict=True)["integration"]
+    res = net.simulate()
+    assert (report["method"], report["substeps"]) == (res.settings.method,
+                                                      res.settings.substeps)
+    assert (res.choice is not None) == report["chosen"]
 
 
 def test_ac_writes_csv_and_plot(netlist, tmp_path) -> None:

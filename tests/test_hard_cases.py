@@ -31,7 +31,7 @@ def test_stiff_all_to_all_block_is_stopped_with_the_substeps_it_needs():
     net = benchsuite.stiff_block(nodes=8, k_constraint=5e9)
     u = benchsuite.speech_like(0.02, RATE, 1)
     with pytest.raises(CheckError, match="is unstable for rk4") as refused:
-        check(net)
+        check(net, "rk4")
     assert "substeps=3" in refused.value.format()
     checked = check(net, judge_step=False)
     with pytest.raises(SimulationError, match="diverged") as info:

@@ -59,7 +59,7 @@ def test_doubling_error_is_the_coarse_runs_error_for_a_known_order():
 def test_linear_netlists_keep_the_linear_choice():
     net = load_file(TWOMODE)
     choice = accuracy.choose(net, net.tran.tstep, 0.01, 1e-3)
-    assert not stepcheck.nonlinear(net)
+    assert not accuracy.nonlinear(net)
     assert stepcheck.verify(check(net), choice, net.tran.tstep, 0.01, 1e-3) is choice
 
 

@@ -36,11 +36,19 @@ from springc.errors import UsageError
 from springc.kernels.integrators import TABLEAUX, get_tableau, max_stable_step, stability_polynomial
 from springc.lang.ir import FlatNetlist
 
+DEFAULT_TOLERANCE = 1e-3  # relative L2 error per mode (and per probe on nonlinear terms)
 SUBSTEPS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64)  # candidates of the choice
 # strang-rk4 is left out: the linear estimate cannot see its splitting error (it freezes the
 # blocks over the Runge-Kutta step), which exp-rk4 avoids at about the same cost.
 CANDIDATES = ("rk4", "rk38", "ssprk3", "heun3", "exp-rk4", "exp-heun3")
 LAWSON_BLOCK_COST = 0.65  # measured: exp-rk4 / rk4 wall time = 1 + 0.65 * (block dof share)
+
+
+def nonlinear(net: FlatNetlist) -> bool:
+    """Whether the netlist has forces the linearisation leaves out (Duffing, quadratic and
+    monomial terms): errors these estimates do not see, which `springc sim` checks by step
+    doubling (`springc.sim.stepcheck`)."""
+    return bool(len(net.duffings) or len(net.quads) or len(net.monomials))
 
 
 def log_ratio(method: str, z: np.ndarray) -> np.ndarray:
@@ -214,12 +222,13 @@ def cost(net: FlatNetlist, method: str, substeps: int) -> float:
 
 def choose(net: FlatNetlist, tstep: float, duration: float, tol: float,
            methods: tuple[str, ...] = CANDIDATES,
-           substeps: tuple[int, ...] = SUBSTEPS) -> Choice:
+           substeps: tuple[int, ...] = SUBSTEPS, found: linear.Modes | None = None) -> Choice:
     """The cheapest stable (method, substeps) whose estimated error is at most `tol` for every
-    mode within the input band (up to the Nyquist frequency of the input grid 1/tstep)."""
+    mode within the input band (up to the Nyquist frequency of the input grid 1/tstep).
+    `found`: the modes of the linearisation where the checks computed them already."""
     if not tol > 0:
         raise UsageError(f"tolerance must be positive, got {tol}")
-    found = linear.modes(net)
+    found = found if found is not None else linear.modes(net)
     band = 0.5 / tstep
     best: Choice | None = None
     for method in methods:

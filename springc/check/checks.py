@@ -37,6 +37,7 @@ class CheckResult:
     method: str = DEFAULT_METHOD
     tstep: float | None = None  # effective step: .tran tstep / substeps
     blocks: expint.Blocks | None = None  # what a splitting scheme integrates exactly
+    pinned: bool = False  # the caller or .options named the integrator (`pinned`)
 
     @property
     def errors(self) -> list[Diagnostic]:
@@ -81,11 +82,13 @@ class CheckedNetlist(CheckResult):
 
 
 def check(net: FlatNetlist, method: str | None = None, *, tstep: float | None = None,
-          substeps: int | None = None, judge_step: bool = True) -> CheckedNetlist:
+          substeps: int | None = None, judge_step: bool | None = None) -> CheckedNetlist:
     """Run every check; raise `CheckError` with all error diagnostics if there is any, else
     return the checked netlist. `method`, `tstep` and `substeps` override `.options` and
-    `.tran` (the step a simulation will take is the step judged); `judge_step=False` leaves
-    the step unjudged (the bench's ladders run above the limit on purpose)."""
+    `.tran` (the step a simulation will take is the step judged). The step is judged where
+    it is `pinned` (`judge_step=None`, the default): a step springc chooses is judged when
+    the simulator takes it. `judge_step=True` judges the configured step always, `False`
+    never (the bench's ladders run above the limit on purpose)."""
     result = diagnose(net, method, tstep=tstep, substeps=substeps, judge_step=judge_step)
     if result.errors:
         raise CheckError(result.errors)
@@ -94,7 +97,7 @@ def check(net: FlatNetlist, method: str | None = None, *, tstep: float | None = 
 
 def check_many(nets: list[FlatNetlist], method: str | None = None, *,
                tstep: float | None = None, substeps: int | None = None,
-               judge_step: bool = True) -> list[CheckedNetlist | CheckError]:
+               judge_step: bool | None = None) -> list[CheckedNetlist | CheckError]:
     """`check` of every netlist (arguments as `check`), each result the checked netlist or
     the `CheckError` that `check` raises, the same as alone; the modes of all that reach the
     time step are computed together (`linear.modes_many`: the points of a population share
@@ -123,7 +126,7 @@ def require_checked(value: object, who: str) -> CheckedNetlist:
 
 
 def diagnose(net: FlatNetlist, method: str | None = None, *, tstep: float | None = None,
-             substeps: int | None = None, judge_step: bool = True) -> CheckResult:
+             substeps: int | None = None, judge_step: bool | None = None) -> CheckResult:
     """Run every check and return all diagnostics without raising (arguments as `check`)."""
     early = _before_step(net)
     if early is not None:
@@ -629,14 +632,23 @@ def _substeps(net: FlatNetlist) -> tuple[int, list[Diagnostic]]:
     return 1, [Diagnostic("error", msg, loc, "the step is .tran tstep divided by substeps")]
 
 
+def pinned(net: FlatNetlist, method: str | None = None, substeps: int | None = None) -> bool:
+    """Whether the caller or the netlist's `.options` name the integrator or its substeps.
+    Such a step is the user's and is judged when the netlist is checked; otherwise the
+    simulator chooses the integration for an error tolerance (`accuracy.choose`)."""
+    return bool(method or substeps or "method" in net.options or "substeps" in net.options)
+
+
 def time_step(net: FlatNetlist, method: str | None = None, *, tstep: float | None = None,
-              substeps: int | None = None, judge: bool = True,
+              substeps: int | None = None, judge: bool | None = None,
               found: linear.Modes | None = None,
               step: linear.StepLimit | None = None) -> CheckResult:
     """Modes of the linearisation (`found`, computed if not given), zero modes as infos, and
     the configured step (`tstep` / `substeps` where given, else `.tran` and `.options`)
-    against the integrator's stability limit (`step`, computed if not given; unless not
-    `judge`)."""
+    against the integrator's stability limit (`step`, computed if not given), where `judge`
+    says so (None: where the step is `pinned`)."""
+    users = pinned(net, method, substeps)
+    judge = users if judge is None else judge
     name, diags = _method(net, method)
     configured, more = _substeps(net)
     substeps = substeps or configured
@@ -649,7 +661,7 @@ def time_step(net: FlatNetlist, method: str | None = None, *, tstep: float | Non
     h = tstep / substeps if tstep else None
     if judge and h is not None and not h <= step.dt * (1 + 1e-9):
         diags.append(_unstable(net, name, h, substeps, step))
-    return CheckResult(diags, found, step, name, h, blocks)
+    return CheckResult(diags, found, step, name, h, blocks, users)
 
 
 def step_limit(net: FlatNetlist, method: str, found: linear.Modes | None = None,

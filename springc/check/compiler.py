@@ -4,8 +4,11 @@
 
 The report is what `springc build` prints (text or one JSON object, docs/language.md,
 "Outputs"): degrees of freedom, element counts, instances, the fastest mode of the
-linearisation and the largest stable step of the configured integrator (for a splitting
-scheme, the blocks it integrates exactly and the mode of the rest that limits its step).
+linearisation and the largest stable step of the integrator (for a splitting scheme, the
+blocks it integrates exactly and the mode of the rest that limits its step). The integrator
+is the one `springc sim` takes: the user's where the netlist's `.options` or `--method` pin
+it (its step judged), else the cheapest that meets the error tolerance (`accuracy.choose`),
+which `sim` confirms on nonlinear terms by step doubling over its first run.
 With `.step` or `.mc` every point is checked and the report is the worst point's (the
 smallest stable step), with the number of points and of structures.
 """
@@ -21,7 +24,8 @@ from springc.check import accuracy, checks
 from springc.check.points import check_points, worst
 from springc import lang
 from springc.lang import library, variation
-from springc.errors import Diagnostic
+from springc.errors import Diagnostic, UsageError
+from springc.kernels import expint
 from springc.lang.ir import FlatNetlist
 
 
@@ -52,6 +56,8 @@ class BuildReport:
     points: int = 1  # with .step/.mc: how many points, and the worst one (this report's)
     structures: int = 1
     worst_point: variation.Point | None = None
+    choice: accuracy.Choice | None = None  # the integration springc chose (None: pinned)
+    tolerance: float | None = None  # that choice's target
 
     @property
     def f_max_hz(self) -> float:
@@ -82,9 +88,19 @@ class BuildReport:
             "points": self.points,
             "structures": self.structures,
             "worst_point": self.worst_point.to_json() if self.worst_point else None,
+            "integration": self._integration_json(),
             "diagnostics": [{"severity": d.severity, "message": d.message,
                              "loc": str(d.loc) if d.loc else None} for d in self.notes],
         }
+
+    def _integration_json(self) -> dict:
+        chosen = self.choice
+        out = {"chosen": chosen is not None, "method": self.method, "substeps": self.substeps,
+               "h": self.tstep}
+        if chosen is not None:
+            out.update(tolerance=self.tolerance, error=chosen.error, cost=chosen.cost,
+                       band_hz=chosen.band_hz, text=chosen.describe())
+        return out
 
     def summary(self) -> str:
         """Human-readable text."""
@@ -99,6 +115,8 @@ class BuildReport:
                  f"  {limiting} {self.fastest_mode or '-'}",
                  f"  dt_max      {_seconds(self.dt_max)} ({self.method})",
                  f"  step        {_step(self)}"]
+        if self.choice is not None:
+            lines.append(f"  integration {_chosen(self)}")
         if self.worst_point is not None:
             lines[1:1] = [f"  points      {self.points} ({self.structures} structure(s)); "
                           f"worst {self.worst_point.describe(self.points)}, reported below"]
@@ -108,7 +126,8 @@ class BuildReport:
         if self.zero_modes:
             lines.append(f"  zero modes  {self.zero_modes}")
         if self.mode_errors:
-            lines.append(f"  worst modes (error of {self.method} at the configured step over "
+            which = "chosen" if self.choice is not None else "configured"
+            lines.append(f"  worst modes (error of {self.method} at the {which} step over "
                          ".tran tstop, relative L2 of the impulse response):")
             lines += [f"    {m.describe()}" for m in self.mode_errors]
         return "\n".join(lines + [d.format() for d in self.notes])
@@ -132,7 +151,21 @@ def _step(report: BuildReport) -> str:
     if report.tstep is None:
         return "no .tran"
     sub = f" (tstep / {report.substeps})" if report.substeps > 1 else ""
+    if report.choice is not None:
+        return f"{report.tstep:.6g} s{sub}, chosen for tolerance {report.tolerance:g}"
     return f"{report.tstep:.6g} s{sub}, stable"
+
+
+def _chosen(report: BuildReport) -> str:
+    """The choice in `springc sim`'s words, and what `sim` checks on top of it."""
+    c = report.choice
+    text = (f"{c.method} with {c.substeps} substep(s), as springc sim chooses it: estimated "
+            f"error {c.error:.3g} on the linear modes up to {c.band_hz:.5g} Hz, cost "
+            f"{c.cost:.3g} stages per sample")
+    if report.net is not None and accuracy.nonlinear(report.net):
+        text += ("; springc sim confirms it on the nonlinear terms by step doubling over "
+                 "the start of its first run (and takes more substeps where that says so)")
+    return text
 
 
 @dataclass
@@ -157,10 +190,16 @@ class LibraryReport:
 
 
 def build(path: str | Path, *, lib_dirs: list[Path] | None = None,
-          method: str | None = None) -> BuildReport | LibraryReport:
+          method: str | None = None,
+          tolerance: float | None = None) -> BuildReport | LibraryReport:
     """Load, check and summarise the netlist at `path`; `method` overrides `.options
-    method=`. A file of subcircuit definitions alone gets a `LibraryReport`. Raises
-    `NetlistError` (syntax, semantics) or `CheckError` (all failed checks)."""
+    method=` (and pins the integrator); `tolerance` chooses it for that error target even
+    where `.options` pin it, as `springc sim --tolerance` does. A file of subcircuit
+    definitions alone gets a `LibraryReport`. Raises `NetlistError` (syntax, semantics) or
+    `CheckError` (all failed checks)."""
+    if tolerance is not None and method:
+        raise UsageError("--tolerance chooses the integrator itself",
+                         hint="drop --method, or drop --tolerance")
     text = lang.read_source(path)
     tree = lang.parse(text, str(path))
     var = variation.read(tree, lib_dirs)
@@ -169,16 +208,19 @@ def build(path: str | Path, *, lib_dirs: list[Path] | None = None,
         found = library.subckts(tree, text, lib_dirs)
         if found:
             return LibraryReport(net.file, net.title, found)
+    judge = False if tolerance is not None else None
     if var.varies:
-        return points_report(var.point_set(net), method)
-    return report_for(net, method)
+        return points_report(var.point_set(net), method, tolerance, judge)
+    return summarise(checks.check(net, method, judge_step=judge), tolerance)
 
 
-def points_report(points: variation.PointSet, method: str | None = None) -> BuildReport:
+def points_report(points: variation.PointSet, method: str | None = None,
+                  tolerance: float | None = None,
+                  judge: bool | None = None) -> BuildReport:
     """Check every point and summarise the worst (smallest stable step)."""
-    points = check_points(points, method)
+    points = check_points(points, method, judge_step=judge)
     index = worst(points)
-    report = summarise(points.checked[index])
+    report = summarise(points.checked[index], tolerance)
     report.points, report.structures = len(points), len(points.groups)
     report.worst_point = points.points[index]
     return report
@@ -189,11 +231,16 @@ def report_for(net: FlatNetlist, method: str | None = None) -> BuildReport:
     return summarise(checks.check(net, method))
 
 
-def summarise(result: checks.CheckedNetlist) -> BuildReport:
-    """The build report of a netlist that passed the checks (what `springc build` prints)."""
+def summarise(result: checks.CheckedNetlist, tolerance: float | None = None) -> BuildReport:
+    """The build report of a netlist that passed the checks (what `springc build` prints):
+    for the integrator the user pinned, or else (and with `tolerance`, always) for the one
+    `springc sim` chooses at `tolerance` (default `accuracy.DEFAULT_TOLERANCE`)."""
     net = result.net
-    found, step = result.modes, result.step
+    choice, notes = _choice(result, tolerance)
+    method = choice.method if choice else result.method
+    found, step = result.modes, result.step_limit(method)
     mode = step.mode
+    blocks = _blocks_of(result, method)
     return BuildReport(
         file=net.file,
         title=net.title,
@@ -204,29 +251,55 @@ def summarise(result: checks.CheckedNetlist) -> BuildReport:
         omega_max=found.omega_max,
         fastest_nodes=mode.dominant() if mode else [],
         fastest_mode=mode.describe() if mode else "",
-        method=result.method,
+        method=method,
         dt_max=step.dt,
-        tstep=result.tstep,
-        substeps=int(net.options.get("substeps", 1)),
+        tstep=choice.h if choice else result.tstep,
+        substeps=choice.substeps if choice else int(net.options.get("substeps", 1)),
         zero_modes=found.zero_count,
         modes_complete=found.complete,
-        notes=result.notes,
-        mode_errors=_mode_errors(net, result),
-        exact_blocks=[[net.nodes[i] for i in nodes] for nodes in result.blocks.nodes]
-        if result.blocks is not None else [],
+        notes=result.notes + notes,
+        mode_errors=_mode_errors(net, result, method, choice.h if choice else result.tstep),
+        exact_blocks=[[net.nodes[i] for i in nodes] for nodes in blocks.nodes]
+        if blocks is not None else [],
         net=net,
+        choice=choice,
+        tolerance=(tolerance or accuracy.DEFAULT_TOLERANCE) if choice else None,
     )
+
+
+def _choice(result: checks.CheckedNetlist,
+            tolerance: float | None) -> tuple[accuracy.Choice | None, list[Diagnostic]]:
+    """The integration `springc sim` chooses where the step is not pinned (or `tolerance` is
+    given): (choice, []), or (None, a warning) where no integrator meets the tolerance,
+    which `sim` refuses; (None, []) for a pinned step or a netlist without `.tran`."""
+    net = result.net
+    if net.tran is None or (tolerance is None and result.pinned):
+        return None, []
+    tol = tolerance or accuracy.DEFAULT_TOLERANCE
+    try:
+        return accuracy.choose(net, net.tran.tstep, net.tran.tstop, tol,
+                               found=result.modes), []
+    except UsageError as err:
+        return None, [Diagnostic("warning", f"{err.message}: springc sim refuses this "
+                                 "netlist at that tolerance", net.tran.loc, err.hint)]
+
+
+def _blocks_of(result: checks.CheckedNetlist, method: str):
+    """The blocks `method` integrates exactly (None for a Runge-Kutta tableau)."""
+    if not expint.is_split(method):
+        return None
+    return result.blocks if method == result.method else expint.find_blocks(result.net)
 
 
 WORST_MODES = 5  # modes listed by `springc build`
 
 
-def _mode_errors(net: FlatNetlist, result: checks.CheckResult) -> list[accuracy.ModeError]:
-    """The worst per-mode error estimates at the configured step (none without .tran)."""
-    if result.tstep is None or net.tran is None or result.modes is None:
+def _mode_errors(net: FlatNetlist, result: checks.CheckResult, method: str,
+                 h: float | None) -> list[accuracy.ModeError]:
+    """The worst per-mode error estimates of `method` at step `h` (none without .tran)."""
+    if h is None or net.tran is None or result.modes is None:
         return []
-    return accuracy.mode_errors(net, result.tstep, result.method, net.tran.tstop,
-                                result.modes, WORST_MODES)
+    return accuracy.mode_errors(net, h, method, net.tran.tstop, result.modes, WORST_MODES)
 
 
 def kernel_source(report: BuildReport) -> str:

@@ -71,8 +71,9 @@ def gradient(source: ParamNetlist | str | Path, of: str | Sequence[str], wrt: Se
     t0 = time.perf_counter()
     net = pn.netlist(values, sample)
     jac = pn.jacobian(values, wrt, sample)
+    # the adjoint integrates at the configured step (it chooses none): judged always
     checked = check(net, settings.get("method"), tstep=settings.get("tstep"),
-                    substeps=settings.get("substeps"))
+                    substeps=settings.get("substeps"), judge_step=True)
     t1 = time.perf_counter()
     cg = coefficient_gradient(checked, specs, inputs, input_rate, weights=weights, **settings)
     grad = np.stack([_chain(cg.coefficients, jac[name]) for name in wrt], axis=1)

@@ -14,12 +14,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from springc.check import CheckedNetlist
-from springc.check.accuracy import choose
+from springc.check.accuracy import DEFAULT_TOLERANCE, choose
+from springc.check.checks import pinned
 from springc.errors import UsageError
 from springc.sim.sources import expand_inputs
 from springc.sim.stepcheck import verify
 
-DEFAULT_TOLERANCE = 1e-3  # relative L2 error per mode (and per probe on nonlinear terms)
 KERNEL_FORMS = {"auto": None, "written-out": True, "shared": False}  # simulate's write_out
 
 
@@ -45,7 +45,7 @@ def integration(checked: CheckedNetlist, tolerance: float | None, method: str | 
         raise UsageError("--tolerance chooses the method and substeps itself",
                          hint="drop --method/--substeps, or drop --tolerance")
     default = tolerance is None
-    if default and (method or substeps or _configured(net)):
+    if default and pinned(net, method, substeps):
         return Steps(method, substeps)
     tstep = tstep or (net.tran.tstep if net.tran else None)
     if tstep is None:  # the simulator says what is missing
@@ -53,8 +53,9 @@ def integration(checked: CheckedNetlist, tolerance: float | None, method: str | 
     duration = tstop or (net.tran.tstop if net.tran else 1.0)
     tol = DEFAULT_TOLERANCE if default else tolerance
     try:
-        chosen = verify(checked, choose(net, tstep, duration, tol), tstep, duration, tol,
-                        first_run(inputs), channel, input_rate)
+        linear = choose(net, tstep, duration, tol, found=checked.modes)
+        chosen = verify(checked, linear, tstep, duration, tol, first_run(inputs), channel,
+                        input_rate)
     except UsageError as err:
         if not default:
             raise
@@ -62,11 +63,6 @@ def integration(checked: CheckedNetlist, tolerance: float | None, method: str | 
                          hint="loosen it with --tolerance, or choose the integrator "
                               "with --method/--substeps") from None
     return Steps(chosen.method, chosen.substeps, chosen.describe())
-
-
-def _configured(net) -> bool:
-    """Whether the netlist's `.options` name the integrator or its substeps."""
-    return "method" in net.options or "substeps" in net.options
 
 
 def first_run(inputs):

@@ -23,19 +23,13 @@ from dataclasses import replace
 import numpy as np
 
 from springc.check import CheckedNetlist, accuracy
+from springc.check.accuracy import nonlinear
 from springc.sim import simulate
 from springc.errors import UsageError
-from springc.lang.ir import FlatNetlist
 
 PILOT_S = 0.05  # seconds of the first run that step doubling integrates, at least,
 PILOT_SAMPLES = 1000  # and input samples (slow netlists: periods rather than milliseconds)
 MAX_TRIES = 4  # substeps tried before giving up
-
-
-def nonlinear(net: FlatNetlist) -> bool:
-    """Whether the netlist has forces the linearisation leaves out (Duffing, quadratic and
-    monomial terms)."""
-    return bool(len(net.duffings) or len(net.quads) or len(net.monomials))
 
 
 def doubling_error(checked: CheckedNetlist, method: str, substeps: int, tstep: float, inputs,

@@ -31,11 +31,13 @@ from springc.sim.gpu import default_device  # noqa: F401  (springc.default_devic
 
 def load(source: str | Path, *, params: Mapping[str, float] | None = None,
          method: str | None = None, tstep: float | None = None, substeps: int | None = None,
-         judge_step: bool = True, lib_dirs: Sequence[Path] | None = None) -> Netlist:
+         judge_step: bool | None = None, lib_dirs: Sequence[Path] | None = None) -> Netlist:
     """Parse, elaborate and check a netlist: `source` is a file path, or netlist text when
     it has a line break. `params` replaces top-level `.param` values (a sweep point);
-    `method`, `tstep` and `substeps` override `.options` and `.tran` for the step check
-    (`judge_step=False`: leave the step to `simulate`, which judges the step it takes)."""
+    `method`, `tstep` and `substeps` override `.options` and `.tran` for the step check.
+    The step is judged here only where it is pinned (by these arguments or `.options
+    method=`/`substeps=`, `springc.check.checks.pinned`); otherwise `simulate` chooses the
+    integration and judges the step it takes (`judge_step` True or False: always, never)."""
     text, filename = _source(source)
     dirs = list(lib_dirs) if lib_dirs else None
     if params:
@@ -295,38 +297,45 @@ class Result:
     def to_xarray(self):
         """An `xarray.Dataset`: each probe over (point, run, time), each reduction over
         (point, run); the points' step values, samples and seeds are coordinates along
-        `point` (one point, 0, without `.step`/`.mc`)."""
+        `point` (one point, 0, without `.step`/`.mc`). Each variable's `units` attribute
+        is its SI unit (`springc.sim.results.units`: x m, v m/s, msq:x m^2, work, dissipated
+        and energy J, loss dB), time's is s."""
         import xarray as xr
 
         from springc.sim.points import points_table
+        from springc.sim.results import units
 
         one = self.points is None
-        data = {k: (("point", "run", "time"), v[None] if one else v)
+        data = {k: (("point", "run", "time"), v[None] if one else v, _units(units(k)))
                 for k, v in self.probes.items()}
-        data |= {k: (("point", "run"), v[None] if one else v)
+        data |= {k: (("point", "run"), v[None] if one else v, _units(units(k)))
                  for k, v in self.reductions.items()}
         coords = {"point": list(range(1 if one else len(self.points))),
-                  "run": list(self.runs), "time": self.t}
+                  "run": list(self.runs), "time": ("time", self.t, _units("s"))}
         if not one:
             coords |= {k.removeprefix("points_"): ("point", v)
                        for k, v in points_table(self.points).items()}
         return xr.Dataset(data, coords=coords, attrs={"method": self.settings.method,
                                                       "substeps": self.settings.substeps})
 
-    def plot(self, path: str | Path | None = None, max_runs: int = 4):
+    def plot(self, path: str | Path | None = None, *, ax=None, max_runs: int = 4):
         """Every probe against time for the first `max_runs` runs (with points: the first
-        run of the first `2 max_runs` points): the matplotlib figure, also written as a PNG
-        where `path` is given."""
+        run of the first `2 max_runs` points). `ax`: a matplotlib Axes to draw every probe
+        into, or one Axes per probe; else a new figure, one panel per probe. Returns the
+        new figure (written as a PNG too where `path` is given), or `ax` as given (its
+        figure written to `path` where given)."""
         from springc.sim import points, results
 
-        if self.points is None:
-            fig = results.figure(self._sim(), max_runs)
-        else:
-            fig = results.figure(points.figure_result(self._sim(), 2 * max_runs),
-                                 2 * max_runs)
-        if path is not None:
-            results.save_figure(fig, path)
-        return fig
+        sim, runs = self._sim(), max_runs
+        if self.points is not None:
+            sim, runs = points.figure_result(sim, 2 * max_runs), 2 * max_runs
+        if ax is None:
+            fig = results.figure(sim, runs)
+            if path is not None:
+                results.save_figure(fig, path)
+            return fig
+        return results.plot_into(lambda *axes: results.draw(sim, axes, runs), ax, path,
+                                 panels=max(1, len(sim.probes)))
 
     def save(self, path: str | Path) -> None:
         """Write `.npz` or `.csv` as `springc sim -o` does (with points: their table in the
@@ -355,3 +364,8 @@ class Result:
             return PointsResult(self.t, self.probes, self.reductions, self.runs, self.points,
                                 self.info)
         return SimResult(self.t, self.probes, self.reductions, self.runs, self.info)
+
+
+def _units(unit: str | None) -> dict[str, str]:
+    """An xarray variable's attributes: its `units` where it has one."""
+    return {} if unit is None else {"units": unit}

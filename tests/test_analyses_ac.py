@@ -105,6 +105,41 @@ def test_csv_and_plot_are_written_atomically(tmp_path) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["h.csv", "h.png"]
 
 
+def test_plot_draws_into_given_axes_and_saves_their_figure(tmp_path) -> None:
+    from matplotlib.figure import Figure
+
+    f = np.geomspace(1, 10, 5)
+    result = ac.response(check(_oscillator()), "x", f)
+    top, bottom = Figure().subplots(2)
+    assert result.plot(tmp_path / "h.png", ax=(top, bottom)) == (top, bottom)
+    np.testing.assert_array_equal(top.lines[0].get_xdata(), f)
+    np.testing.assert_array_equal(top.lines[0].get_ydata(), result.mag)
+    np.testing.assert_array_equal(bottom.lines[0].get_ydata(), result.phase)
+    assert (top.get_yscale(), bottom.get_xscale(), bottom.get_ylabel()) == ("log", "log",
+                                                                          "phase (rad)")
+    assert (tmp_path / "h.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    alone = Figure().subplots()
+    assert result.plot(ax=alone) is alone and len(alone.lines) == 1  # the magnitude only
+    with pytest.raises(ValueError, match="up to 2 of them, not 3"):
+        result.plot(ax=Figure().subplots(3))
+    fig = result.plot()
+    np.testing.assert_array_equal(fig.axes[1].lines[0].get_xdata(), f)
+
+
+def test_to_xarray_is_the_response_with_its_units() -> None:
+    m, b, k, g = 2.0, 0.6, 50.0, 3.0
+    f = np.geomspace(0.1, 10, 7)
+    ds = ac.response(check(_oscillator(m, b, k, g)), "x", f).to_xarray()
+    w = 2 * np.pi * f
+    np.testing.assert_array_equal(ds["f"], f)
+    np.testing.assert_allclose(ds["h"], g / (k - w**2 * m + 1j * w * b), rtol=1e-9)
+    np.testing.assert_array_equal(ds["mag"], np.abs(ds["h"]))
+    np.testing.assert_array_equal(ds["phase"], np.angle(ds["h"]))
+    units = {name: ds[name].attrs["units"] for name in ("f", "h", "mag", "phase")}
+    assert units == {"f": "Hz", "h": "m", "mag": "m", "phase": "rad"}
+    assert ds.attrs == {"node": "x", "input": 0}
+
+
 def test_default_sweep_spans_the_modes() -> None:
     sweep = ac.default_sweep(_oscillator(m=1.0, b=0.0, k=(2 * np.pi * 50) ** 2))
     assert sweep.fmin == pytest.approx(5.0) and sweep.fmax == pytest.approx(500.0)

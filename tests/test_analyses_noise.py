@@ -77,6 +77,42 @@ def invoke(*args):
     return CliRunner().invoke(main, ["noise", *map(str, args)])
 
 
+def test_plot_draws_into_a_given_axes(tmp_path) -> None:
+    from matplotlib.figure import Figure
+
+    res = springc.load(NETWORK).noise()
+    ax = Figure().subplots()
+    assert res.plot(tmp_path / "n.png", ax=ax, largest=2) is ax
+    total, *shares = ax.lines
+    np.testing.assert_array_equal(total.get_xdata(), res.f_hz)
+    np.testing.assert_array_equal(total.get_ydata(), res.psd)
+    band = {name: np.trapezoid(s, res.f_hz) for name, s in res.sources.items()}
+    assert [line.get_label() for line in shares] == sorted(band, key=lambda n: -band[n])[:2]
+    assert (tmp_path / "n.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_to_xarray_is_the_psd_with_its_units() -> None:
+    net = springc.load(NETWORK)
+    res = net.noise()
+    ds = res.to_xarray()
+    np.testing.assert_array_equal(ds["f"], res.f_hz)
+    np.testing.assert_array_equal(ds["psd"], res.psd)
+    assert ds["source"].values.tolist() == list(res.sources) == ["M1", "M3", "B12", "B3"]
+    np.testing.assert_array_equal(ds["share"].sel(source="B12"), res.sources["B12"])
+    # independent sources add in power
+    np.testing.assert_allclose(ds["share"].sum("source"), ds["psd"], rtol=1e-12)
+    # referred to the input: the PSD of in(0) that moves c as much, |H|^2 S_in = S_c
+    h = net.ac("c", fmin=res.f_hz[0], fmax=res.f_hz[-1], points=len(res.f_hz))
+    np.testing.assert_allclose(ds["input_referred"] * h.mag**2, ds["psd"], rtol=1e-9)
+    assert ds["rms"].item() == res.rms and ds["temp"].item() == 300.0
+    units = {k: ds[k].attrs["units"] for k in ("f", "psd", "share", "input_referred", "rms",
+                                               "temp")}
+    assert units == {"f": "Hz", "psd": "m^2/Hz", "share": "m^2/Hz", "input_referred": "1/Hz",
+                     "rms": "m", "temp": "K"}
+    alone = springc.load(OSC + ".noise a 1 10 points=3\n").noise().to_xarray()
+    assert "input_referred" not in alone  # no input drives the oscillator
+
+
 def test_command_writes_csv_json_and_plot(tmp_path) -> None:
     (tmp_path / "net.spr").write_text(NETWORK)
     res = invoke(tmp_path / "net.spr", "--temp", "300", "-o", tmp_path / "psd.csv", "--json",

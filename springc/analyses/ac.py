@@ -63,6 +63,22 @@ class AcResult:
         """Phase in radians, in (-pi, pi]."""
         return np.angle(self.h)
 
+    def plot(self, path: str | Path | None = None, *, ax=None):
+        """Magnitude (log-log) over phase (rad) against frequency. `ax`: a matplotlib Axes
+        for the magnitude alone, or two (magnitude, phase); else a new figure of both.
+        Returns the new figure (written as a PNG too where `path` is given), or `ax` as given
+        (its figure written to `path` where given)."""
+        from springc.sim.results import plot_into
+
+        return plot_into(lambda *axes: draw(self, *axes), ax, path, panels=2,
+                         figsize=(7, 5.5), dpi=120)
+
+    def to_xarray(self):
+        """An `xarray.Dataset` over frequency `f` (Hz): the complex response `h`, `mag` and
+        `phase` (rad). The input in(k) is a number (each `F ... in(k)` a force of `gain` N per
+        unit), so `h` and `mag` are metres of displacement per unit input (`units` m)."""
+        return dataset(self, ("f",))
+
 
 def input_vector(net: FlatNetlist, channel: int) -> np.ndarray:
     """Force per unit input: the gains of the `F ... in(channel)` elements, summed per node."""
@@ -175,24 +191,37 @@ def write_csv(result: AcResult, path: str | Path) -> None:
 
 
 def plot(result: AcResult, path: str | Path) -> None:
-    """PNG: magnitude (log-log) over phase (rad), written atomically."""
-    import matplotlib
+    """PNG: magnitude (log-log) over phase (rad), written atomically (`AcResult.plot`)."""
+    result.plot(path)
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    fig, (top, bottom) = plt.subplots(2, 1, sharex=True, figsize=(7, 5.5))
+def draw(result: AcResult, top, bottom=None) -> None:
+    """The magnitude on Axes `top` (log-log) and, where given, the phase (rad) on
+    `bottom`."""
     top.loglog(result.f_hz, result.mag)
     top.set_ylabel("|H| (displacement / input)")
     top.set_title(f"frequency response of x({result.node}) to in({result.channel})")
-    top.grid(True, which="both", alpha=0.3)
-    bottom.semilogx(result.f_hz, result.phase)
-    bottom.set_ylabel("phase (rad)")
-    bottom.set_xlabel("frequency (Hz)")
-    bottom.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
-    _atomic(path, lambda f: fig.savefig(f, format="png", dpi=120))
-    plt.close(fig)
+    if bottom is not None:
+        bottom.semilogx(result.f_hz, result.phase)
+        bottom.set_ylabel("phase (rad)")
+    for ax in (top, bottom):
+        if ax is not None:
+            ax.grid(True, which="both", alpha=0.3)
+    (top if bottom is None else bottom).set_xlabel("frequency (Hz)")
+
+
+def dataset(result: AcResult, dims: tuple[str, ...], coords: dict | None = None):
+    """`AcResult.to_xarray` for a response `h` over `dims` (the last one `f`), with more
+    `coords` (a family's points)."""
+    import xarray as xr
+
+    per = f"displacement of {result.node} per unit in({result.channel})"
+    data = {"h": (dims, result.h, {"units": "m", "long_name": f"H, {per}"}),
+            "mag": (dims, result.mag, {"units": "m", "long_name": f"|H|, {per}"}),
+            "phase": (dims, result.phase, {"units": "rad", "long_name": "phase of H"})}
+    f = ("f", result.f_hz, {"units": "Hz", "long_name": "frequency"})
+    return xr.Dataset(data, coords={"f": f, **(coords or {})},
+                      attrs={"node": result.node, "input": result.channel})
 
 
 def _atomic(path: str | Path, write) -> None:

@@ -45,6 +45,24 @@ class AcFamily(ac.AcResult):
         return {"node": self.node, "input": self.channel, "f": self.f_hz.tolist(),
                 "points": rows}
 
+    def plot(self, path: str | Path | None = None, *, ax=None):
+        """Every point's magnitude (log-log) over its phase (rad), one colour per point. `ax`:
+        a matplotlib Axes for the magnitudes alone, or two (magnitude, phase); else a new
+        figure of both. Returns the new figure (written as a PNG too where `path` is given),
+        or `ax` as given (its figure written to `path` where given)."""
+        from springc.sim.results import plot_into
+
+        return plot_into(lambda *axes: draw_ac(self, *axes), ax, path, panels=2,
+                         figsize=(7, 5.5), dpi=100)
+
+    def to_xarray(self):
+        """`AcResult.to_xarray` over (point, f), with the points table (`point_columns`:
+        each stepped parameter, `sample` and `seed` with `.mc`) as coordinates along
+        `point`."""
+        cols = point_columns(self.points)
+        coords = {"point": cols.pop("point")} | {k: ("point", v) for k, v in cols.items()}
+        return ac.dataset(self, ("point", "f"), coords)
+
 
 def family_sweep(points: PointSet, fmin: float | None, fmax: float | None,
                  count: int | None) -> ac.Sweep:
@@ -120,23 +138,32 @@ LEGEND_MAX = 10  # more points than this: a colour scale instead of a legend
 
 
 def plot_ac(family: AcFamily, path: str | Path) -> None:
-    """PNG: every point's magnitude (log-log) over its phase, on one pair of axes."""
-    plt = _pyplot()
-    fig, (top, bottom) = plt.subplots(2, 1, sharex=True, figsize=(7, 5.5))
-    colours = plt.cm.viridis(np.linspace(0, 0.9, len(family)))
+    """PNG: every point's magnitude (log-log) over its phase, on one pair of axes
+    (`AcFamily.plot`)."""
+    family.plot(path)
+
+
+def draw_ac(family: AcFamily, top, bottom=None) -> None:
+    """Every point's magnitude on Axes `top` (log-log) and, where given, its phase (rad)
+    on `bottom`; a legend naming the points up to `LEGEND_MAX` of them."""
+    import matplotlib
+
+    colours = matplotlib.colormaps["viridis"](np.linspace(0, 0.9, len(family)))
     for i, point in enumerate(family.points):
         label = point.describe() if len(family) <= LEGEND_MAX else None
         top.loglog(family.f_hz, family.mag[i], color=colours[i], lw=1, label=label)
-        bottom.semilogx(family.f_hz, family.phase[i], color=colours[i], lw=1)
+        if bottom is not None:
+            bottom.semilogx(family.f_hz, family.phase[i], color=colours[i], lw=1)
     top.set_ylabel("|H| (displacement / input)")
     top.set_title(f"x({family.node}) / in({family.channel}) at {len(family)} points")
     if len(family) <= LEGEND_MAX:
         top.legend(fontsize="x-small")
-    bottom.set(ylabel="phase (rad)", xlabel="frequency (Hz)")
+    if bottom is not None:
+        bottom.set(ylabel="phase (rad)")
     for ax in (top, bottom):
-        ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
-    _save(fig, path)
+        if ax is not None:
+            ax.grid(True, which="both", alpha=0.3)
+    (top if bottom is None else bottom).set_xlabel("frequency (Hz)")
 
 
 def modes_family(points: PointSet, count: int | None = None) -> dict:

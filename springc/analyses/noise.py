@@ -67,6 +67,34 @@ class NoiseResult:
                 "sources": {k: v.tolist() for k, v in self.sources.items()},
                 "rms": self.rms, "input_referred": ref, "input": self.channel}
 
+    def plot(self, path: str | Path | None = None, *, ax=None, largest: int = 5):
+        """Log-log PSD: the total and the `largest` contributors (by their band integral),
+        on the matplotlib Axes `ax` where given, else on a new figure. Returns the new
+        figure (written as a PNG too where `path` is given), or `ax` as given (its figure
+        written to `path` where given)."""
+        from springc.sim.results import plot_into
+
+        return plot_into(lambda axes: draw(self, axes, largest), ax, path, dpi=100)
+
+    def to_xarray(self):
+        """An `xarray.Dataset` over frequency `f` (Hz): `psd` and each source's `share`
+        (m^2/Hz, over `source` too), `input_referred` (1/Hz: the PSD of an input in(k), a
+        number, that moves the node as much; absent where there is none) and `rms` (m);
+        coordinate `temp` (K)."""
+        import xarray as xr
+
+        psd = {"units": "m^2/Hz", "long_name": f"displacement PSD of {self.node}"}
+        data = {"psd": ("f", self.psd, psd),
+                "share": (("source", "f"), np.array(list(self.sources.values())),
+                          psd | {"long_name": "each damper's share of the PSD"}),
+                "rms": ((), self.rms, {"units": "m", "long_name": "RMS over the band"})}
+        if self.input_referred is not None:
+            data["input_referred"] = ("f", self.input_referred, {
+                "units": "1/Hz", "long_name": f"input-referred PSD, in({self.channel})"})
+        coords = {"f": ("f", self.f_hz, {"units": "Hz", "long_name": "frequency"}),
+                  "source": list(self.sources), "temp": ((), self.temp, {"units": "K"})}
+        return xr.Dataset(data, coords=coords, attrs={"node": self.node, "input": self.channel})
+
 
 def dissipative(net: FlatNetlist) -> list[Source]:
     """Every element with damping b > 0: `M ... b=` to ground, then `B` dashpots."""
@@ -175,13 +203,13 @@ def write_csv(result: NoiseResult, path: str | Path) -> None:
 
 
 def plot(result: NoiseResult, path: str | Path, largest: int = 5) -> None:
-    """Log-log PSD: the total and the `largest` contributors (by their band integral)."""
-    import matplotlib
+    """PNG of `NoiseResult.plot`, written atomically."""
+    result.plot(path, largest=largest)
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4))
+def draw(result: NoiseResult, ax, largest: int = 5) -> None:
+    """The total PSD and the `largest` contributors (by their band integral) on Axes `ax`,
+    log-log."""
     ax.loglog(result.f_hz, result.psd, "k", lw=1.6, label="total")
     ranked = sorted(result.sources.items(), key=lambda kv: -np.trapezoid(kv[1], result.f_hz))
     for name, share in ranked[:largest]:
@@ -190,7 +218,3 @@ def plot(result: NoiseResult, path: str | Path, largest: int = 5) -> None:
            title=f"thermal noise at {result.node}, {result.temp:g} K, "
                  f"RMS {result.rms:.3g} m")
     ax.legend(fontsize="small")
-    fig.tight_layout()
-    with atomic_path(path, ".png") as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)

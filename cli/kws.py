@@ -10,11 +10,10 @@ from springc_cli.common import on_device, run_user_errors
 
 from springc.kws.data.dataset import PROTOCOLS
 from springc.kws.evaluation.device import SPREAD_KINDS, STAGES
-from springc.kws.features.digital import FILTERBANKS, FeatureSettings
+from springc.kws.features.digital import FILTERBANKS
 from springc.kws.training.report import counts_table, majority_rate
 from springc.kws.data.task import TASKS
 from springc.kws.data.task import REALISATIONS
-from springc.kws.training.train import TrainOptions
 
 _REALISATION = click.Choice(REALISATIONS)
 _SCHEDULER = click.option("--scheduler", default=None, metavar="ADDRESS",
@@ -41,20 +40,6 @@ _TOLERANCE = click.option(
 _PAPER_STEPS = click.option(
     "--paper-steps", is_flag=True,
     help="Mass-spring: integrate as the paper does (RK4, 8 substeps, float32), no choice.")
-
-
-def _tolerance(tolerance: float, paper_steps: bool) -> float | None:
-    """TrainOptions/CVOptions.tolerance: None for the paper's setting."""
-    return None if paper_steps else tolerance
-
-
-def _massspring(settings: FeatureSettings, threshold: float | None):
-    """Mass-spring settings for `--threshold`, or None (the defaults) without it."""
-    if threshold is None:
-        return None
-    from springc.kws.features.massspring import from_features
-
-    return from_features(settings, threshold=threshold)
 
 
 @click.command("train")
@@ -95,22 +80,14 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
               feature_rate, protocol, class_weights, jobs, seed, no_cache, out, epsilon,
               threshold, tolerance, paper_steps, scheduler) -> None:
     """Train the keyword spotter and write a model folder with weights and a test report."""
-    from springc.kws.training.model import check_out_folder
-    from springc.kws.training.train import train
+    from springc.kws.evaluation.api import train
 
-    check_out_folder(out)  # before the minutes of training
-
-    settings = FeatureSettings(bins=bins, delays=delays, filterbank=filterbank, td=td, tau=tau,
-                               fc=fc, feature_rate=feature_rate)
-    opts = TrainOptions(data=data, out=out, settings=settings,
-                        realisation="baseline" if baseline else realisation, task=task,
-                        jobs=jobs, seed=seed, use_cache=not no_cache, epsilon=epsilon,
-                        scheduler=scheduler, protocol=protocol,
-                        balance_weights=None if class_weights is None
-                        else class_weights == "balanced",
-                        massspring=_massspring(settings, threshold),
-                        tolerance=_tolerance(tolerance, paper_steps))
-    report = train(opts)
+    report = train(data, out, bins=bins, delays=delays,
+                   realisation="baseline" if baseline else realisation, filterbank=filterbank,
+                   task=task, td=td, tau=tau, fc=fc, feature_rate=feature_rate,
+                   protocol=protocol, class_weights=class_weights, jobs=jobs, seed=seed,
+                   use_cache=not no_cache, epsilon=epsilon, threshold=threshold,
+                   tolerance=tolerance, paper_steps=paper_steps, scheduler=scheduler)
     click.echo(_summary(report))
     if "integration" in report:
         from springc.kws.features.integration import from_dict
@@ -169,46 +146,45 @@ def eval_cmd(model_dir, data, realisation, protocol, as_json, jobs, no_cache, sc
     the clips testing_list.txt names, or every clip where the folder has no such list.
     --mc/--spread: a population of fabricated devices; --temp/--mass/--spl/--area: the
     device at physical scale with thermal noise."""
-    from springc.errors import UsageError
     from springc.kws.evaluation import device
-    from springc.kws.evaluation.evaluate import evaluate
+    from springc.kws.evaluation.api import evaluate
 
     which = device.study(devices, spread, spread_kind, stage, seed, temp, mass, spl, area)
-    if which is not None or clips is not None:
-        if which is None or budget:
-            raise UsageError("--clips goes with --mc or --temp" if which is None else
-                             "--budget is a study of its own; drop --mc/--temp or --budget")
-        if realisation not in (None, "mass-spring"):
-            raise UsageError("a device is a mass-spring network: --realisation mass-spring")
-        setup = device.load_setup(model_dir, data, clips, protocol)
-        if isinstance(which, device.Spread):
-            report = device.evaluate_spread(setup, devices, which, scheduler=scheduler,
-                                            jobs=jobs, progress=lambda s: click.echo(s, err=True))
-            lines = device.spread_lines(report, which)
-        else:
-            report = device.evaluate_physical(setup, which, scheduler=scheduler, jobs=jobs)
-            lines = device.physical_lines(report, which)
-        click.echo(json.dumps(report) if as_json else "\n".join(lines))
-        return
-    if budget:
-        from springc.kws.evaluation import energy
-        from springc.kws.evaluation.evaluate import budget_signals
+    report = evaluate(model_dir, data, realisation=realisation, protocol=protocol, jobs=jobs,
+                      use_cache=not no_cache, scheduler=scheduler, budget=budget, mc=devices,
+                      spread=spread, spread_kind=spread_kind, stage=stage, temp=temp,
+                      mass=mass, spl=spl, area=area, seed=seed, clips=clips,
+                      progress=lambda s: click.echo(s, err=True))
+    click.echo(_eval_text(report, which, budget, as_json))
 
-        parts = energy.model_budget(model_dir, budget_signals(model_dir, data, budget,
-                                                              protocol))
-        click.echo(f"energy budget of the whole classifier, {len(parts['work in'])} test "
-                   f"clips (balance error {energy.check_balance(parts).max():.1e}):")
-        click.echo("\n".join(energy.budget_table(parts)))
-        return
-    report = evaluate(model_dir, data, realisation, jobs=jobs, use_cache=not no_cache,
-                      scheduler=scheduler, protocol=protocol)
-    if as_json:
-        keys = ("accuracy", "majority_rate", "n", "per_class")
-        keys += ("pairs",) if "pairs" in report else ()
-        keys += tuple(k for k in _NETWORK_KEYS if k in report)
-        click.echo(json.dumps({k: report[k] for k in keys}))
-    else:
-        click.echo(_summary(report))
+
+def _eval_text(report: dict, which, budget: int | None, as_json: bool) -> str:
+    """What `springc eval` prints: a device study's report, the energy budget, or the
+    evaluation's summary (`--json`: the study's whole report, the evaluation's figures)."""
+    from springc.kws.evaluation import device
+
+    if which is not None:
+        if as_json:
+            return json.dumps(report)
+        lines = device.spread_lines if isinstance(which, device.Spread) else device.physical_lines
+        return "\n".join(lines(report, which))
+    if budget:
+        return _budget_text(report)
+    if not as_json:
+        return _summary(report)
+    keys = ("accuracy", "majority_rate", "n", "per_class")
+    keys += ("pairs",) if "pairs" in report else ()
+    keys += tuple(k for k in _NETWORK_KEYS if k in report)
+    return json.dumps({k: report[k] for k in keys})
+
+
+def _budget_text(parts: dict) -> str:
+    """`springc eval --budget`: where the input work goes, per stage."""
+    from springc.kws.evaluation import energy
+
+    return "\n".join([f"energy budget of the whole classifier, {len(parts['work in'])} test "
+                      f"clips (balance error {energy.check_balance(parts).max():.1e}):",
+                      *energy.budget_table(parts)])
 
 
 _NETWORK_KEYS = ("digital_same_model", "insertion_loss_db", "readout_error", "throughput")
@@ -271,14 +247,13 @@ def cv_cmd(data, bins, delays, realisations, folds, threshold, jobs, seed, no_ca
     class-balanced accuracy of each realisation and their paired difference, with bootstrap
     standard errors over speakers."""
     from springc.kws.evaluation import crossval
+    from springc.kws.evaluation.api import cross_validate
 
-    settings = FeatureSettings(bins=bins, delays=delays)
-    opts = crossval.CVOptions(data=data, settings=settings,
-                              realisations=realisations or crossval.REALISATIONS, folds=folds,
-                              seed=seed, jobs=jobs, use_cache=not no_cache, scheduler=scheduler,
-                              massspring=_massspring(settings, threshold),
-                              tolerance=_tolerance(tolerance, paper_steps))
-    report = crossval.cross_validate(opts, progress=lambda s: click.echo(s, err=True))
+    report = cross_validate(data, None, bins=bins, delays=delays, realisations=realisations,
+                            folds=folds, threshold=threshold, jobs=jobs, seed=seed,
+                            use_cache=not no_cache, tolerance=tolerance,
+                            paper_steps=paper_steps, scheduler=scheduler,
+                            progress=lambda s: click.echo(s, err=True))
     click.echo("\n".join(crossval.summary_lines(report)))
     paths = crossval.write(report, out)
     click.echo(f"wrote {paths[0]} and {paths[1]}")

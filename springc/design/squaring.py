@@ -137,9 +137,9 @@ class Sweep:
 def simulate_unit(unit: Unit, amplitudes: np.ndarray, substeps: int = SUBSTEPS):
     """The unit's run for each pulse amplitude through springc's own compiler and simulator:
     the springc `Result` with x(xl), x(xr), the input work and the readout's dissipation."""
-    import springc
+    from springc.api import load
 
-    net = springc.load(unit.netlist(), judge_step=False)
+    net = load(unit.netlist(), judge_step=False)
     tstep = unit.ts / 10
     return net.simulate(unit.forces(amplitudes, tstep), input_rate=1 / tstep, tstep=tstep,
                         tstop=unit.tstop, method="rk4", substeps=substeps,

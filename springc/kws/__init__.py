@@ -3,13 +3,14 @@ corpus, pre-processing, tasks) -> `features` (digital or mass-spring filterbanks
 `training` (linear classifiers, weight transfer, model folders) -> `evaluation` (test splits,
 cross-validation, energy, classifying recordings) -> `tuning` (refit and gradient tuning).
 
-`springc.kws.load_model(folder)` is the way in from Python (docs/api.md)."""
+`springc.kws.load_model(folder)` is the way in from Python (docs/api.md), with `train`,
+`evaluate`, `cross_validate` and `synthesise` for the commands (also `springc.train`, ...)."""
 
-__all__ = ["Model", "load_model"]
+__all__ = ["Model", "cross_validate", "evaluate", "load_model", "synthesise", "train"]
 
 
 def __getattr__(name: str):
-    # loading a model imports the whole evaluation stage: only when it is asked for
+    # these import the whole evaluation stage: only when one is asked for
     if name in __all__:
         from springc.kws.evaluation import api
 

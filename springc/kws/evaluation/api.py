@@ -1,15 +1,193 @@
-"""A trained keyword-spotting model from Python (`springc.kws.load_model`): classify sound
-files and evaluate test splits as `springc classify` and `springc eval` do."""
+"""Keyword spotting from Python: `train`, `evaluate`, `cross_validate` and `synthesise` do what
+`springc train`, `eval`, `cv` and `data synth` do, with keyword arguments named as the options
+(the commands call these, or the library function they wrap), and `load_model` reads a trained
+model that classifies sound files and evaluates test splits as `springc classify` and `eval`
+do. Each is reached as `springc.train`, `springc.kws.load_model` and so on."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import contextlib
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from springc.errors import UsageError
 from springc.kws.evaluation.classify import classify
-from springc.kws.evaluation.evaluate import evaluate
+from springc.kws.evaluation.evaluate import evaluate as evaluate_split
+from springc.kws.features.digital import FeatureSettings
 from springc.kws.training.model import TrainedModel, load_model as read_model
+
+Progress = Callable[[str], None] | None  # called with a line of progress, or None: silent
+
+
+def train(data: str | Path, out: str | Path, *, bins: int = 8, delays: int = 3,
+          realisation: str = "digital", filterbank: str = "two-mode", task: str = "kws12",
+          td: float = 0.032, tau: float = 80.0, fc: float = 50.0,
+          feature_rate: float = 1000.0, protocol: str | None = None,
+          class_weights: str | None = None, jobs: int = 0, seed: int = 0,
+          use_cache: bool = True, epsilon: float | None = None,
+          threshold: float | None = None, tolerance: float = 1e-3,
+          paper_steps: bool = False, scheduler: str | None = None,
+          device: str | None = None) -> dict:
+    """Train the keyword spotter on the data set folder `data` (GSCD layout), test it and
+    write the model folder `out`, as `springc train`: `bins` mel bins of `delays` delays
+    each, `realisation` digital, baseline or mass-spring, `filterbank`, `task` (kws12 or
+    digits-pairs), tap delay `td` (s), readout time constant `tau` (s), low-pass cut-off
+    `fc` (Hz), `feature_rate` (Hz), held-out `protocol` (lists or balanced; None: the
+    task's), `class_weights` (balanced or none; None: the task's), `jobs` worker processes
+    (0: all cores), `seed`, `use_cache` (False: `--no-cache`). Mass-spring only: `epsilon`
+    (squaring error of the heads), `threshold` (compression A_c, m), `tolerance` (error that
+    chooses the integrator; `paper_steps`: RK4 x8 float32 instead), `scheduler` (a Dask
+    address), `device` (cpu, cuda or auto; None: that of the innermost
+    `springc.default_device`). Returns the training report: accuracy, n, per_class,
+    confusion, counts, ... as report.json holds it, with each phase's wall "seconds"."""
+    from springc.kws.training.model import check_out_folder
+    from springc.kws.training.train import TrainOptions, train as run
+
+    out = Path(out)
+    check_out_folder(out)  # before the minutes of training
+    settings = FeatureSettings(bins=bins, delays=delays, filterbank=filterbank, td=td,
+                               tau=tau, fc=fc, feature_rate=feature_rate)
+    opts = TrainOptions(data=Path(data), out=out, settings=settings, realisation=realisation,
+                        task=task, jobs=jobs, seed=seed, use_cache=use_cache,
+                        epsilon=epsilon, scheduler=scheduler, protocol=protocol,
+                        balance_weights=_balance(class_weights),
+                        massspring=_massspring(settings, threshold),
+                        tolerance=_tolerance(tolerance, paper_steps))
+    with _on(device):
+        return run(opts)
+
+
+def evaluate(model: str | Path, data: str | Path | None = None, *,
+             realisation: str | None = None, protocol: str | None = None, jobs: int = 0,
+             use_cache: bool = True, scheduler: str | None = None, budget: int | None = None,
+             mc: int | None = None, spread: float | None = None,
+             spread_kind: str | None = None, stage: str | None = None,
+             temp: float | None = None, mass: float | None = None, spl: float | None = None,
+             area: float | None = None, seed: int | None = None, clips: int | None = None,
+             device: str | None = None, progress: Progress = None) -> dict:
+    """Evaluate the model folder `model` on the test split of `data` (default: the data set
+    it was trained on), as `springc eval`: `realisation` must match the model's (None: the
+    model's), `protocol` lists or balanced (None: the model's), `jobs`, `use_cache`,
+    `scheduler`, `device` as for `train`. Returns the evaluation report: accuracy,
+    majority_rate, n, per_class, confusion (mass-spring: the network's figures too).
+
+    The other studies of `springc eval`, on mass-spring models: `budget=N`, where the input
+    work of the first N test clips goes, `{"work in", stage..., "left at the end"}`, each
+    (N,) in J; `mc=N` devices with coefficients spread by `spread` (relative sd),
+    `spread_kind` (local or global), `stage`, `seed`: the population's report (devices,
+    nominal, accuracy summary); `temp` (K), `mass` (kg), `spl` (dB), `area` (m^2), `seed`:
+    the device at physical scale with thermal noise; `clips`: with `mc` or `temp`, that many
+    test clips spread over the split; `progress` hears the population's progress."""
+    from springc.kws.evaluation import device as dv
+
+    model, data = Path(model), Path(data) if data else None
+    study = dv.study(mc, spread, spread_kind, stage, seed, temp, mass, spl, area)
+    with _on(device):
+        if study is not None or clips is not None:
+            setup = _device_setup(model, data, study, realisation, budget, clips, protocol)
+            if isinstance(study, dv.Spread):
+                return dv.evaluate_spread(setup, mc, study, scheduler=scheduler, jobs=jobs,
+                                          progress=progress)
+            return dv.evaluate_physical(setup, study, scheduler=scheduler, jobs=jobs)
+        if budget:
+            from springc.kws.evaluation import energy
+            from springc.kws.evaluation.evaluate import budget_signals
+
+            return energy.model_budget(model, budget_signals(model, data, budget, protocol))
+        return evaluate_split(model, data, realisation, jobs=jobs, use_cache=use_cache,
+                              scheduler=scheduler, protocol=protocol)
+
+
+def _device_setup(model: Path, data: Path | None, study, realisation: str | None,
+                  budget: int | None, clips: int | None, protocol: str | None):
+    """The shared setup of a device study (`device.load_setup`), after refusing options
+    that do not go with one."""
+    from springc.kws.evaluation import device as dv
+
+    if study is None or budget:
+        raise UsageError("--clips goes with --mc or --temp" if study is None else
+                         "--budget is a study of its own; drop --mc/--temp or --budget")
+    if realisation not in (None, "mass-spring"):
+        raise UsageError("a device is a mass-spring network: --realisation mass-spring")
+    return dv.load_setup(model, data, clips, protocol)
+
+
+def cross_validate(data: str | Path, out: str | Path | None = None, *, bins: int = 8,
+                   delays: int = 3, realisations: str | Sequence[str] | None = None,
+                   folds: int = 5, threshold: float | None = None, jobs: int = 0,
+                   seed: int = 0, use_cache: bool = True, tolerance: float = 1e-3,
+                   paper_steps: bool = False, scheduler: str | None = None,
+                   device: str | None = None, progress: Progress = None) -> dict:
+    """Speaker-grouped cross-validation (12 classes) on every clip of `data`, as `springc
+    cv`: `realisations` compared, the first as the reference (None: digital, mass-spring;
+    `--realisation` repeated), `folds` speaker-disjoint folds; `bins`, `delays`,
+    `threshold`, `jobs`, `seed`, `use_cache`, `tolerance`, `paper_steps`, `scheduler`,
+    `device` as for `train`. Writes cv.json and cv.png into the folder `out` (None: nothing
+    written). Returns the report cv.json holds: clips, fold_sizes and per realisation its
+    balanced and plain accuracy, bootstrap standard errors and C per fold; per later
+    realisation its paired difference from the first."""
+    from springc.kws.evaluation import crossval
+
+    chosen = (realisations,) if isinstance(realisations, str) else tuple(realisations or ())
+    settings = FeatureSettings(bins=bins, delays=delays)
+    opts = crossval.CVOptions(data=Path(data), settings=settings,
+                              realisations=chosen or crossval.REALISATIONS, folds=folds,
+                              seed=seed, jobs=jobs, use_cache=use_cache, scheduler=scheduler,
+                              massspring=_massspring(settings, threshold),
+                              tolerance=_tolerance(tolerance, paper_steps))
+    with _on(device):
+        report = crossval.cross_validate(opts, progress)
+    if out is not None:
+        crossval.write(report, Path(out))
+    return report
+
+
+def synthesise(out: str | Path, *, clips: int = 2400, seed: int = 0, jobs: int = 0,
+               words: Sequence[str] | None = None,
+               engines: Sequence[str] = ("espeak", "flite", "festival")) -> Path:
+    """Write a GSCD-layout corpus of `clips` clips into the new folder `out` from the
+    installed text-to-speech `engines`, as `springc data synth`: `words` a subset of the 35
+    GSCD words (None: all), `seed` of every random choice, `jobs` worker processes (0: all
+    cores). Returns the corpus folder."""
+    from springc.kws.data.dataset import WORDS
+    from springc.kws.data.synth import synthesise as run
+
+    report = run(out, clips=clips, seed=seed, jobs=jobs,
+                 words=tuple(words) if words else WORDS, engines=tuple(engines))
+    return report.out
+
+
+def _balance(class_weights: str | None) -> bool | None:
+    """TrainOptions.balance_weights of `--class-weights` (None: the task's default)."""
+    if class_weights not in (None, "balanced", "none"):
+        raise UsageError(f"class weights {class_weights!r}: use balanced or none")
+    return None if class_weights is None else class_weights == "balanced"
+
+
+def _tolerance(tolerance: float, paper_steps: bool) -> float | None:
+    """TrainOptions/CVOptions.tolerance: None for the paper's setting."""
+    if not tolerance > 0:
+        raise UsageError(f"--tolerance must be above 0, not {tolerance:g}")
+    return None if paper_steps else tolerance
+
+
+def _massspring(settings: FeatureSettings, threshold: float | None):
+    """Mass-spring settings for `--threshold`, or None (the defaults) without it."""
+    if threshold is None:
+        return None
+    from springc.kws.features.massspring import from_features
+
+    return from_features(settings, threshold=threshold)
+
+
+def _on(device: str | None):
+    """Within `springc.default_device(device)`; no change where `device` is None."""
+    if device is None:
+        return contextlib.nullcontext()
+    from springc.sim import gpu
+
+    return gpu.default_device(device)
 
 
 def load_model(folder: str | Path) -> Model:
@@ -47,5 +225,4 @@ class Model:
         """Accuracy, per-class counts and (mass-spring) the network's figures on the test
         split of `data` (default: the data set the model was trained on), as `springc eval
         --json`."""
-        return evaluate(self.folder, Path(data) if data else None, jobs=jobs,
-                        use_cache=use_cache, protocol=protocol)
+        return evaluate(self.folder, data, protocol=protocol, jobs=jobs, use_cache=use_cache)

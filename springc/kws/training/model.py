@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from springc import __version__
+from springc.version import __version__
 from springc.errors import DataError
 from springc.kws.training import report as rep
 from springc.kws.features.phi import group_index, n_features

@@ -20,7 +20,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
-from springc import __version__
+from springc.version import __version__
 from springc.errors import DataError, UsageError
 from springc.kws.features import cache
 from springc.kws.features.baseline import baseline_features, baseline_settings

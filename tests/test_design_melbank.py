@@ -65,6 +65,41 @@ def test_fit_is_a_local_optimum(bank):
         assert trial >= best - 1e-9
 
 
+def test_closed_form_peak_is_the_dense_search_maximum():
+    """`_peak` against a dense search of |H| (1e-7 relative steps around its answer): the
+    search finds no higher amplitude, and its best frequency is the closed form's."""
+    from springc.design import melbank as mb
+
+    for kind, fa, delta, alpha in (("two-mode", 515.0, 1.0099, 3205.0),
+                                   ("two-mode", 500.0, 3.0, 100.0),
+                                   ("single-mode", 800.0, 1.0, 2000.0)):
+        f0, amp = mb._peak(kind, fa, delta, alpha)
+        f = f0 * (1 + 1e-7 * np.arange(-2000, 2001))
+        dense = np.abs(mb._raw_response(kind, f, fa, delta, alpha))
+        assert dense.max() <= amp * (1 + 1e-13)
+        assert f[np.argmax(dense)] == pytest.approx(f0, rel=2e-7)
+
+
+@pytest.mark.parametrize("bins", [4, 8])
+def test_fit_is_well_posed(bins):
+    """Every bin's fit lands on the same filter from the paper's start and from starts a
+    factor 1.5 away in delta - 1 and alpha / wa: the optimum, not where rounding stopped
+    the search (delta - 1 is bounded below by MIN_SPLIT, the widest bins rest there). An
+    ill-posed fit made the filterbank, and the demo's accuracies, differ between CPUs."""
+    from springc.design import melbank as mb
+
+    f = fitting_grid(8000.0)
+    fitted = fit_melbank(bins)
+    for k, (tri, centre) in enumerate(zip(mel_triangles(f, bins), mel_edges(bins)[1:-1])):
+        for shift in ([np.log(1.5), 0.0], [0.0, -np.log(1.5)]):
+            p0 = mb._initial("two-mode", centre) + shift
+            other = mb._fit_one("two-mode", f, tri, centre, p0)
+            assert other.misfit >= fitted[k].misfit - 1e-9
+            assert other.fa == pytest.approx(fitted[k].fa, rel=1e-5)
+            assert other.delta == pytest.approx(fitted[k].delta, rel=1e-5)
+        assert fitted[k].delta >= 1 + mb.MIN_SPLIT * (1 - 1e-12)
+
+
 def test_single_mode_kind(bank):
     one = fit_melbank(8, kind="single-mode")
     assert [f.kind for f in one] == ["single-mode"] * 8

@@ -25,11 +25,13 @@ the other as the parameters move).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import least_squares, minimize_scalar
+from numpy.polynomial import Polynomial
+from scipy.optimize import least_squares
 
 from springc.design.emit import SprWriter, num, write_atomic
 from springc.design.filters import (
@@ -46,6 +48,12 @@ KINDS = ("two-mode", "single-mode")
 INIT_DELTA = 1.1  # paper: initial relative spacing of the two modes
 INIT_ALPHA = 400.0  # paper: initial mass-proportional damping, rad/s
 GRID_POINTS = 4000  # fitting grid: about 2 Hz spacing up to 8 kHz, finer than the narrowest bin
+# Smallest split delta - 1 of a two-mode filter's modes. As delta -> 1 the normalised response
+# tends to a limit shape that the widest bins fit best, so the misfit falls ever more slowly
+# there and the fit would stop wherever the machine's rounding leaves it; such a filter is the
+# difference of two nearly equal modes, which a fabricated device cannot match (local
+# mismatch about 3e-3, ../shared/design/device-anchors.md). At the bound the fit is well posed.
+MIN_SPLIT = 0.01
 
 
 @dataclass(frozen=True)
@@ -115,22 +123,38 @@ def _raw_response(kind: str, f_hz, fa: float, delta: float, alpha: float) -> np.
 
 
 def _peak(kind: str, fa: float, delta: float, alpha: float) -> tuple[float, float]:
-    """(frequency, amplitude) of the amplitude peak of the unnormalised response.
+    """(frequency, amplitude) of the amplitude peak of the unnormalised response, in closed
+    form. The responses scale: H(w; wa, delta, alpha) = wa h(w / wa; delta, r = alpha / wa),
+    and |h(u)|^2 is a rational function of s = u^2 whose maximum is a root of its
+    derivative's numerator (a quintic for two modes, linear for one). The fit needs the peak
+    exact and smooth in the parameters: a peak searched numerically to 1e-8 makes the
+    least-squares Jacobian (finite differences of 1e-6) noise, and the fit then stops at a
+    point that moves with the machine's rounding (the filterbank, and every feature, differed
+    by percents between CPUs with and without AVX-512)."""
+    wa = 2 * np.pi * fa
+    r = alpha / wa
+    s, amp = _two_mode_peak(delta, r) if kind == "two-mode" else _single_mode_peak(r)
+    return fa * math.sqrt(s), wa * amp
 
-    Both responses are smooth with one maximum in (0, inf): a log grid brackets it and a
-    bounded scalar search refines it to machine precision. The refinement matters for the fit
-    too: a peak read off a grid jumps as the parameters move, which ruins the least-squares
-    Jacobian of the normalised response for narrow filters."""
-    f = np.geomspace(fa * 1e-3, max(fa * delta, fa) * 4.0, 2001)
-    amp = np.abs(_raw_response(kind, f, fa, delta, alpha))
-    i = int(np.clip(np.argmax(amp), 1, len(f) - 2))
 
-    def neg(u):
-        return -np.abs(_raw_response(kind, np.exp(u), fa, delta, alpha))
+def _two_mode_peak(delta: float, r: float) -> tuple[float, float]:
+    """(s, |h|) at the maximum of |h(u)|^2 = r^2 (delta^2 - 1)^2 s (s + r^2) /
+    (((1 - s)^2 + r^2 s) ((delta^2 - s)^2 + r^2 s)), s = u^2 > 0."""
+    d2 = delta * delta
+    top = Polynomial([0.0, r * r, 1.0])
+    bottom = Polynomial([1.0, r * r - 2.0, 1.0]) * Polynomial([d2 * d2, r * r - 2.0 * d2, 1.0])
+    roots = (top.deriv() * bottom - top * bottom.deriv()).roots()
+    s = roots.real[(np.abs(roots.imag) <= 1e-9 * np.abs(roots)) & (roots.real > 0)]
+    power = (r * (d2 - 1.0)) ** 2 * top(s) / bottom(s)
+    k = int(np.argmax(power))
+    return float(s[k]), float(np.sqrt(power[k]))
 
-    res = minimize_scalar(neg, bounds=(np.log(f[i - 1]), np.log(f[i + 1])), method="bounded",
-                          options={"xatol": 1e-12})
-    return float(np.exp(res.x)), float(-res.fun)
+
+def _single_mode_peak(r: float) -> tuple[float, float]:
+    """(s, |h|) at the maximum of |h(u)|^2 = r^2 / ((1 - s)^2 + r^2 s): at s = 1 - r^2 / 2
+    where that is positive, else at s = 0 (an overdamped mode peaks at rest)."""
+    s = max(1.0 - r * r / 2.0, 0.0)
+    return s, r / math.sqrt((1.0 - s) ** 2 + r * r * s)
 
 
 def _unpack(kind: str, p: np.ndarray, centre: float) -> tuple[float, float, float]:
@@ -167,8 +191,12 @@ def _shape(flt: MelFilter) -> np.ndarray:
 
 def _fit_one(kind: str, f: np.ndarray, target: np.ndarray, centre: float,
              p0: np.ndarray) -> MelFilter:
+    lower = np.full(len(p0), -np.inf)
+    if kind == "two-mode":
+        lower[0] = math.log(MIN_SPLIT)
     sol = least_squares(lambda p: _normalised_amplitude(kind, f, p, centre) - target,
-                        p0, diff_step=1e-6, xtol=1e-12, ftol=1e-12)
+                        np.maximum(p0, lower), bounds=(lower, np.inf), diff_step=1e-6,
+                        xtol=1e-12, ftol=1e-12)
     fa, delta, alpha = _unpack(kind, sol.x, centre)
     gain = 1.0 / _peak(kind, fa, delta, alpha)[1]
     err = misfit(np.abs(_raw_response(kind, f, fa, delta, alpha)) * gain, target)

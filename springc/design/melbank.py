@@ -30,7 +30,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from numpy.polynomial import Polynomial
 from scipy.optimize import least_squares
 
 from springc.design.emit import SprWriter, num, write_atomic
@@ -124,7 +123,8 @@ def _raw_response(kind: str, f_hz, fa: float, delta: float, alpha: float) -> np.
 
 def _peak(kind: str, fa: float, delta: float, alpha: float) -> tuple[float, float]:
     """(frequency, amplitude) of the amplitude peak of the unnormalised response, in closed
-    form. The responses scale: H(w; wa, delta, alpha) = wa h(w / wa; delta, r = alpha / wa),
+    form. The responses scale: the two-mode H(w; wa, delta, alpha) = wa h(w / wa; delta, r =
+    alpha / wa), the single-mode one (driven by alpha w0, not alpha w0^2) H = h(w / wa; r),
     and |h(u)|^2 is a rational function of s = u^2 whose maximum is a root of its
     derivative's numerator (a quintic for two modes, linear for one). The fit needs the peak
     exact and smooth in the parameters: a peak searched numerically to 1e-8 makes the
@@ -133,19 +133,23 @@ def _peak(kind: str, fa: float, delta: float, alpha: float) -> tuple[float, floa
     by percents between CPUs with and without AVX-512)."""
     wa = 2 * np.pi * fa
     r = alpha / wa
-    s, amp = _two_mode_peak(delta, r) if kind == "two-mode" else _single_mode_peak(r)
-    return fa * math.sqrt(s), wa * amp
+    if kind == "two-mode":
+        s, amp = _two_mode_peak(delta, r)
+        return fa * math.sqrt(s), wa * amp
+    s, amp = _single_mode_peak(r)
+    return fa * math.sqrt(s), amp
 
 
 def _two_mode_peak(delta: float, r: float) -> tuple[float, float]:
     """(s, |h|) at the maximum of |h(u)|^2 = r^2 (delta^2 - 1)^2 s (s + r^2) /
     (((1 - s)^2 + r^2 s) ((delta^2 - s)^2 + r^2 s)), s = u^2 > 0."""
-    d2 = delta * delta
-    top = Polynomial([0.0, r * r, 1.0])
-    bottom = Polynomial([1.0, r * r - 2.0, 1.0]) * Polynomial([d2 * d2, r * r - 2.0 * d2, 1.0])
-    roots = (top.deriv() * bottom - top * bottom.deriv()).roots()
+    d2, r2 = delta * delta, r * r
+    top = np.array([1.0, r2, 0.0])  # coefficients, highest power first
+    bottom = np.convolve([1.0, r2 - 2.0, 1.0], [1.0, r2 - 2.0 * d2, d2 * d2])
+    roots = np.roots(np.polysub(np.convolve(np.polyder(top), bottom),
+                                np.convolve(top, np.polyder(bottom))))
     s = roots.real[(np.abs(roots.imag) <= 1e-9 * np.abs(roots)) & (roots.real > 0)]
-    power = (r * (d2 - 1.0)) ** 2 * top(s) / bottom(s)
+    power = (r * (d2 - 1.0)) ** 2 * np.polyval(top, s) / np.polyval(bottom, s)
     k = int(np.argmax(power))
     return float(s[k]), float(np.sqrt(power[k]))
 

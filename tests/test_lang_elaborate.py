@@ -266,10 +266,11 @@ def test_an_included_file_is_parsed_once_per_process_until_it_changes(
     for k in range(2):
         (tmp_path / f"u{k}.spr").write_text(f'.include "blk.spr"\nX{k} n blk\n')
         assert load_file(tmp_path / f"u{k}.spr").masses.m[0] == 2.0
-    assert [Path(name).name for name in parsed] == ["blk.spr"]
+    blocks = lambda: [n for n in map(lambda p: Path(p).name, parsed) if n == "blk.spr"]  # noqa: E731
+    assert blocks() == ["blk.spr"]  # the including netlists are parsed too, each its own
     block.write_text(".subckt blk a\nM a m=3\n.ends\n")
     assert load_file(tmp_path / "u1.spr").masses.m[0] == 3.0
-    assert [Path(name).name for name in parsed] == ["blk.spr", "blk.spr"]
+    assert blocks() == ["blk.spr", "blk.spr"]
     monkeypatch.setattr(files, "PARSED_KEPT", 2)
     for k in range(3):
         files.parse_included(f"M{k} a m=1\n", f"kept{k}.spr")

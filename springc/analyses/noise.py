@@ -26,8 +26,8 @@ from springc.errors import UsageError
 from springc.lang.ir import GROUND, FlatNetlist
 from springc.lang.options import temperature
 from springc.sim.results import atomic_path
+from springc.sim.thermal import K_B
 
-K_B = 1.380649e-23  # Boltzmann constant, J/K (exact in SI since 2019)
 DEFAULT_TEMP = 300.0  # K, where neither the caller nor `.options temp=` sets one
 
 

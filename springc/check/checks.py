@@ -14,10 +14,6 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-import scipy.linalg
-import scipy.sparse as sp
-import scipy.sparse.linalg as sla
-from scipy.optimize import minimize
 
 from springc.kernels import expint
 from springc.check import linear, sparse
@@ -60,10 +56,19 @@ class CheckedNetlist(CheckResult):
     net: FlatNetlist | None = None
     seal: object = field(default=None, repr=False, compare=False)
     limits: dict = field(default_factory=dict, repr=False, compare=False)
+    # its key in the check cache (`springc.check.store`), where it was stored or loaded
+    entry: str | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.seal is not _SEAL or self.net is None:
             raise TypeError("a CheckedNetlist comes from springc.check.check(net) alone")
+
+    def __getstate__(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if k != "seal"}
+
+    def __setstate__(self, state: dict) -> None:
+        """Unpickled (`springc.check.store` keeps what `check` made): sealed again."""
+        self.__dict__.update(state, seal=_SEAL)
 
     def step_limit(self, method: str) -> linear.StepLimit:
         """Largest stable step of `method` (computed once per method)."""
@@ -322,6 +327,8 @@ def _visibly_bounded(net, hess, labels: np.ndarray, comp: int, nodes: np.ndarray
     squares, which add nothing to the Hessian at rest; a network of designed zero modes, such
     as the classifier's multipliers, passes here instead of in a search over its hundreds of
     variables, and a population's points with such terms cost no search each."""
+    import scipy.sparse as sp
+
     p, q = net.monomials, net.quads
     for e, (lo, hi) in enumerate(zip(p.ptr[:-1], p.ptr[1:])):
         if hi == lo or labels[p.var[lo]] != comp or p.exp[lo:hi].sum() == 2:
@@ -367,6 +374,9 @@ def _schur(hess, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Schur complement of the Hessian onto `keep` (dense) and the map from kept variables to
     the minimising full vector (y = -Kyy^-1 Kys s; a tiny shift handles a singular Kyy, whose
     null space a PSD Hessian keeps out of Kys)."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as sla
+
     n = hess.shape[0]
     other = np.setdiff1d(np.arange(n), keep)
     hess = hess.tocsr()
@@ -418,6 +428,8 @@ def _lowest_stiffness(hess) -> tuple[np.ndarray, np.ndarray]:
     """Eigenpairs of the Hessian at rest, ascending: all of them for a small component, the
     lowest few for a large one (shift-invert Lanczos below the Gershgorin lower bound, so the
     nearest eigenvalues are the lowest ones), then the largest for the tolerance scale."""
+    import scipy.sparse.linalg as sla
+
     n = hess.shape[0]
     if n <= PSD_DENSE_MAX:
         return np.linalg.eigh(hess.toarray())
@@ -536,7 +548,7 @@ class _Polynomial:
             return self(radius * u), (g - u * (u @ g)) / norm
         best = (np.inf, starts[0])
         for y0 in starts:
-            res = minimize(fun, y0, jac=True, method="BFGS", options={"maxiter": 200})
+            res = _minimize(fun, y0, jac=True, method="BFGS", options={"maxiter": 200})
             if res.fun < best[0]:
                 best = (float(res.fun), res.x / np.linalg.norm(res.x))
         return best
@@ -702,6 +714,8 @@ def split_step_limit(net: FlatNetlist, method: str, found: linear.Modes,
     """Largest stable step of the splitting scheme `method`: the inner tableau's limit over
     the rest's modes (block nodes left out), and for every block on whose nodes the rest puts
     a stiffness, the first step at which the scheme's linear step map on it grows."""
+    import scipy.sparse as sp
+
     scheme = expint.SCHEMES[method]
     blocks = blocks if blocks is not None else expint.find_blocks(net)
     rest = expint.split_netlist(net, blocks)
@@ -788,6 +802,8 @@ def _flow(a: np.ndarray, hh: np.ndarray):
     cache: dict[float, np.ndarray] = {}
 
     def flow(frac: float) -> np.ndarray:
+        import scipy.linalg
+
         if frac not in cache:
             if diagonal:
                 grow = np.exp(lam[None, None, :] * (frac * hh))
@@ -847,3 +863,11 @@ def _unstable(net, method: str, h: float, substeps: int, step: linear.StepLimit)
     else:
         hint = f"{method} is unstable for this mode at any step; choose another method"
     return Diagnostic("error", msg, net.tran.loc if net.tran else None, hint)
+
+
+def _minimize(*args, **kwargs):
+    """scipy.optimize.minimize, imported when a P element's potential needs it (scipy.optimize
+    costs a third of a second to import, and most netlists have no P element)."""
+    from scipy.optimize import minimize
+
+    return minimize(*args, **kwargs)

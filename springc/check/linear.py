@@ -14,10 +14,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cache
+from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 from threadpoolctl import ThreadpoolController
 
 from springc.check import sparse
@@ -28,6 +27,11 @@ from springc.kernels.integrators import (
     get_tableau,
 )
 from springc.lang.ir import GROUND, FlatNetlist
+
+# scipy is imported in the functions that use it: a checked netlist loaded from the cache
+# (springc.check.store) needs none of it, a third of a second of start-up
+if TYPE_CHECKING:
+    import scipy.sparse as sp
 
 DENSE_MAX = 300  # largest component solved with dense eigensolvers
 ZERO_TOL = 1e-6  # |lambda| below this fraction of a component's largest counts as zero
@@ -43,6 +47,8 @@ class Linearisation:
 
     def first_order(self) -> sp.csr_matrix:
         """The first-order system matrix [[0, I], [-M^-1 K, -M^-1 B]] acting on (x, v)."""
+        import scipy.sparse as sp
+
         minv = sp.diags(1.0 / self.M.diagonal())
         eye = sp.identity(self.M.shape[0], format="csr")
         return sp.bmat([[None, eye], [-minv @ self.K, -minv @ self.B]], format="csr")
@@ -51,6 +57,8 @@ class Linearisation:
 def linearise(net: FlatNetlist) -> Linearisation:
     """The linearisation at rest. Matches `physics.stiffness_matrix(net)` and
     `physics.damping_matrix(net)` but sparse and vectorised (10^4 elements in milliseconds)."""
+    import scipy.sparse as sp
+
     n = net.n
     mass = sp.diags(net.mass()).tocsr()
     damping = _sparse(n, *damping_entries(net))
@@ -58,6 +66,8 @@ def linearise(net: FlatNetlist) -> Linearisation:
 
 
 def _sparse(n: int, rows, cols, vals) -> sp.csr_matrix:
+    import scipy.sparse as sp
+
     rows = np.concatenate(rows).astype(np.int64)
     cols = np.concatenate(cols).astype(np.int64)
     return sp.coo_matrix((np.concatenate(vals), (rows, cols)), shape=(n, n)).tocsr()
@@ -127,6 +137,9 @@ def components(net: FlatNetlist) -> list[np.ndarray]:
 
 def component_labels(net: FlatNetlist) -> tuple[int, np.ndarray]:
     """(number of components, component label of every node)."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
     c, q, d, p = net.couplings, net.quads, net.dashpots, net.monomials
     inner = d.j != GROUND
     owner = np.repeat(np.arange(len(p)), np.diff(p.ptr))
@@ -412,6 +425,8 @@ class _Large:
 
     @classmethod
     def of(cls, net: FlatNetlist, lin: Linearisation, nodes: np.ndarray, raw: _Raw) -> _Large:
+        import scipy.sparse as sp
+
         m = net.mass()[nodes]
         isq = sp.diags(1.0 / np.sqrt(m))
         kt = (isq @ lin.K[nodes][:, nodes] @ isq).tocsr()
@@ -478,6 +493,8 @@ def _lowest_modes(kt, scale: float, zeros: int) -> np.ndarray:
 
 def _top_damping_vectors(bt: sp.csr_matrix) -> np.ndarray:
     """Directions of strongest damping (unit vectors when damping is local only)."""
+    import scipy.sparse as sp
+
     if bt.nnz == 0 or not np.any(bt.data):
         return np.zeros((bt.shape[0], 0))
     if (bt - sp.diags(bt.diagonal())).count_nonzero() == 0:
@@ -517,6 +534,8 @@ def _sparse_zero_modes(net, kt, nodes, m, scale: float, raw: _Raw) -> np.ndarray
 def _loose_blocks(kt, tau: float) -> np.ndarray:
     """Nodes of the connected blocks of the stiffness whose Gershgorin discs do not all lie
     above `tau` (the others have no eigenvalue at or below it)."""
+    from scipy.sparse.csgraph import connected_components
+
     _, labels = connected_components(kt, directed=False)
     low = sparse.gershgorin(kt)[0]
     least = np.full(labels.max(initial=-1) + 1, np.inf)

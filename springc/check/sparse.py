@@ -16,12 +16,14 @@ large components (`linear.DENSE_MAX`, `checks.PSD_DENSE_MAX`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.linalg
-import scipy.sparse as sp
-import scipy.sparse.linalg as sla
-from scipy.sparse.csgraph import breadth_first_order
+
+# scipy is imported in the functions that use it: a checked netlist loaded from the cache
+# (springc.check.store) needs none of it, a third of a second of start-up
+if TYPE_CHECKING:
+    import scipy.sparse as sp
 
 LANCZOS_STEPS = 60  # Lanczos steps for the top of a spectrum, at least ...
 LANCZOS_WORK = 4_000_000  # ... and more while steps times size stays below this
@@ -32,6 +34,8 @@ SUBSPACE_TOL = 1e-11  # ... stopped once the Ritz values move less than this, re
 
 def gershgorin(a: sp.spmatrix) -> tuple[np.ndarray, np.ndarray]:
     """Per row, the low and high ends of the Gershgorin interval of a symmetric matrix."""
+    import scipy.sparse as sp
+
     a = sp.csr_matrix(a)
     diag = a.diagonal()
     radius = np.asarray(abs(a).sum(axis=1)).ravel() - np.abs(diag)
@@ -65,6 +69,9 @@ def top_many(mats: list, count: int, work: int = LANCZOS_WORK) -> list[TopBound]
     of one size go in lockstep, one product with their block-diagonal matrix per step, and
     every other operation is the lone run's on that matrix's row (a population's points
     share the Python overhead of the steps, not their numbers)."""
+    import scipy.linalg
+    import scipy.sparse as sp
+
     mats = [sp.csr_matrix(a) for a in mats]
     out: list[TopBound | None] = [None] * len(mats)
     sizes: dict[int, list[int]] = {}
@@ -98,6 +105,8 @@ def _start(a: sp.csr_matrix) -> np.ndarray:
     a two-colouring by breadth-first depth (the top mode of a bipartite network with
     restoring couplings alternates like that) times the root of the Gershgorin row sums,
     plus seeded noise."""
+    from scipy.sparse.csgraph import breadth_first_order
+
     n = a.shape[0]
     order, pred = breadth_first_order(a, 0, directed=False, return_predecessors=True)
     parity = np.zeros(n, np.int64)
@@ -124,6 +133,8 @@ class _Lockstep:
 
     def use(self, rows: np.ndarray) -> None:
         """Multiply only the matrices `rows` from now on."""
+        import scipy.sparse as sp
+
         self.rows = rows
         picked = [self.mats[r] for r in rows]
         if len(picked) == 1:
@@ -190,6 +201,8 @@ def _normalised(starts: np.ndarray) -> np.ndarray:
 
 
 def _settled(alpha: list, beta: list) -> bool:
+    import scipy.linalg
+
     last = len(alpha) - 1
     vals, coeffs = scipy.linalg.eigh_tridiagonal(np.array(alpha), np.array(beta[:-1]),
                                                  select="i", select_range=(last, last))
@@ -241,6 +254,9 @@ class Factor:
     spoils the symmetric form; then the inertia is unknown), `solve` applies its inverse."""
 
     def __init__(self, a: sp.spmatrix, shift: float) -> None:
+        import scipy.sparse as sp
+        import scipy.sparse.linalg as sla
+
         mat = sp.csc_matrix(a - shift * sp.identity(a.shape[0], format="csc"))
         try:
             self.lu = sla.splu(mat, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,

@@ -16,7 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from springc.errors import NetlistError, SourceLoc, UsageError
-from springc.lang import ast, elaborate, parse, read_source
+from springc.lang import ast, read_source
+from springc.lang.elaborate import elaborate
+from springc.lang.parser import parse
 from springc.lang.expr import Env, closest, value
 from springc.lang.draws import Sample
 from springc.lang.files import Includes

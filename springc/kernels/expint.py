@@ -20,9 +20,6 @@ from __future__ import annotations
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
-import scipy.linalg
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from springc.kernels import codegen, thermal
 from springc.kernels.codegen import KernelOptions, _Code
@@ -127,6 +124,9 @@ def find_blocks(net: FlatNetlist, max_size: int = MAX_BLOCK) -> Blocks:
 
 def _linear_components(net: FlatNetlist) -> np.ndarray:
     """Component label per node of the graph of couplings and node-to-node dashpots."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     c, d = net.couplings, net.dashpots
     keep = d.j != GROUND
     rows = np.concatenate([c.i, d.i[keep]]).astype(np.int64)
@@ -193,6 +193,8 @@ def expm_small(m: np.ndarray) -> np.ndarray:
     (after scaling the 1-norm is at most 1/2, where the series' truncation is below 1e-25).
     Used instead of scipy's Pade code, whose LAPACK calls are slow for these 6x6 to 12x12
     matrices on a busy machine."""
+    import scipy.linalg
+
     # balance first (diagonal similarity): the filters' omega^2 against 1 in [x; v] would
     # otherwise cost ~16 squarings and 1e-12 per step; balanced, omega h needs one or two
     _, (scale, _) = scipy.linalg.matrix_balance(m, permute=False, separate=True)

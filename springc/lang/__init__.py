@@ -21,17 +21,25 @@ also describes these choices of this front end (each is tested):
 
 from __future__ import annotations
 
+import importlib
 from pathlib import Path
 
 from springc.errors import NetlistError
-from springc.lang.ir import FlatNetlist
-from springc.lang.elaborate import elaborate
 from springc.lang.files import STDLIB_DIR, search_dirs
-from springc.lang.parser import parse
-from springc.lang.variation import read as read_variation
+from springc.lang.ir import FlatNetlist
 
-__all__ = ["STDLIB_DIR", "elaborate", "load_file", "load_text", "parse", "read_source",
-           "read_variation", "search_dirs"]
+__all__ = ["STDLIB_DIR", "load_file", "load_text", "parse", "read_source", "read_variation",
+           "search_dirs"]
+# name -> (module, attribute), imported on first use: the parser (lark) and the elaborator
+# cost a tenth of a second, which a netlist loaded from the check cache does not pay
+_LAZY = {"parse": ("parser", "parse"), "read_variation": ("variation", "read")}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        module, attr = _LAZY[name]
+        return getattr(importlib.import_module(f"springc.lang.{module}"), attr)
+    raise AttributeError(f"module 'springc.lang' has no attribute {name!r}")
 
 
 def load_text(text: str, filename: str = "<text>",
@@ -40,7 +48,10 @@ def load_text(text: str, filename: str = "<text>",
     of `filename` (the working directory for `<text>`). With `.step` or `.mc` this is the
     nominal netlist (`.param` values as written, random functions nominal), their lines
     checked; `read_variation` gives the points."""
-    return read_variation(parse(text, filename), lib_dirs).nominal()
+    from springc.lang.parser import parse
+    from springc.lang.variation import read
+
+    return read(parse(text, filename), lib_dirs).nominal()
 
 
 def read_source(path: str | Path) -> str:

@@ -19,8 +19,10 @@ from springc.errors import NetlistError, SourceLoc, register_source
 from springc.lang import ast, fastpath
 from springc.lang.expr import bad_number, read_number
 
+# cache: lark keeps the analysed grammar in the system's temporary folder, keyed by the
+# grammar's hash and lark's version (a third of the parser's import otherwise)
 _LARK = Lark.open("grammar.lark", rel_to=__file__, parser="lalr", propagate_positions=True,
-                  maybe_placeholders=False)
+                  maybe_placeholders=False, cache=True)
 
 _END = re.compile(r"\s*\.end\s*$", re.IGNORECASE)
 _STRING_OR_SEMI = re.compile(r"\"[^\"]*\"|'[^']*'|;")

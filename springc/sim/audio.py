@@ -12,8 +12,6 @@ from pathlib import Path
 import struct
 
 import numpy as np
-import soundfile as sf
-from scipy.signal import resample_poly
 
 from springc.errors import DataError
 
@@ -43,6 +41,8 @@ def read_audio(path: str | Path, channel: int | None = None) -> tuple[np.ndarray
 def read_checked(path: Path) -> tuple[np.ndarray, int]:
     """All channels (float64, shape (frames, channels)) and the rate of a sound file; DataError
     for an unreadable, truncated or empty file or one holding NaN or infinite samples."""
+    import soundfile as sf  # its C library loads in a few tens of ms: only to read sound
+
     try:
         data, rate = sf.read(str(path), dtype="float64", always_2d=True)
     except Exception as exc:  # soundfile raises several types for corrupt files
@@ -101,6 +101,8 @@ def resample(signal: np.ndarray, rate_in: float, rate_out: float) -> np.ndarray:
     if rate_in == rate_out:
         return np.asarray(signal, dtype=np.float64)
     ratio = Fraction(rate_out / rate_in).limit_denominator(1000)
+    from scipy.signal import resample_poly  # 1 s of imports: only when a rate differs
+
     return resample_poly(signal, ratio.numerator, ratio.denominator)
 
 

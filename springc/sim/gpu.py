@@ -15,15 +15,18 @@ from __future__ import annotations
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from springc.errors import UsageError
-from springc.kernels import cuda as cudagen
 from springc.kernels import expint, loader, terms
 from springc.kernels.codegen import Features, features
 from springc.lang.ir import FlatNetlist
 from springc.sim import sources
+
+if TYPE_CHECKING:  # the CUDA form's generator: imported where a GPU run needs it
+    from springc.kernels import cuda as cudagen
 
 DEVICES = ("cpu", "cuda", "auto")
 STEPS_PER_CALL = 4096  # steps per kernel call: the input, signals and records on the device
@@ -162,6 +165,8 @@ def options(net: FlatNetlist, blocks: expint.Blocks | None, method: str, precisi
     may be fused with an add (`fma`, `CudaOptions.fma`). A Lawson scheme's
     force code is never written out (the CPU kernels' choice too: its block updates
     dominate)."""
+    from springc.kernels import cuda as cudagen
+
     lawson = blocks is not None
     small = net.n <= cudagen.WRITE_OUT_MAX and not lawson
     nodes = terms.node_terms(coeffs, net.n) if small else None
@@ -192,6 +197,8 @@ def split_layout(feat: Features, coeffs: dict, n: int) -> tuple[int, tuple]:
     `cudagen.SLOT_CODE_MAX` term blocks (every term then read in the loops). Threads:
     `cudagen.SPLIT_THREADS` where set; else one node a thread (`cudagen.node_threads`) where
     the register lists' code fits there, else `cudagen.LOOP_THREADS`."""
+    from springc.kernels import cuda as cudagen
+
     lists = cudagen.slot_lists(feat)
     most = [int(np.diff(coeffs[sl.ptr].astype(np.int64)).max(initial=0)) for sl in lists]
     held = [min(m, cudagen.SLOT_MAX) for m in most]
@@ -212,6 +219,8 @@ def split_layout(feat: Features, coeffs: dict, n: int) -> tuple[int, tuple]:
 def load(net: FlatNetlist, opts: cudagen.CudaOptions) -> loader.Kernel:
     """The CUDA kernel for the force netlist `net` (`force_netlist`) under `opts`, written to
     the kernel cache and imported (compiled by numba.cuda at its first launch)."""
+    from springc.kernels import cuda as cudagen
+
     return loader.load(cudagen.generate(net, opts))
 
 

@@ -12,11 +12,12 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scipy.constants import k as K_B  # J/K, exact since 2019
 
 from springc.errors import UsageError
 from springc.lang.ir import FlatNetlist
 from springc.lang.options import KNOWN_OPTIONS, OptionValueError
+
+K_B = 1.380649e-23  # J/K, the Boltzmann constant (exact in the SI since 2019)
 
 
 def with_overrides(net: FlatNetlist, temp: float | None, seed: int | None) -> FlatNetlist:

@@ -19,14 +19,20 @@ from pathlib import Path
 
 import numpy as np
 
-from springc.check import CheckedNetlist, check
-from springc.check.compiler import BuildReport, summarise
-from springc.check.points import check_points
+from typing import TYPE_CHECKING
+
+from springc.check import CheckedNetlist, check, store
 from springc.errors import NetlistError, UsageError
-from springc.grad.params import ParamNetlist
-from springc.lang import ast, load_text, parse, read_source, variation
+from springc.lang import files, read_source
 from springc.lang.ir import FlatNetlist
 from springc.sim.gpu import default_device  # noqa: F401  (springc.default_device)
+
+# the parser, the elaborator and the analyses are imported where they are used: a netlist
+# loaded from the check cache (`springc.check.store`) needs none of them
+if TYPE_CHECKING:
+    from springc.check.compiler import BuildReport
+    from springc.grad.params import ParamNetlist
+    from springc.lang import variation
 
 
 def load(source: str | Path, *, params: Mapping[str, float] | None = None,
@@ -40,16 +46,35 @@ def load(source: str | Path, *, params: Mapping[str, float] | None = None,
     integration and judges the step it takes (`judge_step` True or False: always, never)."""
     text, filename = _source(source)
     dirs = list(lib_dirs) if lib_dirs else None
-    if params:
-        flat = ParamNetlist.from_text(text, filename, dirs).netlist(params)
-    else:
-        flat = load_text(text, filename, dirs)
-    if flat.n == 0:
-        raise NetlistError(f"{filename}: no top-level network (a library of subcircuits?)",
-                           hint="instantiate a subcircuit in a netlist and load that")
     options = dict(tstep=tstep, substeps=substeps, judge_step=judge_step)
-    checked = check(flat, method, **options)
-    return Netlist(checked, text, dirs, dict(params or {}), options)
+    entry = store.key(text, filename, method=method, lib_dirs=dirs, **options)
+    found = None if params else store.lookup(entry)
+    if found is not None:  # unchanged since it was last checked: no `.step`/`.mc` in it
+        return Netlist(found, text, dirs, {}, options, varies=False)
+    with files.recording() as reads:
+        if params:
+            from springc.grad.params import ParamNetlist
+
+            flat, varies = ParamNetlist.from_text(text, filename, dirs).netlist(params), None
+        else:
+            var = _variation(text, filename, dirs)
+            flat, varies = var.nominal(), var.varies
+        if flat.n == 0:
+            raise NetlistError(f"{filename}: no top-level network (a library of "
+                               "subcircuits?)", hint="instantiate a subcircuit in a netlist "
+                                                     "and load that")
+        checked = check(flat, method, **options)
+    if varies is False:
+        store.save(entry, checked, reads)
+    return Netlist(checked, text, dirs, dict(params or {}), options, varies=varies)
+
+
+def _variation(text: str, filename: str, lib_dirs: list[Path] | None) -> variation.Variation:
+    """The netlist's `.step` and `.mc` lines and its nominal design."""
+    from springc.lang import variation
+    from springc.lang.parser import parse
+
+    return variation.read(parse(text, filename), lib_dirs)
 
 
 def _source(source: str | Path) -> tuple[str, str]:
@@ -71,6 +96,7 @@ class Netlist:
     lib_dirs: list[Path] | None = field(default=None, repr=False)
     overrides: dict[str, float] = field(default_factory=dict)
     check_options: dict = field(default_factory=dict, repr=False)  # load's tstep, substeps...
+    varies: bool | None = field(default=None, repr=False)  # .step/.mc lines (None: unknown)
 
     @property
     def flat(self) -> FlatNetlist:
@@ -83,18 +109,22 @@ class Netlist:
     @functools.cached_property
     def source(self) -> ParamNetlist:
         """The parsed netlist as a function of its top-level `.param` values."""
+        from springc.grad.params import ParamNetlist
+
         return ParamNetlist.from_text(self.text, self.flat.file, self.lib_dirs)
 
     @functools.cached_property
     def variation(self) -> variation.Variation:
         """The file's `.step` and `.mc` lines (`Variation.varies`: whether it has any)."""
-        return variation.read(parse(self.text, self.flat.file), self.lib_dirs)
+        return _variation(self.text, self.flat.file, self.lib_dirs)
 
     @functools.cached_property
     def points(self) -> variation.PointSet:
         """The points of the file's `.step` and `.mc` lines (one, the nominal netlist,
         without them), each elaborated and checked (`PointSet.checked`) as this netlist was
         (its method, step options); the file's `.param` values, not `params=` overrides."""
+        from springc.check.points import check_points
+
         return check_points(self.variation.point_set(), self.checked.method,
                             **self.check_options)
 
@@ -113,6 +143,8 @@ class Netlist:
     def report(self) -> BuildReport:
         """What `springc build` reports: dofs, elements, fastest mode, step limit, mode
         errors."""
+        from springc.check.compiler import summarise
+
         return summarise(self.checked)
 
     def summary(self, as_dict: bool = False) -> str | dict:
@@ -148,9 +180,7 @@ class Netlist:
         one call each, sharing the compiled kernel; the integrator chosen on the worst
         point): probes (points, runs, T), reductions (points, runs), `Result.points` the
         points' step values, samples and seeds."""
-        from springc.check.points import worst
         from springc.sim import plan, thermal
-        from springc.sim.points import simulate_points
         from springc.sim.simulate import simulate
 
         thermal.with_overrides(self.flat, temp, seed)  # a bad value fails before any work
@@ -158,7 +188,12 @@ class Netlist:
         if isinstance(inputs, (str, Path)):
             inputs = [inputs]
         pointset = self._points_to_run()
-        checked = self.checked if pointset is None else pointset.checked[worst(pointset)]
+        checked = self.checked
+        if pointset is not None:
+            from springc.check.points import worst
+            from springc.sim.points import simulate_points
+
+            checked = pointset.checked[worst(pointset)]
         steps = plan.integration(checked, tolerance, method, substeps, tstep, tstop,
                                  inputs, channel, input_rate)
         options = dict(tstep=tstep, tstop=tstop, substeps=steps.substeps, method=steps.method,
@@ -178,7 +213,7 @@ class Netlist:
     def _points_to_run(self) -> variation.PointSet | None:
         """The checked points where the file has `.step`/`.mc` (None: the nominal netlist
         alone); `params=` overrides cannot be combined with them."""
-        if not self.variation.varies:
+        if self.varies is False or not self.variation.varies:
             return None
         if self.overrides:
             raise UsageError(f"{self.flat.file}: params= overrides and .step/.mc together",
@@ -214,6 +249,8 @@ class Netlist:
         from springc.analyses import noise
 
         if self._points_to_run() is not None:
+            from springc.lang import ast
+
             first = next(s for s in self.variation.statements if isinstance(s, ast.Directive)
                          and s.name in ("step", "mc"))
             raise UsageError("springc noise analyses one netlist, not the points of "

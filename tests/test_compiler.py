@@ -68,7 +68,10 @@ def test_unlimited_step_is_null_in_json(tmp_path) -> None:
 def test_summary_text(netlist) -> None:
     text = compiler.build(netlist).summary()
     assert "dofs        3" in text and "M=3, K=2, C=1, F=1" in text and "(osc: 2)" in text
-    assert "1100 Hz" in text and "stable" in text and "zero-stiffness" in text
+    assert "1100 Hz" in text and "chosen for tolerance 0.001" in text
+    assert "zero-stiffness" in text
+    pinned = compiler.build(netlist, method="rk4").summary()
+    assert "stable" in pinned and "chosen" not in pinned
 
 
 def test_errors_carry_every_failed_check(tmp_path) -> None:

@@ -172,14 +172,14 @@ def test_float32_agrees_with_float64_to_single_precision():
 def test_an_unstable_step_is_refused_before_running_with_builds_message():
     net = oscillator(0.05, tstop=100.0)
     with pytest.raises(CheckError) as built:
-        check(net)
+        check(net, "rk4")
     checked = check(net, judge_step=False)
     with pytest.raises(CheckError) as simulated:
         simulate(checked, reductions=ALL_REDUCTIONS)
     assert simulated.value.format() == built.value.format()
     assert "time step 0.05 s is unstable for rk4" in built.value.format()
     with pytest.raises(CheckError, match="unstable for rk4"):
-        simulate(check(oscillator(0.04, tstop=100.0)), tstep=0.05)
+        simulate(check(oscillator(0.04, tstop=100.0), "rk4"), tstep=0.05)
     simulate(checked, substeps=2, tstop=0.5)  # 0.025 s: stable
 
 

@@ -66,7 +66,7 @@ def _verdict(net, tstep: float | None):
     if tstep is not None:
         net.tran = Tran(tstep, 1.0, net.masses.locs[0])
     try:
-        result = checks.check(net)
+        result = checks.check(net, judge_step=True)  # the step as configured
     except CheckError as err:
         return [d.message.split(":")[0] + ": " + d.message.split(":")[1][:40]
                 for d in err.diagnostics], None

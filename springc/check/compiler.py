@@ -20,13 +20,17 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from springc.check import accuracy, checks
-from springc.check.points import check_points, worst
+from typing import TYPE_CHECKING
+
+from springc.check import accuracy, checks, store
 from springc import lang
-from springc.lang import library, variation
+from springc.lang import files
 from springc.errors import Diagnostic, UsageError
 from springc.kernels import expint
 from springc.lang.ir import FlatNetlist
+
+if TYPE_CHECKING:  # the points' modules come with the front end, on a cache miss only
+    from springc.lang import variation
 
 
 @dataclass
@@ -174,7 +178,7 @@ class LibraryReport:
 
     file: str
     title: str
-    subckts: list[library.SubcktSummary]
+    subckts: list  # springc.lang.library.SubcktSummary
 
     def to_json(self) -> dict:
         """`dofs` 0 and no elements at top level, and one object per subcircuit."""
@@ -201,23 +205,52 @@ def build(path: str | Path, *, lib_dirs: list[Path] | None = None,
         raise UsageError("--tolerance chooses the integrator itself",
                          hint="drop --method, or drop --tolerance")
     text = lang.read_source(path)
-    tree = lang.parse(text, str(path))
-    var = variation.read(tree, lib_dirs)
-    net = var.nominal()
-    if net.n == 0:
-        found = library.subckts(tree, text, lib_dirs)
-        if found:
-            return LibraryReport(net.file, net.title, found)
     judge = False if tolerance is not None else None
-    if var.varies:
-        return points_report(var.point_set(net), method, tolerance, judge)
-    return summarise(checks.check(net, method, judge_step=judge), tolerance)
+    # the same entry as `springc.load` with these options: build, then sim, checks once
+    entry = store.key(text, str(path), method=method, lib_dirs=lib_dirs, tstep=None,
+                      substeps=None, judge_step=judge)
+    found = store.lookup(entry)
+    if found is not None:
+        return remembered_summary(found, tolerance)
+    with files.recording() as reads:
+        tree = lang.parse(text, str(path))
+        from springc.lang import variation
+
+        var = variation.read(tree, lib_dirs)
+        net = var.nominal()
+        if net.n == 0:
+            from springc.lang import library  # the parser's: only for a library file
+
+            found = library.subckts(tree, text, lib_dirs)
+            if found:
+                return LibraryReport(net.file, net.title, found)
+        if var.varies:
+            return points_report(var.point_set(net), method, tolerance, judge)
+        checked = checks.check(net, method, judge_step=judge)
+    store.save(entry, checked, reads)
+    return remembered_summary(checked, tolerance)
+
+
+def remembered_summary(checked: checks.CheckedNetlist,
+                       tolerance: float | None = None) -> BuildReport:
+    """`summarise`, kept beside the netlist's entry in the check cache: the mode errors
+    and the integrator choice depend on nothing else (and the choice imports scipy)."""
+    def compute() -> BuildReport:
+        report = summarise(checked, tolerance)
+        report.net = None  # stored once, in the entry itself
+        return report
+
+    report = store.remembered(checked, f"build summary {tolerance!r}", compute)
+    report.net = checked.net
+    return report
 
 
 def points_report(points: variation.PointSet, method: str | None = None,
                   tolerance: float | None = None,
                   judge: bool | None = None) -> BuildReport:
     """Check every point and summarise the worst (smallest stable step)."""
+    from springc.check.points import check_points, worst
+
     points = check_points(points, method, judge_step=judge)
     index = worst(points)
     report = summarise(points.checked[index], tolerance)

@@ -5,10 +5,13 @@ file and the reason.
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import os
 import threading
 from collections import OrderedDict
-from dataclasses import replace
+from collections.abc import Iterator
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +20,51 @@ from springc.errors import NetlistError, SourceLoc
 from springc.lang import ast
 
 STDLIB_DIR = Path(__file__).resolve().parents[2] / "netlists" / "lib"
+
+
+@dataclass(frozen=True)
+class Read:
+    """A file the front end read (`digest`: the sha256 of its bytes), or an include
+    candidate it looked for and did not find (`digest` None); `shown`: the name an included
+    netlist's diagnostics use ('' for data files)."""
+
+    path: str
+    digest: str | None
+    shown: str = ""
+
+    def current(self) -> bytes | None:
+        """The file's bytes now (None where it is not a readable file)."""
+        try:
+            return Path(self.path).read_bytes()
+        except OSError:
+            return None
+
+
+def digest(data: bytes | None) -> str | None:
+    """The sha256 of `data` (None for None)."""
+    return None if data is None else hashlib.sha256(data).hexdigest()
+
+
+_READS = threading.local()
+
+
+@contextlib.contextmanager
+def recording() -> Iterator[list[Read]]:
+    """Inside, on this thread: every file the front end reads, and every include candidate it
+    finds missing, appended to the list yielded (what a checked netlist depends on besides
+    its own text: `springc.check.store`)."""
+    before = getattr(_READS, "log", None)
+    _READS.log = log = []
+    try:
+        yield log
+    finally:
+        _READS.log = before
+
+
+def _note(path: Path, data: bytes | None, shown: str = "") -> None:
+    log = getattr(_READS, "log", None)
+    if log is not None:
+        log.append(Read(str(path.resolve()), digest(data), shown))
 
 
 def search_dirs(lib_dirs: list[Path] | None = None) -> list[Path]:
@@ -93,6 +141,8 @@ class Includes:
             path = folder / name.text
             if path.is_file() and str(path.resolve()) != including:
                 return path.resolve()
+            if not path.is_file():
+                _note(path, None)  # a file made here later would be found first
         looked = ", ".join(str(d) for d in candidates)
         raise NetlistError(f"cannot find include file '{name.text}'", name.loc,
                            f"looked in: {looked}")
@@ -101,10 +151,12 @@ class Includes:
         key = str(path)
         if key not in self.parsed:
             try:
-                text = path.read_text(encoding="utf-8")
+                data = path.read_bytes()
+                text = data.decode("utf-8")
             except (OSError, UnicodeDecodeError) as exc:
                 raise NetlistError(f"cannot read include file '{path}': {exc}",
                                    name.loc) from None
+            _note(path, data, display(path))
             self.parsed[key] = parse_included(text, display(path))
         return self.parsed[key]
 
@@ -142,6 +194,9 @@ def read_array(path: Path, loc: SourceLoc) -> np.ndarray:
                            "use a .npy or .csv file")
     if not path.is_file():
         raise NetlistError(f"data file '{path}' not found", loc)
+    if getattr(_READS, "log", None) is not None:
+        with contextlib.suppress(OSError):  # unreadable: np.load names the reason below
+            _note(path, path.read_bytes())
     try:
         if suffix == ".npy":
             array = np.load(path, allow_pickle=False)

@@ -9,11 +9,13 @@ RK4 at one step per input sample, the old default, is off by 0.86 on the feature
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from springc.check import CheckedNetlist
+from springc.check import CheckedNetlist, store
 from springc.check.accuracy import DEFAULT_TOLERANCE, choose
 from springc.check.checks import pinned
 from springc.errors import UsageError
@@ -52,10 +54,16 @@ def integration(checked: CheckedNetlist, tolerance: float | None, method: str | 
         return Steps(method, substeps)
     duration = tstop or (net.tran.tstop if net.tran else 1.0)
     tol = DEFAULT_TOLERANCE if default else tolerance
+    pilot = first_run(inputs)
     try:
-        linear = choose(net, tstep, duration, tol, found=checked.modes)
-        chosen = verify(checked, linear, tstep, duration, tol, first_run(inputs), channel,
-                        input_rate)
+        # both depend on the netlist, these settings and the first run's input alone: kept
+        # beside the netlist's entry in the check cache
+        what = f"{tstep!r} {duration!r} {tol!r}"
+        linear = store.remembered(checked, f"choice {what}",
+                                  lambda: choose(net, tstep, duration, tol, found=checked.modes))
+        chosen = store.remembered(
+            checked, f"verified {what} {channel!r} {input_rate!r} {input_digest(pilot)}",
+            lambda: verify(checked, linear, tstep, duration, tol, pilot, channel, input_rate))
     except UsageError as err:
         if not default:
             raise
@@ -63,6 +71,18 @@ def integration(checked: CheckedNetlist, tolerance: float | None, method: str | 
                          hint="loosen it with --tolerance, or choose the integrator "
                               "with --method/--substeps") from None
     return Steps(chosen.method, chosen.substeps, chosen.describe())
+
+
+def input_digest(pilot) -> str:
+    """What the first run's input is, for `store.remembered`: a digest of its samples or of
+    its file's bytes ('none' for a run without input)."""
+    if pilot is None:
+        return "none"
+    if isinstance(pilot, np.ndarray):
+        data = np.ascontiguousarray(pilot).tobytes() + repr(pilot.shape).encode()
+    else:
+        data = b"".join(Path(p).read_bytes() for p in pilot)
+    return hashlib.sha256(data).hexdigest()
 
 
 def first_run(inputs):

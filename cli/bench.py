@@ -50,10 +50,16 @@ CASE_NAMES = ("feature", "kws", "delay", "stiff", "duffing", "kws-features", "kw
                    "against without, alternating, and the noise's statistics "
                    "(springc.bench.noise); writes OUT/bench-noise.md and OUT/bench/noise.json. "
                    "With --quick: 8 runs of 0.02 s, a short oscillator.")
+@click.option("--startup", is_flag=True,
+              help="Instead: whole springc processes, build and sim of the example netlists, "
+                   "the 564-dof network and the 8x3 classifier, warm and cold kernel cache, "
+                   "beside `import numba` and ngspice (springc.bench.startup); writes "
+                   "OUT/bench-startup.md and OUT/bench/startup.json. With --quick: 2 warm "
+                   "runs and 1 cold run per row.")
 @run_user_errors
 @on_device
 def bench_cmd(case_names, outdir, quick, render_from, issue3, seconds, batch, stretch,
-              json_path, scaling, population, noise):
+              json_path, scaling, population, noise, startup):
     """Speed against error: on each reference network (feature extractor, 8x3 keyword
     spotter, long delay line, stiff all-to-all block, hard-driven Duffing resonator) every
     integrator at several steps and float64/float32, and the peers (scipy RK45/DOP853 at rtol
@@ -74,6 +80,9 @@ def bench_cmd(case_names, outdir, quick, render_from, issue3, seconds, batch, st
         return
     if noise:
         _noise(Path(outdir), quick)
+        return
+    if startup:
+        _startup(Path(outdir), quick)
         return
     from springc.bench import report
     from springc.bench import suite as benchsuite
@@ -124,6 +133,14 @@ def _noise(outdir: Path, quick: bool) -> None:
     sizes = dict(runs=8, seconds=0.02, rounds=2, osc_runs=16, osc_tstop=200.0) if quick else {}
     result = noise.run_noise(**sizes, progress=lambda m: click.echo(m, err=True))
     _echo(noise.write_report(result, outdir))
+
+
+def _startup(outdir: Path, quick: bool) -> None:
+    from springc.bench import startup
+
+    runs = dict(runs=2, cold_runs=1) if quick else {}
+    result = startup.run_startup(**runs, progress=lambda m: click.echo(m, err=True))
+    _echo(startup.write_report(result, outdir))
 
 
 def _scaling(outdir: Path, quick: bool) -> None:

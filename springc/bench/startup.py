@@ -113,10 +113,11 @@ def ngspice_rows(folder: Path) -> list[Row]:
     return out
 
 
-def timed(argv: list[str], env: dict[str, str]) -> float:
-    """Wall seconds of one process, from its start to its exit; it must succeed."""
+def timed(argv: list[str], env: dict[str, str], cwd: Path) -> float:
+    """Wall seconds of one process run in `cwd` (ngspice writes its probes there), from its
+    start to its exit; it must succeed."""
     start = time.perf_counter()
-    done = subprocess.run(argv, env=env, capture_output=True, text=True)
+    done = subprocess.run(argv, env=env, capture_output=True, text=True, cwd=cwd)
     wall = time.perf_counter() - start
     if done.returncode != 0:
         raise RuntimeError(f"{' '.join(argv)} failed:\n{done.stdout}{done.stderr}")
@@ -126,12 +127,12 @@ def timed(argv: list[str], env: dict[str, str]) -> float:
 def measure(row: Row, runs: int, cold_runs: int, cache: Path) -> None:
     """Fill the row's warm times (cache `cache`, filled first) and cold times (an empty
     cache per run)."""
-    env = {**os.environ, "SPRINGC_CACHE": str(cache)}
-    timed(row.argv, env)
-    row.warm = [timed(row.argv, env) for _ in range(runs)]
+    env, cwd = {**os.environ, "SPRINGC_CACHE": str(cache)}, cache.parent
+    timed(row.argv, env, cwd)
+    row.warm = [timed(row.argv, env, cwd) for _ in range(runs)]
     for _ in range(cold_runs):
         with tempfile.TemporaryDirectory() as empty:
-            row.cold.append(timed(row.argv, {**os.environ, "SPRINGC_CACHE": empty}))
+            row.cold.append(timed(row.argv, {**os.environ, "SPRINGC_CACHE": empty}, cwd))
 
 
 def run_startup(runs: int = RUNS, cold_runs: int = COLD_RUNS,

@@ -112,7 +112,10 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
 @_NO_CACHE
 @click.option("--budget", type=click.IntRange(min=1), default=None, metavar="N",
               help="Mass-spring models: instead, print where the input work goes (energy "
-                   "dissipated per stage) over the first N test clips.")
+                   "dissipated per stage) over the first N test clips, in the network's "
+                   "units and at physical scale (--spl, --area, --temp, --device-mass or "
+                   "--mass; defaults 60 dB, 1e-6 m^2, 300 K, 2e-9 kg) in J and k_B T, "
+                   "beside the most a decision may lose of the sound.")
 @click.option("--mc", "devices", type=int, default=None, metavar="N",
               help="Mass-spring models: instead, the accuracy of N fabricated devices, every "
                    "element coefficient of the whole network times (1 + S gauss).")
@@ -127,11 +130,15 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
               help="Mass-spring models: instead, the network at physical scale (with --mass, "
                    "--spl, --area) with thermal noise on every damper at K kelvin.")
 @click.option("--mass", type=float, default=None, metavar="KG",
-              help="With --temp: kg per normalised mass unit.")
+              help="With --temp or --budget: kg per normalised mass unit.")
+@click.option("--device-mass", type=float, default=None, metavar="KG",
+              help="With --temp or --budget: the whole device's mass in kg (instead of "
+                   "--mass).")
 @click.option("--spl", type=float, default=None, metavar="DB",
-              help="With --temp: sound level of the clips, dB SPL re 20 uPa.")
+              help="With --temp or --budget: sound level of the clips, dB SPL re 20 uPa.")
 @click.option("--area", type=float, default=None, metavar="M2",
-              help="With --temp: membrane area in m^2 (input force = pressure x area).")
+              help="With --temp or --budget: membrane area in m^2 (input force = pressure x "
+                   "area).")
 @click.option("--seed", type=int, default=None,
               help="Seed of the --mc devices or the --temp noise.  [default: 0]")
 @click.option("--clips", type=click.IntRange(min=1), default=None, metavar="N",
@@ -140,8 +147,8 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
 @run_user_errors
 @on_device
 def eval_cmd(model_dir, data, realisation, protocol, as_json, jobs, no_cache, scheduler,
-             budget, devices, spread, spread_kind, stage, temp, mass, spl, area, seed,
-             clips) -> None:
+             budget, devices, spread, spread_kind, stage, temp, mass, device_mass, spl, area,
+             seed, clips) -> None:
     """Evaluate a trained model on the test split of a labelled folder in the GSCD layout:
     the clips testing_list.txt names, or every clip where the folder has no such list.
     --mc/--spread: a population of fabricated devices; --temp/--mass/--spl/--area: the
@@ -149,12 +156,14 @@ def eval_cmd(model_dir, data, realisation, protocol, as_json, jobs, no_cache, sc
     from springc.kws.evaluation import device
     from springc.kws.evaluation.api import evaluate
 
-    which = device.study(devices, spread, spread_kind, stage, seed, temp, mass, spl, area)
     report = evaluate(model_dir, data, realisation=realisation, protocol=protocol, jobs=jobs,
                       use_cache=not no_cache, scheduler=scheduler, budget=budget, mc=devices,
                       spread=spread, spread_kind=spread_kind, stage=stage, temp=temp,
                       mass=mass, spl=spl, area=area, seed=seed, clips=clips,
-                      progress=lambda s: click.echo(s, err=True))
+                      device_mass=device_mass, progress=lambda s: click.echo(s, err=True))
+    which = None if budget else device.study(
+        devices, spread, spread_kind, stage, seed, temp,
+        report.get("mass", mass), spl, area)
     click.echo(_eval_text(report, which, budget, as_json))
 
 
@@ -169,7 +178,9 @@ def _eval_text(report: dict, which, budget: int | None, as_json: bool) -> str:
         lines = device.spread_lines if isinstance(which, device.Spread) else device.physical_lines
         return "\n".join(lines(report, which))
     if budget:
-        return _budget_text(report)
+        from springc.kws.evaluation import energy
+
+        return json.dumps(energy.budget_json(report)) if as_json else _budget_text(report)
     if not as_json:
         return _summary(report)
     keys = ("accuracy", "majority_rate", "n", "per_class")
@@ -178,13 +189,21 @@ def _eval_text(report: dict, which, budget: int | None, as_json: bool) -> str:
     return json.dumps({k: report[k] for k in keys})
 
 
-def _budget_text(parts: dict) -> str:
-    """`springc eval --budget`: where the input work goes, per stage."""
+def _budget_text(report: dict) -> str:
+    """`springc eval --budget`: where the input work goes, per stage, in the network's units
+    and at physical scale."""
     from springc.kws.evaluation import energy
 
+    parts, sc = report["normalised"], report["scale"]
+    scale = energy.Scale(sc["spl"], sc["area"], sc["temp"], mass=sc["mass"])
     return "\n".join([f"energy budget of the whole classifier, {len(parts['work in'])} test "
                       f"clips (balance error {energy.check_balance(parts).max():.1e}):",
-                      *energy.budget_table(parts)])
+                      *energy.budget_table(parts), "",
+                      f"at physical scale: a device of {sc['device_mass']:.3g} kg, "
+                      f"{sc['spl']:g} dB SPL ({sc['pressure']:.3g} Pa) on {sc['area']:.3g} m^2, "
+                      f"{sc['temp']:g} K:",
+                      *energy.physical_table(parts, report["joules_per_unit"], scale,
+                                             report["seconds"], report["readouts"])])
 
 
 _NETWORK_KEYS = ("digital_same_model", "insertion_loss_db", "readout_error", "throughput")

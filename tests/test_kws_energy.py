@@ -33,3 +33,39 @@ def test_budget_of_the_feature_network():
     assert 0.1 < share[3] / share[2] < 0.35
     rows = energy.budget_table(parts)
     assert rows[2].startswith("| work in |") and len(rows) == 2 + len(parts)
+
+
+def test_the_sound_and_the_bound_are_the_anchors_figures():
+    """../shared/design/device-anchors.md (derived there, rounded to two digits): 60 dB SPL
+    on 1 mm^2 for one second is about 1 pJ, 2.4e8 k_B T at 300 K, and twelve readouts of 100
+    k_B T each leave about 53 dB."""
+    scale = energy.Scale.of()
+    assert abs(scale.sound(1.0) / 1e-12 - 1) < 0.05
+    assert abs(scale.sound(1.0) / scale.kt / 2.4e8 - 1) < 0.03
+    assert abs(scale.bound_db(12, 1.0) - 53) < 0.5
+    # +20 dB SPL or 100x the area each add 20 dB (the anchors' last line)
+    louder = energy.Scale.of(spl=80.0)
+    assert abs(louder.bound_db(12, 1.0) - scale.bound_db(12, 1.0) - 20) < 1e-9
+
+
+def test_joules_per_unit_is_the_physical_networks_energy():
+    """The physical network (every mass x mu, displacements x lambda, the input force the
+    pressure on the membrane) is the normalised one in other units: its dissipated energy in
+    J, simulated, equals the normalised budget times `Scale.joules` (the same arithmetic up to
+    rounding: 1e-9)."""
+    from springc.check import check
+    from springc.kws.evaluation import device
+    from springc.lang import load_text
+    from springc.sim.simulate import simulate
+
+    net = load_text("M1 a m=2 b=3\nK1 a k=50\nF1 a in(0) gain=4\n.tran 1m 2\n"
+                    ".options method=rk4 substeps=4\n")
+    scale = energy.Scale.of(device_mass=1e-8, spl=70.0, area=2e-6)
+    u = np.sin(2 * np.pi * 3 * np.arange(2001) * 1e-3)[None, None, :]
+    specs = ["work:in", "dissipated:all"]
+    norm = simulate(check(net), u, reductions=specs).reductions
+    phys = device.Physical(0.0, scale.unit_mass(net), scale.spl, scale.area)
+    scaled, _ = device.physical_network(net, phys)
+    real = simulate(check(scaled), u, reductions=specs).reductions
+    for spec in specs:
+        assert abs(real[spec][0] / (norm[spec][0] * scale.joules(net)) - 1) < 1e-9

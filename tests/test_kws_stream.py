@@ -217,5 +217,5 @@ def test_the_energy_budget_reads_a_test_only_folder(env, tmp_path):
                                        "--budget", "2", "--protocol", "lists"])
     assert result.exit_code == 0, result.output
     want = energy.budget_table(energy.test_split_budget(root / "ms", data, 2))
-    assert result.stdout.splitlines()[1:] == want
+    assert result.stdout.splitlines()[1:1 + len(want)] == want
     assert result.stdout.startswith("energy budget of the whole classifier, 2 test clips")

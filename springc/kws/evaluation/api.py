@@ -65,7 +65,8 @@ def evaluate(model: str | Path, data: str | Path | None = None, *,
              spread_kind: str | None = None, stage: str | None = None,
              temp: float | None = None, mass: float | None = None, spl: float | None = None,
              area: float | None = None, seed: int | None = None, clips: int | None = None,
-             device: str | None = None, progress: Progress = None) -> dict:
+             device_mass: float | None = None, device: str | None = None,
+             progress: Progress = None) -> dict:
     """Evaluate the model folder `model` on the test split of `data` (default: the data set
     it was trained on), as `springc eval`: `realisation` must match the model's (None: the
     model's), `protocol` lists or balanced (None: the model's), `jobs`, `use_cache`,
@@ -73,15 +74,23 @@ def evaluate(model: str | Path, data: str | Path | None = None, *,
     majority_rate, n, per_class, confusion (mass-spring: the network's figures too).
 
     The other studies of `springc eval`, on mass-spring models: `budget=N`, where the input
-    work of the first N test clips goes, `{"work in", stage..., "left at the end"}`, each
-    (N,) in J; `mc=N` devices with coefficients spread by `spread` (relative sd),
-    `spread_kind` (local or global), `stage`, `seed`: the population's report (devices,
-    nominal, accuracy summary); `temp` (K), `mass` (kg), `spl` (dB), `area` (m^2), `seed`:
+    work of the first N test clips goes at the physical scale of `spl`, `area`, `temp` and
+    `device_mass` (or `mass` per unit; `energy.DEFAULTS` for what is not given):
+    `energy.physical_budget`'s dict, `"stages"` {"work in", stage..., "left at the end"}
+    each (N,) in J, the sound, k_B T and the loss bound; `mc=N` devices with coefficients
+    spread by `spread` (relative sd), `spread_kind` (local or global), `stage`, `seed`: the
+    population's report (devices, nominal, accuracy summary); `temp` (K), `mass` (kg per
+    normalised unit, or `device_mass` for the whole device), `spl` (dB), `area` (m^2), `seed`:
     the device at physical scale with thermal noise; `clips`: with `mc` or `temp`, that many
     test clips spread over the split; `progress` hears the population's progress."""
     from springc.kws.evaluation import device as dv
 
     model, data = Path(model), Path(data) if data else None
+    if budget:
+        return _budget(model, data, budget, protocol, mc, spread, clips,
+                       dict(spl=spl, area=area, temp=temp, device_mass=device_mass, mass=mass))
+    if device_mass is not None:
+        mass = dv.unit_mass(model, device_mass, mass)
     study = dv.study(mc, spread, spread_kind, stage, seed, temp, mass, spl, area)
     with _on(device):
         if study is not None or clips is not None:
@@ -90,13 +99,21 @@ def evaluate(model: str | Path, data: str | Path | None = None, *,
                 return dv.evaluate_spread(setup, mc, study, scheduler=scheduler, jobs=jobs,
                                           progress=progress)
             return dv.evaluate_physical(setup, study, scheduler=scheduler, jobs=jobs)
-        if budget:
-            from springc.kws.evaluation import energy
-            from springc.kws.evaluation.evaluate import budget_signals
-
-            return energy.model_budget(model, budget_signals(model, data, budget, protocol))
         return evaluate_split(model, data, realisation, jobs=jobs, use_cache=use_cache,
                               scheduler=scheduler, protocol=protocol)
+
+
+def _budget(model: Path, data: Path | None, clips: int, protocol: str | None, mc, spread,
+            given_clips, scale: dict) -> dict:
+    """`energy.physical_budget` of the first `clips` test clips at the scale `scale` gives."""
+    from springc.kws.evaluation import energy
+    from springc.kws.evaluation.evaluate import budget_signals
+
+    if mc is not None or spread is not None or given_clips is not None:
+        raise UsageError("--budget is a study of its own; drop --mc/--spread/--clips",
+                         hint="--budget N takes the first N test clips")
+    signals = budget_signals(model, data, clips, protocol)
+    return energy.physical_budget(model, signals, energy.Scale.of(**scale))
 
 
 def _device_setup(model: Path, data: Path | None, study, realisation: str | None,

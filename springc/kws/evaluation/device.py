@@ -199,6 +199,21 @@ class Physical:
                 f"({self.pressure:.3g} Pa) on {self.area:.3g} m^2, seed {self.seed}")
 
 
+def unit_mass(model_dir: Path, device_mass: float, mass: float | None) -> float:
+    """kg per normalised mass unit of a model's whole network weighing `device_mass` kg
+    (`--device-mass`, beside `--mass`, which gives the unit's mass directly)."""
+    from springc.kws.evaluation.energy import classifier_network
+
+    if mass is not None:
+        raise UsageError("--device-mass (the whole device) and --mass (kg per unit) say the "
+                         "same thing: give one")
+    if not (math.isfinite(device_mass) and device_mass > 0):
+        raise UsageError(f"--device-mass must be a positive finite number of kg, not "
+                         f"{device_mass:g}")
+    net, _ = classifier_network(model_dir)
+    return device_mass / float(net.mass().sum())
+
+
 def length_scale(net: FlatNetlist, phys: Physical) -> float:
     """lambda (m per normalised displacement): p A / (mu g) for g the largest `in` gain."""
     driven = np.array([s.kind == "in" for s in net.forces.source], bool)

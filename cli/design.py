@@ -78,6 +78,38 @@ def mvm_cmd(matrix: str, m: float, kc: float, b: float | None, stiffness: float 
     click.echo(f"wrote {output}")
 
 
+@design.command("summer")
+@click.option("--weights", required=True, metavar="W0,W1,...",
+              help="The weights (comma-separated, not all zero; a zero adds no spring).")
+@click.option("--kappa", type=float, default=1.0, show_default=True,
+              help="Coupling stiffness per unit weight (N/m): how hard the sum loads its "
+                   "inputs.")
+@click.option("--resonance", type=float, default=500.0, show_default=True,
+              help="The output's resonance (Hz): keep it well above the inputs' band.")
+@click.option("--zeta", type=float, default=0.7, show_default=True,
+              help="The output's damping ratio.")
+@click.option("--name", default="summer", show_default=True, help="Subcircuit name.")
+@OUT
+@run_user_errors
+def summer_cmd(weights: str, kappa: float, resonance: float, zeta: float, name: str,
+               output: str) -> None:
+    """A weighted sum by springs, out = sum w_p in_p / sum |w| (no zero modes, no cancelling
+    stiffness: robust to fabrication spread); writes `.subckt NAME in0 .. in{N-1} out`."""
+    from springc.design.summer import design_summer, write_summer
+    from springc.errors import UsageError
+
+    check_output_file(output)
+    try:
+        values = [float(v) for v in weights.split(",")]
+    except ValueError:
+        raise UsageError(f"--weights: {weights!r} is not a comma-separated list of numbers")
+    design_ = design_summer(values, kappa, resonance, zeta)
+    write_summer(design_, output, name)
+    click.echo(f"gains {' '.join(f'{g:.6g}' for g in design_.gains)}; output held by "
+               f"{design_.stiffness:.6g} N/m, mass {design_.m:.6g} kg")
+    click.echo(f"wrote {output} (subcircuit {name})")
+
+
 @design.command("delayline")
 @click.option("--td", type=float, required=True, help="Delay per site (s).")
 @click.option("--kc", type=float, default=10.0, show_default=True, help="Coupling (N/m).")

@@ -46,7 +46,10 @@ _PAPER_STEPS = click.option(
 @_DATA
 @_BINS
 @_DELAYS
-@click.option("--realisation", type=_REALISATION, default="digital", show_default=True)
+@click.option("--realisation", type=click.Choice(REALISATIONS + ("device",)), default="digital",
+              show_default=True,
+              help="device: a mass-spring network built for a fabricated device (summing "
+                   "heads, no cancelling stiffness), its physical scale recorded.")
 @click.option("--baseline", is_flag=True, help="Same as --realisation baseline.")
 @click.option("--filterbank", type=click.Choice(FILTERBANKS), default="two-mode",
               show_default=True)
@@ -69,7 +72,22 @@ _PAPER_STEPS = click.option(
 @click.option("-o", "--out", required=True, type=click.Path(path_type=Path),
               help="Model folder to write.")
 @click.option("--epsilon", type=float, default=None,
-              help="Mass-spring: squaring error of the classifier heads [default: 1e-5].")
+              help="Mass-spring: squaring error of the classifier heads [default: 1e-5]; "
+                   "above 1e-5 the taps are buffered and the multipliers stiffened "
+                   "(docs/results-eps.md) unless --buffer/--mvm-stiffness say otherwise.")
+@click.option("--heads", type=click.Choice(("zero-mode", "summing")), default=None,
+              help="Mass-spring: the heads' multiplier, the paper's zero modes or a weighted "
+                   "sum by springs per component.  [default: zero-mode; device: summing]")
+@click.option("--buffer", type=(float, float), default=None, metavar="KB KG",
+              help="Mass-spring: buffer the taps (springs KB kc to a buffer node, KG kc from "
+                   "it to ground).")
+@click.option("--mvm-stiffness", type=float, default=None,
+              help="Mass-spring: factor on the zero-mode multipliers' stiffness.")
+@click.option("--spl", type=float, default=None, help="Device: sound level (dB SPL) [60].")
+@click.option("--area", type=float, default=None, help="Device: membrane area (m^2) [1e-6].")
+@click.option("--temp", type=float, default=None, help="Device: temperature (K) [300].")
+@click.option("--device-mass", type=float, default=None,
+              help="Device: the whole device's mass (kg) [2e-9].")
 @_THRESHOLD
 @_TOLERANCE
 @_PAPER_STEPS
@@ -78,7 +96,8 @@ _PAPER_STEPS = click.option(
 @on_device
 def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, tau, fc,
               feature_rate, protocol, class_weights, jobs, seed, no_cache, out, epsilon,
-              threshold, tolerance, paper_steps, scheduler) -> None:
+              heads, buffer, mvm_stiffness, spl, area, temp, device_mass, threshold,
+              tolerance, paper_steps, scheduler) -> None:
     """Train the keyword spotter and write a model folder with weights and a test report."""
     from springc.kws.evaluation.api import train
 
@@ -87,7 +106,9 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
                    task=task, td=td, tau=tau, fc=fc, feature_rate=feature_rate,
                    protocol=protocol, class_weights=class_weights, jobs=jobs, seed=seed,
                    use_cache=not no_cache, epsilon=epsilon, threshold=threshold,
-                   tolerance=tolerance, paper_steps=paper_steps, scheduler=scheduler)
+                   tolerance=tolerance, paper_steps=paper_steps, scheduler=scheduler,
+                   heads=heads, buffer=buffer, mvm_stiffness=mvm_stiffness, spl=spl,
+                   area=area, temp=temp, device_mass=device_mass)
     click.echo(_summary(report))
     if "integration" in report:
         from springc.kws.features.integration import from_dict

@@ -74,8 +74,8 @@ def parse_buffer(text: str) -> tb.TapBuffer:
 def classifier(heads, s, eps, buffer):
     """The classifier netlist at eps, plain (buffer None) or buffered, the heads' mvms at
     MVM's stiffness."""
-    text = tr.classifier_text(heads, s, epsilon=eps, buffer=buffer,
-                              mvm_stiffness=MVM["stiffness"])
+    text = tr.classifier_text(heads, s, epsilon=eps,
+                              design=tr.Design("zero-mode", buffer, MVM["stiffness"]))
     return load_text(text, f"<eps {eps:g}>")
 
 

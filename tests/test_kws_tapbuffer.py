@@ -86,7 +86,7 @@ def test_buffered_classifier_passes_checks():
     buf = tb.TapBuffer(6e-5, 1000.0)
     heads = tr.stand_in_heads(S, rows=2)
     moved = tb.rescaled(heads, buf)
-    text = tr.classifier_text(moved, S, epsilon=1.0, buffer=buf)
+    text = tr.classifier_text(moved, S, epsilon=1.0, design=tr.Design(buffer=buf))
     assert "Xh0 u0_0 u0_1 u1_0 u1_1 r0 head0" in text
     assert [h.scale for h in moved] == pytest.approx([h.scale * buf.gain**2 for h in heads])
     assert isinstance(check(load_text(text, "<buffered>")), CheckedNetlist)  # raises if not
@@ -104,8 +104,7 @@ def test_mvm_stiffness_scales_the_heads_stiff_modes():
     from springc.check import linear
 
     heads = tr.stand_in_heads(S, rows=2)
-    plain, stiff = (linear.modes(load_text(tr.classifier_text(heads, S, epsilon=1.0,
-                                                                mvm_stiffness=f), "<c>"))
-                    for f in (1.0, 10.0))
+    plain, stiff = (linear.modes(load_text(tr.classifier_text(
+        heads, S, epsilon=1.0, design=tr.Design(mvm_stiffness=f)), "<c>")) for f in (1.0, 10.0))
     assert stiff.omega_max**2 / plain.omega_max**2 == pytest.approx(10.0, rel=1e-3)
     assert len(stiff) == len(plain)

@@ -124,3 +124,66 @@ def test_stand_in_heads_compile_the_kernel_of_trained_heads():
                        method="rk4", substeps=2, precision="float64")
         paths.append(res.info["kernel"])
     assert paths[0] == paths[1]
+
+
+def test_summing_heads_obey_their_equations_and_load_the_taps_lightly():
+    """Summing heads (transfer.Design("summing")): gamma_e = scale lambda_e |q_e|_1^2, each
+    coupling's squaring error eps against its summing node's stiffness kappa |q_e|_1, the
+    couplings fill the readout's stiffness, and all heads together put LOAD of the taps'
+    static stiffness (or impedance at fc, the smaller) on the most loaded tap."""
+    m = model(3)
+    design = tr.Design("summing")
+    heads = tr.heads_for([(tuple(m.classes), m)], S, 2e-3, 1e-3, design)
+    k_total = readout_params(tr.TAU_READOUT, tr.Q_READOUT).k_total
+    load = sum(np.abs(h.q[:, h.keep]).sum(axis=1) for h in heads) * heads[0].kappa
+    holding = min(S.line_damping() * 2 * np.pi * S.fc, S.kc / S.line_sites(S.delays - 1))
+    assert load.max() == pytest.approx(tr.LOAD * holding)
+    for h in heads:
+        l1 = np.abs(h.q[:, h.keep]).sum(axis=0)
+        ratio = h.gamma / (h.lam[h.keep] * l1**2)
+        np.testing.assert_allclose(ratio, ratio[0])  # one scale per head
+        np.testing.assert_allclose(2e-3**2 * h.gamma / (h.alpha * h.kappa * l1), 1e-3)
+        np.testing.assert_allclose(np.sum(h.gamma * h.alpha), tr.FILL * k_total)
+        assert h.scale == pytest.approx(ratio[0] / tr.readout_scale())
+
+
+def test_summing_readouts_equal_c_phi():
+    """The whole network with summing heads (terminals matched by their own masses): the
+    readouts are c . Phi within 3% (the summing nodes' lag at the features' envelopes and
+    their 0.1% load on the taps come on top of the zero-mode heads' 2%), and the netlist
+    passes the checks."""
+    sig = words()
+    phi = msp.phi_batch(sig, S)
+    amp = msp.reference_run(sig, S).amplitude
+    m = model(3)
+    m.coef /= phi.std(axis=0)
+    design = tr.Design("summing")
+    heads = tr.heads_for([(tuple(m.classes), m)], S, amp, 1e-6, design)
+    net = load_text(tr.classifier_text(heads, S, design=design), "<summing classifier>")
+    assert "Q" in net.element_counts() and not any(n.startswith("Xh0.Xm") for n in net.nodes)
+    reds = tr.classifier_batch(sig, check(net), tr.readout_reductions(heads),
+                               msp.horizon(S, 0.4))
+    d = tr.decisions(reds, heads)
+    want = m.decision(phi)
+    assert np.abs(d - want).max() < 0.03 * np.abs(want - m.intercept).max()
+
+
+def test_train_builds_the_design_its_options_ask_for():
+    """`springc train`'s head options: the buffered design beyond eps 1e-5 unless told
+    (docs/results-eps.md), summing heads and the default physical scale for a device model,
+    and head options refused for a digital model."""
+    from springc.kws.evaluation.api import _design
+
+    assert tr.default_design(1e-5) == tr.Design() and tr.default_design(1.0) == tr.BUFFERED
+    none = dict(spl=None, area=None, temp=None, device_mass=None)
+    assert _design("mass-spring", 1.0, None, None, None, none) == (None, None)
+    design, scale = _design("device", None, None, None, None, none)
+    assert design == tr.Design("summing") and scale == {"spl": 60.0, "area": 1e-6,
+                                                        "temp": 300.0, "device_mass": 2e-9}
+    design, _ = _design("mass-spring", 1.0, None, None, 3.0, none)
+    assert design == tr.Design("zero-mode", tr.BUFFERED.buffer, 3.0)
+    assert tr.Design.from_dict(design.to_dict()) == design
+    with pytest.raises(UsageError, match="build mass-spring heads"):
+        _design("digital", None, "summing", None, None, none)
+    with pytest.raises(UsageError, match="describe a device model"):
+        _design("mass-spring", None, None, None, None, {**none, "spl": 70.0})

@@ -49,12 +49,13 @@ class Summer:
         """dy/dx_p at rest: w_p / sum |w|."""
         return self.weights / float(np.abs(self.weights).sum())
 
-    def elements(self, inputs: list[str], output: str, prefix: str = "") -> list[list[str]]:
-        """The element lines' fields: one C per nonzero weight, the output's mass."""
-        lines = [[f"M{prefix}y", output, f"m={num(self.m)}", f"b={num(self.b)}"]]
+    def elements(self, inputs: list[str], output: str, tag: str = "") -> list[list[str]]:
+        """The element lines' fields: the output's mass Ms{tag}, one coupling Cs{tag}_{p} per
+        nonzero weight."""
+        lines = [[f"Ms{tag}", output, f"m={num(self.m)}", f"b={num(self.b)}"]]
         for p, (node, w) in enumerate(zip(inputs, self.weights)):
             if w != 0:
-                lines.append([f"C{prefix}{p}", node, output, f"k={num(self.kappa * w)}",
+                lines.append([f"Cs{tag}_{p}", node, output, f"k={num(self.kappa * w)}",
                               f"a={num(math.copysign(1.0, w))}"])
         return lines
 

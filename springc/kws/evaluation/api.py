@@ -28,21 +28,33 @@ def train(data: str | Path, out: str | Path, *, bins: int = 8, delays: int = 3,
           use_cache: bool = True, epsilon: float | None = None,
           threshold: float | None = None, tolerance: float = 1e-3,
           paper_steps: bool = False, scheduler: str | None = None,
-          device: str | None = None) -> dict:
+          heads: str | None = None, buffer: tuple[float, float] | None = None,
+          mvm_stiffness: float | None = None, spl: float | None = None,
+          area: float | None = None, temp: float | None = None,
+          device_mass: float | None = None, device: str | None = None) -> dict:
     """Train the keyword spotter on the data set folder `data` (GSCD layout), test it and
     write the model folder `out`, as `springc train`: `bins` mel bins of `delays` delays
-    each, `realisation` digital, baseline or mass-spring, `filterbank`, `task` (kws12 or
+    each, `realisation` digital, baseline, mass-spring or device (a mass-spring network
+    built for a fabricated device: summing heads, its physical scale `spl`, `area`, `temp`,
+    `device_mass` recorded, defaults `energy.DEFAULTS`), `filterbank`, `task` (kws12 or
     digits-pairs), tap delay `td` (s), readout time constant `tau` (s), low-pass cut-off
     `fc` (Hz), `feature_rate` (Hz), held-out `protocol` (lists or balanced; None: the
     task's), `class_weights` (balanced or none; None: the task's), `jobs` worker processes
     (0: all cores), `seed`, `use_cache` (False: `--no-cache`). Mass-spring only: `epsilon`
     (squaring error of the heads), `threshold` (compression A_c, m), `tolerance` (error that
     chooses the integrator; `paper_steps`: RK4 x8 float32 instead), `scheduler` (a Dask
-    address), `device` (cpu, cuda or auto; None: that of the innermost
-    `springc.default_device`). Returns the training report: accuracy, n, per_class,
-    confusion, counts, ... as report.json holds it, with each phase's wall "seconds"."""
+    address), `heads` (zero-mode or summing; None: zero-mode, summing for a device),
+    `buffer` (kb, kg: a tap buffer in units of kc) and `mvm_stiffness` (None: the paper's
+    heads up to eps 1e-5, beyond it the buffered design `transfer.BUFFERED`), `device` (cpu,
+    cuda or auto; None: that of the innermost `springc.default_device`). Returns the training
+    report: accuracy, n, per_class, confusion, counts, ... as report.json holds it, with each
+    phase's wall "seconds"."""
     from springc.kws.training.model import check_out_folder
     from springc.kws.training.train import TrainOptions, train as run
+
+    design, scale = _design(realisation, epsilon, heads, buffer, mvm_stiffness,
+                            dict(spl=spl, area=area, temp=temp, device_mass=device_mass))
+    realisation = "mass-spring" if realisation == "device" else realisation
 
     out = Path(out)
     check_out_folder(out)  # before the minutes of training
@@ -53,7 +65,8 @@ def train(data: str | Path, out: str | Path, *, bins: int = 8, delays: int = 3,
                         epsilon=epsilon, scheduler=scheduler, protocol=protocol,
                         balance_weights=_balance(class_weights),
                         massspring=_massspring(settings, threshold),
-                        tolerance=_tolerance(tolerance, paper_steps))
+                        tolerance=_tolerance(tolerance, paper_steps), design=design,
+                        device=scale)
     with _on(device):
         return run(opts)
 
@@ -173,6 +186,36 @@ def synthesise(out: str | Path, *, clips: int = 2400, seed: int = 0, jobs: int =
     report = run(out, clips=clips, seed=seed, jobs=jobs,
                  words=tuple(words) if words else WORDS, engines=tuple(engines))
     return report.out
+
+
+def _design(realisation: str, epsilon: float | None, heads: str | None, buffer,
+            mvm_stiffness: float | None, scale: dict):
+    """(transfer.Design or None for the epsilon's default, the device's physical scale or
+    None) of `train`'s options; UsageError for head options on another realisation."""
+    from springc.kws.training import tapbuffer, transfer
+
+    device = realisation == "device"
+    given = heads is not None or buffer is not None or mvm_stiffness is not None
+    if not device and realisation != "mass-spring" and (given or epsilon is not None):
+        raise UsageError("--heads, --buffer, --mvm-stiffness and --epsilon build mass-spring "
+                         "heads", hint="--realisation mass-spring or device")
+    if not device and any(v is not None for v in scale.values()):
+        raise UsageError("--spl, --area, --temp and --device-mass describe a device model",
+                         hint="--realisation device")
+    physical = None
+    if device:
+        from springc.kws.evaluation.energy import Scale
+
+        s = Scale.of(**scale)
+        physical = {"spl": s.spl, "area": s.area, "temp": s.temp,
+                    "device_mass": s.device_mass}
+    if not (given or device):
+        return None, physical
+    base = transfer.default_design(epsilon or transfer.DEFAULT_EPSILON)
+    return transfer.Design(
+        heads or ("summing" if device else base.heads),
+        tapbuffer.TapBuffer(*buffer) if buffer is not None else base.buffer,
+        float(mvm_stiffness) if mvm_stiffness is not None else base.mvm_stiffness), physical
 
 
 def _balance(class_weights: str | None) -> bool | None:

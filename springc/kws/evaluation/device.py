@@ -58,8 +58,10 @@ FABRICATED = (
 # low-pass masses that demodulate go with the compressors; a head's mvm and its quadratic
 # couplings are the couplings
 _FRONT = {"Xf": "filters", "Xq": "compressors", "Xlp": "compressors", "Xc": "compressors",
-          "Cfan": "delays", "Xd": "delays", "Ct": "delays"}
-_HEAD = {"Xm": "couplings", "Qy": "couplings", "Xr": "readouts"}
+          "Cfan": "delays", "Xd": "delays", "Ct": "delays",
+          "Mf": "delays", "Cbf": "delays", "Kgf": "delays"}  # a tap buffer's terminals
+_HEAD = {"Xm": "couplings", "Qy": "couplings", "Ms": "couplings", "Cs": "couplings",
+         "Xr": "readouts"}
 
 
 # -- fabrication spread -------------------------------------------------------------------------

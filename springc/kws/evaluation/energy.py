@@ -35,7 +35,7 @@ STAGES: tuple[tuple[str, str], ...] = (
     ("compressors", r"^Xc\d+\."),
     ("delay lines", r"^Xd\d+_\d+\."),
     ("terminals", r"^Mf\d+_\d+$"),
-    ("mvm heads", r"^Xh\d+\.Xm\."),
+    ("mvm heads", r"^Xh\d+\.(Xm\.|Ms)"),  # zero-mode multipliers or summing nodes
     ("readouts", r"^Xh\d+\.Xr\."),
 )
 
@@ -237,8 +237,10 @@ def classifier_network(model_dir):
     from springc.kws.training.model import load_model
     from springc.lang import load_text
 
-    s, heads = tr.model_heads(load_model(model_dir))
-    return load_text(tr.classifier_text(heads, s), f"{model_dir}/classifier (with heads)"), s
+    model = load_model(model_dir)
+    s, heads = tr.model_heads(model)
+    text = tr.classifier_text(heads, s, design=tr.model_design(model))
+    return load_text(text, f"{model_dir}/classifier (with heads)"), s
 
 
 def physical_budget(model_dir, signals: np.ndarray, scale: Scale) -> dict:

@@ -58,6 +58,10 @@ class TrainOptions:
     # the error allowed on Phi and the readouts, which chooses the integrator
     # (`springc.kws.features.integration`); None: the paper's RK4 with 8 substeps
     tolerance: float | None = 1e-3
+    # mass-spring only: how the heads are built (`transfer.Design`; None: `default_design` of
+    # the epsilon) and, for a device model, its physical scale (spl, area, temp, device_mass)
+    design: object = None
+    device: dict | None = None
 
 
 def check_realisation(realisation: str) -> None:
@@ -313,6 +317,7 @@ def model_settings(opts: TrainOptions, ds) -> dict:
         "class_weight": task_weights(opts.task, opts.balance_weights),
         "protocol": task_protocol(opts.task, opts.protocol),
         "seed": opts.seed,
+        **({"device": dict(opts.device)} if opts.device else {}),
         "dataset": {"path": str(Path(opts.data).resolve()),
                     "fingerprint": {s: cache.fingerprint(ds.split(s))
                                     for s in ("train", "validation", "test")}},

@@ -25,6 +25,19 @@ Impedance: every head's mvm inputs sit on the shared terminal nodes f{i}_{j}; wi
 mvm is designed for mass m_s / (2H) and damping t_s kc / H (its nodes get half of each), so
 together their zero modes put half a line site with the matched damping on each terminal, the
 reflection-free termination the features were computed with (`springc.kws.features.massspring`).
+
+Summing heads (`Design(heads="summing")`, for a fabricated device): the zero modes rest on
+stiffnesses that cancel exactly, so a relative spread of 1e-6 on them moves the decisions
+(docs/results-spread.md). A summing head makes each component y_e = q_e . phi / |q_e|_1 with a
+weighted sum by springs instead (`springc.design.summer`: every coefficient at first order),
+its coupling gamma_e realising lambda_e |q_e|_1^2, and its squaring error measured against the
+summing node's own stiffness k_e = kappa |q_e|_1 (what holds it against the coupling's
+back-action). A spring on a tap pulls it at every frequency, down to the features' slow
+envelopes, where only the line's static stiffness kc / sites (its longest) holds the tap (a
+matched termination is a damper): kappa is set so that all heads together add no more than
+`LOAD` of that, or of the impedance t_s kc 2 pi fc if smaller (of the buffer's stiffness, with
+a buffer), to any tap; the summing nodes resonate `SUM_RESONANCE` times above the low-pass
+cut-off (quasi-static over the features).
 """
 
 from __future__ import annotations
@@ -45,6 +58,10 @@ from springc.kws.features.phi import n_features, spread
 from springc.kws.training import tapbuffer
 from springc.check import CheckedNetlist, check
 
+HEADS = ("zero-mode", "summing")
+LOAD = 1e-3  # summing heads: the most of what holds a tap that their springs may add
+SUM_RESONANCE = 10.0  # summing nodes' resonance over the low-pass cut-off
+SUM_ZETA = 0.7  # and their damping ratio
 TAU_READOUT = 80.0  # s (paper)
 Q_READOUT = 0.01  # paper
 FILL = 0.99  # share of the readout stiffness from the couplings (the local spring: the rest)
@@ -64,7 +81,44 @@ class Head:
     alpha: np.ndarray
     scale: float
     intercept: float
+    kappa: float = 0.0  # summing heads: coupling stiffness per unit weight (0: zero-mode)
 
+
+@dataclass(frozen=True)
+class Design:
+    """How the heads are built: `heads` zero-mode (the paper's multiplier) or summing (a
+    weighted sum by springs per component); an optional tap buffer
+    (`springc.kws.training.tapbuffer`); the zero-mode multiplier's stiffness factor."""
+
+    heads: str = "zero-mode"
+    buffer: tapbuffer.TapBuffer | None = None
+    mvm_stiffness: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.heads not in HEADS:
+            raise UsageError(f"unknown heads {self.heads!r}; use one of {', '.join(HEADS)}")
+        if not self.mvm_stiffness > 0:
+            raise UsageError(f"the mvm stiffness factor must be > 0, not {self.mvm_stiffness}")
+
+    def to_dict(self) -> dict:
+        """As settings.json's transfer "design" keeps it."""
+        return {"heads": self.heads, "mvm_stiffness": self.mvm_stiffness,
+                "buffer": self.buffer.to_dict() if self.buffer else None}
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> "Design":
+        """The design a settings.json records (none recorded: the paper's)."""
+        if not d:
+            return cls()
+        buffer = tapbuffer.TapBuffer(**d["buffer"]) if d.get("buffer") else None
+        return cls(d.get("heads", "zero-mode"), buffer, float(d.get("mvm_stiffness", 1.0)))
+
+
+# the design that holds the 8x3 network's accuracy to eps = 1 (docs/results-eps.md): the taps
+# buffered (kb 6e-5 kc to the buffer node, kg 1e4 kc from it to ground) and the multipliers 10x
+# stiffer; `springc train` takes it where the heads' eps is above BUFFERED_FROM
+BUFFERED = Design("zero-mode", tapbuffer.TapBuffer(6e-5, 1e4), 10.0)
+BUFFERED_FROM = 1e-5
 
 def readout_scale(tau: float = TAU_READOUT, qr: float = Q_READOUT, m: float = 1.0) -> float:
     """D = sqrt(b^2 - 4 m k) of the readout: x_r(T) = int exp(-(T-t)/tau) F dt / D."""
@@ -119,14 +173,42 @@ def reweighted_heads(heads: list[Head], weights: list, intercepts: list,
     return out
 
 
-def heads_for(models, s: msp.MassSpringSettings, amplitude: float,
-              epsilon: float) -> list[Head]:
-    """One head per row of every model [(classes, LinearModel)], in order."""
+def heads_for(models, s: msp.MassSpringSettings, amplitude: float, epsilon: float,
+              design: Design = Design()) -> list[Head]:
+    """One head per row of every model [(classes, LinearModel)], in order, built as `design`
+    says (with a buffer: for the amplitude it leaves, the decision scale still the taps')."""
+    seen = tapbuffer.amplitude(design.buffer, amplitude)
     out = []
     for classes, model in models:
         names = ["-".join(classes)] if len(model.coef) == 1 else list(classes)
         for name, coef, b in zip(names, model.coef, model.intercept):
-            out.append(design_head(name, coef, b, s, amplitude, epsilon))
+            out.append(design_head(name, coef, b, s, seen, epsilon))
+    if design.heads == "summing":
+        out = summing_heads(out, s, seen, epsilon, design)
+    return tapbuffer.rescaled(out, design.buffer)
+
+
+def summing_heads(heads: list[Head], s: msp.MassSpringSettings, amplitude: float,
+                  epsilon: float, design: Design) -> list[Head]:
+    """The heads' couplings for summing nodes (module docstring): kappa from the taps' load,
+    gamma_e = scale lambda_e |q_e|_1^2, alpha_e at squaring error `epsilon` against the node's
+    stiffness kappa |q_e|_1, the scale the largest within the readout's stiffness (`FILL`)."""
+    if design.buffer is not None:
+        holding = (design.buffer.kb + design.buffer.kg) * s.kc
+    else:
+        holding = min(s.line_damping() * 2 * math.pi * s.fc,
+                      s.kc / s.line_sites(s.delays - 1))
+    load = sum(np.abs(h.q[:, h.keep]).sum(axis=1) for h in heads)
+    kappa = LOAD * holding / float(load.max())
+    k_total = readout_params(TAU_READOUT, Q_READOUT).k_total
+    out = []
+    for h in heads:
+        l1 = np.abs(h.q[:, h.keep]).sum(axis=0)
+        lam, k_node = h.lam[h.keep] * l1**2, kappa * l1
+        scale = math.sqrt(FILL * k_total * epsilon / (amplitude**2 * np.sum(lam**2 / k_node)))
+        gamma = scale * lam
+        out.append(replace(h, gamma=gamma, alpha=leverage_for(amplitude, gamma, epsilon, k_node),
+                           scale=scale / readout_scale(), kappa=kappa))
     return out
 
 
@@ -134,7 +216,10 @@ def head_text(k: int, head: Head, s: msp.MassSpringSettings, heads: int,
               mvm_stiffness: float = 1.0) -> str:
     """`.subckt mvm{k}` (encoding Q^T) and `.subckt head{k} f0 .. f{N-1} r`: the mvm on the
     terminals, the quadratic couplings and the readout. `mvm_stiffness` multiplies the mvm's
-    stiffness d (`springc.design.mvm`'s default: DEFAULT_STIFFNESS_RATIO kc)."""
+    stiffness d (`springc.design.mvm`'s default: DEFAULT_STIFFNESS_RATIO kc). A summing head
+    (`head.kappa` > 0) has a weighted sum by springs per component instead of the mvm."""
+    if head.kappa > 0:
+        return summing_head_text(k, head, s)
     n = s.bins * s.delays
     kc = s.kc / heads
     design = design_mvm(head.q.T, m=s.site_mass() / (2 * heads), b=s.line_damping() / heads,
@@ -156,18 +241,43 @@ def head_text(k: int, head: Head, s: msp.MassSpringSettings, heads: int,
     return mvm + "\n" + w.text()
 
 
+def summing_head_text(k: int, head: Head, s: msp.MassSpringSettings) -> str:
+    """`.subckt head{k} f0 .. f{N-1} r`: per coupled component e a summing node s{e}
+    (`springc.design.summer`, weights q_e), its quadratic coupling to the readout, the
+    readout."""
+    from springc.design.summer import design_summer
+
+    taps = [f"f{p}" for p in range(s.bins * s.delays)]
+    w = SprWriter()
+    w.comment(f"head{k}: classifier row {head.name!r} with summing nodes; readout x_r = "
+              f"{head.scale:.6g} c . Phi, decision x_r / {head.scale:.6g} + "
+              f"({head.intercept:.6g})")
+    w.comment(f"{len(head.keep)} of {len(taps)} eigen-components summed by springs of "
+              f"{head.kappa:.6g} N/m per unit weight")
+    w.subckt(f"head{k}", taps + ["r"])
+    for e, g, a in zip(head.keep, head.gamma, head.alpha):
+        summer = design_summer(head.q[:, e], head.kappa, SUM_RESONANCE * s.fc, SUM_ZETA)
+        for fields in summer.elements(taps, f"s{e}", str(e)):
+            w.statement(*fields)
+        w.statement(f"Qy{e}", f"s{e}", "r", f"g={num(g)}", f"a={num(a)}")
+    kext = float(np.sum(head.gamma * head.alpha))
+    w.statement("Xr", "r", "readout", f"tau={num(TAU_READOUT)}", f"qr={num(Q_READOUT)}",
+                f"kext={num(kext)}")
+    w.ends(f"head{k}")
+    return w.text()
+
+
 def classifier_text(heads: list[Head], s: msp.MassSpringSettings, include_heads: bool = True,
-                    epsilon: float | None = None,
-                    buffer: tapbuffer.TapBuffer | None = None,
-                    mvm_stiffness: float = 1.0) -> str:
+                    epsilon: float | None = None, design: Design = Design()) -> str:
     """The whole classifier: the shared front end with every head on its terminal nodes.
     With `include_heads`, the heads' text follows inline (one self-contained netlist);
     otherwise `.include "head{k}.spr"` lines name the files `write_classifier` writes.
-    With a `buffer`, the heads sit on buffer nodes instead (`springc.kws.training.tapbuffer`;
-    the heads designed for its amplitude); `mvm_stiffness` multiplies the heads' mvm
-    stiffness (the design stable to eps = 1 of docs/results-eps.md: a buffer of kb 6e-5 kc,
-    kg 1e4 kc and mvm_stiffness 10)."""
+    With the design's buffer, the heads sit on buffer nodes instead
+    (`springc.kws.training.tapbuffer`; `heads_for` designs them for its amplitude); its
+    `mvm_stiffness` multiplies the zero-mode heads' mvm stiffness (`BUFFERED`: the design
+    stable to eps = 1 of docs/results-eps.md)."""
     s.validate()
+    buffer = design.buffer
     w = SprWriter()
     w.title(f"mass-spring keyword spotter, {s.bins} bins x {s.delays} delays, "
             f"{len(heads)} heads")
@@ -183,7 +293,12 @@ def classifier_text(heads: list[Head], s: msp.MassSpringSettings, include_heads:
             w.include(f"head{k}.spr")
     msp.front_end(w, s)
     w.blank()
-    if buffer is None:
+    if buffer is None and design.heads == "summing":
+        w.comment("terminal nodes: half a line site each, with the matched damping t_s kc; "
+                  "the heads' summing springs read them")
+        for node in msp.terminals(s):
+            w.statement(f"M{node}", node, "m={ts**2 * kc / 2}", "b={ts * kc}")
+    elif buffer is None:
         w.comment("heads: mvm inputs on the terminal nodes (they supply the terminals' mass "
                   "and matched damping), one readout each")
     else:
@@ -195,7 +310,7 @@ def classifier_text(heads: list[Head], s: msp.MassSpringSettings, include_heads:
     msp.tran(w, s)
     text = w.text()
     if include_heads:
-        text += "\n" + "\n".join(head_text(k, h, s, len(heads), mvm_stiffness)
+        text += "\n" + "\n".join(head_text(k, h, s, len(heads), design.mvm_stiffness)
                                  for k, h in enumerate(heads))
     return text
 
@@ -310,25 +425,35 @@ def write_classifier(opts, fits: list, settings: dict,
     classifier.spr."""
     s = opts.massspring
     eps = opts.epsilon or DEFAULT_EPSILON
+    design = opts.design or default_design(eps)
     sample, amplitude = reference.signals, reference.amplitude
-    heads = heads_for([(f[0], f[1]) for f in fits], s, amplitude, eps)
+    heads = heads_for([(f[0], f[1]) for f in fits], s, amplitude, eps, design)
     settings["transfer"] = {"epsilon": eps, "amplitude": amplitude,
                             "heads": [h.name for h in heads],
                             "scales": [h.scale for h in heads],
-                            "stiffness_scale": stiffness_scale(s)}
+                            "stiffness_scale": stiffness_scale(s),
+                            "design": design.to_dict()}
     plan = integration.PAPER
     if opts.tolerance is not None:
         from springc.lang import load_text
 
-        net = load_text(classifier_text(heads, s, epsilon=eps), "<classifier>")
+        net = load_text(classifier_text(heads, s, epsilon=eps, design=design), "<classifier>")
         plan = choose_classifier_integration(check(net), heads, s,
                                              sample[:CLASSIFIER_SAMPLE])
     settings["transfer"]["integration"] = plan.to_dict()
     files = {"features.spr": msp.feature_text(s),
-             "classifier.spr": classifier_text(heads, s, include_heads=False, epsilon=eps)}
+             "classifier.spr": classifier_text(heads, s, include_heads=False, epsilon=eps,
+                                               design=design)}
     for k, h in enumerate(heads):
-        files[f"head{k}.spr"] = head_text(k, h, s, len(heads))
+        files[f"head{k}.spr"] = head_text(k, h, s, len(heads), design.mvm_stiffness)
     return files
+
+
+def default_design(epsilon: float) -> Design:
+    """The heads `springc train` builds at squaring error `epsilon` unless told: the paper's
+    up to BUFFERED_FROM, beyond it `BUFFERED` (the plain heads fail from eps ~ 1e-4 on,
+    docs/results-eps.md)."""
+    return BUFFERED if epsilon > BUFFERED_FROM else Design()
 
 
 def tuned_heads(heads: list[Head], couplings: list | None,
@@ -344,6 +469,12 @@ def tuned_heads(heads: list[Head], couplings: list | None,
     return out
 
 
+def model_design(model) -> Design:
+    """The design a mass-spring model's heads were built with (settings.json's transfer
+    "design"; none recorded: the paper's)."""
+    return Design.from_dict(model.settings.get("transfer", {}).get("design"))
+
+
 def model_heads(model) -> tuple[msp.MassSpringSettings, list[Head]]:
     """The settings and heads of a trained mass-spring model (re-derived, deterministic; a
     tuned model's refitted weights and factors from settings.json's "transfer": "refit",
@@ -355,7 +486,7 @@ def model_heads(model) -> tuple[msp.MassSpringSettings, list[Head]]:
     try:
         s = msp.MassSpringSettings(**feats)
         amplitude, epsilon = float(tr["amplitude"]), float(tr["epsilon"])
-        heads = heads_for(model.models, s, amplitude, epsilon)
+        heads = heads_for(model.models, s, amplitude, epsilon, model_design(model))
         if tr.get("refit"):
             refit = tr["refit"]
             heads = reweighted_heads(heads, refit["weights"], refit["intercepts"], s,

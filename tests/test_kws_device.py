@@ -53,6 +53,28 @@ def test_every_element_of_the_classifier_has_a_stage(net):
     assert dv.stage_of("Xq0.Qsq") == "compressors" and dv.stage_of("Mstray") is None
 
 
+@pytest.mark.parametrize("design", [tr.Design("summing"), tr.BUFFERED],
+                         ids=["summing", "buffered"])
+def test_every_element_of_a_device_design_has_a_stage(design):
+    """Summing heads (their nodes and springs are the couplings) and buffered taps (their
+    springs are the delays'): `--mc --stage` spreads every element of these too."""
+    heads = tr.heads_for([(("c0", "c1"), _rows())],
+                         S, 1e-3, tr.DEFAULT_EPSILON, design)
+    net = load_text(tr.classifier_text(heads, S, design=design), "<device classifier>")
+    for table, _ in dv.FABRICATED:
+        assert "" not in dv.stages(net, table)
+    assert dv.stage_of("Xh0.Ms3") == "couplings" and dv.stage_of("Xh1.Cs2_5") == "couplings"
+
+
+def _rows():
+    from springc.kws.features.phi import n_features
+    from springc.kws.training.svm import LinearModel
+
+    rng = np.random.default_rng(0)
+    n = n_features(S.bins, S.delays)
+    return LinearModel(rng.normal(size=(2, n)), rng.normal(size=2), np.array(["c0", "c1"]))
+
+
 def test_zero_spread_is_the_nominal_design_bit_for_bit(net):
     assert dv.fabricate(net, dv.Spread(0.0, seed=3), 5).text() == net.text()
     for (t, k), v in coefficients(dv.fabricate(net, dv.Spread(0.0, "global"), 2)).items():

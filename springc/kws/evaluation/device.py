@@ -476,7 +476,9 @@ def evaluate_physical(setup: Setup, phys: Physical, *, reference: dict | None = 
     signal-to-noise ratio of Phi (noiseless Phi over noisy minus noiseless, per feature over
     the clips) and the decision error (`decision_error` against the noiseless decisions).
     `reference`: the noiseless normalised `outputs(..., phi=True)`, computed here unless
-    given (it is the same for every scale)."""
+    given (it is the same for every scale). Noise that drives a nonlinear element beyond its
+    bounds diverges the run: the device then decides nothing, scores 0 and is `diverged`,
+    as a diverged device of a population is."""
     from springc.kws.features.distributed import session
 
     phys.validate()
@@ -485,16 +487,22 @@ def evaluate_physical(setup: Setup, phys: Physical, *, reference: dict | None = 
         if reference is None:
             reference = outputs(setup, setup.net, phi=True, scheduler=scheduler, jobs=jobs,
                                 desc="noiseless")
-        noisy = outputs(setup, net, lam=lam, temp=phys.temp, seed=phys.seed, phi=True,
-                        scheduler=scheduler, jobs=jobs, desc="thermal noise")
-    return {"accuracy": accuracy(setup, noisy["decisions"]),
-            "noiseless": accuracy(setup, reference["decisions"]),
+        try:
+            noisy = outputs(setup, net, lam=lam, temp=phys.temp, seed=phys.seed, phi=True,
+                            scheduler=scheduler, jobs=jobs, desc="thermal noise")
+        except DivergedRuns as err:
+            noisy = {"decisions": None, "why": err.message}
+    scale = {"n": len(setup.y), "temp": phys.temp, "mass": phys.mass, "spl": phys.spl,
+             "area": phys.area, "seed": phys.seed, "pressure": phys.pressure, "length": lam,
+             "device_mass": float(phys.mass * setup.net.mass().sum()),
+             "noiseless": accuracy(setup, reference["decisions"])}
+    if noisy["decisions"] is None:
+        return {"accuracy": 0.0, "diverged": noisy["why"], "phi_snr_db": None,
+                "decision_error": float("inf"), **scale}
+    return {"accuracy": accuracy(setup, noisy["decisions"]), "diverged": None,
             "phi_snr_db": phi_snr_db(reference["phi"], noisy["phi"]),
             "decision_error": decision_error(noisy["decisions"], reference["decisions"]),
-            "n": len(setup.y),
-            "temp": phys.temp, "mass": phys.mass, "spl": phys.spl, "area": phys.area,
-            "seed": phys.seed, "pressure": phys.pressure, "length": lam,
-            "device_mass": float(phys.mass * setup.net.mass().sum())}
+            **scale}
 
 
 def phi_snr_db(clean: np.ndarray, noisy: np.ndarray) -> dict[str, float]:
@@ -569,12 +577,15 @@ def spread_lines(report: dict, spread: Spread) -> list[str]:
 def physical_lines(report: dict, phys: Physical) -> list[str]:
     """The physical-scale report as text."""
     snr = report["phi_snr_db"]
-    return [f"device at physical scale: {phys.describe()}; {report['n']} test clips",
+    head = [f"device at physical scale: {phys.describe()}; {report['n']} test clips",
             f"  displacement scale {report['length']:.3g} m per unit, device mass "
-            f"{report['device_mass']:.3g} kg",
-            f"  accuracy {100 * report['accuracy']:.2f}% with thermal noise, "
-            f"{100 * report['noiseless']:.2f}% noiseless",
-            f"  SNR of the features Phi: median {snr['median']:.1f} dB over the features, "
-            f"worst {snr['worst']:.1f} dB, pooled {snr['pooled']:.1f} dB",
-            f"  decision error (median |noisy - noiseless| / median |noiseless|) "
-            f"{report['decision_error']:.3g}"]
+            f"{report['device_mass']:.3g} kg"]
+    if report.get("diverged"):
+        return head + [f"  the noise drove the network beyond its bounds ({report['diverged']})"
+                       f": no decision (scored 0); {100 * report['noiseless']:.2f}% noiseless"]
+    return head + [f"  accuracy {100 * report['accuracy']:.2f}% with thermal noise, "
+                   f"{100 * report['noiseless']:.2f}% noiseless",
+                   f"  SNR of the features Phi: median {snr['median']:.1f} dB over the "
+                   f"features, worst {snr['worst']:.1f} dB, pooled {snr['pooled']:.1f} dB",
+                   f"  decision error (median |noisy - noiseless| / median |noiseless|) "
+                   f"{report['decision_error']:.3g}"]

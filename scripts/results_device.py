@@ -1,0 +1,114 @@
+"""The keyword spotter as a device: today's mass-spring design (zero-mode heads) beside the
+device design (summing heads, `springc train --realisation device`) under fabrication spread,
+thermal noise at physical scale, and the energy budget against the 53 dB a decision may lose.
+
+    python scripts/results_device.py run --data CORPUS --out DIR [--sizes 4x2 8x3]
+    python scripts/results_device.py page --out DIR --md docs/results-device.md
+
+`run` trains both designs per size on CORPUS (skipped where DIR holds the model), and
+through `springc.evaluate` measures the whole network's accuracy on the test split, the
+population of --devices devices at each --spreads (on --clips test clips), the device with
+thermal noise at each --masses (kg, 300 K, 60 dB SPL, 1 mm^2) and the budget of --budget
+clips; and the 8x3 mass-spring network trained at --epsilon 1 (the buffered design) beside
+1e-6. Results go to DIR/results.json as they come. `page` writes the markdown and the plot.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import springc
+
+DESIGNS = {"zero-mode": "mass-spring", "summing": "device"}
+SPREADS = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 3e-2)
+MASSES = (1e-40, 1e-36, 1e-30, 1e-20, 1e-10)
+
+
+def model(out: Path, data: Path, size: str, realisation: str, epsilon=None) -> Path:
+    """The model folder of one design and size, trained on `data` unless it is there."""
+    n, m = (int(v) for v in size.split("x"))
+    tag = f"{realisation}-{size}" + (f"-eps{epsilon:g}" if epsilon else "")
+    folder = out / "models" / tag
+    if not (folder / "settings.json").exists():
+        springc.train(data, folder, bins=n, delays=m, realisation=realisation,
+                      epsilon=epsilon)
+    return folder
+
+
+def measure(folder: Path, args) -> dict:
+    """Nominal accuracy, the spread sweep, the noise sweep and the budget of one model."""
+    nominal = springc.evaluate(folder)
+    row = {"accuracy": nominal["accuracy"], "ideal": nominal["digital_same_model"]["accuracy"],
+           "n": nominal["n"], "loss_db": nominal["insertion_loss_db"]["median"]}
+    row["spread"] = [_spread(folder, s, args) for s in args.spreads]
+    row["noise"] = [_noise(folder, mass, args) for mass in args.masses]
+    from springc.kws.evaluation.energy import budget_json
+
+    row["budget"] = budget_json(springc.evaluate(folder, budget=args.budget))
+    return row
+
+
+def _spread(folder: Path, spread: float, args) -> dict:
+    rep = springc.evaluate(folder, mc=args.devices, spread=spread, clips=args.clips)
+    return {"spread": spread, "nominal": rep["nominal"], **rep["accuracy"]}
+
+
+def _noise(folder: Path, mass: float, args) -> dict:
+    rep = springc.evaluate(folder, temp=300.0, device_mass=mass, spl=60.0, area=1e-6,
+                           clips=args.clips)
+    return {"device_mass": mass, "accuracy": rep["accuracy"], "noiseless": rep["noiseless"],
+            "decision_error": rep["decision_error"], "diverged": bool(rep.get("diverged"))}
+
+
+def run(args) -> None:
+    out = Path(args.out)
+    path = out / "results.json"
+    results = json.loads(path.read_text()) if path.exists() else {}
+    for size in args.sizes:
+        for design, realisation in DESIGNS.items():
+            key = f"{size} {design}"
+            if key in results:
+                continue
+            start = time.perf_counter()
+            results[key] = measure(model(out, Path(args.data), size, realisation), args)
+            results[key]["seconds"] = time.perf_counter() - start
+            path.write_text(json.dumps(results, indent=1))
+            print(f"{key}: {results[key]['accuracy']:.3f} in {results[key]['seconds']:.0f} s")
+    for eps in (1e-6, 1.0):
+        key = f"8x3 zero-mode eps {eps:g}"
+        if key not in results:
+            rep = springc.evaluate(model(out, Path(args.data), "8x3", "mass-spring", eps))
+            results[key] = {"accuracy": rep["accuracy"], "n": rep["n"],
+                            "loss_db": rep["insertion_loss_db"]["median"]}
+            path.write_text(json.dumps(results, indent=1))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    r = sub.add_parser("run")
+    r.add_argument("--data", required=True)
+    r.add_argument("--out", required=True)
+    r.add_argument("--sizes", nargs="+", default=["4x2", "8x3"])
+    r.add_argument("--spreads", nargs="+", type=float, default=list(SPREADS))
+    r.add_argument("--masses", nargs="+", type=float, default=list(MASSES))
+    r.add_argument("--devices", type=int, default=4)
+    r.add_argument("--clips", type=int, default=48)
+    r.add_argument("--budget", type=int, default=8)
+    p = sub.add_parser("page")
+    p.add_argument("--out", required=True)
+    p.add_argument("--md", default="docs/results-device.md")
+    args = parser.parse_args()
+    if args.command == "run":
+        run(args)
+    else:
+        from springc.kws.evaluation.device_page import write_page
+
+        write_page(json.loads((Path(args.out) / "results.json").read_text()), Path(args.md))
+
+
+if __name__ == "__main__":
+    main()

@@ -38,6 +38,7 @@ LIB_TOPS = {
     "melfilter": "X1 a melfilter\nX2 b melfilter1\n",
     "readout": "X1 a readout\n",
     "squarer": "M1 a m=1 b=1\nK1 a k=1\nX1 a b squarer\nM2 b m=1 b=1\nK2 b k=1\n",
+    "summer": "M1 a m=1 b=1\nK1 a k=1\nM2 c m=1 b=1\nK2 c k=1\nX1 a c b summer2 w1=-2\n",
 }
 LOCATED = re.compile(r"^(?P<file>[^\s:]+\.spr):(?P<line>\d+):(?P<col>\d+): error: ", re.M)
 KEY_NUMBER = re.compile(r"\b(m|k|l|g|b)=(\d+(\.\d+)?)\b")

@@ -72,6 +72,17 @@ def test_no_candidate_is_a_user_error() -> None:
                            _fake({c: 1e-2 for c in found}, set(), []), 0.5, 1e-3)
 
 
+def test_every_candidate_is_stable_at_rest() -> None:
+    """An eighth of the estimated substeps can fall below the stability limit (here RK4 at a
+    1 ms sample step: 8 substeps estimated, 7.8 needed for stability): such a step is no
+    candidate, the stable ones are."""
+    checked = check(msp.feature_network(SMALL))
+    limit = checked.step_limit("rk4").dt
+    found = integration.candidates(checked, 1e-3, 0.5, 1e-3, methods=("rk4",))
+    assert found and all(1e-3 / sub <= limit * (1 + 1e-9) for _, sub in found)
+    assert 1e-3 / 4 > limit  # so the eighth, quarter and half of 8 were dropped
+
+
 def test_relative_error_is_per_clip() -> None:
     ref = np.array([[1.0, 2.0], [100.0, 0.0]])
     got = ref + np.array([[0.0, 0.002], [0.1, 0.0]])

@@ -92,12 +92,29 @@ def plot(results: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def write_page(results: dict, md: Path, intro: str = "") -> Path:
-    """The page (tables in the order of `results`) and its plot beside it."""
+READING = "## Reading the results"
+TABLES = "## Accuracy of the whole network"
+
+
+def reading(md: Path) -> str:
+    """The page's own reading of its results (written by a person, kept when the tables are
+    regenerated): the text from READING up to the first table's heading, or ''."""
+    if not md.exists():
+        return ""
+    text = md.read_text()
+    start = text.find(READING)
+    end = text.find(TABLES, start)
+    return text[start:end].rstrip() + "\n" if start >= 0 and end > start else ""
+
+
+def write_page(results: dict, md: Path, intro: str | None = None) -> Path:
+    """The page (tables in the order of `results`) and its plot beside it; `intro` (by
+    default the page's present reading section) goes between the plot and the tables."""
+    intro = reading(md) if intro is None else intro
     png = md.with_suffix(".png")
     plot(results, png)
     lines = ["# The keyword spotter as a device", "", f"![accuracy]({png.name})", "", intro,
-             "## Accuracy of the whole network", "", *summary_rows(results), "",
+             TABLES, "", *summary_rows(results), "",
              "## Against fabrication spread", "", *spread_rows(results), "",
              "## Against device mass, with thermal noise", "", *noise_rows(results), "",
              "## Where the energy goes, at 2e-9 kg, 60 dB SPL, 1 mm^2, 300 K", "",

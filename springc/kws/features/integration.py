@@ -166,7 +166,8 @@ def candidates(checked: CheckedNetlist, tstep: float, duration: float, tol: floa
     estimates allow, from an eighth (the estimates count every mode at full weight, which
     the outputs may not feel: the classifier's multipliers put stiff modes where RK4 needs 8
     substeps for 1e-3, and its readouts meet 1e-3 with exp-rk4 at 2) to four times as many
-    (the nonlinear terms, which they do not see)."""
+    (the nonlinear terms, which they do not see). A step above the method's stability limit
+    at rest is not a candidate."""
     from springc.check.accuracy import cost
 
     net = checked.net
@@ -176,8 +177,10 @@ def candidates(checked: CheckedNetlist, tstep: float, duration: float, tol: floa
             first = estimate(net, tstep, duration, tol, methods=(method,)).substeps
         except UsageError:
             continue
-        out += [(method, max(1, round(first * k))) for k in (0.125, 0.25, 0.5, 1, 2, 4)
+        limit = checked.step_limit(method).dt * (1 + 1e-9)
+        subs = [max(1, round(first * k)) for k in (0.125, 0.25, 0.5, 1, 2, 4)
                 if first * k <= MAX_SUBSTEPS]
+        out += [(method, sub) for sub in subs if tstep / sub <= limit]
     return sorted(set(out), key=lambda c: (cost(net, *c), c))
 
 

@@ -1,0 +1,39 @@
+"""docs/results-device.md's writer: every measured figure reaches its table as measured, the
+page's own reading survives a regeneration, and the plot is written beside the page."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from springc.kws.evaluation.device_page import READING, write_page
+
+RESULTS = {
+    "8x3 summing": {
+        "accuracy": 0.61, "ideal": 0.61, "n": 136, "loss_db": 369.9,
+        "spread": [{"spread": 1e-3, "nominal": 0.5625, "mean": 0.568, "stderr": 0.005,
+                    "worst": 0.5625}],
+        "noise": [{"device_mass": 1e-40, "accuracy": 0.0833, "noiseless": 0.5625,
+                   "decision_error": 12.5, "diverged": False}],
+        "budget": {"stages": {"readouts": {"kt": 2.5e-35, "db_of_sound": -400.3}}},
+    },
+    "8x3 zero-mode eps 1": {"accuracy": 0.60, "n": 136, "loss_db": 400.5},
+}
+
+
+def test_figures_reach_their_tables(tmp_path: Path) -> None:
+    md = write_page(RESULTS, tmp_path / "page.md", intro="")
+    text = md.read_text()
+    assert "| 8x3 summing | 61.0 | 61.0 | 136 | 369.9 |" in text
+    assert "| 8x3 zero-mode eps 1 | 60.0 | - | 136 | 400.5 |" in text
+    assert "| 8x3 | summing | 0.001 | 56.2 | 56.8 +- 0.5 | 56.2 |" in text
+    assert "| 8x3 | summing | 1e-40 | 8.3 | 56.2 | 12.5 |" in text
+    assert "| 8x3 | summing | readouts | 2.5e-35 | -400.3 |" in text
+    assert (tmp_path / "page.png").stat().st_size > 1000
+
+
+def test_reading_survives_regeneration(tmp_path: Path) -> None:
+    md = tmp_path / "page.md"
+    write_page(RESULTS, md, intro=f"{READING}\n\nThe summing heads hold.\n")
+    write_page(RESULTS, md)
+    text = md.read_text()
+    assert text.count(READING) == 1 and "The summing heads hold." in text

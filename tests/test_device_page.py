@@ -14,7 +14,8 @@ RESULTS = {
                     "worst": 0.5625}],
         "noise": [{"device_mass": 1e-40, "accuracy": 0.0833, "noiseless": 0.5625,
                    "decision_error": 12.5, "diverged": False}],
-        "budget": {"stages": {"readouts": {"kt": 2.5e-35, "db_of_sound": -400.3}}},
+        "budget": {"stages": {"readouts": {"kt": 2.5e-35, "db_of_sound": -400.3}},
+                   "bound_db": 52.9},
     },
     "8x3 zero-mode eps 1": {"accuracy": 0.60, "n": 136, "loss_db": 400.5},
 }

@@ -65,13 +65,14 @@ def _design(key: str) -> str:
 
 
 def plot(results: dict, path: Path) -> None:
-    """Accuracy against spread and against device mass, a line per model."""
+    """Accuracy against spread, against device mass and against insertion loss (with the
+    budget's bound), a line or point per model."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
+    fig, (left, right, loss) = plt.subplots(1, 3, figsize=(15, 4))
     for key, r in results.items():
         if r.get("spread"):
             left.errorbar([p["spread"] for p in r["spread"]],
@@ -80,10 +81,18 @@ def plot(results: dict, path: Path) -> None:
         if r.get("noise"):
             right.plot([p["device_mass"] for p in r["noise"]],
                        [100 * p["accuracy"] for p in r["noise"]], marker="o", label=key)
+        loss.plot(r["loss_db"], 100 * r["accuracy"], marker="o", ls="", label=key)
+    bounds = {r["budget"]["bound_db"] for r in results.values() if r.get("budget")}
+    for bound in bounds:  # what a decision may lose at the budget's sound and area
+        loss.axvline(bound, color="black", lw=0.8)
+        loss.text(bound, 15, f" bound {bound:.1f} dB", fontsize="small")
+    loss.set_xlim(0, None)
+    loss.set_xlabel("insertion loss (dB, median clip)")
     for ax, label in ((left, "relative spread of every coefficient"),
                       (right, "device mass (kg), 300 K, 60 dB SPL, 1 mm^2")):
         ax.set_xscale("log")
         ax.set_xlabel(label)
+    for ax in (left, right, loss):
         ax.set_ylabel("test accuracy (%)")
         ax.axhline(100 / 12, color="grey", lw=0.8, ls=":")
         ax.legend(fontsize="small")

@@ -144,7 +144,9 @@ def _lead(results: list[CaseResult], machine: dict) -> str:
             + _device_md(machine) + ". "
             f"Render this page again from its stored numbers: `{RENDER_COMMAND}`; measure "
             "again: `make bench`. The CUDA kernel form on a GPU, against these CPU kernels and "
-            "JAX: [bench-gpu.md](bench-gpu.md).")
+            "JAX: [bench-gpu.md](bench-gpu.md); a netlist's first result, whole processes "
+            "beside ngspice: [bench-startup.md](bench-startup.md); a Monte Carlo population "
+            "in the lanes: [bench-population.md](bench-population.md).")
 
 
 def _device_md(machine: dict) -> str:

@@ -94,7 +94,8 @@ def rows(folder: Path) -> list[Row]:
         out.append(Row(f"build {files[key].name}", springc_argv("build", spr), what))
         out.append(Row(f"sim {files[key].name}", springc_argv(
             "sim", spr, "-i", wav, "-o", str(folder / "out.npz"), "--method", method,
-            "--substeps", str(sub)), f"{what}, {INPUT_S:g} s of input, {method} x{sub}"))
+            "--substeps", str(sub), "--tstop", f"{INPUT_S:g}"),
+            f"{what}, {INPUT_S:g} s of input simulated, {method} x{sub}"))
     return out
 
 
@@ -170,8 +171,9 @@ def markdown(result: dict) -> str:
               f"- `{COMMAND}`: whole processes timed from start to exit; warm rows after one "
               f"unmeasured run filled the kernel cache, cold rows each with an empty "
               "`SPRINGC_CACHE` (numba compiles every kernel the command needs).",
-              f"- The keyword-spotting rows run {INPUT_S:g} s of speech-like input from a "
-              "float WAV file at the netlist's own rate (no resampling)."]
+              f"- The keyword-spotting rows simulate {INPUT_S:g} s (`--tstop`) of "
+              "speech-like input from a float WAV file at the netlist's own rate (no "
+              "resampling)."]
     return "\n".join(lines) + "\n"
 
 

@@ -55,6 +55,26 @@ def test_estimate_matches_the_measured_impulse_response_error(f0, rate):
     assert estimate == pytest.approx(measured, rel=0.1)
 
 
+def test_a_start_away_from_rest_counts_modes_above_the_grid():
+    """Released with a velocity, a 159 Hz mode (Q 1e4) recorded at 200 Hz: the input band
+    (up to 100 Hz) holds no mode, but the initial state excites this one, so the choice must
+    hold it within the tolerance. The exact free response is the reference; the measured
+    relative L2 error is the estimate's own quantity (its series agrees to a tenth, above)."""
+    alpha, seconds = 0.1, 0.5
+    net = _oscillator(1000 / (2 * np.pi), alpha, 200.0, seconds)
+    got = accuracy.choose(net, 1 / 200, seconds, 1e-3, methods=("rk4",))
+    assert np.isinf(got.band_hz) and "initial state" in got.describe()
+    res = simulate(check(net), method=got.method, substeps=got.substeps)
+    wd = np.sqrt(1000.0**2 - alpha**2 / 4)
+    exact = np.exp(-alpha / 2 * res.t) * np.sin(wd * res.t) / wd
+    measured = np.linalg.norm(res.probes["x(a)"][0] - exact) / np.linalg.norm(exact)
+    assert measured <= 1e-3
+    # the fewest substeps RK4 is stable at (what counting the input band alone allowed) is
+    # wrong by the whole signal
+    coarse = simulate(check(net), method="rk4", substeps=2)
+    assert np.linalg.norm(coarse.probes["x(a)"][0] - exact) / np.linalg.norm(exact) > 0.5
+
+
 def test_split_scheme_modes_of_blocks_are_exact():
     net = benchsuite.feature_extractor(bands=3)
     errs = accuracy.mode_errors(net, 1 / 32000, "exp-rk4", 1.0)

@@ -103,7 +103,7 @@ def test_build_error_exits_1_with_location_and_caret(tmp_path) -> None:
     assert "Traceback" not in res.output
 
 
-STIFF = "* one stiff mass\nM1 n1 m=1 b=0.1 x0=1\nK1 n1 k=1e8\n.probe x(n1)\n.tran 1m 1\n"
+STIFF = "* one stiff mass\nM1 n1 m=1 b=0.1 x0=1\nK1 n1 k=1e8\n.probe x(n1)\n.tran 1m 0.01\n"
 
 
 def test_build_reports_the_integration_sim_chooses(tmp_path) -> None:
@@ -127,6 +127,19 @@ def test_build_reports_the_integration_sim_chooses(tmp_path) -> None:
         res = _run(*command, "--method", "rk4")
         assert res.exit_code == 1 and "is unstable for rk4" in res.output
     assert not (tmp_path / "pinned.npz").exists()
+
+
+def test_build_warns_where_sim_refuses(tmp_path) -> None:
+    """Released at 1.6 kHz (Q 1e5) and recorded at 1 kHz for 1 s, the mode the initial state
+    excites cannot be held within 1e-3 by RK4 up to 64 substeps: build warns, and sim
+    refuses with the same reason and writes nothing."""
+    path = tmp_path / "stiff.spr"
+    path.write_text(STIFF.replace(".tran 1m 0.01", ".tran 1m 1"))
+    built = _run("build", path)
+    assert built.exit_code == 0 and "warning: no integrator meets tolerance 0.001" in built.output
+    res = _run("sim", path, "-o", tmp_path / "out.npz")
+    assert res.exit_code == 1 and "no integrator meets tolerance 0.001" in res.output
+    assert "Traceback" not in res.output and not (tmp_path / "out.npz").exists()
 
 
 @pytest.mark.parametrize("name", sorted(p.name for p in EXAMPLES.glob("*.spr")))

@@ -193,6 +193,12 @@ class Choice:
     pilot_s: float = 0.0
     linear_substeps: int = 0
 
+    def modes_judged(self) -> str:
+        """Which modes the error is estimated over, in words."""
+        if math.isinf(self.band_hz):
+            return "every linear mode (the initial state excites them all)"
+        return f"the linear modes up to {self.band_hz:.5g} Hz"
+
     def describe(self) -> str:
         worst = f"; worst mode {self.worst.describe()}" if self.worst else ""
         linear = (f" (at {self.linear_substeps} substep(s))"
@@ -201,9 +207,8 @@ class Choice:
                  f"; on the nonlinear terms, step doubling over the first {self.pilot_s:g} s "
                  f"of the first run: estimated error {self.pilot_error:.3g}")
         return (f"chose {self.method} with {self.substeps} substep(s) (h = {self.h:.4g} s): "
-                f"estimated error {self.error:.3g} for the linear modes up to "
-                f"{self.band_hz:.5g} Hz{linear}{pilot}, cost {self.cost:.3g} stages per "
-                f"sample{worst}")
+                f"estimated error {self.error:.3g} for {self.modes_judged()}{linear}{pilot}, cost "
+                f"{self.cost:.3g} stages per sample{worst}")
 
 
 def cost(net: FlatNetlist, method: str, substeps: int) -> float:
@@ -224,12 +229,14 @@ def choose(net: FlatNetlist, tstep: float, duration: float, tol: float,
            methods: tuple[str, ...] = CANDIDATES,
            substeps: tuple[int, ...] = SUBSTEPS, found: linear.Modes | None = None) -> Choice:
     """The cheapest stable (method, substeps) whose estimated error is at most `tol` for every
-    mode within the input band (up to the Nyquist frequency of the input grid 1/tstep).
+    mode within the input band (up to the Nyquist frequency of the input grid 1/tstep), or
+    for every mode where the netlist starts away from rest (an initial displacement or
+    velocity excites modes of any frequency, which the record's grid then aliases).
     `found`: the modes of the linearisation where the checks computed them already."""
     if not tol > 0:
         raise UsageError(f"tolerance must be positive, got {tol}")
     found = found if found is not None else linear.modes(net)
-    band = 0.5 / tstep
+    band = math.inf if starts_moving(net) else 0.5 / tstep
     best: Choice | None = None
     for method in methods:
         if method not in TABLEAUX and not expint.is_split(method):
@@ -241,6 +248,11 @@ def choose(net: FlatNetlist, tstep: float, duration: float, tol: float,
         raise UsageError(f"no integrator meets tolerance {tol:g} with up to {max(substeps)} "
                          "substeps", hint="raise the tolerance or lower .tran tstep")
     return best
+
+
+def starts_moving(net: FlatNetlist) -> bool:
+    """Whether any mass starts away from rest (x0 or v0 not zero)."""
+    return bool(np.any(net.masses.x0 != 0) or np.any(net.masses.v0 != 0))
 
 
 def _cheapest_substeps(net, found, method, tstep, duration, band, tol,

@@ -103,7 +103,8 @@ class BuildReport:
                "h": self.tstep}
         if chosen is not None:
             out.update(tolerance=self.tolerance, error=chosen.error, cost=chosen.cost,
-                       band_hz=chosen.band_hz, text=chosen.describe())
+                       band_hz=None if math.isinf(chosen.band_hz) else chosen.band_hz,
+                       text=chosen.describe())
         return out
 
     def summary(self) -> str:
@@ -164,7 +165,7 @@ def _chosen(report: BuildReport) -> str:
     """The choice in `springc sim`'s words, and what `sim` checks on top of it."""
     c = report.choice
     text = (f"{c.method} with {c.substeps} substep(s), as springc sim chooses it: estimated "
-            f"error {c.error:.3g} on the linear modes up to {c.band_hz:.5g} Hz, cost "
+            f"error {c.error:.3g} on {c.modes_judged()}, cost "
             f"{c.cost:.3g} stages per sample")
     if report.net is not None and accuracy.nonlinear(report.net):
         text += ("; springc sim confirms it on the nonlinear terms by step doubling over "
@@ -314,7 +315,8 @@ def _choice(result: checks.CheckedNetlist,
                                found=result.modes), []
     except UsageError as err:
         return None, [Diagnostic("warning", f"{err.message}: springc sim refuses this "
-                                 "netlist at that tolerance", net.tran.loc, err.hint)]
+                                 "netlist at that tolerance", net.tran.loc,
+                                 err.diagnostic.hint)]
 
 
 def _blocks_of(result: checks.CheckedNetlist, method: str):

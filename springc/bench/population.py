@@ -130,9 +130,10 @@ def cpu_model() -> str:
 
 
 def max_load(threads: int) -> float:
-    """The largest 1-minute load average at which the ratio is recorded: other work on
-    more than a quarter of the cores hides the population's memory traffic (both walls grow
-    alike; a 2-core machine at load 8.7 gave 1.00x where it gives 1.75x quiet)."""
+    """The largest 1-minute load average at which the ratio is recorded, a quarter of the
+    cores and half a core (1.0 on 2 cores): more work beside the bench hides the population's
+    memory traffic (both walls grow alike; a 2-core machine at load 8.7 gave 1.00x where it
+    gives 1.74x quiet)."""
     return 0.25 * threads + 0.5
 
 

@@ -18,6 +18,9 @@ RESULTS = {
                    "bound_db": 52.9},
     },
     "8x3 zero-mode eps 1": {"accuracy": 0.60, "n": 136, "loss_db": 400.5},
+    "unheard": {"engine": "flite",
+                "eps 1": {"own": 0.684, "own_n": 136, "unheard": 0.526, "unheard_n": 346,
+                          "loss_db": 400.7}},
 }
 
 
@@ -29,6 +32,7 @@ def test_figures_reach_their_tables(tmp_path: Path) -> None:
     assert "| 8x3 | summing | 0.001 | 56.2 | 56.8 +- 0.5 | 56.2 |" in text
     assert "| 8x3 | summing | 1e-40 | 8.3 | 56.2 | 12.5 |" in text
     assert "| 8x3 | summing | readouts | 2.5e-35 | -400.3 |" in text
+    assert "| eps 1 | 68.4 (136) | 52.6 (346) | 400.7 |" in text
     assert (tmp_path / "page.png").stat().st_size > 1000
 
 

@@ -51,7 +51,13 @@ def measure(folder: Path, args) -> dict:
     from springc.kws.evaluation.energy import budget_json
 
     row["budget"] = budget_json(springc.evaluate(folder, budget=args.budget))
+    row["train_s"] = train_seconds(folder)
     return row
+
+
+def train_seconds(folder: Path) -> float:
+    """The training's stages, summed from the model's report (seconds)."""
+    return float(sum(json.loads((folder / "report.json").read_text())["seconds"].values()))
 
 
 def _spread(folder: Path, spread: float, args) -> dict:

@@ -9,7 +9,8 @@ from springc.kws.evaluation.device_page import READING, write_page
 
 RESULTS = {
     "8x3 summing": {
-        "accuracy": 0.61, "ideal": 0.61, "n": 136, "loss_db": 369.9,
+        "accuracy": 0.61, "ideal": 0.61, "n": 136, "loss_db": 369.9, "train_s": 74.2,
+        "seconds": 1187.0,
         "spread": [{"spread": 1e-3, "nominal": 0.5625, "mean": 0.568, "stderr": 0.005,
                     "worst": 0.5625}],
         "noise": [{"device_mass": 1e-40, "accuracy": 0.0833, "noiseless": 0.5625,
@@ -27,8 +28,8 @@ RESULTS = {
 def test_figures_reach_their_tables(tmp_path: Path) -> None:
     md = write_page(RESULTS, tmp_path / "page.md", intro="")
     text = md.read_text()
-    assert "| 8x3 summing | 61.0 | 61.0 | 136 | 369.9 |" in text
-    assert "| 8x3 zero-mode eps 1 | 60.0 | - | 136 | 400.5 |" in text
+    assert "| 8x3 summing | 61.0 | 61.0 | 136 | 369.9 | 74 | 19.8 |" in text
+    assert "| 8x3 zero-mode eps 1 | 60.0 | - | 136 | 400.5 | - | - |" in text
     assert "| 8x3 | summing | 0.001 | 56.2 | 56.8 +- 0.5 | 56.2 |" in text
     assert "| 8x3 | summing | 1e-40 | 8.3 | 56.2 | 12.5 |" in text
     assert "| 8x3 | summing | readouts | 2.5e-35 | -400.3 |" in text

@@ -46,13 +46,16 @@ def budget_rows(results: dict) -> list[str]:
 
 def summary_rows(results: dict) -> list[str]:
     """Markdown rows: per model the test accuracy of the whole network and of its ideal
-    readout, the test clips and the insertion loss."""
-    rows = ["| model | network % | ideal readout % | test clips | insertion loss (dB) |",
-            "|---|---|---|---|---|"]
+    readout, the test clips, the insertion loss, the training's seconds and the minutes of
+    training and every study together."""
+    rows = ["| model | network % | ideal readout % | test clips | insertion loss (dB) | "
+            "train s | all its studies min |", "|---|---|---|---|---|---|---|"]
     for key, r in results.items():
         ideal = f"{100 * r['ideal']:.1f}" if "ideal" in r else "-"
+        train = f"{r['train_s']:.0f}" if "train_s" in r else "-"
+        studies = f"{r['seconds'] / 60:.1f}" if "seconds" in r else "-"
         rows.append(f"| {key} | {100 * r['accuracy']:.1f} | {ideal} | {r['n']} | "
-                    f"{r['loss_db']:.1f} |")
+                    f"{r['loss_db']:.1f} | {train} | {studies} |")
     return rows
 
 

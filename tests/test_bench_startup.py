@@ -6,19 +6,19 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import soundfile as sf
-
-from springc.bench.startup import INPUT_S, Row, rows
+from springc.bench.startup import INPUT_S, Row, keyword_rows
 
 
 def test_keyword_spotting_rows_simulate_their_input(tmp_path: Path) -> None:
-    sims = [r for r in rows(tmp_path) if r.name.startswith("sim ") and "-i" in r.argv]
-    assert len(sims) == 2
+    files = {key: tmp_path / name for key, name in (
+        ("kws", "kws564.spr"), ("classifier", "classifier8x3.spr"),
+        ("kws_in", "kws564.wav"), ("classifier_in", "classifier.wav"))}
+    rows = keyword_rows(files, tmp_path)
+    sims = [r for r in rows if r.name.startswith("sim ")]
+    assert [r.name for r in sims] == ["sim kws564.spr", "sim classifier8x3.spr"]
     for row in sims:
-        wav = Path(row.argv[row.argv.index("-i") + 1])
-        info = sf.info(wav)
-        # samples at 0, h, ..., INPUT_S: one more than INPUT_S / h
-        assert (info.frames - 1) / info.samplerate == INPUT_S
+        key = "kws" if "kws" in row.name else "classifier"
+        assert row.argv[row.argv.index("-i") + 1] == str(files[f"{key}_in"])
         assert float(row.argv[row.argv.index("--tstop") + 1]) == INPUT_S
 
 

@@ -86,7 +86,13 @@ def rows(folder: Path) -> list[Row]:
         out.append(Row(f"sim {path.name}", springc_argv("sim", str(path), "-o",
                                                         str(folder / "out.npz")),
                        "integration chosen for 1e-3"))
-    files = write_inputs(folder)
+    return out + keyword_rows(write_inputs(folder), folder)
+
+
+def keyword_rows(files: dict[str, Path], folder: Path) -> list[Row]:
+    """build and sim of the keyword-spotting networks `write_inputs` wrote, each sim over
+    the input's INPUT_S seconds."""
+    out = []
     # the classifier's compressors stiffen at this level: exp-rk4 x2 diverges, x4 does not
     for key, method, sub, what in (("kws", "rk4", 2, "564 dofs"),
                                    ("classifier", "exp-rk4", 4, "788 dofs")):

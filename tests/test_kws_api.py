@@ -161,3 +161,25 @@ def test_the_entries_are_reached_from_the_top():
         assert name in springc.__all__ and name in springc.kws.__all__
     with pytest.raises(AttributeError, match="no attribute 'classify'"):
         springc.classify  # a model classifies: springc.kws.load_model
+
+
+def test_a_device_models_studies_default_to_its_recorded_scale(tmp_path):
+    """What `--spl`, `--area`, `--temp`, `--device-mass` do not give, a device model's
+    settings give (`train --realisation device` records them); a mass per unit given leaves
+    the recorded device mass out (the two say the same thing); a mass-spring model records
+    none; a broken settings file is a data error naming it."""
+    model = tmp_path / "device"
+    model.mkdir()
+    recorded = {"spl": 70.0, "area": 4e-6, "temp": 77.0, "device_mass": 3e-10}
+    (model / "settings.json").write_text(json.dumps({"device": recorded}))
+    none = dict(spl=None, area=None, temp=None, device_mass=None, mass=None)
+    assert api.recorded_scale(model, none) == {**recorded, "mass": None}
+    assert api.recorded_scale(model, {**none, "spl": 60.0})["spl"] == 60.0
+    assert api.recorded_scale(model, {**none, "mass": 1e-12})["device_mass"] is None
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    (plain / "settings.json").write_text(json.dumps({"realisation": "mass-spring"}))
+    assert api.recorded_scale(plain, none) == none
+    (plain / "settings.json").write_text("{")
+    with pytest.raises(springc.errors.DataError, match="settings.json: is not a model"):
+        api.recorded_scale(plain, none)

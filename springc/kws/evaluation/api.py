@@ -7,11 +7,12 @@ do. Each is reached as `springc.train`, `springc.kws.load_model` and so on."""
 from __future__ import annotations
 
 import contextlib
+import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from springc.errors import UsageError
+from springc.errors import DataError, UsageError
 from springc.kws.evaluation.classify import classify
 from springc.kws.evaluation.evaluate import evaluate as evaluate_split
 from springc.kws.features.digital import FeatureSettings
@@ -88,20 +89,26 @@ def evaluate(model: str | Path, data: str | Path | None = None, *,
 
     The other studies of `springc eval`, on mass-spring models: `budget=N`, where the input
     work of the first N test clips goes at the physical scale of `spl`, `area`, `temp` and
-    `device_mass` (or `mass` per unit; `energy.DEFAULTS` for what is not given):
+    `device_mass` (or `mass` per unit; for what is not given, the scale a device model
+    recorded, else `energy.DEFAULTS`):
     `energy.physical_budget`'s dict, `"stages"` {"work in", stage..., "left at the end"}
     each (N,) in J, the sound, k_B T and the loss bound; `mc=N` devices with coefficients
     spread by `spread` (relative sd), `spread_kind` (local or global), `stage`, `seed`: the
     population's report (devices, nominal, accuracy summary); `temp` (K), `mass` (kg per
     normalised unit, or `device_mass` for the whole device), `spl` (dB), `area` (m^2), `seed`:
-    the device at physical scale with thermal noise; `clips`: with `mc` or `temp`, that many
+    the device at physical scale with thermal noise (a device model's recorded spl, area and
+    device mass where not given); `clips`: with `mc` or `temp`, that many
     test clips spread over the split; `progress` hears the population's progress."""
     from springc.kws.evaluation import device as dv
 
     model, data = Path(model), Path(data) if data else None
     if budget:
-        return _budget(model, data, budget, protocol, mc, spread, clips,
-                       dict(spl=spl, area=area, temp=temp, device_mass=device_mass, mass=mass))
+        return _budget(model, data, budget, protocol, mc, spread, clips, recorded_scale(
+            model, dict(spl=spl, area=area, temp=temp, device_mass=device_mass, mass=mass)))
+    if temp is not None:  # the noise study: at the device model's own scale unless given
+        scale = recorded_scale(model, dict(spl=spl, area=area, device_mass=device_mass,
+                                           mass=mass))
+        spl, area, device_mass = scale["spl"], scale["area"], scale["device_mass"]
     if device_mass is not None:
         mass = dv.unit_mass(model, device_mass, mass)
     study = dv.study(mc, spread, spread_kind, stage, seed, temp, mass, spl, area)
@@ -114,6 +121,21 @@ def evaluate(model: str | Path, data: str | Path | None = None, *,
             return dv.evaluate_physical(setup, study, scheduler=scheduler, jobs=jobs)
         return evaluate_split(model, data, realisation, jobs=jobs, use_cache=use_cache,
                               scheduler=scheduler, protocol=protocol)
+
+
+def recorded_scale(model: Path, given: dict) -> dict:
+    """`given` (spl, area, temp, device_mass, mass; None where not given) with what is not
+    given taken from the physical scale a device model recorded (settings.json's "device",
+    `train --realisation device`); a model that recorded none, or a `mass` per unit given,
+    leaves the rest to `energy.DEFAULTS`."""
+    path = model / "settings.json"
+    try:
+        recorded = json.loads(path.read_text()).get("device") or {} if path.is_file() else {}
+    except (OSError, ValueError, AttributeError) as exc:
+        raise DataError(str(path), f"is not a model's settings ({exc})") from None
+    if given.get("mass") is not None:
+        recorded = {k: v for k, v in recorded.items() if k != "device_mass"}
+    return {k: recorded.get(k) if v is None and k != "mass" else v for k, v in given.items()}
 
 
 def _budget(model: Path, data: Path | None, clips: int, protocol: str | None, mc, spread,

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from springc.kws.evaluation import device as dv
+from springc.kws.evaluation.studies import falls_below
 
 SIZE = "8x3"
 AREA = 1e-6  # m^2: 1 mm^2
@@ -80,14 +81,8 @@ def threshold(data: dict, temp: float, spl: float, loss: float = 0.02) -> float 
     springc.kws.evaluation.device), interpolated on log mass between the measured masses
     (None: not within them)."""
     rows = curve(data, temp, spl)
-    target = data["noiseless"]["accuracy"] - loss
-    pts = [(math.log10(r["mass"]), r["accuracy"]) for r in rows]
-    if pts[0][1] <= target:
-        return None
-    for (x0, y0), (x1, y1) in zip(pts, pts[1:]):
-        if y1 <= target < y0:
-            return 10 ** (x0 + (target - y0) * (x1 - x0) / (y1 - y0))
-    return None
+    return falls_below([r["mass"] for r in rows], [r["accuracy"] for r in rows],
+                       data["noiseless"]["accuracy"] - loss)
 
 
 def plot(data: dict, path: Path) -> None:

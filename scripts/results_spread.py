@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from springc.kws.evaluation import device as dv
+from springc.kws.evaluation.studies import falls_below
 
 SPREADS = (1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 3e-3, 1e-2, 3e-2)
 SIZES = ("4x2", "8x3")
@@ -80,16 +81,8 @@ def _key(size: str, stage: str, spread: float) -> str:
 def threshold(data: dict, size: str, loss: float = 0.02) -> float | None:
     """The spread at which the mean accuracy falls `loss` below nominal, interpolated on
     log spread between the measured spreads (None: not within them)."""
-    nominal = data["nominal"][size]["accuracy"]
-    xs = [math.log10(s) for s in SPREADS]
     ys = [data["rows"][_key(size, "all", s)]["accuracy"]["mean"] for s in SPREADS]
-    target = nominal - loss
-    if ys[0] <= target:
-        return None
-    for (x0, y0), (x1, y1) in zip(zip(xs, ys), zip(xs[1:], ys[1:])):
-        if y1 <= target < y0:
-            return 10 ** (x0 + (target - y0) * (x1 - x0) / (y1 - y0))
-    return None
+    return falls_below(list(SPREADS), ys, data["nominal"][size]["accuracy"] - loss)
 
 
 def plot(data: dict, path: Path) -> None:

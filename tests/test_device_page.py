@@ -34,6 +34,8 @@ def test_figures_reach_their_tables(tmp_path: Path) -> None:
     assert "| 8x3 | summing | 1e-40 | 8.3 | 56.2 | 12.5 |" in text
     assert "| 8x3 | summing | readouts | 2.5e-35 | -400.3 |" in text
     assert "| eps 1 | 68.4 (136) | 52.6 (346) | 400.7 |" in text
+    # one spread point above the target: no threshold within the sweep; noise past it at once
+    assert "| 8x3 summing | - | below 1e-40 |" in text
     assert (tmp_path / "page.png").stat().st_size > 1000
 
 

@@ -45,22 +45,19 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).parent))
-import results_stages as rs  # noqa: E402
-
-from springc.check import check  # noqa: E402
-from springc.kws.features import massspring as msp  # noqa: E402
-from springc.kws.training import tapbuffer as tb  # noqa: E402
-from springc.kws.training import transfer as tr  # noqa: E402
-from springc.lang import load_text  # noqa: E402
-from springc.sim.simulate import simulate  # noqa: E402
+from springc.check import check
+from springc.kws.evaluation.studies import EPS_IDEAL, distortion, first_command_clips
+from springc.kws.features import massspring as msp
+from springc.kws.training import tapbuffer as tb
+from springc.kws.training import transfer as tr
+from springc.lang import load_text
+from springc.sim.simulate import simulate
 
 OUTRATE = 2000.0  # taps, buffers and readouts move below 100 Hz
 
@@ -87,7 +84,7 @@ def network(heads, s, eps, buffer):
 def stage_run(s, base_heads, signals, eps, amplitude, buffer):
     """Taps, buffer nodes / g and readouts in c . Phi units (channels, clips, T) and the
     insertion loss per clip."""
-    heads = tb.rescaled(rs._redesign(base_heads, s, tb.amplitude(buffer, amplitude), eps),
+    heads = tb.rescaled(tr.redesigned_heads(base_heads, s, tb.amplitude(buffer, amplitude), eps),
                         buffer)
     names = {"delay taps": [f"x({n})" for n in msp.terminals(s)],
              "readout": [f"x(r{k})" for k in range(len(heads))]}
@@ -120,9 +117,9 @@ def stages(args) -> None:
     """Distortion per stage and insertion loss against eps, plain and buffered."""
     start = time.time()
     s = msp.MassSpringSettings(bins=8, delays=3)
-    signals = rs.clips(args.data, args.clips)
+    signals = first_command_clips(args.data, args.clips)
     base = tr.stand_in_heads(s)
-    ideal, _ = stage_run(s, base, signals, rs.EPS_IDEAL, 1.0, None)
+    ideal, _ = stage_run(s, base, signals, EPS_IDEAL, 1.0, None)
     amplitude = float(np.median(np.abs(ideal["delay taps"]).max(axis=(0, 2))))
     stiffer_mvms(args.mvm_stiffness)
     rows = []
@@ -130,10 +127,10 @@ def stages(args) -> None:
         for eps in args.eps:
             got, loss = stage_run(s, base, signals, eps, amplitude, buffer)
             row = {"buffer": buffer.to_dict() if buffer else None, "eps": eps,
-                   "taps": rs.distortion(got["delay taps"], ideal["delay taps"]),
-                   "buffers": (rs.distortion(got["buffers"], ideal["delay taps"])
+                   "taps": distortion(got["delay taps"], ideal["delay taps"]),
+                   "buffers": (distortion(got["buffers"], ideal["delay taps"])
                                if buffer else None),
-                   "readout": rs.distortion(got["readout"], ideal["readout"]),
+                   "readout": distortion(got["readout"], ideal["readout"]),
                    "loss_db": float(np.median(loss))}
             rows.append(row)
             print(row, flush=True)

@@ -28,33 +28,18 @@ from pathlib import Path
 import numpy as np
 
 from springc.check import check
-from springc.kws.data.dataset import load_clip, open_dataset
+from springc.kws.evaluation.studies import EPS_IDEAL, distortion, first_command_clips
 from springc.kws.features import massspring as msp
 from springc.kws.training import transfer as tr
 from springc.lang import load_text
 from springc.sim.simulate import simulate
 
 EPSILONS = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
-EPS_IDEAL = 1e-9
 BREAK = 0.01  # a stage is broken when its distortion passes 1% of its ideal's peak
 STAGES = ("filter", "squarer", "low-pass", "compressor", "delay taps", "mvm outputs",
           "head squares", "readout")
 OUTRATE = 16000.0  # the filters ring at up to 8 kHz: every input sample is kept
 HEADS_PROBED = 2  # mvm outputs are probed on the first heads only (memory: 24 each)
-
-
-def clips(data: Path, count: int) -> np.ndarray:
-    """(count, samples): the first test clips of distinct command words, pre-processed."""
-    ds = open_dataset(data)
-    chosen, words = [], set()
-    for c in ds.split("test"):
-        if c.label.startswith("_") or c.word in words:
-            continue
-        words.add(c.word)
-        chosen.append(load_clip(c))
-        if len(chosen) == count:
-            break
-    return np.stack(chosen)
 
 
 def probes(s: msp.MassSpringSettings, heads: list[tr.Head]) -> dict[str, list[str]]:
@@ -73,8 +58,8 @@ def probes(s: msp.MassSpringSettings, heads: list[tr.Head]) -> dict[str, list[st
 def run(s: msp.MassSpringSettings, heads: list[tr.Head], signals: np.ndarray,
         eps: float, amplitude: float, models) -> dict[str, np.ndarray]:
     """Every stage's signals (channels, clips, T) of the network at `eps`."""
-    heads = tr.heads_for(models, s, amplitude, eps) if models else _redesign(heads, s,
-                                                                              amplitude, eps)
+    heads = (tr.heads_for(models, s, amplitude, eps) if models
+             else tr.redesigned_heads(heads, s, amplitude, eps))
     net = check(load_text(tr.classifier_text(heads, s, epsilon=eps), f"<eps {eps:g}>"))
     names = probes(s, heads)
     flat = [p for stage in names.values() for p in stage]
@@ -102,20 +87,6 @@ def _weights(head: tr.Head, s: msp.MassSpringSettings) -> np.ndarray:
     return w
 
 
-def _redesign(heads: list[tr.Head], s: msp.MassSpringSettings, amplitude: float,
-              eps: float) -> list[tr.Head]:
-    """The stand-in heads' couplings designed again at `eps`."""
-    return tr.reweighted_heads(heads, [h.lam[h.keep] for h in heads],
-                               [h.intercept for h in heads], s, amplitude, eps)
-
-
-def distortion(signal: np.ndarray, ideal: np.ndarray) -> float:
-    """RMS over time of the error over the ideal's peak, largest channel, median clip."""
-    peak = np.abs(ideal).max(axis=-1)
-    rms = np.sqrt(np.mean((signal - ideal) ** 2, axis=-1))
-    return float(np.median((rms / peak).max(axis=0)))
-
-
 def table(rows: dict[float, dict[str, float]]) -> str:
     """Markdown: eps rows, stage columns, the first broken stage last."""
     lines = ["| eps | " + " | ".join(STAGES) + " | first past 1% |",
@@ -136,7 +107,7 @@ def main() -> None:
     args = ap.parse_args()
     start = time.time()
     s = msp.MassSpringSettings(bins=8, delays=3)
-    signals = clips(args.data, args.clips)
+    signals = first_command_clips(args.data, args.clips)
     models = None
     if args.model:
         from springc.kws.training.model import load_model

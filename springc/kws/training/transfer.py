@@ -156,6 +156,14 @@ def couplings_for(lam: np.ndarray, s: msp.MassSpringSettings, amplitude: float,
     return gamma, alpha, scale / readout_scale()
 
 
+def redesigned_heads(heads: list[Head], s: msp.MassSpringSettings, amplitude: float,
+                     epsilon: float) -> list[Head]:
+    """The same heads (weights and intercepts) with their couplings designed again for the
+    squaring error `epsilon` at the tap amplitude `amplitude`."""
+    return reweighted_heads(heads, [h.lam[h.keep] for h in heads],
+                            [h.intercept for h in heads], s, amplitude, epsilon)
+
+
 def reweighted_heads(heads: list[Head], weights: list, intercepts: list,
                      s: msp.MassSpringSettings, amplitude: float,
                      epsilon: float) -> list[Head]:

@@ -7,7 +7,7 @@ import json
 
 import pytest
 from click.testing import CliRunner
-from test_kws_train import make_corpus
+from kws_corpora import make_corpus
 
 from springc_cli.main import main
 from shared_cache import KERNELS

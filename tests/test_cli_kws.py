@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from springc_cli.main import main
-from test_kws_train import make_corpus
+from kws_corpora import make_corpus
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,7 @@ from springc.kws.evaluation import api
 from springc_cli.data import synth_cmd
 from springc_cli.kws import cv_cmd, eval_cmd, train_cmd
 from springc_cli.main import main
-from test_kws_train import make_corpus
+from kws_corpora import make_corpus
 
 SMALL = dict(bins=4, delays=2, jobs=1)
 SMALL_ARGS = ["-n", "4", "-m", "2", "-j", "1"]

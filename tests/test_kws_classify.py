@@ -20,7 +20,7 @@ from springc.kws.training.model import load_model
 from springc.kws.data.task import open_task_data
 from springc.kws.training.train import feature_matrices
 from springc_cli.main import main
-from test_kws_train import RATE, _sound, make_corpus
+from kws_corpora import RATE, make_corpus, word_sound
 
 
 @pytest.fixture(scope="module")
@@ -187,7 +187,7 @@ def _wav(path: Path, x: np.ndarray, rate: int = RATE, subtype: str = "PCM_16") -
 def _inputs(k: Path) -> dict[str, Path]:
     """Bad inputs, made in `k`."""
     rng = np.random.default_rng(0)
-    nan = _sound("yes", rng)
+    nan = word_sound("yes", rng)
     nan[100] = np.nan
     (k / "empty-folder").mkdir()
     (k / "text-folder").mkdir()
@@ -196,7 +196,7 @@ def _inputs(k: Path) -> dict[str, Path]:
     (k / "cut.wav").write_bytes(b"RIFF")
     (k / "a-file").write_text("not a folder\n")
     sf.write(k / "empty.wav", np.zeros(0), RATE)
-    return {"good": _wav(k / "good.wav", _sound("yes", rng)),
+    return {"good": _wav(k / "good.wav", word_sound("yes", rng)),
             "nan": _wav(k / "nan.wav", nan, subtype="FLOAT"),
             "slow": _wav(k / "slow.wav", np.zeros(10), rate=1),
             "absent": k / "absent.wav", "empty-folder": k / "empty-folder",

@@ -9,7 +9,7 @@ import pytest
 from click.testing import CliRunner
 from sklearn.metrics import balanced_accuracy_score
 from springc_cli.main import main
-from test_kws_train import make_corpus
+from kws_corpora import make_corpus
 
 from springc.errors import UsageError
 from springc.kws.evaluation import crossval

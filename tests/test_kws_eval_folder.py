@@ -19,7 +19,7 @@ from springc.kws.training.model import load_model
 from springc.kws.data.task import targets
 from springc.kws.training.train import feature_matrices
 from springc_cli.main import main
-from test_kws_train import RATE, SPEAKERS, _sound, corpus_and_model, make_corpus
+from kws_corpora import RATE, SPEAKERS, corpus_and_model, make_corpus, word_sound
 
 TEST_SPEAKER = SPEAKERS[7]  # the speaker make_corpus lists in testing_list.txt
 
@@ -109,7 +109,7 @@ def test_other_words_map_as_the_task_maps_them(env, tmp_path):
     for word, sound in (("four", "four"), ("hello", "cat"), ("up", "up"), ("yes", "yes")):
         (folder / word).mkdir(parents=True)
         for k in range(2):
-            sf.write(folder / word / f"abc_nohash_{k}.wav", _sound(sound, rng), RATE)
+            sf.write(folder / word / f"abc_nohash_{k}.wav", word_sound(sound, rng), RATE)
     got = evaluate(model, folder, "--protocol", "lists")
     assert got["n"] == 8
     assert set(got["per_class"]) == {"yes", "no", "_unknown_", "_silence_", "up"}

@@ -14,7 +14,7 @@ from springc.kws.features.digital import FeatureSettings
 from springc.kws.training.readme import train_arguments
 from springc.kws.training.train import TrainOptions, train
 from springc_cli.main import main
-from test_kws_train import corpus_and_model
+from kws_corpora import corpus_and_model
 
 
 @pytest.fixture(scope="module")

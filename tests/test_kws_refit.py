@@ -21,7 +21,7 @@ from springc.kws.training.model import load_model
 from springc.kws.data.task import open_task_data
 from springc.lang import load_text
 from springc_cli.main import main
-from test_kws_train import shared_corpus_and_model
+from kws_corpora import shared_corpus_and_model
 
 
 @pytest.fixture(scope="module")

@@ -26,7 +26,7 @@ from springc.kws.data.task import open_task_data
 from springc.kws.training.transfer import model_heads
 from springc.lang import load_file
 from springc_cli.main import main
-from test_kws_train import RATE, _sound, make_corpus
+from kws_corpora import RATE, make_corpus, word_sound
 from shared_cache import KERNELS
 
 WORDS = ("yes", "cat", "no", "yes", "no")  # cat is _unknown_: never a detection
@@ -58,7 +58,7 @@ def long_recording(path: Path) -> list[tuple[str, float]]:
     for word in WORDS:
         parts.append(np.zeros(round(GAP * RATE)))
         t += GAP
-        clip = _sound(word, rng)
+        clip = word_sound(word, rng)
         truth.append((word, t + energy_centroid(clip, RATE) / RATE))
         parts.append(clip)
         t += CLIP_SECONDS

@@ -258,7 +258,7 @@ BROKEN: dict[str, object] = {**audio_cases()}
 @pytest.fixture(scope="module")
 def kit(tmp_path_factory) -> Kit:
     """The inputs, a tiny corpus and a model trained on it (4 bins x 2 delays, seconds)."""
-    from test_kws_train import make_corpus
+    from kws_corpora import make_corpus
 
     k = Kit(tmp_path_factory.mktemp("broken"))
     k.data = broken_data(k.root / "data")

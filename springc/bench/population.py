@@ -15,8 +15,6 @@ sample against springc's. Writes bench-population.md and bench/population.json.
 from __future__ import annotations
 
 import json
-import os
-import platform
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -64,13 +62,15 @@ def run_population(masses: int = MASSES, samples: int = SAMPLES, tstop: float = 
     """Measure (see the module docstring); returns the numbers as a dict."""
     import springc
     from springc.bench.reference import solve_ivp_reference
+    from springc.bench.suite import machine_info
     from springc.check.points import check_points
     from springc.sim import simulate as sm
     from springc.sim.points import simulate_points
 
+    machine = machine_info()
     out: dict = {"masses": masses, "samples": samples, "tstop": tstop, "tstep": TSTEP,
-                 "threads": sm.threads(), "load": round(os.getloadavg()[0], 2),
-                 "when": time.strftime("%Y-%m-%d %H:%M:%S"), "cpu": cpu_model()}
+                 "threads": sm.threads(), "load": machine["load"], "when": machine["when"],
+                 "cpu": machine["cpu"]}
     start = time.perf_counter()
     net = springc.load(population_text(masses, samples))
     loaded = time.perf_counter()
@@ -116,17 +116,6 @@ def run_population(masses: int = MASSES, samples: int = SAMPLES, tstop: float = 
     out["springc_per_sample_s"] = out["population_s"] / samples
     out["scipy_ratio"] = float(np.mean(scipy_s)) / out["springc_per_sample_s"]
     return out
-
-
-def cpu_model() -> str:
-    """The CPU's model name (Linux), else the platform's processor string."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def max_load(threads: int) -> float:

@@ -15,7 +15,7 @@ import tempfile
 from dataclasses import asdict, fields
 from pathlib import Path
 
-from springc.bench.suite import (MAX_CALLS, MIN_CALLS, MUST_SPEEDUP, REF_CHECK_MAX_STEP,
+from springc.bench.suite import (MAX_CALLS, of_cpu, MIN_CALLS, MUST_SPEEDUP, REF_CHECK_MAX_STEP,
                                  REF_CHECK_RTOL, REPEAT_FOR, CaseResult, Row, claims, measured,
                                  row_label, speedup, worst_error)
 from springc.design.emit import write_atomic
@@ -137,8 +137,8 @@ def _lead(results: list[CaseResult], machine: dict) -> str:
     return (f"springc's kernels against their peers (scipy, numpy, ngspice) on {len(results)} "
             "reference networks: one table per network with its speed-against-error plot, "
             "then the targets, met or missed, then [how it was measured](#how-it-was-measured). "
-            f"Measured {machine.get('when')} on {machine.get('cpus')} CPUs (load average "
-            f"{machine.get('load')} at the start"
+            f"Measured {machine.get('when')} on {machine.get('cpus')} CPUs{of_cpu(machine)} "
+            f"(load average {machine.get('load')} at the start"
             + (f" and {machine['load_end']} at the end" if "load_end" in machine else "")
             + (f"; the suite took {took / 60:.1f} min" if took else "") + ")"
             + _device_md(machine) + ". "

@@ -318,14 +318,16 @@ def thread_table(rows: list[dict]) -> list[str]:
 
 def how_measured(result: dict) -> list[str]:
     """How the numbers were taken."""
+    from springc.bench.suite import of_cpu
+
     m = result["machine"]
     cold = result.get("cold_compile", {})
     cold_text = ", ".join(f"{k} {v:.1f} s" for k, v in cold.items() if isinstance(v, float))
     return [
         "## How it was measured", "",
-        f"`springc bench --scaling` on {m.get('cpus')} CPUs, load average {m.get('load')} at "
-        f"the start, {m.get('when')}. Each row is its own process (peak memory: its maximum "
-        "resident set). elaborate: `load_text` of the `.for` text "
+        f"`springc bench --scaling` on {m.get('cpus')} CPUs{of_cpu(m)}, load average "
+        f"{m.get('load')} at the start, {m.get('when')}. Each row is its own process (peak "
+        "memory: its maximum resident set). elaborate: `load_text` of the `.for` text "
         "(`springc.bench.lattices.lattice_text`); check: `springc.check.check`; compile: the "
         "first simulation's kernel compile, here a load from the kernel cache that a warm-up "
         f"filled (cold compiles: {cold_text or 'not measured'}); simulate: the next "

@@ -162,6 +162,8 @@ def run_startup(runs: int = RUNS, cold_runs: int = COLD_RUNS,
 
 def markdown(result: dict) -> str:
     """The page: a table of every row, warm and cold, then how it was measured."""
+    from springc.bench.suite import of_cpu
+
     m = result["machine"]
     lines = ["# A netlist's first result: start-up, checks and kernel loading", "",
              "| command | what | warm: median (min-max), s | cold: median (min-max), s |",
@@ -171,8 +173,8 @@ def markdown(result: dict) -> str:
         lines.append(f"| `{row.name}` | {row.what} | {row.summary('warm')} | "
                      f"{row.summary('cold')} |")
     lines += ["", "## How it was measured", "",
-              f"- {m['when']}, {m['cpus']} CPUs, load average {m['load']} at the start and "
-              f"{m['load_end']} at the end; Python {result['python']}, numpy "
+              f"- {m['when']}, {m['cpus']} CPUs{of_cpu(m)}, load average {m['load']} at the "
+              f"start and {m['load_end']} at the end; Python {result['python']}, numpy "
               f"{result['numpy']}.",
               f"- `{COMMAND}`: whole processes timed from start to exit; warm rows after one "
               f"unmeasured run filled the kernel cache, cold rows each with an empty "

@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable
 from functools import cached_property
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -890,10 +891,28 @@ def row_label(row: Row) -> str:
 
 
 def machine_info() -> dict:
-    """CPUs, load and time of the run (the context of the timings)."""
+    """CPU model, CPUs, load and time of the run (the context of the timings)."""
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
-    return {"cpus": _threads(), "load": round(load, 2),
+    return {"cpu": cpu_model(), "cpus": _threads(), "load": round(load, 2),
             "when": time.strftime("%Y-%m-%d %H:%M:%S")}
+
+
+def of_cpu(machine: dict) -> str:
+    """' of MODEL' where a run recorded its CPU model (runs from before it did: '')."""
+    return f" of {machine['cpu']}" if machine.get("cpu") else ""
+
+
+def cpu_model() -> str:
+    """The CPU's model name (Linux), else the platform's processor string."""
+    import platform
+
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
 
 
 def run_suite(names: list[str] | None = None, quick: bool = False,

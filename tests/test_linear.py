@@ -185,3 +185,38 @@ def test_mode_shape_and_dominant_nodes() -> None:
     assert fast.shape["b"] == pytest.approx((1 - np.sqrt(5)) / 2, rel=1e-10)
     assert [name for name, _ in fast.dominant()] == ["a", "b"]
     assert linear.fastest_mode(b.finish()).omega == pytest.approx(fast.omega)
+
+
+def _scaled(net, seed: int):
+    """`net` with every spring, coupling, dashpot and mass coefficient scaled by its own
+    random factor in [0.5, 1.5): the same pattern, other values."""
+    from dataclasses import replace
+
+    rng = np.random.default_rng(seed)
+
+    def vary(tab, *keys):
+        return replace(tab, **{k: getattr(tab, k) * rng.uniform(0.5, 1.5, len(tab)) for k in keys})
+
+    return replace(net, masses=vary(net.masses, "m", "b"), springs=vary(net.springs, "k"),
+                   couplings=vary(net.couplings, "k"), dashpots=vary(net.dashpots, "b"))
+
+
+def test_a_population_has_each_netlists_modes_alone() -> None:
+    """`modes_many` solves netlists of one pattern in one batch: each netlist's modes are
+    bitwise those it has alone, and equal to the eigenvalues of its first-order matrix (a
+    dense scipy eig of a 10-row matrix, to its round-off: 1e-12 of the largest) whether damping couples its
+    modes (`_mixed`) or not (a chain with mass-proportional damping)."""
+    for base in (_mixed(), _chain(5, 4.0, 2.0, alpha=0.3)):
+        nets = [base] + [_scaled(base, seed) for seed in range(4)]
+        together = linear.modes_many(nets)
+        for net, found in zip(nets, together):
+            alone = linear.modes(net)
+            np.testing.assert_array_equal(found.eigenvalues, alone.eigenvalues)
+            assert found.omega_max == alone.omega_max
+            lin = linear.linearise(net)
+            want = scipy.linalg.eigvals(lin.first_order().toarray())
+            want = want[want.imag >= -1e-12 * np.abs(want).max()]
+            scale = np.abs(want).max()
+            assert len(found.eigenvalues) == len(want)
+            gap = np.abs(found.eigenvalues[:, None] - want[None, :]).min(axis=1)
+            assert gap.max() <= 1e-12 * scale

@@ -290,10 +290,15 @@ def modes_many(nets: list[FlatNetlist],
     """`modes` of every netlist, each the same as alone; the Lanczos runs of all their large
     components go together (`sparse.top_many`: a population's points in lockstep)."""
     lins = lins or [None] * len(nets)
-    raws, large = [], []
+    raws: list = [None] * len(nets)
+    large: list = []
     with _blas().limit(limits=1, user_api="blas"):
-        for net, lin in zip(nets, lins):
-            raws.append(_dense_modes(net, lin, large))
+        for batch in _dense_batches(nets, lins):
+            for i, raw in zip(batch, _dense_modes_batch([nets[i] for i in batch])):
+                raws[i] = raw
+        for i, (net, lin) in enumerate(zip(nets, lins)):
+            if raws[i] is None:
+                raws[i] = _dense_modes(net, lin, large)
     tops = sparse.top_many([c.kt for c in large], SPARSE_MODES)
     for comp, top in zip(large, tops):
         _sparse_component(comp, top)
@@ -326,6 +331,69 @@ def _dense_modes(net: FlatNetlist, lin: Linearisation | None, large: list) -> _R
     return raw
 
 
+def _pattern(net: FlatNetlist) -> tuple:
+    """What the sparsity of the linearisation and the components depend on: the node count
+    and every index array (netlists with equal patterns differ in coefficients alone)."""
+    m, s, c, q, d, p = (net.masses, net.springs, net.couplings, net.quads, net.dashpots,
+                        net.monomials)
+    return (net.n, *(a.tobytes() for a in (m.node, s.node, c.i, c.j, q.i, q.j, d.i, d.j,
+                                           p.ptr, p.var, p.exp)))
+
+
+def _dense_batches(nets: list[FlatNetlist], lins: list) -> list[list[int]]:
+    """The netlists whose modes `_dense_modes_batch` finds, as lists of indices of equal
+    pattern: those with no linearisation given and every component dense."""
+    batches: dict[tuple, list[int]] = {}
+    dense: dict[tuple, bool] = {}
+    for i, (net, lin) in enumerate(zip(nets, lins)):
+        if lin is not None:
+            continue
+        key = _pattern(net)
+        if key not in dense:
+            count, labels = component_labels(net)
+            dense[key] = bool(np.bincount(labels, minlength=count).max(initial=0) <= DENSE_MAX)
+        if dense[key]:
+            batches.setdefault(key, []).append(i)
+    return list(batches.values())
+
+
+def _dense_modes_batch(nets: list[FlatNetlist]) -> list[_Raw]:
+    """The modes of netlists of one pattern whose components are all dense, each the same
+    as alone (a netlist alone is a batch of one): the blocks are summed entry by entry in
+    the same order for every netlist, and the eigensolvers solve each block on its own."""
+    first = nets[0]
+    count, labels = component_labels(first)
+    sizes = np.bincount(labels, minlength=count)
+    k_rows, k_cols, _ = (np.concatenate(a) for a in _stiffness_entries(first))
+    b_rows, b_cols, _ = (np.concatenate(a) for a in damping_entries(first))
+    k_vals = np.array([np.concatenate(_stiffness_entries(net)[2]) for net in nets])
+    b_vals = np.array([np.concatenate(damping_entries(net)[2]) for net in nets])
+    mass = np.array([net.mass() for net in nets])
+    raws = [_Raw() for _ in nets]
+    for size in np.unique(sizes):
+        nodes = _group_nodes(labels, np.nonzero(sizes == size)[0], int(size))
+        _dense_blocks(nets, nodes, mass[:, nodes], _scatter_blocks(k_rows, k_cols, k_vals, nodes),
+                      _scatter_blocks(b_rows, b_cols, b_vals, nodes), raws)
+    return raws
+
+
+def _scatter_blocks(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray,
+                    nodes: np.ndarray) -> np.ndarray:
+    """(netlists, groups, size, size) dense diagonal blocks for a (groups, size) array of
+    node indices, from entries (rows, cols) with one row of values per netlist (repeated
+    entries sum, in entry order)."""
+    g, s = nodes.shape
+    top = max(rows.max(initial=-1), cols.max(initial=-1), nodes.max()) + 1
+    group, place = np.full(top, -1), np.zeros(top, np.int64)
+    group[nodes.ravel()] = np.repeat(np.arange(g), s)
+    place[nodes.ravel()] = np.tile(np.arange(s), g)
+    inside = (group[rows] >= 0) & (group[rows] == group[cols])
+    target = (group[rows] * s + place[rows]) * s + place[cols]
+    out = np.zeros((len(vals), g * s * s))
+    np.add.at(out, (slice(None), target[inside]), vals[:, inside])
+    return out.reshape(len(vals), g, s, s)
+
+
 def _blocks(mat: sp.csr_matrix, nodes: np.ndarray) -> np.ndarray:
     """Dense diagonal blocks of `mat` for a (groups, size) array of node indices."""
     g, s = nodes.shape
@@ -348,35 +416,51 @@ def _group_nodes(labels: np.ndarray, members: np.ndarray, size: int) -> np.ndarr
 
 def _dense_group(net, lin: Linearisation, labels, members, size: int, raw: _Raw) -> None:
     nodes = _group_nodes(labels, members, size)
-    m = net.mass()[nodes]
-    k, b = _blocks(lin.K, nodes), _blocks(lin.B, nodes)
+    _dense_blocks([net], nodes, net.mass()[nodes][None], _blocks(lin.K, nodes)[None],
+                  _blocks(lin.B, nodes)[None], [raw])
+
+
+def _dense_blocks(nets: list, nodes: np.ndarray, m: np.ndarray, k: np.ndarray, b: np.ndarray,
+                  raws: list[_Raw]) -> None:
+    """The modes of the dense components `nodes` ((groups, size) node indices) of every
+    netlist in `nets`, from their masses (nets, groups, size) and stiffness and damping
+    blocks (nets, groups, size, size). Each block is solved on its own, so that a
+    netlist's modes are the same in any batch."""
+    _, groups, size = m.shape
     sq = np.sqrt(m)
-    scale = sq[:, :, None] * sq[:, None, :]
+    scale = sq[..., :, None] * sq[..., None, :]
     omega2, vecs = np.linalg.eigh(k / scale)
-    raw.omega2_max = max(raw.omega2_max, float(omega2.max(initial=0.0)))
-    shapes = vecs / sq[:, :, None]
-    for g in range(len(members)):
-        _record_zero(net, nodes[g], omega2[g], shapes[g], raw)
-    modal_b = np.swapaxes(vecs, 1, 2) @ (b / scale) @ vecs
-    if _is_diagonal(modal_b):
-        # Damping does not couple the undamped modes (e.g. b = alpha m): each mode is exact.
-        lam = _pair_roots(np.diagonal(modal_b, axis1=1, axis2=2), np.maximum(omega2, 0.0))
-        for g in range(len(members)):
-            _record_modes(nodes[g], lam[g], np.hstack([shapes[g], shapes[g]]), raw)
-        return
-    a = np.zeros((len(members), 2 * size, 2 * size))
-    a[:, :size, size:] = np.eye(size)
-    a[:, size:, :size] = -k / m[:, :, None]
-    a[:, size:, size:] = -b / m[:, :, None]
-    lam, vec = np.linalg.eig(a)
-    for g in range(len(members)):
-        _record_modes(nodes[g], lam[g], vec[g][:size], raw)
+    shapes = vecs / sq[..., :, None]
+    modal_b = np.swapaxes(vecs, -1, -2) @ (b / scale) @ vecs
+    # where damping does not couple the undamped modes (e.g. b = alpha m) each is exact
+    diagonal = _is_diagonal(modal_b)
+    lam = _pair_roots(np.diagonal(modal_b, axis1=-2, axis2=-1), np.maximum(omega2, 0.0))
+    coupled = np.nonzero(~diagonal)[0]
+    a = np.zeros((len(coupled), groups, 2 * size, 2 * size))
+    a[..., :size, size:] = np.eye(size)
+    a[..., size:, :size] = -k[coupled] / m[coupled][..., None]
+    a[..., size:, size:] = -b[coupled] / m[coupled][..., None]
+    lam_c, vec_c = np.linalg.eig(a) if len(coupled) else (a, a)
+    row = {int(n): r for r, n in enumerate(coupled)}
+    for n, (net, raw) in enumerate(zip(nets, raws)):
+        raw.omega2_max = max(raw.omega2_max, float(omega2[n].max(initial=0.0)))
+        for g in range(groups):
+            _record_zero(net, nodes[g], omega2[n, g], shapes[n, g], raw)
+        for g in range(groups):
+            if diagonal[n]:
+                _record_modes(nodes[g], lam[n, g], np.hstack([shapes[n, g], shapes[n, g]]), raw)
+            else:
+                _record_modes(nodes[g], lam_c[row[n], g], vec_c[row[n], g][:size], raw)
 
 
-def _is_diagonal(mats: np.ndarray) -> bool:
-    diag = np.abs(np.diagonal(mats, axis1=1, axis2=2))
-    off = np.abs(mats).sum(axis=2) - diag
-    return bool(np.all(off <= 1e-10 * (diag.max(initial=0.0) + 1e-300)))
+def _is_diagonal(mats: np.ndarray) -> np.ndarray:
+    """Per netlist (the first axis of (nets, groups, size, size) blocks): whether every
+    block is diagonal to 1e-10 of the netlist's largest diagonal entry."""
+    diag = np.abs(np.diagonal(mats, axis1=-2, axis2=-1))
+    off = np.abs(mats).sum(axis=-1) - diag
+    flat = len(mats), -1
+    bound = 1e-10 * (diag.reshape(flat).max(axis=1, initial=0.0) + 1e-300)
+    return np.all(off.reshape(flat) <= bound[:, None], axis=1)
 
 
 def _pair_roots(gamma: np.ndarray, omega2: np.ndarray) -> np.ndarray:

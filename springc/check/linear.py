@@ -723,16 +723,34 @@ def ray_limits(tab: Tableau, directions: np.ndarray, chunk: int = 256) -> np.nda
     out = np.empty(len(directions))
     for lo in range(0, len(directions), chunk):
         d = np.asarray(directions[lo:lo + chunk], dtype=complex)
-        bad = np.abs(amplification(tab, radii[None, :] * d[:, None])) > 1 + 1e-12
-        first = np.argmax(bad, axis=1)
+        first = _first_exits(tab, d, radii)
+        exits = first < len(radii)
+        first = np.minimum(first, len(radii) - 1)
         low = np.where(first > 0, radii[np.maximum(first - 1, 0)], 0.0)
         high = radii[first]
         for _ in range(60):
             mid = 0.5 * (low + high)
             over = np.abs(amplification(tab, mid * d)) > 1 + 1e-12
             high, low = np.where(over, mid, high), np.where(over, low, mid)
-        out[lo:lo + chunk] = np.where(bad.any(axis=1), np.where(first > 0, low, 0.0), np.inf)
+        out[lo:lo + chunk] = np.where(exits, np.where(first > 0, low, 0.0), np.inf)
     return out
+
+
+def _first_exits(tab: Tableau, d: np.ndarray, radii: np.ndarray, block: int = 250
+                 ) -> np.ndarray:
+    """For every direction, the index of the first radius where |R| > 1 + 1e-12 (len(radii)
+    where there is none): the radii in blocks, each evaluated only for the rays still
+    inside, so a ray costs the radii up to its exit."""
+    first = np.full(len(d), len(radii))
+    inside = np.arange(len(d))
+    for lo in range(0, len(radii), block):
+        if not len(inside):
+            break
+        bad = np.abs(amplification(tab, radii[None, lo:lo + block] * d[inside, None])) > 1 + 1e-12
+        out = bad.any(axis=1)
+        first[inside[out]] = lo + np.argmax(bad[out], axis=1)
+        inside = inside[~out]
+    return first
 
 
 def dt_max(net: FlatNetlist, method: str = DEFAULT_METHOD) -> float:

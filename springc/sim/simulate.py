@@ -400,8 +400,7 @@ def lane_arrays(nets: list[FlatNetlist], coeffs: dict, st: Settings, reps: int,
                for key, first in coeffs.items()
                if key not in sums and key != "fi_w"}  # fi_w: only where `sums` has it
     for key, columns in {**members, **sums}.items():
-        first = columns[0]
-        if all(np.array_equal(first, col) for col in columns[1:]):
+        if _all_equal(columns):
             continue
         if key not in allowed:
             raise LanesRefused(_differs(key, st))
@@ -410,6 +409,14 @@ def lane_arrays(nets: list[FlatNetlist], coeffs: dict, st: Settings, reps: int,
     x0, v0 = (np.repeat(np.stack(s, 1), reps, 1)
               for s in zip(*(n.initial_state() for n in nets)))
     return Lanes(nets, reps, per_run, x0, v0)
+
+
+def _all_equal(columns: list[np.ndarray]) -> bool:
+    """Whether every array equals the first (shape and values; NaN equals nothing)."""
+    first = np.asarray(columns[0])
+    if any(np.shape(col) != first.shape for col in columns):
+        return False
+    return bool((np.stack(columns) == first).all())
 
 
 def _records(probes: int, records: int, runs: int, dtype, reuse: np.ndarray | None

@@ -75,6 +75,27 @@ def test_coefficients_whose_products_leave_the_doubles(build, message) -> None:
     assert len(errors) == 1 and errors[0].startswith(message), errors
 
 
+@pytest.mark.parametrize("build,good,bad", [
+    (lambda b, v: b.spring("K1", "x1", v), 3.0, -3.0),
+    (lambda b, v: b.coupling("C1", "x1", "x2", v, 2.0), 1.0, -1.0),
+    (lambda b, v: b.quad("Q1", "x1", "x2", 1.0, v), 1.0, 0.0),
+    (lambda b, v: b.dashpot("B1", "x1", "0", v), 1.0, -1.0),
+    (lambda b, v: b.spring("K1", "x1", v), 3.0, 1e151),
+    (lambda b, v: b.mass("M3", "x1", v), 1.0, 1e-300),
+])
+def test_a_population_is_checked_as_each_netlist_alone(build, good, bad) -> None:
+    """check_many applies the sign and range rules to a population's coefficients at once:
+    the netlist that breaks one gets the errors it gets alone, the others pass."""
+    nets = [_two(lambda b, v=v: build(b, v)) for v in (good, bad, good)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        results = checks.check_many(nets)
+    assert isinstance(results[0], checks.CheckedNetlist)
+    assert isinstance(results[2], checks.CheckedNetlist)
+    assert isinstance(results[1], CheckError)
+    assert [d.message for d in results[1].diagnostics] == _errors(nets[1])
+
+
 def test_negative_leverage_with_negative_k_is_legal() -> None:
     """k/a >= 0 is the rule, not k >= 0: C with k=-1, a=-1 is V = 1/2 (x1 + x2)^2."""
     assert _errors(_two(lambda b: b.coupling("C1", "x1", "x2", -1.0, -1.0))) == []

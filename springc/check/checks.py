@@ -107,7 +107,7 @@ def check_many(nets: list[FlatNetlist], method: str | None = None, *,
     the `CheckError` that `check` raises, the same as alone; the modes of all that reach the
     time step are computed together (`linear.modes_many`: the points of a population share
     the work of their Lanczos runs)."""
-    results = [_before_step(net) for net in nets]
+    results = _before_steps(nets)
     going = [i for i, result in enumerate(results) if result is None]
     found = dict(zip(going, linear.modes_many([nets[i] for i in going])))
     names = {i: _method(nets[i], method)[0] for i in going}
@@ -139,9 +139,26 @@ def diagnose(net: FlatNetlist, method: str | None = None, *, tstep: float | None
     return time_step(net, method, tstep=tstep, substeps=substeps, judge=judge_step)
 
 
-def _before_step(net: FlatNetlist) -> CheckResult | None:
-    """The errors of the passes before the time step, None where there are none."""
-    diags = element_signs(net) + massless_nodes(net) + noise_sources(net)
+def _before_steps(nets: list[FlatNetlist]) -> list[CheckResult | None]:
+    """`_before_step` of every netlist, the sign and range rules of the netlists of one
+    pattern (`linear.pattern`) applied to their coefficients at once: a netlist they pass
+    skips its own `element_signs`, which would find nothing."""
+    groups: dict[tuple, list[int]] = {}
+    for i, net in enumerate(nets):
+        groups.setdefault(linear.pattern(net), []).append(i)
+    out: list[CheckResult | None] = [None] * len(nets)
+    for group in groups.values():
+        clean = _signs_clean([nets[i] for i in group])
+        for i, ok in zip(group, clean):
+            out[i] = _before_step(nets[i], signs_clean=bool(ok))
+    return out
+
+
+def _before_step(net: FlatNetlist, signs_clean: bool = False) -> CheckResult | None:
+    """The errors of the passes before the time step, None where there are none
+    (`signs_clean`: `element_signs` is known to find nothing)."""
+    signs = [] if signs_clean else element_signs(net)
+    diags = signs + massless_nodes(net) + noise_sources(net)
     if diags:
         return CheckResult(diags)
     diags = whole_potential(net)
@@ -179,6 +196,53 @@ def _rules(net: FlatNetlist):
     ]
 
 
+@dataclass
+class _Stacked:
+    """The coefficients of netlists of one pattern, each column stacked to (netlists,
+    elements), under the table names `_rules` and `_magnitudes` read."""
+
+    masses: object
+    springs: object
+    duffings: object
+    couplings: object
+    quads: object
+    dashpots: object
+    monomials: object
+
+    @classmethod
+    def of(cls, nets: list[FlatNetlist]) -> _Stacked:
+        from types import SimpleNamespace
+
+        def table(name: str, *keys: str) -> SimpleNamespace:
+            return SimpleNamespace(**{k: np.array([getattr(getattr(n, name), k) for n in nets])
+                                      for k in keys})
+
+        return cls(table("masses", "m", "b"), table("springs", "k"), table("duffings", "l"),
+                   table("couplings", "k", "a"), table("quads", "g", "a"),
+                   table("dashpots", "b"), table("monomials", "c"))
+
+    def tables(self) -> dict[str, object]:
+        return {"M": self.masses, "K": self.springs, "D": self.duffings, "C": self.couplings,
+                "Q": self.quads, "B": self.dashpots, "P": self.monomials}
+
+
+def _signs_clean(nets: list[FlatNetlist]) -> np.ndarray:
+    """Per netlist (all of one pattern): whether `element_signs` finds nothing, from the
+    rules applied to the coefficients of all of them at once."""
+    if (nets[0].monomials.exp < 0).any():
+        return np.zeros(len(nets), bool)
+    stacked = _Stacked.of(nets)
+    bad = np.zeros(len(nets), bool)
+    with np.errstate(invalid="ignore"):
+        for _, mask, *_ in _rules(stacked):
+            bad |= mask.reshape(len(nets), -1).any(axis=1)
+        tables = stacked.tables()
+        for letter, key in _RANGED:
+            values = getattr(tables[letter], key)
+            bad |= _out_of_range(values).reshape(len(nets), -1).any(axis=1)
+    return ~bad
+
+
 def element_signs(net: FlatNetlist) -> list[Diagnostic]:
     """One error per element that breaks a sign rule of the element table."""
     tables = net.tables()
@@ -192,19 +256,24 @@ def element_signs(net: FlatNetlist) -> list[Diagnostic]:
 
 
 SCALE_LIMIT = 1e150  # the checks multiply two coefficients (k/m, b^2): both must stay finite
+_RANGED = [("M", "m"), ("M", "b"), ("K", "k"), ("D", "l"), ("C", "k"), ("C", "a"),
+           ("Q", "g"), ("Q", "a"), ("B", "b"), ("P", "c")]
+
+
+def _out_of_range(values: np.ndarray) -> np.ndarray:
+    """Where a coefficient is so large or so small (but not 0) that a product of two leaves
+    the doubles."""
+    size = np.abs(values)
+    return (size > SCALE_LIMIT) | ((size > 0) & (size < 1 / SCALE_LIMIT))
 
 
 def _magnitudes(net: FlatNetlist) -> list[Diagnostic]:
     """Coefficients so large or so small (but not 0) that their products leave the doubles."""
     tables = net.tables()
-    columns = [("M", "m"), ("M", "b"), ("K", "k"), ("D", "l"), ("C", "k"), ("C", "a"),
-               ("Q", "g"), ("Q", "a"), ("B", "b"), ("P", "c")]
     out = []
-    for letter, key in columns:
+    for letter, key in _RANGED:
         values = getattr(tables[letter], key)
-        size = np.abs(values)
-        bad = (size > SCALE_LIMIT) | ((size > 0) & (size < 1 / SCALE_LIMIT))
-        for e in np.nonzero(bad)[0]:
+        for e in np.nonzero(_out_of_range(values))[0]:
             msg = (f"{tables[letter].names[e]}: {key}={values[e]:g} is outside the range "
                    f"1e-150..1e150 that the checks can square")
             out.append(Diagnostic("error", msg, tables[letter].locs[e],

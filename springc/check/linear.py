@@ -331,13 +331,14 @@ def _dense_modes(net: FlatNetlist, lin: Linearisation | None, large: list) -> _R
     return raw
 
 
-def _pattern(net: FlatNetlist) -> tuple:
-    """What the sparsity of the linearisation and the components depend on: the node count
-    and every index array (netlists with equal patterns differ in coefficients alone)."""
-    m, s, c, q, d, p = (net.masses, net.springs, net.couplings, net.quads, net.dashpots,
-                        net.monomials)
-    return (net.n, *(a.tobytes() for a in (m.node, s.node, c.i, c.j, q.i, q.j, d.i, d.j,
-                                           p.ptr, p.var, p.exp)))
+def pattern(net: FlatNetlist) -> tuple:
+    """Every index array of the element tables and the node count: netlists with equal
+    patterns differ in coefficients alone (the linearisation's sparsity, the components and
+    each table's length are the same)."""
+    m, s, du, c, q, d, p = (net.masses, net.springs, net.duffings, net.couplings, net.quads,
+                            net.dashpots, net.monomials)
+    return (net.n, *(a.tobytes() for a in (m.node, s.node, du.node, c.i, c.j, q.i, q.j, d.i,
+                                           d.j, p.ptr, p.var, p.exp)))
 
 
 def _dense_batches(nets: list[FlatNetlist], lins: list) -> list[list[int]]:
@@ -348,7 +349,7 @@ def _dense_batches(nets: list[FlatNetlist], lins: list) -> list[list[int]]:
     for i, (net, lin) in enumerate(zip(nets, lins)):
         if lin is not None:
             continue
-        key = _pattern(net)
+        key = pattern(net)
         if key not in dense:
             count, labels = component_labels(net)
             dense[key] = bool(np.bincount(labels, minlength=count).max(initial=0) <= DENSE_MAX)

@@ -413,10 +413,11 @@ def lane_arrays(nets: list[FlatNetlist], coeffs: dict, st: Settings, reps: int,
 
 def _all_equal(columns: list[np.ndarray]) -> bool:
     """Whether every array equals the first (shape and values; NaN equals nothing)."""
-    first = np.asarray(columns[0])
-    if any(np.shape(col) != first.shape for col in columns):
+    try:
+        stacked = np.stack(columns)
+    except ValueError:  # shapes differ
         return False
-    return bool((np.stack(columns) == first).all())
+    return bool((stacked == stacked[0]).all())
 
 
 def _records(probes: int, records: int, runs: int, dtype, reuse: np.ndarray | None

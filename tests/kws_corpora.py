@@ -1,5 +1,7 @@
 """Tiny generated GSCD-layout corpora for the keyword-spotting tests (tones and chirps as
-"words") and a 4 x 2 model trained on one, shared by the test modules that need them."""
+"words") and a 4 x 2 model trained on one, shared by the test modules that need them; and the
+smaller hand-made GSCD folders of plain tones (`make_gscd`, with `finish_tree` and `tone`) of
+the dataset reader's tests, shared by test_kws_dataset and test_cli_data."""
 
 from __future__ import annotations
 
@@ -11,6 +13,9 @@ from scipy.signal import chirp
 
 RATE = 16000
 SPEAKERS = [f"{i:08x}" for i in range(0x1a2b3c40, 0x1a2b3c48)]  # 6 train, 1 val, 1 test
+# the speakers of `make_gscd`'s folders: 3 train, 1 val, 1 test
+GSCD_SPEAKERS = ["0a7c2a8d", "1b2c3d4e", "2c3d4e5f", "3d4e5f60", "4e5f6071"]
+NOISE_S = 15  # s: the held-out tenths are 1.5 s, enough for a 1 s silence clip
 
 
 def word_sound(word: str, rng: np.random.Generator) -> np.ndarray:
@@ -86,5 +91,34 @@ def make_corpus(root: Path, words: tuple[str, ...] = ("yes", "no", "cat"), per_s
     (root / "testing_list.txt").write_text("" if empty_test else "\n".join(test) + "\n")
     (root / "_background_noise_").mkdir()
     noise = 0.05 * np.random.default_rng(seed + 1).normal(size=30 * RATE)
+    sf.write(root / "_background_noise_" / "white_noise.wav", noise, RATE, subtype="PCM_16")
+    return root
+
+
+def tone(hz: float, seconds: float = 1.0, rate: int = RATE) -> np.ndarray:
+    """`seconds` of a Hann-windowed sine at `hz`, amplitude 0.3, sampled at `rate`."""
+    t = np.arange(int(seconds * rate)) / rate
+    return 0.3 * np.sin(2 * np.pi * hz * t) * np.hanning(len(t))
+
+
+def make_gscd(root: Path, words=("yes", "no", "cat", "zero"), per_speaker: int = 2) -> Path:
+    """word/<speaker>_nohash_<k>.wav, split lists (speaker 3 validation, 4 test), a noise file."""
+    val, test = [], []
+    for w, word in enumerate(words):
+        (root / word).mkdir(parents=True)
+        for s, spk in enumerate(GSCD_SPEAKERS):
+            for k in range(per_speaker):
+                name = f"{word}/{spk}_nohash_{k}.wav"
+                sf.write(root / name, tone(300 + 100 * w + 10 * s), RATE, subtype="PCM_16")
+                (val if s == 3 else test if s == 4 else []).append(name)
+    return finish_tree(root, val, test)
+
+
+def finish_tree(root: Path, val: list[str], test: list[str]) -> Path:
+    """The split lists and a white-noise `_background_noise_` of a fake GSCD tree."""
+    (root / "validation_list.txt").write_text("\n".join(val) + "\n")
+    (root / "testing_list.txt").write_text("\n".join(test) + "\n")
+    (root / "_background_noise_").mkdir()
+    noise = 0.1 * np.random.default_rng(0).standard_normal(NOISE_S * RATE)
     sf.write(root / "_background_noise_" / "white_noise.wav", noise, RATE, subtype="PCM_16")
     return root

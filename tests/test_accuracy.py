@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from springc_cli.main import main as cli
-from test_checks import H16, _kicked_pair
+from reference_nets import H16, TWOMODE, kicked_pair
 
 from springc.check import accuracy
 from springc.bench import suite as benchsuite
@@ -16,8 +16,6 @@ from springc.errors import UsageError
 from springc.lang.ir import IRBuilder, Tran
 from springc.sim.simulate import likely_cause, settings, simulate
 from springc.check import check
-
-TWOMODE = "netlists/examples/twomode_filter.spr"
 
 
 def test_rk4_per_step_errors_follow_the_series():
@@ -137,7 +135,7 @@ def test_a_kicked_block_is_neither_exact_nor_free_of_a_step_limit():
     """The 7 kHz filter pair with a 3 kHz kick of test_checks: exp-rk4's step map on it grows
     from 6.05e-5 s, below the 16 kHz input step, so the choice takes at least 2 substeps, and
     the pair's modes carry the inner tableau's error instead of counting as exact."""
-    net = _kicked_pair(3000.0, H16, "exp-rk4")
+    net = kicked_pair(3000.0, H16, "exp-rk4")
     got = accuracy.choose(net, H16, 0.05, 1e-2, methods=("exp-rk4",))
     assert got.substeps >= 2 and got.h <= KICK_LIMIT
     errs = accuracy.mode_errors(net, H16 / 2, "exp-rk4", 0.05)
@@ -148,7 +146,7 @@ def test_divergence_hint_under_a_split_scheme_names_the_schemes_own_limit():
     """What a diverged run is told: at 1.05x the kicked block's limit, exp-rk4's limit for
     the split network, not RK4's over every mode with the exact blocks included (which
     would call the step stable); below the limit, that the step is linearly stable."""
-    net = _kicked_pair(3000.0, H16, "exp-rk4")
+    net = kicked_pair(3000.0, H16, "exp-rk4")
     hint = likely_cause(net, settings(net, tstep=1.05 * KICK_LIMIT))
     assert f"exceeds the largest stable step {KICK_LIMIT:.4g} s of exp-rk4" in hint
     hint = likely_cause(net, settings(net, tstep=0.95 * KICK_LIMIT))

@@ -13,13 +13,13 @@ import re
 from pathlib import Path
 
 import pytest
+from netlist_cases import ERR
 
 from springc.errors import NetlistError
 from springc.lang import load_file
 
 CASES = Path(__file__).resolve().parent / "cases"
 OK = sorted((CASES / "ok").glob("*.spr"))
-ERR = sorted((CASES / "err").glob("*.spr"))
 _HEADER = re.compile(r"^\* (expect|line|file): (.*)$")
 
 

@@ -12,12 +12,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from reference_nets import H16, WS, filter_pair, kicked_pair, net_loc
 
 from springc.check import checks
 from springc.lang import physics
-from springc.errors import CheckError, SimulationError, SourceLoc
+from springc.errors import CheckError, SimulationError
 from springc.kernels.integrators import get_tableau, max_stable_step, stability_polynomial
-from springc.lang.ir import IRBuilder, Source, Tran
+from springc.lang.ir import IRBuilder, Tran
 from springc.lang import load_file
 from springc.sim.simulate import simulate
 from springc.check import check
@@ -26,18 +27,14 @@ CASES = sorted((Path(__file__).resolve().parent / "cases" / "check").glob("*.spr
 _HEADER = re.compile(r"^\* (expect|line): (.*)$")
 
 
-def _loc(line: int) -> SourceLoc:
-    return SourceLoc("net.spr", line, 1)
-
-
 def _errors(net) -> list[str]:
     return [d.message for d in checks.diagnose(net).errors]
 
 
 def _two(build) -> IRBuilder:
     b = IRBuilder(file="net.spr")
-    b.mass("M1", "x1", 1.0, loc=_loc(1))
-    b.mass("M2", "x2", 1.0, loc=_loc(2))
+    b.mass("M1", "x1", 1.0, loc=net_loc(1))
+    b.mass("M2", "x2", 1.0, loc=net_loc(2))
     build(b)
     return b.finish()
 
@@ -103,8 +100,8 @@ def test_negative_leverage_with_negative_k_is_legal() -> None:
 
 def test_every_bad_element_is_reported_with_its_location() -> None:
     def build(b):
-        b.spring("K1", "x1", -1.0, loc=_loc(3))
-        b.spring("K2", "x2", -2.0, loc=_loc(4))
+        b.spring("K1", "x1", -1.0, loc=net_loc(3))
+        b.spring("K2", "x2", -2.0, loc=net_loc(4))
     result = checks.diagnose(_two(build))
     assert [d.loc.line for d in result.errors] == [3, 4]
     assert result.errors[0].format().startswith("net.spr:3:1: error: K1: stiffness k=-1")
@@ -112,9 +109,9 @@ def test_every_bad_element_is_reported_with_its_location() -> None:
 
 def test_massless_node_points_at_first_element_naming_it() -> None:
     def build(b):
-        b.coupling("C1", "x1", "x3", 1.0, loc=_loc(7))
-        b.probe("x", "x3", loc=_loc(9))
-        b.spring("K3", "x3", 1.0, loc=_loc(5))
+        b.coupling("C1", "x1", "x3", 1.0, loc=net_loc(7))
+        b.probe("x", "x3", loc=net_loc(9))
+        b.spring("K3", "x3", 1.0, loc=net_loc(5))
     diag, = checks.diagnose(_two(build)).errors
     assert diag.message == "node 'x3' has no mass (named by K3, but no M element declares it)"
     assert diag.loc.line == 5
@@ -124,7 +121,7 @@ def test_massless_node_points_at_first_element_naming_it() -> None:
 def _poly(terms: list[tuple[float, list[tuple[str, int]]]], build=None):
     def add(b):
         for idx, (c, factors) in enumerate(terms):
-            b.monomial(f"P{idx + 1}", c, factors, loc=_loc(10 + idx))
+            b.monomial(f"P{idx + 1}", c, factors, loc=net_loc(10 + idx))
         if build:
             build(b)
     return _two(add)
@@ -231,7 +228,7 @@ def test_squares_of_higher_degree_are_bounded_without_a_search(c, factors, visib
         b.spring("K2", "x2", 0.01)
         b.quad("Q1", "x1", "x2", 2.0, 1.0)
         b.monomial("P1", -0.004, [("x2", 2)])
-        b.monomial("P2", c, factors, loc=_loc(12))
+        b.monomial("P2", c, factors, loc=net_loc(12))
     net = _two(build)
     lin = _hessian_at_rest(net)
     labels = np.zeros(net.n, np.int64)
@@ -268,10 +265,10 @@ def test_designed_zero_modes_pass_the_psd_check() -> None:
 
 def _oscillator(w: float, tstep: float | None = None, method: str | None = None):
     b = IRBuilder(file="net.spr")
-    b.mass("M1", "a", 2.0, loc=_loc(1))
-    b.spring("K1", "a", 2.0 * w**2, loc=_loc(2))
+    b.mass("M1", "a", 2.0, loc=net_loc(1))
+    b.spring("K1", "a", 2.0 * w**2, loc=net_loc(2))
     if tstep:
-        b.tran = Tran(tstep, 1.0, _loc(3))
+        b.tran = Tran(tstep, 1.0, net_loc(3))
     if method:
         b.options["method"] = method
     return b.finish()
@@ -330,8 +327,8 @@ def test_overdamped_mode_limits_the_step() -> None:
 
 def test_free_body_is_an_info_not_an_error() -> None:
     b = IRBuilder(file="net.spr")
-    b.mass("M1", "free", 1.0, loc=_loc(4))
-    b.tran = Tran(1e-3, 1.0, _loc(5))
+    b.mass("M1", "free", 1.0, loc=net_loc(4))
+    b.tran = Tran(1e-3, 1.0, net_loc(5))
     result = checks.check(b.finish())
     info, = result.notes
     assert (info.severity, info.loc.line) == ("info", 4)
@@ -454,39 +451,26 @@ def test_large_component_quartics() -> None:
 
 # --- split schemes (springc.kernels.expint): blocks exact, the inner RK4 on the rest --------------
 
-H16 = 1 / 16000  # a 16 kHz input grid: the top Mel bands sit just below its Nyquist frequency
-WS = 2 * np.pi * 50  # the slow part
 G_SQUARE = 1e3  # squarers from the filters into the slow part
-
-
-def _pair(b: IRBuilder, first: str, second: str, w: float, line: int) -> None:
-    """A driven two-mode filter pair (paper Eq. filter-response: delta 1.1, alpha 400)."""
-    delta, alpha = 1.1, 400.0
-    for node, sign in ((first, 1.0), (second, -1.0)):
-        b.mass(f"M{node}", node, 1.0, alpha, loc=_loc(line))
-        b.spring(f"K{node}", node, w**2, loc=_loc(line + 1))
-        b.force(f"F{node}", node, Source("in"), alpha * (1 + sign * delta**2) * w**2,
-                loc=_loc(line + 2))
-    b.coupling(f"C{first}", first, second, (delta**2 - 1) * w**2 / 2, loc=_loc(line + 3))
 
 
 def _fast_pairs(stiff: float | None = None):
     """Filter pairs at 7 and 8 kHz (omega h = 3.0 and 3.5 at 16 kHz, past RK4's 2.83)
     squared into a slow coupled pair r, s; `stiff`: a node t with that omega, coupled to s."""
     b = IRBuilder(file="net.spr")
-    _pair(b, "xa", "xb", 2 * np.pi * 7000, 1)
-    _pair(b, "xc", "xd", 2 * np.pi * 8000, 5)
+    filter_pair(b, "xa", "xb", 2 * np.pi * 7000, 1)
+    filter_pair(b, "xc", "xd", 2 * np.pi * 8000, 5)
     for node in ("r", "s"):
-        b.mass(f"M{node}", node, 1.0, 20.0, loc=_loc(10))
-        b.spring(f"K{node}", node, WS**2, loc=_loc(11))
-    b.coupling("Crs", "r", "s", WS**2 / 4, loc=_loc(12))
-    b.quad("Qbr", "xb", "r", G_SQUARE, loc=_loc(13))
-    b.quad("Qds", "xd", "s", G_SQUARE, loc=_loc(14))
+        b.mass(f"M{node}", node, 1.0, 20.0, loc=net_loc(10))
+        b.spring(f"K{node}", node, WS**2, loc=net_loc(11))
+    b.coupling("Crs", "r", "s", WS**2 / 4, loc=net_loc(12))
+    b.quad("Qbr", "xb", "r", G_SQUARE, loc=net_loc(13))
+    b.quad("Qds", "xd", "s", G_SQUARE, loc=net_loc(14))
     if stiff:
-        b.mass("Mt", "t", 1.0, loc=_loc(15))
-        b.spring("Kt", "t", stiff**2, loc=_loc(16))
-        b.coupling("Cst", "s", "t", 1e3, loc=_loc(17))
-    b.tran = Tran(H16, 0.05, _loc(20))
+        b.mass("Mt", "t", 1.0, loc=net_loc(15))
+        b.spring("Kt", "t", stiff**2, loc=net_loc(16))
+        b.coupling("Cst", "s", "t", 1e3, loc=net_loc(17))
+    b.tran = Tran(H16, 0.05, net_loc(20))
     return b.finish()
 
 
@@ -576,23 +560,6 @@ def test_unknown_method_lists_every_integrator() -> None:
     assert checks.check(net).method == "exp-rk4"
 
 
-def _kicked_pair(kick_hz: float, tstep: float, method: str, tstop: float = 0.05):
-    """A 7 kHz filter pair with a slow node r squared onto its node xb (Q r xb): at rest the
-    Q puts a stiffness g a on xb that the Runge-Kutta part of a split integrates. (r, s as in
-    `_fast_pairs`, whose kernel this one shares.)"""
-    b = IRBuilder(file="net.spr")
-    _pair(b, "xa", "xb", 2 * np.pi * 7000, 1)
-    for node in ("r", "s"):
-        b.mass(f"M{node}", node, 1.0, 20.0, loc=_loc(5))
-        b.spring(f"K{node}", node, WS**2, loc=_loc(6))
-    b.coupling("Crs", "r", "s", WS**2 / 4, loc=_loc(7))
-    b.quad("Qrb", "r", "xb", (2 * np.pi * kick_hz) ** 2, loc=_loc(7))
-    b.probe("x", "xb")
-    b.tran = Tran(tstep, tstop, _loc(8))
-    b.options["method"] = method
-    return b.finish()
-
-
 def _growth(net) -> float:
     """Largest |x(xb)| over the last quarter of a noise-driven run over that of the first
     quarter (inf if the divergence guard stops it). Above the limit on purpose: the step is
@@ -613,10 +580,10 @@ def test_kicked_block_limit_is_where_the_scheme_starts_to_grow(method: str, limi
     """A 3 kHz kick on a 7 kHz block: RK4 on the kick alone would allow 2.83 / omega = 1.5e-4
     s, yet the scheme's step map grows from ~6e-5 s, below the 16 kHz step (an island: 1e-4 s
     is stable again). The check finds the limit; simulation confirms it on both sides."""
-    result = checks.diagnose(_kicked_pair(3000.0, H16, method))
+    result = checks.diagnose(kicked_pair(3000.0, H16, method))
     assert result.step.dt == pytest.approx(limit, rel=1e-4)
     assert 2 * np.sqrt(2) / (2 * np.pi * 3000) > 2 * H16
     assert "dominant nodes xb (1.00)" in result.errors[0].message
     h = result.step.dt
-    assert _growth(_kicked_pair(3000.0, 0.98 * h, method, tstop=0.2)) < 2
-    assert _growth(_kicked_pair(3000.0, 1.02 * h, method, tstop=0.2)) > 1e3
+    assert _growth(kicked_pair(3000.0, 0.98 * h, method, tstop=0.2)) < 2
+    assert _growth(kicked_pair(3000.0, 1.02 * h, method, tstop=0.2)) > 1e3

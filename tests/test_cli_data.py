@@ -15,7 +15,7 @@ from click.testing import CliRunner
 from springc_cli.main import main
 
 sys.path.insert(0, str(Path(__file__).parent))
-from test_kws_dataset import make_gscd
+from kws_corpora import make_gscd
 
 ENGINES_HERE = all(shutil.which(p) for p in ("espeak-ng", "flite", "festival"))
 

@@ -10,28 +10,16 @@ import numpy as np
 import pytest
 import soundfile as sf
 from click.testing import CliRunner
+from reference_nets import GRAD_NETLIST
 
 from springc.grad import ParamNetlist, gradient
 from springc_cli.main import main
-
-NETLIST = """\
-.param k0=4e5 bb=40 gain=1e5 l0=1e9 unused=3 amp=1
-Ma a m=1 b={bb}
-Mb b m=1
-Ka a k={k0}
-Kb b k={2*k0}
-Da a l={l0}
-Cab a b k=1e5
-Fa a in(0) gain={gain}
-Fs b sin({amp} 50)
-.tran {1/8000} 0.03
-"""
 
 
 @pytest.fixture(scope="module")
 def case(tmp_path_factory):
     folder = tmp_path_factory.mktemp("grad")
-    (folder / "net.spr").write_text(NETLIST)
+    (folder / "net.spr").write_text(GRAD_NETLIST)
     t = np.arange(240) / 8000
     sf.write(folder / "a.wav", 0.2 * np.sin(2 * np.pi * 300 * t), 8000, subtype="DOUBLE")
     sf.write(folder / "b.wav", 0.1 * np.sin(2 * np.pi * 90 * t), 8000, subtype="DOUBLE")
@@ -98,7 +86,7 @@ def test_bad_specs_exit_1_naming_the_option(case, spec, message):
 
 def test_a_netlist_error_is_located(case):
     bad = case / "bad.spr"
-    bad.write_text(NETLIST.replace("Kb b k={2*k0}", "Kb b k={2*k9}"))
+    bad.write_text(GRAD_NETLIST.replace("Kb b k={2*k0}", "Kb b k={2*k9}"))
     out = run(str(bad), "--of", "final:x(a)", "--wrt", "k0")
     assert out.exit_code == 1
     assert "bad.spr:5:" in out.output and "undefined parameter 'k9'" in out.output

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from reference_nets import rel_error
 
 from springc.check import accuracy
 from springc.bench import suite as benchsuite
@@ -17,10 +18,6 @@ from springc.sim.simulate import simulate
 from springc.check import check
 
 RATE = 32000.0
-
-
-def _rel(got: np.ndarray, want: np.ndarray) -> float:
-    return float(np.linalg.norm(got - want) / np.linalg.norm(want))
 
 
 def test_stiff_all_to_all_block_is_stopped_with_the_substeps_it_needs():
@@ -40,7 +37,7 @@ def test_stiff_all_to_all_block_is_stopped_with_the_substeps_it_needs():
     got = simulate(checked, u, tstop=0.02, substeps=3).probes
     ref = simulate(checked, u, tstop=0.02, substeps=48).probes
     for label in ref:
-        assert _rel(got[label][0], ref[label][0]) < 2e-3
+        assert rel_error(got[label][0], ref[label][0]) < 2e-3
 
 
 def test_delay_line_with_near_zero_local_stiffness():
@@ -55,7 +52,7 @@ def test_delay_line_with_near_zero_local_stiffness():
     got = simulate(check(net), pulse)
     ref = simulate(check(net), pulse, substeps=16)
     end = net.probes[1].label
-    assert _rel(got.probes[end][0], ref.probes[end][0]) < 1e-3
+    assert rel_error(got.probes[end][0], ref.probes[end][0]) < 1e-3
     arrival = got.t[np.argmax(np.abs(got.probes[end][0]))] - 10 * td
     assert arrival == pytest.approx(sites * td, rel=0.1)
 
@@ -74,7 +71,7 @@ def test_overdamped_readout_q_001_matches_the_analytic_step_response():
     res = simulate(check(b.finish()))
     l1, l2 = np.roots([1.0, bb, k])
     exact = f / k * (1 - (l2 * np.exp(l1 * res.t) - l1 * np.exp(l2 * res.t)) / (l2 - l1))
-    assert _rel(res.probes["x(r)"][0], exact) < 1e-7
+    assert rel_error(res.probes["x(r)"][0], exact) < 1e-7
 
 
 # The two driven references below have no input samples, so no kinks for DOP853 to step
@@ -91,7 +88,7 @@ def test_duffing_driven_to_tenfold_stiffness():
     assert grow > 10
     _, ref, _ = solve_ivp_reference(net, None, tstep=net.tran.tstep, tstop=net.tran.tstop,
                                     rtol=1e-11, atol=1e-13, max_step=np.inf)
-    assert _rel(x, ref["x(a)"][0]) < 1e-4
+    assert rel_error(x, ref["x(a)"][0]) < 1e-4
 
 
 def _quad_pair(amp: float) -> object:
@@ -118,7 +115,7 @@ def test_quadratic_coupling_driven_to_tenfold_stiffness():
     err = {}
     for sub in (2, 4, 8):
         res = simulate(check(net), substeps=sub)
-        err[sub] = max(_rel(res.probes[k][0], ref[k][0]) for k in ref)
+        err[sub] = max(rel_error(res.probes[k][0], ref[k][0]) for k in ref)
     xa, xb = res.probes["x(a)"][0], res.probes["x(b)"][0]
     k = np.argmax(np.abs(xa))
     grow = physics.stiffness_matrix(net, np.array([xa[k], xb[k]]))[0, 0] / \

@@ -9,6 +9,7 @@ from scipy.integrate import solve_ivp
 
 import filter_refs
 from filter_refs import filter_net as _filter_net
+from reference_nets import rel_error
 from springc.bench import networks as bn
 from springc.bench import suite as benchsuite
 from springc.kernels import expint
@@ -17,10 +18,6 @@ from springc.lang.ir import IRBuilder, Tran
 from springc.errors import UsageError
 from springc.sim.simulate import simulate
 from springc.check import check
-
-
-def _rel(got: np.ndarray, want: np.ndarray) -> float:
-    return float(np.linalg.norm(got - want) / np.linalg.norm(want))
 
 
 def test_propagator_is_the_exact_flow_for_linear_input():
@@ -101,8 +98,8 @@ def test_lawson_schemes_are_exact_for_a_driven_linear_filter(method):
     label = net.probes[0].label
     exp = simulate(check(net), u, method=method, reductions=LINEAR).probes[label]
     rk4 = simulate(check(net), u, method="rk4", reductions=LINEAR).probes[label]
-    assert _rel(exp[0], ref[label][0]) < 1e-8
-    assert _rel(rk4[0], ref[label][0]) > 0.3
+    assert rel_error(exp[0], ref[label][0]) < 1e-8
+    assert rel_error(rk4[0], ref[label][0]) > 0.3
 
 
 def test_exp_rk4_with_quadratic_back_action_meets_1e3_where_rk4_fails():
@@ -112,7 +109,7 @@ def test_exp_rk4_with_quadratic_back_action_meets_1e3_where_rk4_fails():
     for method in ("rk4", "strang-rk4", "exp-rk4", "exp-heun3"):
         power = [] if method == "strang-rk4" else POWER  # Strang sums no work
         got = simulate(check(net), u[:1], method=method, reductions=power).probes
-        err[method] = max(_rel(got[k][0], ref[k][0]) for k in ref)
+        err[method] = max(rel_error(got[k][0], ref[k][0]) for k in ref)
     assert err["exp-rk4"] < 1e-3 and err["exp-heun3"] < 1e-3
     assert err["rk4"] > 0.1
     # freezing the filter over the step aliases its square into the low-pass: worse
@@ -130,7 +127,7 @@ def test_exp_heun3_converges_at_third_order_or_better():
     for sub in (1, 2, 4):
         got = simulate(check(net), u[:1], method="exp-heun3", substeps=sub,
                        reductions=POWER).probes
-        err.append(max(_rel(got[k][0], ref[k][0]) for k in ref))
+        err.append(max(rel_error(got[k][0], ref[k][0]) for k in ref))
     assert err[0] < 1e-3
     assert np.log2(err[0] / err[1]) > 2.5 and np.log2(err[1] / err[2]) > 2.5
 

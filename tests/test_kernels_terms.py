@@ -7,7 +7,7 @@ from __future__ import annotations
 import string
 
 import numpy as np
-from test_written_out import every_kind
+from reference_nets import every_kind
 
 from springc.kernels import terms
 from springc.lang import physics

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import soundfile as sf
+from kws_corpora import NOISE_S, finish_tree, make_gscd, tone
 
 from springc.errors import DataError, UsageError
 from springc.kws.data.dataset import (
@@ -35,36 +36,6 @@ from springc.kws.data.dataset import (
 )
 
 RATE = SAMPLE_RATE
-NOISE_S = 15  # s: the held-out tenths are 1.5 s, enough for a 1 s silence clip
-SPEAKERS = ["0a7c2a8d", "1b2c3d4e", "2c3d4e5f", "3d4e5f60", "4e5f6071"]  # 3 train, 1 val, 1 test
-
-
-def _tone(hz: float, seconds: float = 1.0, rate: int = RATE) -> np.ndarray:
-    t = np.arange(int(seconds * rate)) / rate
-    return 0.3 * np.sin(2 * np.pi * hz * t) * np.hanning(len(t))
-
-
-def make_gscd(root: Path, words=("yes", "no", "cat", "zero"), per_speaker: int = 2) -> Path:
-    """word/<speaker>_nohash_<k>.wav, split lists (speaker 3 validation, 4 test), a noise file."""
-    val, test = [], []
-    for w, word in enumerate(words):
-        (root / word).mkdir(parents=True)
-        for s, spk in enumerate(SPEAKERS):
-            for k in range(per_speaker):
-                name = f"{word}/{spk}_nohash_{k}.wav"
-                sf.write(root / name, _tone(300 + 100 * w + 10 * s), RATE, subtype="PCM_16")
-                (val if s == 3 else test if s == 4 else []).append(name)
-    return finish_tree(root, val, test)
-
-
-def finish_tree(root: Path, val: list[str], test: list[str]) -> Path:
-    """The split lists and a white-noise `_background_noise_` of a fake GSCD tree."""
-    (root / "validation_list.txt").write_text("\n".join(val) + "\n")
-    (root / "testing_list.txt").write_text("\n".join(test) + "\n")
-    (root / "_background_noise_").mkdir()
-    noise = 0.1 * np.random.default_rng(0).standard_normal(NOISE_S * RATE)
-    sf.write(root / "_background_noise_" / "white_noise.wav", noise, RATE, subtype="PCM_16")
-    return root
 
 
 @pytest.fixture
@@ -137,7 +108,7 @@ def test_subset_and_split(gscd):
 def test_load_clip_pads_short_clips_and_preprocesses(tmp_path):
     root = make_gscd(tmp_path / "d")
     short = root / "yes" / "5f607182_nohash_0.wav"
-    sf.write(short, _tone(500, 0.5), RATE, subtype="PCM_16")
+    sf.write(short, tone(500, 0.5), RATE, subtype="PCM_16")
     clip = next(c for c in open_dataset(root).clips if c.path == short)
     raw = load_clip(clip, preprocess=False)
     assert raw.shape == (CLIP_SAMPLES,) and raw.dtype == np.float64
@@ -185,9 +156,9 @@ def test_noise_bank_plays_only_the_training_part(tmp_path):
 
 def test_bad_files_are_named_and_skipped_or_converted(gscd, caplog):
     slow = gscd / "yes" / "5f607182_nohash_0.wav"
-    sf.write(slow, _tone(400, rate=8000), 8000, subtype="PCM_16")
+    sf.write(slow, tone(400, rate=8000), 8000, subtype="PCM_16")
     stereo = gscd / "no" / "5f607182_nohash_0.wav"
-    two = np.stack([_tone(400), _tone(2000)], axis=1)
+    two = np.stack([tone(400), tone(2000)], axis=1)
     sf.write(stereo, two, RATE, subtype="FLOAT")
     empty = gscd / "cat" / "5f607182_nohash_0.wav"
     sf.write(empty, np.zeros(0), RATE, subtype="PCM_16")
@@ -292,7 +263,7 @@ def test_list_entries_without_files_are_problems(gscd):
 
 def test_folders_that_are_not_gscd_words_are_unknown(gscd, caplog):
     (gscd / "banana").mkdir()
-    sf.write(gscd / "banana" / "0a7c2a8d_nohash_0.wav", _tone(700), RATE)
+    sf.write(gscd / "banana" / "0a7c2a8d_nohash_0.wav", tone(700), RATE)
     with caplog.at_level(logging.WARNING, logger="springc.data"):
         ds = open_dataset(gscd)
     assert {c.label for c in ds.clips if c.word == "banana"} == {"_unknown_"}
@@ -333,7 +304,7 @@ def make_mixed(root: Path, held_speakers: int = 3, per_speaker: int = 2) -> Path
             for spk in speakers:
                 for k in range(per_speaker):
                     name = f"{word}/{spk}_nohash_{k}.wav"
-                    sf.write(root / name, _tone(300 + 50 * w, 0.1), RATE, subtype="PCM_16")
+                    sf.write(root / name, tone(300 + 50 * w, 0.1), RATE, subtype="PCM_16")
                     lists.get(split, []).append(name)
     return finish_tree(root, lists["validation"], lists["test"])
 

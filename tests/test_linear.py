@@ -204,8 +204,8 @@ def _scaled(net, seed: int):
 def test_a_population_has_each_netlists_modes_alone() -> None:
     """`modes_many` solves netlists of one pattern in one batch: each netlist's modes are
     bitwise those it has alone, and equal to the eigenvalues of its first-order matrix (a
-    dense scipy eig of a 10-row matrix, to its round-off: 1e-12 of the largest) whether damping couples its
-    modes (`_mixed`) or not (a chain with mass-proportional damping)."""
+    dense scipy eig of a 10-row matrix, to its round-off: 1e-12 of the largest) whether
+    damping couples its modes (`_mixed`) or not (a chain with mass-proportional damping)."""
     for base in (_mixed(), _chain(5, 4.0, 2.0, alpha=0.3)):
         nets = [base] + [_scaled(base, seed) for seed in range(4)]
         together = linear.modes_many(nets)

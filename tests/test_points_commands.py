@@ -17,7 +17,7 @@ from springc.errors import UsageError
 from springc.grad import gradient
 from springc.grad.params import ParamNetlist, coefficients
 from springc.lang.draws import Sample
-from test_grad_cli import NETLIST
+from reference_nets import GRAD_NETLIST
 
 # two masses, a stepped stiffness, a global and two local draws: 3 steps x 2 samples
 NET = """* a driven pair under spread
@@ -181,10 +181,10 @@ def test_coefficient_derivatives_at_each_sample_are_central_differences():
     assert pn.jacobian({"k0": 2.0}, ["k0"])["k0"][("masses", "m")][0] == 1.0
 
 
-# tests/test_grad_cli.py's netlist, its stiffnesses drawn (its gradient kernel is shared with
-# that file's)
-DRAWN = (NETLIST.replace("k={k0}", "k={gauss(k0, 0.05)}").replace("k={2*k0}", "k={unif(2*k0, 0.1)}")
-         + ".mc 3 seed=3\n")
+# tests/test_grad_cli.py's netlist (`reference_nets.GRAD_NETLIST`), its stiffnesses drawn (its
+# gradient kernel is shared with that file's)
+DRAWN = (GRAD_NETLIST.replace("k={k0}", "k={gauss(k0, 0.05)}")
+         .replace("k={2*k0}", "k={unif(2*k0, 0.1)}") + ".mc 3 seed=3\n")
 
 
 def test_grad_at_each_monte_carlo_sample_is_the_central_difference_there(tmp_path):
@@ -211,7 +211,7 @@ def test_noise_refuses_points_at_the_step_line(pop):
 
 
 # tests/test_grad_cli.py's netlist, stepped: its gradient kernel is shared with that file's
-STEPPED = NETLIST + ".step k0 list 4e5 5e5\n"
+STEPPED = GRAD_NETLIST + ".step k0 list 4e5 5e5\n"
 
 
 def test_grad_at_every_step_point_is_the_written_in_netlists(tmp_path):

@@ -8,7 +8,7 @@ import pytest
 from springc.lang import physics
 from springc.lang.ir import IRBuilder, Source, Tran
 from springc.bench.reference import Equations, forcing, rk4_numpy, solve_ivp_reference
-from test_simulate import nonlinear_net
+from reference_nets import nonlinear_net
 
 
 def oscillator(w0: float = 20.0, b: float = 2.0):

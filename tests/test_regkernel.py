@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_written_out import RUNS, assert_matches_scipy, every_kind, inputs
+from reference_nets import RUNS, assert_matches_scipy, every_kind, inputs
 
 from springc.bench import networks as bn, suite as benchsuite
 from springc.kernels import codegen, regkernel, terms

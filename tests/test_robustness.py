@@ -2,7 +2,7 @@
 
 1. Golden error cases: each `tests/cases/err/*.spr` through every netlist-reading command
    (build, sim, ac, modes, export) exits 1 with the first line `springc build` prints for it.
-2. Fuzz: every variant of `test_mutations.VARIANTS` (over 1600: example, ok-case and library
+2. Fuzz: every variant of `netlist_cases.VARIANTS` (over 1600: example, ok-case and library
    netlists, 16 operators) through all five commands, so five invocations per variant (counts
    asserted in `test_fuzz_counts`): each exits 0 with its output written, or 1 with a located
    message and no output file; a refused variant gets the same first line from every command.
@@ -32,8 +32,7 @@ import numpy as np
 import pytest
 import soundfile as sf
 from click.testing import CliRunner
-from test_cases import ERR
-from test_mutations import VARIANTS, materialise
+from netlist_cases import ERR, VARIANTS, materialise
 
 from springc_cli.main import main
 

@@ -12,6 +12,7 @@ import pytest
 import soundfile as sf
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
+from reference_nets import nonlinear_net
 
 from springc.lang import physics
 from springc.kernels.codegen import nystrom_coefficients
@@ -302,32 +303,6 @@ def test_undamped_chain_conserves_energy_to_rk4_drift():
 
 
 # --- nonlinear networks against DOP853 --------------------------------------------------
-
-def nonlinear_net(in_gain: float = 2.0, sin_gain: float = 0.0):
-    """Duffing, quadratic coupling, leverage coupling, dashpots between nodes and to ground,
-    a monomial, a sine drive and an input channel."""
-    b = IRBuilder("nonlinear network")
-    b.mass("M1", "a", 1.0, 3.0)
-    b.mass("M2", "c", 2.0, 0.0, x0=0.1)
-    b.mass("M3", "d", 0.5, 1.0)
-    b.spring("K1", "a", 100.0)
-    b.spring("K2", "c", 50.0)
-    b.spring("K3", "d", 80.0)
-    b.duffing("D1", "a", 1e3)
-    b.coupling("C1", "a", "c", 20.0, a=1.5)
-    b.quad("Q1", "c", "d", 30.0, a=0.7)
-    b.dashpot("B1", "a", "d", 2.0)
-    b.dashpot("B2", "c", "0", 0.5)
-    b.monomial("P1", 5.0, [("a", 2), ("d", 2)])
-    b.force("F1", "a", Source("sin", (5.0, 2.0, 0.3)))
-    b.force("F2", "d", Source("in", channel=0), in_gain)
-    b.force("F3", "d", Source("sin", (1.0, 5.0)), sin_gain)
-    b.probe("x", "a")
-    b.probe("v", "d")
-    b.probe("x", "c")
-    b.tran = Tran(1e-3, 1.0, None)
-    return b.finish()
-
 
 def smooth_inputs(runs: int, samples: int = 1001) -> np.ndarray:
     t = np.arange(samples) * 1e-3

@@ -10,8 +10,7 @@ from springc_cli.main import main as cli
 import filter_refs
 from filter_refs import RATE
 from filter_refs import filter_net as _filter_net
-from test_accuracy import TWOMODE
-from test_integrators_expint import _rel
+from reference_nets import TWOMODE, rel_error
 
 from springc.check import accuracy
 from springc.sim import stepcheck
@@ -36,7 +35,7 @@ def test_step_doubling_raises_the_substeps_until_the_true_error_meets_the_tolera
 
     def true_error(sub: int) -> float:
         out = simulate(check(net), u[:1], method=got.method, substeps=sub).probes
-        return max(_rel(out[k][0], ref[k][0]) for k in ref)
+        return max(rel_error(out[k][0], ref[k][0]) for k in ref)
 
     assert true_error(linear.substeps) > TOL
     assert got.substeps > linear.substeps and got.linear_substeps == linear.substeps
@@ -51,7 +50,7 @@ def test_doubling_error_is_the_coarse_runs_error_for_a_known_order():
     net, u = _filter_net(7500.0, lowpass=True)
     ref = simulate(check(net), u[:1], method="exp-rk4", substeps=64).probes
     coarse = simulate(check(net), u[:1], method="exp-rk4", substeps=2).probes
-    true = max(_rel(coarse[k][0], ref[k][0]) for k in ref)
+    true = max(rel_error(coarse[k][0], ref[k][0]) for k in ref)
     est = stepcheck.doubling_error(check(net), "exp-rk4", 2, 1 / RATE, u[:1], 0.05)
     assert est == pytest.approx(true, rel=0.1)
 

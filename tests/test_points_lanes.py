@@ -158,3 +158,35 @@ def test_without_points_the_kernel_text_stays():
     assert "'per_run': ('km', 'minv')" in lanes and "km_l[i, 0]" in lanes
     sums = sm.kernel_source(net, codegen.KernelOptions(work=True, dissipation=True))
     assert "per_run" not in sums and "_l[" not in sums  # the sums read the shared arrays
+
+
+def test_a_populations_coefficient_arrays_are_each_netlists_own() -> None:
+    """`coefficient_columns` computes the kernel arrays of netlists of one pattern at once:
+    row s of every coefficient array is bitwise what netlist s has alone, in both
+    precisions, and the index arrays are the shared ones (the every-kind network with every
+    coefficient scaled by its own random factor)."""
+    from dataclasses import replace
+
+    from reference_nets import every_kind
+
+    base = every_kind()
+    rng = np.random.default_rng(3)
+
+    def vary(tab, *keys):
+        return replace(tab, **{k: getattr(tab, k) * rng.uniform(0.5, 1.5, len(tab))
+                               for k in keys})
+
+    nets = [replace(base, masses=vary(base.masses, "m", "b"), springs=vary(base.springs, "k"),
+                    duffings=vary(base.duffings, "l"), couplings=vary(base.couplings, "k", "a"),
+                    quads=vary(base.quads, "g", "a"), dashpots=vary(base.dashpots, "b"),
+                    forces=vary(base.forces, "gain")) for _ in range(5)]
+    for dtype in (np.float64, np.float32):
+        together = sm.coefficient_columns(nets, dtype)
+        for s, net in enumerate(nets):
+            alone = sm.coefficient_arrays(net, dtype)
+            assert together.keys() == alone.keys()
+            for key, value in alone.items():
+                got = together[key][s] if key in sm.COEFFICIENT_KEYS else together[key]
+                assert got.dtype == value.dtype, key
+                np.testing.assert_array_equal(got, value, err_msg=key)
+        assert not np.array_equal(together["km"][0], together["km"][1])

@@ -106,35 +106,74 @@ def settings(net: FlatNetlist, tstep=None, tstop=None, substeps=None, method=Non
     return Settings(float(tstep), float(tstop), substeps, method, precision, outrate)
 
 
+# the arrays of `coefficient_arrays` that hold coefficients (the others index nodes and terms)
+COEFFICIENT_KEYS = frozenset({"minv", "bm", "km", "d_lm", "l_val", "q_a", "q_gi", "q_gj",
+                              "b_bi", "b_bj", "p_c", "fi_gm", "fc_gm"})
+
+
 def coefficient_arrays(net: FlatNetlist, dtype) -> dict[str, np.ndarray]:
     """The kernel's coefficient and index arrays (names as in `codegen.accel_args`), with the
     inverse mass folded into every force coefficient (each end of an element over its own
     node's mass) and the linear springs and couplings as `linear_rows`."""
+    columns = coefficient_columns([net], dtype)
+    return {key: value[0] if key in COEFFICIENT_KEYS else value
+            for key, value in columns.items()}
+
+
+def coefficient_columns(nets: list[FlatNetlist], dtype) -> dict[str, np.ndarray]:
+    """`coefficient_arrays` of netlists of one kernel pattern (`kernel_pattern`), computed
+    for all at once: each coefficient array with a leading axis over the netlists (row s is
+    netlist s's, bitwise what it has alone: the same operations in the same order), each
+    index array once."""
+    net = nets[0]
     f = lambda a: np.ascontiguousarray(a, dtype=dtype)  # noqa: E731
     i = lambda a: np.ascontiguousarray(a, dtype=np.int64)  # noqa: E731
     # node indices that are never negative: unsigned, so that numba indexes without its
     # negative-index wrap-around (4 instructions per index in the gather loops)
     u = lambda a: np.ascontiguousarray(a, dtype=np.uint64)  # noqa: E731
+
+    def col(table: str, key: str) -> np.ndarray:
+        return np.array([getattr(getattr(n, table), key) for n in nets], dtype=float)
+
     d, q, b, p = net.duffings, net.quads, net.dashpots, net.monomials
     fi, fc = sources.input_forces(net), sources.common_forces(net)
     force = net.forces
     chans = [force.source[e].channel for e in fi]
-    minv = 1.0 / net.mass()
-    kdiag, l_ptr, l_col, l_val = linear_rows(net, minv)
+    minv = 1.0 / _per_node(net, col("masses", "m"))
+    kdiag, l_ptr, l_col, l_val = linear_rows_many(nets, minv, col)
     ground = b.j < 0
-    bj = np.where(ground, 0.0, b.b * minv[np.where(ground, 0, b.j)])
+    bj = np.where(ground, 0.0, col("dashpots", "b") * minv[:, np.where(ground, 0, b.j)])
+    qg, qa, gain = col("quads", "g"), col("quads", "a"), col("forces", "gain")
     return {
-        "minv": f(minv), "bm": f(net.local_damping() * minv), "km": f(kdiag),
-        "d_node": u(d.node), "d_lm": f(d.l * minv[d.node]),
+        "minv": f(minv), "bm": f(_per_node(net, col("masses", "b")) * minv), "km": f(kdiag),
+        "d_node": u(d.node), "d_lm": f(col("duffings", "l") * minv[:, d.node]),
         "l_ptr": u(l_ptr), "l_col": u(l_col), "l_val": f(l_val),
-        "q_i": u(q.i), "q_j": u(q.j), "q_a": f(q.a), "q_gi": f(2 * q.g / q.a * minv[q.i]),
-        "q_gj": f(q.g * minv[q.j]),
-        "b_i": u(b.i), "b_j": i(b.j), "b_bi": f(b.b * minv[b.i]), "b_bj": f(bj),
-        "p_c": f(p.c), "p_ptr": i(p.ptr), "p_var": i(p.var), "p_exp": i(p.exp),
-        "fi_node": u(force.node[fi]), "fi_gm": f(force.gain[fi] * minv[force.node[fi]]),
+        "q_i": u(q.i), "q_j": u(q.j), "q_a": f(qa), "q_gi": f(2 * qg / qa * minv[:, q.i]),
+        "q_gj": f(qg * minv[:, q.j]),
+        "b_i": u(b.i), "b_j": i(b.j), "b_bi": f(col("dashpots", "b") * minv[:, b.i]),
+        "b_bj": f(bj),
+        "p_c": f(col("monomials", "c")), "p_ptr": i(p.ptr), "p_var": i(p.var),
+        "p_exp": i(p.exp),
+        "fi_node": u(force.node[fi]), "fi_gm": f(gain[:, fi] * minv[:, force.node[fi]]),
         "fi_chan": u(chans), "fi_ptr": u(np.searchsorted(force.node[fi], np.arange(net.n + 1))),
-        "fc_node": u(force.node[fc]), "fc_gm": f(force.gain[fc] * minv[force.node[fc]]),
+        "fc_node": u(force.node[fc]), "fc_gm": f(gain[:, fc] * minv[:, force.node[fc]]),
     }
+
+
+def kernel_pattern(net: FlatNetlist) -> tuple:
+    """What the index arrays of `coefficient_arrays` depend on: netlists with equal kernel
+    patterns differ in their coefficient arrays alone."""
+    from springc.check.linear import pattern
+
+    sources_ = tuple((s.kind, s.channel) for s in net.forces.source)
+    return pattern(net), net.forces.node.tobytes(), sources_
+
+
+def _per_node(net: FlatNetlist, values: np.ndarray) -> np.ndarray:
+    """(netlists, n): each netlist's `M` values summed per node (`FlatNetlist.mass`)."""
+    out = np.zeros((len(values), net.n))
+    np.add.at(out, (slice(None), net.masses.node), values)
+    return out
 
 
 def linear_rows(net: FlatNetlist, minv: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -144,21 +183,35 @@ def linear_rows(net: FlatNetlist, minv: np.ndarray) -> tuple[np.ndarray, ...]:
     node's row into registers and stores its acceleration once: a coupling pushed to both
     ends costs two loads and a store of the force rows per end (the kernel is memory-bound).
     A coupling k/(2a) (x_i - a x_j)^2 puts k/a on i's diagonal, k a on j's and -k off it."""
+    def col(table: str, key: str) -> np.ndarray:
+        return getattr(getattr(net, table), key)[None, :]
+
+    diag, ptr, cols, vals = linear_rows_many([net], minv[None, :], col)
+    return diag[0], ptr, cols, vals[0]
+
+
+def linear_rows_many(nets: list[FlatNetlist], minv: np.ndarray,
+                     col: Callable[[str, str], np.ndarray]) -> tuple[np.ndarray, ...]:
+    """`linear_rows` of netlists of one pattern: `minv` and the values of `col(table, key)`
+    with a leading axis over the netlists, as are the diagonal and values returned."""
+    net = nets[0]
     s, c, n = net.springs, net.couplings, net.n
     rows = np.concatenate([s.node, c.i, c.j, c.i, c.j])
     cols = np.concatenate([s.node, c.i, c.j, c.j, c.i])
-    vals = np.concatenate([s.k, c.k / c.a, c.k * c.a, -c.k, -c.k]) * minv[rows]
+    ck, ca = col("couplings", "k"), col("couplings", "a")
+    vals = np.concatenate([col("springs", "k"), ck / ca, ck * ca, -ck, -ck], axis=1)
+    vals = vals * minv[:, rows]
     # sum duplicate (row, col) entries in row-major order (numpy: scipy.sparse's set-up is a
     # noticeable share of a small network's simulation call)
     order = np.argsort(rows * n + cols, kind="stable")
     keys, start = np.unique((rows * n + cols)[order], return_index=True)
-    summed = np.add.reduceat(vals[order], start) if len(vals) else vals
-    r, col = np.divmod(keys, n)
-    diag = np.zeros(n)
-    on = r == col
-    diag[r[on]] = summed[on]
+    summed = np.add.reduceat(vals[:, order], start, axis=1) if len(rows) else vals
+    r, column = np.divmod(keys, n)
+    diag = np.zeros((len(vals), n))
+    on = r == column
+    diag[:, r[on]] = summed[:, on]
     off = ~on
-    return diag, np.searchsorted(r[off], np.arange(n + 1)), col[off], -summed[off]
+    return diag, np.searchsorted(r[off], np.arange(n + 1)), column[off], -summed[:, off]
 
 
 def resolve_probes(net: FlatNetlist, probes) -> list[Probe]:
@@ -390,7 +443,7 @@ def lane_arrays(nets: list[FlatNetlist], coeffs: dict, st: Settings, reps: int,
     coefficients (an exponential scheme's blocks, the index arrays) must be equal
     (`LanesRefused`)."""
     dtype = np.dtype(st.precision)
-    others = [kernel_arrays(kernel_netlist(n), st, dtype) for n in nets[1:]]
+    others = _member_arrays([kernel_netlist(n) for n in nets[1:]], st, dtype)
     sizes = {k for k in coeffs if k.startswith("lw")}  # a Lawson kernel's block sizes
     if any({k for k in o if k.startswith("lw")} != sizes for o in others):
         raise LanesRefused(_differs("lw", st))
@@ -409,6 +462,19 @@ def lane_arrays(nets: list[FlatNetlist], coeffs: dict, st: Settings, reps: int,
     x0, v0 = (np.repeat(np.stack(s, 1), reps, 1)
               for s in zip(*(n.initial_state() for n in nets)))
     return Lanes(nets, reps, per_run, x0, v0)
+
+
+def _member_arrays(nets: list[FlatNetlist], st: Settings, dtype) -> list[dict[str, np.ndarray]]:
+    """`kernel_arrays` of every netlist; where the scheme is Runge-Kutta and all share one
+    kernel pattern, from one `coefficient_columns` (each netlist's rows as views)."""
+    if not nets:
+        return []
+    first = kernel_pattern(nets[0])
+    if expint.is_split(st.method) or any(kernel_pattern(n) != first for n in nets[1:]):
+        return [kernel_arrays(n, st, dtype) for n in nets]
+    columns = coefficient_columns(nets, dtype)
+    return [{key: value[row] if key in COEFFICIENT_KEYS else value
+             for key, value in columns.items()} for row in range(len(nets))]
 
 
 def _all_equal(columns: list[np.ndarray]) -> bool:

@@ -52,11 +52,14 @@ COEFFICIENTS = (
 def structure(net: FlatNetlist) -> str:
     """`net`'s text dump with every coefficient left out: netlists with equal structure differ
     in coefficients alone."""
-    blank = net
+    fields: dict[str, list[str]] = {}
     for table, name in COEFFICIENTS:
-        tab = getattr(blank, table)
-        blank = replace(blank, **{table: replace(tab, **{name: np.zeros(len(tab))})})
-    return blank.text()
+        fields.setdefault(table, []).append(name)
+    tables = {}
+    for table, names in fields.items():
+        tab = getattr(net, table)
+        tables[table] = replace(tab, **{name: np.zeros(len(tab)) for name in names})
+    return replace(net, **tables).text()
 
 
 @dataclass(frozen=True)

@@ -36,6 +36,7 @@ from cuda_compare import BENCH_SUBSTEPS, bench_cases, layout, split_threads  # n
 
 from springc.check import check  # noqa: E402
 from springc.kernels import cuda as cudagen  # noqa: E402
+from springc.sim import gpu  # noqa: E402
 from springc.sim import simulate as sm  # noqa: E402
 
 
@@ -63,9 +64,10 @@ def measure(name: str, net, inputs, tstep: float, seconds: float, precision: str
     if device == "cuda":  # the layout the kernel took (its text's constants)
         shape = layout(res.info["kernel"])
         held = shape["registers_held"]
-        row.update(shape, slot_max=cudagen.SLOT_MAX if shape["threads_per_run"] > 1 else None,
+        slot_max = gpu.current_layout().slot_max
+        row.update(shape, slot_max=slot_max if shape["threads_per_run"] > 1 else None,
                    kernel=kernel_resources(res.info["kernel"]))
-        shown = (f"cuda T={shape['threads_per_run']} S={cudagen.SLOT_MAX if held else 0} "
+        shown = (f"cuda T={shape['threads_per_run']} S={slot_max if held else 0} "
                  f"R={shape['max_registers']}")
     if row.get("kernel"):
         shown += f" ({row['kernel'].get('regs_per_thread', '?')} registers a thread)"
@@ -130,11 +132,12 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             for threads, slot_max, regs in itertools.product(args.threads, args.slot_max,
                                                              args.max_registers):
-                split_threads(threads)
-                cudagen.SLOT_MAX, cudagen.MAX_REGISTERS = slot_max, regs or None
+                lay = {**split_threads(threads), "slot_max": slot_max,
+                       "max_registers": regs or None}
                 try:
-                    rows.append(measure(name, net, u, tstep, args.seconds, precision,
-                                        args.device, args.repeat, args.method))
+                    with gpu.layout(**lay):
+                        rows.append(measure(name, net, u, tstep, args.seconds, precision,
+                                            args.device, args.repeat, args.method))
                 except Exception as err:  # report and go on: one must not stop the rest
                     print(f"{name} {precision}: FAILED {type(err).__name__}: {err}",
                           flush=True)

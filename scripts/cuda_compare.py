@@ -36,16 +36,25 @@ from pathlib import Path
 import numpy as np
 
 from springc.check import check
-from springc.kernels import cuda as cudagen
 from springc.lang.ir import IRBuilder, Source, Tran
 from springc.sim import gpu
 from springc.sim import simulate as sm
 
 TOLERANCE = {"float64": 1e-12, "float32": 1e-5}
-# the measuring scripts' register terms and registers a thread of the split form
-# (gpu_check.sh sets the fastest of its sweep)
-cudagen.SLOT_MAX = int(os.environ.get("SPRINGC_SLOT_MAX", cudagen.SLOT_MAX))
-cudagen.MAX_REGISTERS = int(os.environ.get("SPRINGC_MAX_REGISTERS", 0)) or cudagen.MAX_REGISTERS
+
+
+def env_layout() -> dict:
+    """The measuring scripts' register terms and registers a thread of the split form from
+    SPRINGC_SLOT_MAX and SPRINGC_MAX_REGISTERS where set (gpu_check.sh sets the fastest of
+    its sweep), as changes for `gpu.layout`."""
+    changes: dict = {}
+    if os.environ.get("SPRINGC_SLOT_MAX"):
+        changes["slot_max"] = int(os.environ["SPRINGC_SLOT_MAX"])
+    if int(os.environ.get("SPRINGC_MAX_REGISTERS", 0) or 0):
+        changes["max_registers"] = int(os.environ["SPRINGC_MAX_REGISTERS"])
+    return changes
+
+
 REDUCE = ["final:x(c)", "final:v(b)", "msq:x(a)", "msq:v(d):0.002:0.006", "work:in",
           "dissipated:all", "energy", "gram:0.005:a,c,d"]
 
@@ -161,34 +170,30 @@ def tiny() -> list[dict]:
     net = every_kind()
     u = smooth_inputs(2, 2, 70, seed=0)  # two runs: two blocks of the split form
     out = []
-    saved = cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS
-    for form, write_out, split_min in (("written out", saved[0], 10**9), ("loops", 0, 10**9),
-                                       ("split", 0, 1)):
-        cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = write_out, split_min, 3
+    default = gpu.current_layout()
+    for form, write_out, split_min in (("written out", default.write_out_max, 10**9),
+                                       ("loops", 0, 10**9), ("split", 0, 1)):
         for method, precision, sub in (("rk4", "float64", 1), ("heun3", "float64", 2),
                                        ("rk4", "float32", 1)):
-            gpu.STEPS_PER_CALL = 13  # many calls: the inputs and records streamed
             # split in float32: one term of each list in registers, the rest looped
-            held = 1 if form == "split" and precision == "float32" else cudagen.SLOT_MAX
-            slot_max, cudagen.SLOT_MAX = cudagen.SLOT_MAX, held
+            held = 1 if form == "split" and precision == "float32" else default.slot_max
             name = f"every kind, {form}{', one term a list in registers' * (held == 1)}"
             fma = precision == "float64"  # float32: the products rounded alone (mul_rn)
-            row = compare(f"{name}, {method} x{sub}{', no fma' * (not fma)}", net, u, precision,
-                          method=method, substeps=sub, reductions=REDUCE, outrate=5e3,
-                          write_out=False, fma=fma)
-            cudagen.SLOT_MAX = slot_max
+            # 13 steps a call: the inputs and records streamed over many calls
+            with gpu.layout(13, write_out_max=write_out, split_min=split_min, split_threads=3,
+                            slot_max=held):
+                row = compare(f"{name}, {method} x{sub}{', no fma' * (not fma)}", net, u,
+                              precision, method=method, substeps=sub, reductions=REDUCE,
+                              outrate=5e3, write_out=False, fma=fma)
             out.append({k: v for k, v in row.items() if k != "result"})
     # split, no term added after the node loop: the combine folded into the last stage's;
     # springc's layout (a node a thread: a warp, most of its threads without a node) and a
     # register limit in the text (which the simulator, taking none, leaves out)
-    cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = 0, 1, None
-    cudagen.MAX_REGISTERS, registers = 64, cudagen.MAX_REGISTERS
-    row = compare("unscattered kinds, split, a node a thread, at most 64 registers, rk4 x1",
-                  every_kind(False), u, "float64",
-                  method="rk4", substeps=1, reductions=REDUCE, outrate=5e3, write_out=False)
+    with gpu.layout(write_out_max=0, split_min=1, split_threads=None, max_registers=64):
+        row = compare("unscattered kinds, split, a node a thread, at most 64 registers, rk4 x1",
+                      every_kind(False), u, "float64", method="rk4", substeps=1,
+                      reductions=REDUCE, outrate=5e3, write_out=False)
     out.append({k: v for k, v in row.items() if k != "result"})
-    cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = saved
-    cudagen.MAX_REGISTERS = registers
     out += lawson()
     with gpu.default_device("cuda"):  # a simulation that names no device runs there
         row = compare("every kind, the default device", net, u, "float64", device=None,
@@ -208,20 +213,18 @@ def lawson() -> list[dict]:
     net = suite.feature_extractor()
     u = smooth_inputs(3, 1, 50, seed=1) * 30.0
     out = []
-    saved = cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS
     for form, split_min, threads, methods in (
             ("a run a thread", 10**9, 3, ("exp-rk4", "exp-heun3")),
             ("split", 1, 3, ("exp-rk4", "exp-heun3")),
             ("split, a node a thread", 1, None, ("exp-rk4",))):  # springc's layout: a warp
-        cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = split_min, threads
         for method in methods:
             fma = method == "exp-rk4"  # exp-heun3: the products rounded alone (mul_rn)
-            row = compare(f"feature extractor, {form}, {method} x1{', no fma' * (not fma)}",
-                          net, u, "float64", method=method, substeps=1, tstep=1e-4,
-                          tstop=0.004 if threads else 0.0015,  # a warp: 10 times the threads
-                          reductions=["work:in", "dissipated:all", "energy"], fma=fma)
+            with gpu.layout(split_min=split_min, split_threads=threads):
+                row = compare(f"feature extractor, {form}, {method} x1{', no fma' * (not fma)}",
+                              net, u, "float64", method=method, substeps=1, tstep=1e-4,
+                              tstop=0.004 if threads else 0.0015,  # a warp: 10x the threads
+                              reductions=["work:in", "dissipated:all", "energy"], fma=fma)
             out.append({k: v for k, v in row.items() if k != "result"})
-    cudagen.WRITE_OUT_MAX, cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = saved
     return out
 
 
@@ -251,14 +254,13 @@ def bench_cases(seconds: float, runs: int) -> list[tuple[str, object, np.ndarray
     ]
 
 
-def split_threads(threads: int) -> None:
-    """The CUDA form's threads per run for networks split over a block
-    (`springc.kernels.cuda.SPLIT_THREADS`; 0: springc's choice; 1: none split, one run per
-    thread)."""
+def split_threads(threads: int | None) -> dict:
+    """`gpu.layout`'s changes for the CUDA form's threads per run of networks split over a
+    block (`cudagen.Layout.split_threads`; 0 or None: springc's choice; 1: none split, one
+    run per thread)."""
     if threads == 1:
-        cudagen.SPLIT_MIN = 10**9
-    else:
-        cudagen.SPLIT_MIN, cudagen.SPLIT_THREADS = cudagen.WRITE_OUT_MAX + 1, threads or None
+        return {"split_min": 10**9}
+    return {"split_threads": threads or None}
 
 
 BENCH_SUBSTEPS = {"stiff block": 32, "pipeline features 8x3": 8,
@@ -320,8 +322,9 @@ def main(argv: list[str] | None = None) -> int:
     # numba's CUDA simulator runs a block's threads as Python threads that meet at barriers:
     # at the interpreter's default switch interval (5 ms) each barrier waits that long
     sys.setswitchinterval(1e-4)
-    cases = (tiny() if args.which == "tiny" else rounding() if args.which == "rounding"
-             else bench(args.seconds, args.runs, args.only, args.method, not args.no_fma))
+    with gpu.layout(**env_layout()):
+        cases = (tiny() if args.which == "tiny" else rounding() if args.which == "rounding"
+                 else bench(args.seconds, args.runs, args.only, args.method, not args.no_fma))
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(cases, fh, indent=1)

@@ -44,7 +44,6 @@ def capture(only: list[str], threads: list[int], slot_max: list[int], fmas: list
     from cuda_compare import BENCH_SUBSTEPS, bench_cases, split_threads
 
     from springc.check import check
-    from springc.kernels import cuda as cudagen
     from springc.sim import gpu
     from springc.sim import simulate as sm
 
@@ -69,19 +68,19 @@ def capture(only: list[str], threads: list[int], slot_max: list[int], fmas: list
                          kernel_limit=module.MAX_REGISTERS)
 
     gpu.run = recording_run
-    code_max = cudagen.SLOT_CODE_MAX
+    code_max = gpu.current_layout().slot_code_max
     for name, net, u, tstep in bench_cases(0.0005, 2):
         if name not in only:
             continue
         checked = check(net)
         for t, s, fma in itertools.product(threads, slot_max, fmas):
-            split_threads(t)
             # a set thread count measures its register form at every size; 0 as springc chooses
-            cudagen.SLOT_MAX, cudagen.SLOT_CODE_MAX = s, 10**9 if t else code_max
+            lay = {**split_threads(t), "slot_max": s, "slot_code_max": 10**9 if t else code_max}
             specs.append({"network": name, "method": method, "slot_max": s, "fma": bool(fma)})
-            sm.simulate(checked, u, device="cuda", method=method, tstep=tstep, tstop=0.0005,
-                        substeps=BENCH_SUBSTEPS.get(name, 1), probes=[],
-                        reductions=["energy"], check_step=False, fma=bool(fma))
+            with gpu.layout(**lay):
+                sm.simulate(checked, u, device="cuda", method=method, tstep=tstep,
+                            tstop=0.0005, substeps=BENCH_SUBSTEPS.get(name, 1), probes=[],
+                            reductions=["energy"], check_step=False, fma=bool(fma))
     Path(out).write_text(json.dumps(specs, indent=1))
 
 

@@ -24,11 +24,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from cuda_compare import BENCH_SUBSTEPS, bench_cases, layout, split_threads  # noqa: E402
+from cuda_compare import (  # noqa: E402
+    BENCH_SUBSTEPS, bench_cases, env_layout, layout, split_threads)
 
 from springc.check import check  # noqa: E402
 from springc.kernels.lower import kernel_netlist  # noqa: E402
-from springc.sim import sources  # noqa: E402
+from springc.sim import gpu, sources  # noqa: E402
 from springc.sim import simulate as sm  # noqa: E402
 
 
@@ -182,8 +183,12 @@ def main(argv: list[str] | None = None) -> int:
                         help="springc's threads per run where a run is split over a block")
     parser.add_argument("--json")
     args = parser.parse_args(argv)
-    if args.threads:
-        split_threads(args.threads)
+    with gpu.layout(**env_layout(), **split_threads(args.threads)):
+        return _measure(args)
+
+
+def _measure(args: argparse.Namespace) -> int:
+    """springc's CUDA form and the peers on the chosen network (`main`'s arguments)."""
     import jax
 
     jax.config.update("jax_enable_x64", args.precision == "float64")

@@ -22,7 +22,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from cuda_compare import split_threads  # noqa: E402
+from cuda_compare import env_layout, split_threads  # noqa: E402
 
 from springc.bench import suite  # noqa: E402
 from springc.kws.features import massspring as msp  # noqa: E402
@@ -49,8 +49,12 @@ def main(argv: list[str] | None = None) -> int:
                         help="cuda: threads per run of the split form")
     parser.add_argument("--json")
     args = parser.parse_args(argv)
-    if args.threads:
-        split_threads(args.threads)
+    with gpu.layout(**env_layout(), **split_threads(args.threads)):
+        return _measure(args)
+
+
+def _measure(args: argparse.Namespace) -> int:
+    """The feature pass timed (`main`'s arguments)."""
     s = msp.MassSpringSettings()
     signals = suite.SPEECH_LEVEL * suite.speech_like(args.seconds, msp.INPUT_RATE, args.clips,
                                                      seed=7)[:, 0, :]

@@ -63,7 +63,7 @@ def test_cuda_form_gives_the_cpu_kernels_probes_and_reductions(tmp_path):
     assert proc.returncode == 0, proc.stdout + proc.stderr
 
 
-def test_slot_tables_hold_each_nodes_first_terms_in_its_sum_order(monkeypatch):
+def test_slot_tables_hold_each_nodes_first_terms_in_its_sum_order():
     """The split form's register tables against the CSR rows and node ends they are read
     from: entry q of node i is the node's q-th term of the list (zero past its count), an
     element kind's coefficients read through the end's element; the kernel reads them into
@@ -88,16 +88,19 @@ def test_slot_tables_hold_each_nodes_first_terms_in_its_sum_order(monkeypatch):
     net = kernel_netlist(b.finish())
     co = coefficient_arrays(net, "float64")
     args = {**co, **terms.node_ends(co, net.n)}
-    monkeypatch.setattr(cudagen, "SLOT_MAX", 1)
-    threads, slots = gpu.split_layout(features(net), args, net.n)
+    with gpu.layout(slot_max=1):
+        threads, slots = gpu.split_layout(features(net), args, net.n)
     assert slots == (("row", 1, True), ("quad", 1, True), ("dashpot", 1, False))
     assert threads == 32  # one node a thread: a warp
     # written out per thread (one node at 256 threads): a row term, a quad's two end
     # variants, a dashpot's three (to ground too); over the limit, every term is looped
     code = cudagen.slot_code(cudagen.slot_lists(features(net)), [1, 1, 1], net.n, 256)
     assert code == 6
-    monkeypatch.setattr(cudagen, "SLOT_CODE_MAX", code - 1)
-    assert gpu.split_layout(features(net), args, net.n) == (cudagen.LOOP_THREADS, ())
+    with gpu.layout(slot_max=1, slot_code_max=code - 1):
+        assert gpu.split_layout(features(net), args, net.n) == (cudagen.LOOP_THREADS, ())
+    with pytest.raises(TypeError):  # a layout names only `cudagen.Layout`'s fields
+        with gpu.layout(slot_maxx=1):
+            pass
     opts = cudagen.CudaOptions("rk4", "float64", net.n, 0, probes=1, vneed=(True,) * net.n,
                                threads=2, slots=slots)
     mod_spec = cudagen._slot_spec(features(net), opts)

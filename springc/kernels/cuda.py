@@ -58,7 +58,7 @@ BLOCK = 32  # threads (runs) per block where each run is one thread
 # fits a block's static shared memory (`shared_bytes`), else one run per thread.
 WRITE_OUT_MAX = terms.NODES_MAX
 SPLIT_MIN = WRITE_OUT_MAX + 1
-# Threads per run of the split form, where set (the scripts' sweeps set it); None: one node a
+# Threads per run of the split form, where set (a `Layout` sets it); None: one node a
 # thread (`node_threads`) where the register form's code fits there, else LOOP_THREADS, the
 # fastest of 32-512 for the loops (docs/bench-gpu.md). On the H200 the 8x3 feature network's
 # register form ran 9% faster at 512 threads (one node a thread) than at 256 (two).
@@ -166,14 +166,27 @@ def node_threads(n: int) -> int | None:
     return threads if threads <= THREADS_MAX else None
 
 
-def register_limit(threads: int) -> int | None:
-    """The split form's registers a thread at `threads` a run: MAX_REGISTERS where set, at
+@dataclass(frozen=True)
+class Layout:
+    """How the CUDA form lays a network out: the defaults above, which the measuring
+    scripts' sweeps change for a block of code (`springc.sim.gpu.layout`)."""
+
+    write_out_max: int = WRITE_OUT_MAX  # most nodes written out per node
+    split_min: int = SPLIT_MIN  # fewest nodes split over a block's threads
+    split_threads: int | None = SPLIT_THREADS  # threads a run of the split form
+    slot_max: int = SLOT_MAX  # terms of each list a thread holds in registers
+    slot_code_max: int = SLOT_CODE_MAX  # most term blocks written out per thread
+    max_registers: int | None = MAX_REGISTERS  # registers a thread (None: ptxas's)
+
+
+def register_limit(threads: int, max_registers: int | None = MAX_REGISTERS) -> int | None:
+    """The split form's registers a thread at `threads` a run: `max_registers` where set, at
     most the most that let one block fit a multiprocessor (registers are given out a warp at
     a time, eight a thread at a time, 255 at most); None: ptxas's choice, which always fits
     at 256 threads or fewer."""
     cap = min(255, REGISTERS // (-(-threads // 32) * 32) // 8 * 8)
-    if MAX_REGISTERS:
-        return min(MAX_REGISTERS, cap)
+    if max_registers:
+        return min(max_registers, cap)
     return cap if cap < 255 else None
 
 

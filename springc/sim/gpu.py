@@ -31,6 +31,35 @@ if TYPE_CHECKING:  # the CUDA form's generator: imported where a GPU run needs i
 DEVICES = ("cpu", "cuda", "auto")
 STEPS_PER_CALL = 4096  # steps per kernel call: the input, signals and records on the device
 _DEFAULT = ["cpu"]  # the device of the innermost `default_device`: what `simulate` uses
+_LAYOUT: list[tuple[dict, int]] = []  # the innermost `layout`'s changes and steps a call
+
+
+@contextmanager
+def layout(steps_per_call: int | None = None, **changes) -> Iterator[None]:
+    """Within it, the CUDA form lays networks out with `changes` to `cudagen.Layout`'s
+    defaults (write_out_max, split_min, split_threads, slot_max, slot_code_max,
+    max_registers; on top of an enclosing `layout`'s) and integrates `steps_per_call` steps
+    a kernel call: the measuring scripts' sweeps and the simulator's comparison. Outside
+    one, every CUDA simulation takes the defaults."""
+    outer, steps = _LAYOUT[-1] if _LAYOUT else ({}, STEPS_PER_CALL)
+    _LAYOUT.append(({**outer, **changes}, steps_per_call or steps))
+    try:
+        current_layout()  # an unknown field is a TypeError here
+        yield
+    finally:
+        _LAYOUT.pop()
+
+
+def current_layout() -> cudagen.Layout:
+    """The CUDA form's layout here (`layout`)."""
+    from springc.kernels import cuda as cudagen
+
+    return cudagen.Layout(**(_LAYOUT[-1][0] if _LAYOUT else {}))
+
+
+def steps_per_call() -> int:
+    """Steps a CUDA kernel call integrates here (`layout`)."""
+    return _LAYOUT[-1][1] if _LAYOUT else STEPS_PER_CALL
 
 
 @contextmanager
@@ -167,13 +196,14 @@ def options(net: FlatNetlist, blocks: expint.Blocks | None, method: str, precisi
     dominate)."""
     from springc.kernels import cuda as cudagen
 
+    lay = current_layout()
     lawson = blocks is not None
-    small = net.n <= cudagen.WRITE_OUT_MAX and not lawson
+    small = net.n <= lay.write_out_max and not lawson
     nodes = terms.node_terms(coeffs, net.n) if small else None
     feat = features(net)
     gram = sum(r.gram.groups for r in rplan.gram)
     folded = not (feat.monomials or feat.common_forces or lawson)
-    split = (nodes is None and net.n >= cudagen.SPLIT_MIN and cudagen.shared_bytes(
+    split = (nodes is None and net.n >= lay.split_min and cudagen.shared_bytes(
         net.n, precision, method, gram, folded) <= cudagen.SHARED_BYTES)
     threads, held = split_layout(feat, coeffs, net.n) if split else (1, ())
     return cudagen.CudaOptions(
@@ -184,7 +214,7 @@ def options(net: FlatNetlist, blocks: expint.Blocks | None, method: str, precisi
         msq=len(rplan.msq), gram=gram,
         vneed=vneed(net, coeffs, rplan.work), nodes=nodes,
         threads=threads, slots=held,
-        max_registers=cudagen.register_limit(threads) if split else None,
+        max_registers=cudagen.register_limit(threads, lay.max_registers) if split else None,
         blocks=tuple(expint.block_sizes(blocks)) if lawson else (),
         block_channels=expint.block_channels(net, blocks) if lawson else 1, fma=fma)
 
@@ -192,22 +222,23 @@ def options(net: FlatNetlist, blocks: expint.Blocks | None, method: str, precisi
 def split_layout(feat: Features, coeffs: dict, n: int) -> tuple[int, tuple]:
     """The split form's threads per run and register lists (`cudagen.CudaOptions.slots`)
     from the kernel arrays with their node ends (`terms.node_ends`). Per list a node holds
-    its most terms, at most `cudagen.SLOT_MAX`, and notes whether a node has more; none with
-    SLOT_MAX 0, or where the code written out per thread would exceed
-    `cudagen.SLOT_CODE_MAX` term blocks (every term then read in the loops). Threads:
-    `cudagen.SPLIT_THREADS` where set; else one node a thread (`cudagen.node_threads`) where
+    its most terms, at most the layout's `slot_max` (`current_layout`), and notes whether a
+    node has more; none with slot_max 0, or where the code written out per thread would
+    exceed `slot_code_max` term blocks (every term then read in the loops). Threads: the
+    layout's `split_threads` where set; else one node a thread (`cudagen.node_threads`) where
     the register lists' code fits there, else `cudagen.LOOP_THREADS`."""
     from springc.kernels import cuda as cudagen
 
+    lay = current_layout()
     lists = cudagen.slot_lists(feat)
     most = [int(np.diff(coeffs[sl.ptr].astype(np.int64)).max(initial=0)) for sl in lists]
-    held = [min(m, cudagen.SLOT_MAX) for m in most]
+    held = [min(m, lay.slot_max) for m in most]
 
     def fits(threads: int | None) -> bool:
-        return bool(threads and cudagen.SLOT_MAX and cudagen.slot_code(
-            lists, held, n, threads) <= cudagen.SLOT_CODE_MAX)
+        return bool(threads and lay.slot_max and cudagen.slot_code(
+            lists, held, n, threads) <= lay.slot_code_max)
 
-    threads = cudagen.SPLIT_THREADS
+    threads = lay.split_threads
     if threads is None:
         one = cudagen.node_threads(n)
         threads = one if fits(one) else cudagen.LOOP_THREADS
@@ -232,7 +263,7 @@ _SUMS = ("work_in", "work_c", "diss", "msq", "gram")
 
 def run(kernel: loader.Kernel, args: dict, runs: int) -> None:
     """Integrate `runs` runs of the arrays `simulate` prepared (`args`: the CPU kernels'
-    argument names) on the GPU, STEPS_PER_CALL steps a call, filling args' records
+    argument names) on the GPU, `steps_per_call()` steps a call, filling args' records
     (`rec`, from column `rec_col`), reductions, final state (`xf`, `vf`) and status as the
     CPU kernels do."""
     from numba import cuda
@@ -255,8 +286,9 @@ def run(kernel: loader.Kernel, args: dict, runs: int) -> None:
     _record_start(args, runs)
     threads = mod.BLOCK if mod.T > 1 else min(mod.BLOCK, runs)
     blocks = runs if mod.T > 1 else -(-runs // threads)
-    for s0 in range(0, nsteps, STEPS_PER_CALL):
-        s1 = min(nsteps, s0 + STEPS_PER_CALL)
+    per_call = steps_per_call()
+    for s0 in range(0, nsteps, per_call):
+        s1 = min(nsteps, s0 + per_call)
         a, b = s0 // sub, (s1 - 1) // sub + 3
         call = {**dev, "u": _inputs(args["u"], a, b), "ubase": a, "g": _signals(args["g"], s0, s1),
                 "s0": s0, "s1": s1, "rbase": s0 // every + 1}

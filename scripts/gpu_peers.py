@@ -1,7 +1,7 @@
 """Generic GPU ODE peers of the CUDA form, on the same network, the same inputs and the same
 scheme: JAX (jit + vmap + lax.scan of classic RK4) and diffrax (diffeqsolve with the RK4
 tableau at the same constant step), built from the kernel netlist's element tables
-(`springc.sim.simulate.coefficient_arrays`), the input interpolated linearly between
+(`springc.sim.marshal.coefficient_arrays`), the input interpolated linearly between
 samples as the kernels do. Equal error: each peer's final positions against springc's (the
 same scheme and step, so they agree to round-off where the peer is right).
 
@@ -29,7 +29,7 @@ from cuda_compare import (  # noqa: E402
 
 from springc.check import check  # noqa: E402
 from springc.kernels.lower import kernel_netlist  # noqa: E402
-from springc.sim import gpu, sources  # noqa: E402
+from springc.sim import gpu, marshal, sources  # noqa: E402
 from springc.sim import simulate as sm  # noqa: E402
 
 
@@ -40,7 +40,7 @@ def accel_fn(net, dtype):
     import jax.numpy as jnp
 
     knet = kernel_netlist(net)
-    co = sm.coefficient_arrays(knet, dtype)
+    co = marshal.coefficient_arrays(knet, dtype)
     if len(knet.monomials):
         raise ValueError("monomials: not in the bench networks, not rendered here")
     n = knet.n

@@ -72,7 +72,7 @@ def test_slot_tables_hold_each_nodes_first_terms_in_its_sum_order():
     from springc.kernels import terms
     from springc.kernels.codegen import features
     from springc.kernels.lower import kernel_netlist
-    from springc.sim.simulate import coefficient_arrays
+    from springc.sim.marshal import coefficient_arrays
 
     b = IRBuilder("triangle", "<test>")
     for node in "abc":
@@ -145,7 +145,7 @@ def test_the_split_form_deals_nodes_of_the_same_terms_to_neighbouring_threads():
     from springc.kernels import terms
     from springc.kernels.codegen import features
     from springc.kernels.lower import kernel_netlist
-    from springc.sim.simulate import coefficient_arrays
+    from springc.sim.marshal import coefficient_arrays
 
     args = {"l_ptr": np.array([0, 2, 3, 7, 8]), "q_ptr": np.array([0, 1, 1, 1, 1]),
             "bm": np.array([0.0, 1.0, 0.0, 0.0])}
@@ -183,7 +183,7 @@ def test_split_runs_take_a_node_a_thread_within_a_multiprocessors_registers(
     from springc.kernels.codegen import features
     from springc.kernels.lower import kernel_netlist
     from springc.sim import reductions
-    from springc.sim.simulate import coefficient_arrays
+    from springc.sim.marshal import coefficient_arrays
 
     net = {"long delay line": bn.long_delay_line, "pipeline features 8x3": bn.pipeline_features,
            "564-dof kws network": bn.kws_network,
@@ -206,7 +206,7 @@ def test_a_run_of_more_nodes_than_a_block_has_threads_takes_256():
     from springc.kernels import terms
     from springc.kernels.codegen import features
     from springc.kernels.lower import kernel_netlist
-    from springc.sim.simulate import coefficient_arrays
+    from springc.sim.marshal import coefficient_arrays
 
     chain = IRBuilder("chain", "<test>")
     for k in range(1100):
@@ -229,7 +229,7 @@ def test_generated_text_is_specialised_to_the_network():
     the loop form loops over the index arrays."""
     from springc.kernels.lower import kernel_netlist
     from springc.sim import reductions
-    from springc.sim.simulate import coefficient_arrays
+    from springc.sim.marshal import coefficient_arrays
 
     net = kernel_netlist(_one_mass())
     co = coefficient_arrays(net, "float64")
@@ -260,7 +260,7 @@ def test_unfused_form_rounds_every_product_inside_the_kernel_alone():
     from springc.kernels import codegen
     from springc.kernels.lower import kernel_netlist
     from springc.sim import reductions
-    from springc.sim.simulate import coefficient_arrays
+    from springc.sim.marshal import coefficient_arrays
 
     text = cudagen.rounded_products(
         "M = 2 * 3\n"

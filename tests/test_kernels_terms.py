@@ -11,7 +11,7 @@ from reference_nets import every_kind
 
 from springc.kernels import terms
 from springc.lang import physics
-from springc.sim import simulate as sm
+from springc.sim import marshal
 from springc.sim import sources
 
 
@@ -36,7 +36,7 @@ def reference(net, x, v, u, g) -> np.ndarray:
 
 def test_node_sums_give_the_physics_accelerations():
     net = every_kind()
-    co = sm.coefficient_arrays(net, np.float64)
+    co = marshal.coefficient_arrays(net, np.float64)
     x, v, u, g = state(net)
     nodes = terms.node_terms(co, net.n)
     got = np.zeros(net.n)
@@ -53,7 +53,7 @@ def test_node_sums_give_the_physics_accelerations():
 def test_element_loops_give_the_physics_accelerations():
     """The linear part from `own_sum`, `ROW` and `INPUT`, then every kind's loop, one lane."""
     net = every_kind()
-    co = sm.coefficient_arrays(net, np.float64)
+    co = marshal.coefficient_arrays(net, np.float64)
     x, v, u, g = state(net)
     ka = np.zeros((net.n, 1))
     for i in range(net.n):

@@ -11,6 +11,7 @@ from springc.bench.lattices import lattice_net
 from springc.check import check
 from springc.kernels import codegen, terms
 from springc.lang.ir import IRBuilder, Source, Tran
+from springc.sim import marshal
 from springc.sim import simulate as sm
 
 W = 2 * np.pi * 40.0
@@ -75,7 +76,7 @@ def test_split_kernel_gives_the_serial_kernels_results(runs):
 
 def test_node_ends_follow_the_element_loops_order():
     net = every_end()
-    co = sm.coefficient_arrays(net, np.float64)
+    co = marshal.coefficient_arrays(net, np.float64)
     ends = terms.node_ends(co, net.n)
     c = net.node_index("c")
     lo, hi = ends["quad_ptr"][c], ends["quad_ptr"][c + 1]
@@ -124,7 +125,7 @@ def test_nodes_are_split_above_the_threshold_for_fewer_runs_than_cores(monkeypat
 def test_kernel_form_puts_every_run_in_one_chunk_when_split(monkeypatch):
     monkeypatch.setattr(sm, "threads", lambda: 16)
     net = lattice_net(1, 100)
-    co = sm.coefficient_arrays(net, np.float64)
+    co = marshal.coefficient_arrays(net, np.float64)
     opts = codegen.KernelOptions("rk4", lanes=1)
     split = sm.kernel_form(net, opts, co, settings(), 8, None, True)
     assert split.parallel and split.lanes == 4 and split.registers is None

@@ -14,6 +14,7 @@ import pytest
 import springc
 from springc.check import check
 from springc.kernels import codegen
+from springc.sim import marshal
 from springc.sim import simulate as sm
 
 # every term kind, with global and local draws on masses, dampers, springs, couplings,
@@ -181,12 +182,12 @@ def test_a_populations_coefficient_arrays_are_each_netlists_own() -> None:
                     quads=vary(base.quads, "g", "a"), dashpots=vary(base.dashpots, "b"),
                     forces=vary(base.forces, "gain")) for _ in range(5)]
     for dtype in (np.float64, np.float32):
-        together = sm.coefficient_columns(nets, dtype)
+        together = marshal.coefficient_columns(nets, dtype)
         for s, net in enumerate(nets):
-            alone = sm.coefficient_arrays(net, dtype)
+            alone = marshal.coefficient_arrays(net, dtype)
             assert together.keys() == alone.keys()
             for key, value in alone.items():
-                got = together[key][s] if key in sm.COEFFICIENT_KEYS else together[key]
+                got = together[key][s] if key in marshal.COEFFICIENT_KEYS else together[key]
                 assert got.dtype == value.dtype, key
                 np.testing.assert_array_equal(got, value, err_msg=key)
         assert not np.array_equal(together["km"][0], together["km"][1])

@@ -10,6 +10,7 @@ from reference_nets import RUNS, assert_matches_scipy, every_kind, inputs
 
 from springc.bench import networks as bn, suite as benchsuite
 from springc.kernels import codegen, regkernel, terms
+from springc.sim import marshal
 from springc.sim import simulate as sm
 from springc.errors import SimulationError
 from springc.lang.ir import IRBuilder, Source, Tran
@@ -102,7 +103,7 @@ def test_register_kernel_stops_a_diverging_run_like_the_shared_kernel(runs):
 
 def _opts(net, runs: int, **kw) -> codegen.KernelOptions:
     st = sm.settings(net, **{k: v for k, v in kw.items() if k == "method"})
-    co = sm.kernel_arrays(net, st, np.float64)
+    co = marshal.kernel_arrays(net, st, np.float64)
     opts = codegen.KernelOptions(st.method, lanes=codegen.choose_lanes(sm.task_runs(runs, None,
                                                                                      None)),
                                  msq=kw.get("msq", False))
@@ -137,7 +138,7 @@ def test_register_terms_of_every_kind():
     """Per node: damping, spring, stiffness row, inputs, quadratic couplings, Duffing terms,
     dashpot ends and shared signals, as indices into the coefficient arrays."""
     net = every_kind()
-    co = sm.coefficient_arrays(net, np.float64)
+    co = marshal.coefficient_arrays(net, np.float64)
     a, b, c, d = terms.node_terms(co, net.n)
     assert a.damped and b.damped and not c.damped and not d.damped
     assert [j for _, j in a.row] == [1] and [j for _, j in b.row] == [0] and c.row == ()

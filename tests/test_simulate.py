@@ -21,7 +21,8 @@ from springc.kernels.integrators import TABLEAUX, amplification, get_tableau, st
 from springc.lang.ir import IRBuilder, Source, Tran
 from springc.bench.reference import rk4_numpy, solve_ivp_reference
 from springc.sim import simulate as sm
-from springc.sim.simulate import linear_rows, simulate
+from springc.sim.marshal import linear_rows
+from springc.sim.simulate import simulate
 from springc.check import check
 
 W0 = 2 * np.pi * 10.0  # oscillator natural frequency (rad/s)

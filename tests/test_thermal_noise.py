@@ -24,6 +24,7 @@ from springc.check import check
 from springc.bench.noise import cost_of_noise
 from springc.kernels import codegen, terms, thermal
 from springc.kernels.lower import kernel_netlist
+from springc.sim import marshal
 from springc.sim import simulate as sim
 from springc.sim.thermal import with_overrides
 from springc_cli.main import main
@@ -175,7 +176,7 @@ def test_kernels_run_as_python_under_numba_disable_jit(tmp_path) -> None:
 def kernel_text(text: str, temp: float | None = None) -> str:
     """The kernels of every form for `text` (`temp`: the caller's override)."""
     net = with_overrides(springc.load(text).flat, temp, None)
-    coeffs = sim.coefficient_arrays(kernel_netlist(net), np.float64)
+    coeffs = marshal.coefficient_arrays(kernel_netlist(net), np.float64)
     out = []
     for form in (dict(), dict(nodes=terms.node_terms(coeffs, net.n)),
                  dict(registers=terms.node_terms(coeffs, net.n)), dict(lanes=1)):

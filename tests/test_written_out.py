@@ -10,6 +10,7 @@ from reference_nets import assert_matches_scipy, every_kind, inputs
 
 from springc.bench import suite as benchsuite
 from springc.kernels import regkernel, terms
+from springc.sim import marshal
 from springc.sim import simulate as sm
 from springc.kernels.codegen import KernelOptions, generate
 from springc.check import check
@@ -69,7 +70,7 @@ def test_node_terms_of_the_feature_extractor():
     """Per node of a Mel band (fa, fb, lp): the coupling between the pair, the input on both,
     and the squarer's quadratic coupling from fa (its first end) to lp (its second)."""
     net = benchsuite.feature_extractor(bands=2)
-    co = sm.coefficient_arrays(net, np.float64)
+    co = marshal.coefficient_arrays(net, np.float64)
     nodes = terms.node_terms(co, net.n)
     names = net.nodes
     by_name = dict(zip(names, nodes))
@@ -84,21 +85,21 @@ def test_node_terms_of_the_feature_extractor():
 
 def test_too_large_or_too_dense_networks_keep_the_shared_kernel():
     dense = benchsuite.stiff_block()  # 23 couplings on every node
-    co = sm.coefficient_arrays(dense, np.float64)
+    co = marshal.coefficient_arrays(dense, np.float64)
     assert max(len(r) for r in np.split(co["l_col"], co["l_ptr"][1:-1])) > terms.NODE_TERMS_MAX
     assert terms.node_terms(co, dense.n) is None
     big = benchsuite.feature_extractor(bands=terms.NODES_MAX // 3 + 1)
     assert big.n > terms.NODES_MAX
-    assert terms.node_terms(sm.coefficient_arrays(big, np.float64), big.n) is None
+    assert terms.node_terms(marshal.coefficient_arrays(big, np.float64), big.n) is None
     small = benchsuite.feature_extractor(bands=terms.NODES_MAX // 3)
-    assert terms.node_terms(sm.coefficient_arrays(small, np.float64), small.n) is not None
+    assert terms.node_terms(marshal.coefficient_arrays(small, np.float64), small.n) is not None
 
 
 def test_long_simulations_get_the_written_out_kernel():
     """`write_out=None`: from `WRITE_OUT_FROM` dof-steps (dofs x steps x runs) on; an
     explicit choice wins."""
     net = every_kind()
-    co = sm.coefficient_arrays(net, np.float64)
+    co = marshal.coefficient_arrays(net, np.float64)
     st = sm.settings(net)
     steps = st.nsteps * net.n
     enough = -(-sm.WRITE_OUT_FROM // steps)
@@ -112,7 +113,7 @@ def test_long_simulations_get_the_written_out_kernel():
 
 def test_written_out_text_has_constant_rows_and_no_index_loops():
     net = every_kind()
-    nodes = terms.node_terms(sm.coefficient_arrays(net, np.float64), net.n)
+    nodes = terms.node_terms(marshal.coefficient_arrays(net, np.float64), net.n)
     text = generate(net, KernelOptions(lanes=4, nodes=nodes))
     shared = generate(net, KernelOptions(lanes=4))
     assert "# force code: written out per node" in text

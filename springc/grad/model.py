@@ -65,7 +65,7 @@ def build(net: FlatNetlist) -> Model:
     f = lambda a: np.ascontiguousarray(a, np.float64)  # noqa: E731
     i = lambda a: np.ascontiguousarray(a, np.int64)  # noqa: E731
     # node indices that are never negative: unsigned, so that numba indexes without its
-    # negative-index wrap-around (as `simulate.coefficient_arrays` does)
+    # negative-index wrap-around (as `marshal.coefficient_arrays` does)
     u = lambda a: np.ascontiguousarray(a, np.uint64)  # noqa: E731
     s, d, c, q, b, p, F = (net.springs, net.duffings, net.couplings, net.quads, net.dashpots,
                            net.monomials, net.forces)

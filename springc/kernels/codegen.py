@@ -542,7 +542,7 @@ def node_loop(parallel: bool) -> str:
 def emit_linear(c: _Code, feat: Features, width: LaneLayout, parallel: bool = False,
                 per_run: frozenset[str] = frozenset()) -> None:
     """Per node, all lanes in registers and one store: ka = -(bm v + km x), plus (with
-    couplings) the node's off-diagonal stiffness row (`simulate.linear_rows`) and (with
+    couplings) the node's off-diagonal stiffness row (`marshal.linear_rows`) and (with
     inputs) its input forces (`fi_ptr`: the node's range of the node-ordered inputs). Pushing
     each element into both ends' rows costs a load and a store per end, and the kernel is
     bound by that memory traffic. All lanes at once (no group loop): the FMAs into

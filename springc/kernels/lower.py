@@ -3,7 +3,7 @@ code is cheaper.
 
 A monomial of one variable squared, `P c x^2`, is a linear spring of stiffness 2c: it moves from
 the monomial table (a general product loop with powers, per term and lane) into the springs,
-whose stiffness the kernel's linear rows already hold (`simulate.linear_rows`). The
+whose stiffness the kernel's linear rows already hold (`marshal.linear_rows`). The
 zero-mode multipliers take back their excess diagonal stiffness this way (`springc.design.mvm`),
 48 monomials per head, and in the keyword spotter's classifier they cost more than everything
 else in its force code together (docs/performance.md#classifier-kernel). Element names and

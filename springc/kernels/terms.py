@@ -16,7 +16,7 @@ coefficient arrays it reads, the subexpressions both ends share, and the force o
                                          the register kernels (regkernel): coefficients in
                                          scalars (`scalar_loads`), indices constants
 
-A new term kind is a `Kind` here, its arrays in `springc.sim.simulate.coefficient_arrays`
+A new term kind is a `Kind` here, its arrays in `springc.sim.marshal.coefficient_arrays`
 and its flag in `codegen.Features`. Monomials (any number of factors) keep their own loop,
 `codegen._emit_monomials`, in every form.
 """
@@ -107,7 +107,7 @@ NODE_TERMS_MAX = 8
 
 
 def node_terms(co: dict, n: int) -> tuple[NodeTerms, ...] | None:
-    """Each node's terms from the coefficient arrays `co` (`simulate.coefficient_arrays`),
+    """Each node's terms from the coefficient arrays `co` (`marshal.coefficient_arrays`),
     the kinds' ends in `KINDS` order and each kind's element order; None when the network
     is too large to write out (`NODES_MAX`, `NODE_TERMS_MAX`)."""
     if n > NODES_MAX:
@@ -272,7 +272,7 @@ def gather_args(kind: Kind) -> tuple[str, ...]:
 
 
 def node_ends(co: dict, n: int) -> dict[str, np.ndarray]:
-    """`gather_args` of every kind in `co` (`simulate.coefficient_arrays`): each node's ends
+    """`gather_args` of every kind in `co` (`marshal.coefficient_arrays`): each node's ends
     in element order, i before j within an element, the order in which the element loops
     add them to the node's acceleration, so that a node's sum rounds as theirs does."""
     out = {}

@@ -190,7 +190,7 @@ def options(net: FlatNetlist, blocks: expint.Blocks | None, method: str, precisi
             coeffs: dict, probes: int, rplan, fma: bool = True) -> cudagen.CudaOptions:
     """The CUDA kernel's options for the force netlist `net` and a Lawson scheme's `blocks`
     (`force_netlist`) and a reduction plan (`coeffs`: the kernel arrays,
-    `simulate.kernel_arrays`, with their node ends, `terms.node_ends`) and whether a product
+    `marshal.kernel_arrays`, with their node ends, `terms.node_ends`) and whether a product
     may be fused with an add (`fma`, `CudaOptions.fma`). A Lawson scheme's
     force code is never written out (the CPU kernels' choice too: its block updates
     dominate)."""

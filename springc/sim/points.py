@@ -26,7 +26,8 @@ from springc.check.points import at_point
 from springc.errors import CheckError, DivergedRuns, UsageError
 from springc.lang.variation import Point, PointSet
 from springc.sim import results, thermal
-from springc.sim.simulate import (LanesRefused, SimResult, require_memory, resolve_probes,
+from springc.sim.marshal import LanesRefused
+from springc.sim.simulate import (SimResult, require_memory, resolve_probes,
                                   settings, simulate, simulate_lanes)
 from springc.sim.simulate import _gather_inputs
 

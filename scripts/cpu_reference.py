@@ -11,7 +11,7 @@ holds in registers (`SLOT_MAX`; 0: every term read in a loop) and `--max-registe
 registers a thread (`MAX_REGISTERS`; 0: ptxas's choice, capped where a block would not fit);
 each combination is a row, which reports the layout the kernel took.
 
-Each network runs RK4 (or `--method`; the substeps of `cuda_compare.BENCH_SUBSTEPS`) for
+Each network runs RK4 (or `--method`; the substeps of `springc.bench.suite.DEVICE_SUBSTEPS`) for
 `--seconds` of speech-like input (`springc.bench.suite.speech_like`), recording nothing and
 summing the final energy, in float64 and float32 (the classifier float64 only). A first call
 compiles the kernel and is not timed; the best of `--repeat` timed calls gives runs per second.
@@ -29,11 +29,9 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
 import numpy as np  # noqa: E402
-from cuda_compare import BENCH_SUBSTEPS, bench_cases, layout, split_threads  # noqa: E402
 
+from springc.bench import suite  # noqa: E402
 from springc.check import check  # noqa: E402
 from springc.kernels import cuda as cudagen  # noqa: E402
 from springc.sim import gpu  # noqa: E402
@@ -44,9 +42,9 @@ def measure(name: str, net, inputs, tstep: float, seconds: float, precision: str
             device: str, repeat: int, method: str = "rk4") -> dict:
     """Runs per second of one network (best of `repeat` calls after a compiling one)."""
     checked = check(net)
-    kw = dict(method=method, substeps=BENCH_SUBSTEPS.get(name, 1), tstep=tstep, tstop=seconds,
-              precision=precision, probes=[], reductions=["energy"], device=device,
-              check_step=False)
+    kw = dict(method=method, substeps=suite.DEVICE_SUBSTEPS.get(name, 1), tstep=tstep,
+              tstop=seconds, precision=precision, probes=[], reductions=["energy"],
+              device=device, check_step=False)
     runs = len(inputs)
     # compile: the CPU kernel's lanes follow the runs per thread, so its warm-up call is a
     # whole one; the CUDA kernel is the same for any number of runs
@@ -62,7 +60,7 @@ def measure(name: str, net, inputs, tstep: float, seconds: float, precision: str
            "runs_per_s": runs / best, "run_seconds_per_s": runs * seconds / best}
     shown = device
     if device == "cuda":  # the layout the kernel took (its text's constants)
-        shape = layout(res.info["kernel"])
+        shape = cudagen.kernel_shape(res.info["kernel"])
         held = shape["registers_held"]
         slot_max = gpu.current_layout().slot_max
         row.update(shape, slot_max=slot_max if shape["threads_per_run"] > 1 else None,
@@ -122,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     runs = args.runs or (10000 if args.device == "cuda" else 8 * sm.threads())
     rows = []
-    for name, net, u, tstep in bench_cases(args.seconds, runs):
+    for name, net, u, tstep in suite.device_cases(args.seconds, runs):
         if args.only and name not in args.only:
             continue
         if u is None:  # the Duffing resonator's drive is its own: runs of no input
@@ -132,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             for threads, slot_max, regs in itertools.product(args.threads, args.slot_max,
                                                              args.max_registers):
-                lay = {**split_threads(threads), "slot_max": slot_max,
+                lay = {**gpu.split_threads(threads), "slot_max": slot_max,
                        "max_registers": regs or None}
                 try:
                     with gpu.layout(**lay):

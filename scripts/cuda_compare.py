@@ -25,34 +25,20 @@ does the same arithmetic in the same order, and every error is 0.
 from __future__ import annotations
 
 import argparse
-import ast
 import json
-import os
-import re
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
+from springc.bench import suite
 from springc.check import check
+from springc.kernels import cuda as cudagen
 from springc.lang.ir import IRBuilder, Source, Tran
 from springc.sim import gpu
 from springc.sim import simulate as sm
 
 TOLERANCE = {"float64": 1e-12, "float32": 1e-5}
-
-
-def env_layout() -> dict:
-    """The measuring scripts' register terms and registers a thread of the split form from
-    SPRINGC_SLOT_MAX and SPRINGC_MAX_REGISTERS where set (gpu_check.sh sets the fastest of
-    its sweep), as changes for `gpu.layout`."""
-    changes: dict = {}
-    if os.environ.get("SPRINGC_SLOT_MAX"):
-        changes["slot_max"] = int(os.environ["SPRINGC_SLOT_MAX"])
-    if int(os.environ.get("SPRINGC_MAX_REGISTERS", 0) or 0):
-        changes["max_registers"] = int(os.environ["SPRINGC_MAX_REGISTERS"])
-    return changes
 
 
 REDUCE = ["final:x(c)", "final:v(b)", "msq:x(a)", "msq:v(d):0.002:0.006", "work:in",
@@ -113,21 +99,6 @@ PROGRESS: list[dict] = []  # every case so far, written to --json after each one
 JSON_PATH: list[str] = []
 
 
-def layout(path: str | None) -> dict:
-    """A CUDA kernel file's threads per run, register limit and whether it holds terms in
-    registers (its module constants)."""
-    if not path or not str(path).endswith(".py"):
-        return {}
-    text = Path(path).read_text()
-    found = {k: re.search(rf"^{k} = (\S+)", text, re.M) for k in ("T", "MAX_REGISTERS")}
-    slots = re.search(r"^SLOTS = (.*)$", text, re.M)
-    if not found["T"] or "CUDA = True" not in text:
-        return {}
-    return {"threads_per_run": int(found["T"].group(1)),
-            "max_registers": ast.literal_eval(found["MAX_REGISTERS"].group(1)),
-            "registers_held": bool(slots and ast.literal_eval(slots.group(1)))}
-
-
 def compare(name: str, net, inputs, precision: str, reference=None, device: str | None = "cuda",
             **kw) -> dict:
     """One case: the CPU kernels' result and the CUDA form's (`device`; None: that of
@@ -145,7 +116,8 @@ def compare(name: str, net, inputs, precision: str, reference=None, device: str 
     ok = worst <= TOLERANCE[precision]
     own = ""
     row = {"case": name, "precision": precision, "worst": worst, "ok": ok, "errors": errs,
-           "cpu_s": mid - start, "cuda_s": end - mid, **layout(cuda.info.get("kernel"))}
+           "cpu_s": mid - start, "cuda_s": end - mid,
+           **cudagen.kernel_shape(cuda.info.get("kernel"))}
     if reference is not None:
         row["cpu_vs_float64"] = max(errors(reference, cpu).values())
         row["cuda_vs_float64"] = max(errors(reference, cuda).values())
@@ -208,8 +180,6 @@ def lawson() -> list[dict]:
     couplings and low-passes in the rest), one run per thread, split over 3 threads and
     split a node a thread (24 nodes: 32 threads); its probes, input work, dissipation and
     energy."""
-    from springc.bench import suite
-
     net = suite.feature_extractor()
     u = smooth_inputs(3, 1, 50, seed=1) * 30.0
     out = []
@@ -228,51 +198,11 @@ def lawson() -> list[dict]:
     return out
 
 
-def bench_cases(seconds: float, runs: int) -> list[tuple[str, object, np.ndarray | None, float]]:
-    """(name, network, inputs, tstep) of every bench network, `seconds` long."""
-    from springc.bench import networks as bn
-    from springc.bench import suite
-
-    rate = bn.KWS_RATE
-    level = suite.SPEECH_LEVEL
-    line = bn.long_delay_line()
-    return [
-        ("feature extractor", suite.feature_extractor(),
-         suite.speech_like(seconds, rate, runs), 1 / rate),
-        ("564-dof kws network", bn.kws_network(), suite.speech_like(seconds, rate, runs, 1),
-         1 / rate),
-        ("long delay line", line, suite.speech_like(seconds, 1 / line.tran.tstep, runs, 2),
-         line.tran.tstep),
-        ("stiff block", suite.stiff_block(), suite.speech_like(seconds, rate, runs, 3),
-         1 / rate),
-        ("duffing resonator", bn.duffing_resonator(amp=suite.DUFFING_HARD), None,
-         bn.duffing_resonator().tran.tstep),
-        ("pipeline features 8x3", bn.pipeline_features(),
-         level * suite.speech_like(seconds, 16000.0, runs, 4), 1 / 16000.0),
-        ("pipeline classifier 8x3", bn.pipeline_classifier(),
-         level * suite.speech_like(seconds, 16000.0, runs, 5), 1 / 16000.0),
-    ]
-
-
-def split_threads(threads: int | None) -> dict:
-    """`gpu.layout`'s changes for the CUDA form's threads per run of networks split over a
-    block (`cudagen.Layout.split_threads`; 0 or None: springc's choice; 1: none split, one
-    run per thread)."""
-    if threads == 1:
-        return {"split_min": 10**9}
-    return {"split_threads": threads or None}
-
-
-BENCH_SUBSTEPS = {"stiff block": 32, "pipeline features 8x3": 8,
-                  "pipeline classifier 8x3": 8, "duffing resonator": 2}
-
 
 def rounding() -> list[dict]:
     """The stiff block (24 masses, written out per node), RK4 x2 for 2 ms, 3 runs, with no
     product fused (`fma` False), float64 and float32: the CPU kernels compiled (run this
     without NUMBA_DISABLE_JIT) against the CUDA form in the simulator."""
-    from springc.bench import suite
-
     net = suite.stiff_block()
     u = suite.speech_like(0.002, 16000.0, 3, 3)
     out = []
@@ -290,10 +220,10 @@ def bench(seconds: float, runs: int, only: list[str] | None = None,
     float32, its final state and energy too; `fma` False: no product fused with an add on
     either device."""
     out = []
-    for name, net, u, tstep in bench_cases(seconds, runs):
+    for name, net, u, tstep in suite.device_cases(seconds, runs):
         if only and name not in only:
             continue
-        sub = BENCH_SUBSTEPS.get(name, 1)
+        sub = suite.DEVICE_SUBSTEPS.get(name, 1)
         reference = None
         for precision in ("float64", "float32"):
             if name == "pipeline classifier 8x3" and precision == "float32":
@@ -322,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
     # numba's CUDA simulator runs a block's threads as Python threads that meet at barriers:
     # at the interpreter's default switch interval (5 ms) each barrier waits that long
     sys.setswitchinterval(1e-4)
-    with gpu.layout(**env_layout()):
+    with gpu.layout(**gpu.env_layout()):
         cases = (tiny() if args.which == "tiny" else rounding() if args.which == "rounding"
                  else bench(args.seconds, args.runs, args.only, args.method, not args.no_fma))
     if args.json:

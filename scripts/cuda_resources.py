@@ -5,9 +5,10 @@ numba-cuda and NVIDIA's compiler wheel (`pip install -e .[cuda-offline]`).
         --slot-max 0 8 --max-registers 0 64 --fma 1 0 --json regs.json
 
 A child process under numba's CUDA simulator generates each kernel (the bench network of
-`cuda_compare.bench_cases`, RK4 or `--method` at its `BENCH_SUBSTEPS`, float64, recording
-nothing, as `cpu_reference.py` times it; `--threads 0`, the default: the threads per run and
-register lists springc chooses) and records the types of the arguments its launch passes; this
+`springc.bench.suite.device_cases`, RK4 or `--method` at its `suite.DEVICE_SUBSTEPS`,
+float64, recording nothing, as `cpu_reference.py` times it; `--threads 0`, the default: the
+threads per run and register lists springc chooses) and records the types of the arguments
+its launch passes; this
 process compiles each to PTX with numba-cuda (timed: numba's front end and NVVM) and then to
 machine code with ptxas (`-v`, for `--arch`; with each `--max-registers`, as numba-cuda's
 `max_registers` asks ptxas, and with the kernel's own limit where it sets one), printing the
@@ -34,15 +35,13 @@ from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
 
 
 def capture(only: list[str], threads: list[int], slot_max: list[int], fmas: list[int],
             method: str, out: str) -> None:
     """Under the simulator: each kernel's file and its launch's argument types, to `out`."""
-    from cuda_compare import BENCH_SUBSTEPS, bench_cases, split_threads
 
+    from springc.bench import suite
     from springc.check import check
     from springc.sim import gpu
     from springc.sim import simulate as sm
@@ -69,17 +68,17 @@ def capture(only: list[str], threads: list[int], slot_max: list[int], fmas: list
 
     gpu.run = recording_run
     code_max = gpu.current_layout().slot_code_max
-    for name, net, u, tstep in bench_cases(0.0005, 2):
+    for name, net, u, tstep in suite.device_cases(0.0005, 2):
         if name not in only:
             continue
         checked = check(net)
         for t, s, fma in itertools.product(threads, slot_max, fmas):
             # a set thread count measures its register form at every size; 0 as springc chooses
-            lay = {**split_threads(t), "slot_max": s, "slot_code_max": 10**9 if t else code_max}
+            lay = {**gpu.split_threads(t), "slot_max": s, "slot_code_max": 10**9 if t else code_max}
             specs.append({"network": name, "method": method, "slot_max": s, "fma": bool(fma)})
             with gpu.layout(**lay):
                 sm.simulate(checked, u, device="cuda", method=method, tstep=tstep,
-                            tstop=0.0005, substeps=BENCH_SUBSTEPS.get(name, 1), probes=[],
+                            tstop=0.0005, substeps=suite.DEVICE_SUBSTEPS.get(name, 1), probes=[],
                             reductions=["energy"], check_step=False, fma=bool(fma))
     Path(out).write_text(json.dumps(specs, indent=1))
 

@@ -22,12 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from cuda_compare import (  # noqa: E402
-    BENCH_SUBSTEPS, bench_cases, env_layout, layout, split_threads)
-
+from springc.bench import suite  # noqa: E402
 from springc.check import check  # noqa: E402
+from springc.kernels import cuda as cudagen  # noqa: E402
 from springc.kernels.lower import kernel_netlist  # noqa: E402
 from springc.sim import gpu, marshal, sources  # noqa: E402
 from springc.sim import simulate as sm  # noqa: E402
@@ -183,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="springc's threads per run where a run is split over a block")
     parser.add_argument("--json")
     args = parser.parse_args(argv)
-    with gpu.layout(**env_layout(), **split_threads(args.threads)):
+    with gpu.layout(**gpu.env_layout(), **gpu.split_threads(args.threads)):
         return _measure(args)
 
 
@@ -192,9 +189,9 @@ def _measure(args: argparse.Namespace) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", args.precision == "float64")
-    name, net, u, tstep = next(c for c in bench_cases(args.seconds, args.runs)
+    name, net, u, tstep = next(c for c in suite.device_cases(args.seconds, args.runs)
                                if c[0] == args.network)
-    sub = BENCH_SUBSTEPS.get(name, 1)
+    sub = suite.DEVICE_SUBSTEPS.get(name, 1)
     nsteps = int(round(args.seconds / (tstep / sub)))
     dtype = np.dtype(args.precision)
     uk = sources.kernel_inputs(u, len(u), max(sources.channels_used(net), 1),
@@ -207,7 +204,7 @@ def _measure(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     res = sm.simulate(checked, u, **kw)
     wall = time.perf_counter() - start
-    shape = layout(res.info["kernel"])  # threads per run, register limit
+    shape = cudagen.kernel_shape(res.info["kernel"])  # threads per run, register limit
     result = {"network": name, "dofs": net.n, "runs": len(u), "seconds": args.seconds,
               "substeps": sub, "precision": args.precision,
               "springc_cuda": {"wall_s": wall, "runs_per_s": len(u) / wall, **shape}}

@@ -20,10 +20,6 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from cuda_compare import env_layout, split_threads  # noqa: E402
-
 from springc.bench import suite  # noqa: E402
 from springc.kws.features import massspring as msp  # noqa: E402
 from springc.sim import gpu  # noqa: E402
@@ -49,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="cuda: threads per run of the split form")
     parser.add_argument("--json")
     args = parser.parse_args(argv)
-    with gpu.layout(**env_layout(), **split_threads(args.threads)):
+    with gpu.layout(**gpu.env_layout(), **gpu.split_threads(args.threads)):
         return _measure(args)
 
 

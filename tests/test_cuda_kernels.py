@@ -430,3 +430,23 @@ def test_bench_page_names_the_device_springcs_kernels_ran_on():
     assert gpu_page.replace(report._device_md({"device": "NVIDIA H200"}), "") == cpu
     with gpu.default_device("cpu"):
         assert gpu.device_name() == "cpu"
+
+
+def test_layout_changes_from_the_scripts_options_and_environment(monkeypatch):
+    """The measuring scripts' `--threads` and SPRINGC_SLOT_MAX / SPRINGC_MAX_REGISTERS as
+    `gpu.layout` changes, which apply inside the block only."""
+    assert gpu.split_threads(1) == {"split_min": 10**9}
+    assert gpu.split_threads(0) == gpu.split_threads(None) == {"split_threads": None}
+    assert gpu.split_threads(64) == {"split_threads": 64}
+    monkeypatch.setenv("SPRINGC_SLOT_MAX", "2")
+    monkeypatch.setenv("SPRINGC_MAX_REGISTERS", "0")
+    assert gpu.env_layout() == {"slot_max": 2}
+    monkeypatch.setenv("SPRINGC_MAX_REGISTERS", "96")
+    default = gpu.current_layout()
+    with gpu.layout(**gpu.env_layout(), **gpu.split_threads(64)):
+        inside = gpu.current_layout()
+        with gpu.layout(25, slot_max=3):
+            assert gpu.current_layout().slot_max == 3 and gpu.steps_per_call() == 25
+            assert gpu.current_layout().split_threads == 64  # the outer block's
+    assert (inside.slot_max, inside.max_registers, inside.split_threads) == (2, 96, 64)
+    assert gpu.current_layout() == default and gpu.steps_per_call() == gpu.STEPS_PER_CALL

@@ -296,6 +296,34 @@ def cases(quick: bool = False) -> list[Case]:
 SPEECH_LEVEL = 0.3  # the speech-like inputs scaled to the level of the corpus's clips
 
 
+# substeps of each device case where RK4 at the case's step is not enough
+DEVICE_SUBSTEPS = {"stiff block": 32, "pipeline features 8x3": 8,
+                   "pipeline classifier 8x3": 8, "duffing resonator": 2}
+
+
+def device_cases(seconds: float, runs: int) -> list[tuple[str, FlatNetlist, np.ndarray | None,
+                                                        float]]:
+    """(name, network, inputs, tstep) of every bench network, `seconds` long on `runs`
+    speech-like inputs (None: the Duffing resonator drives itself): the workloads of the
+    GPU measuring scripts (`scripts/cuda_compare.py bench`, `scripts/cpu_reference.py`)."""
+    rate = bn.KWS_RATE
+    line = bn.long_delay_line()
+    return [
+        ("feature extractor", feature_extractor(), speech_like(seconds, rate, runs), 1 / rate),
+        ("564-dof kws network", bn.kws_network(), speech_like(seconds, rate, runs, 1),
+         1 / rate),
+        ("long delay line", line, speech_like(seconds, 1 / line.tran.tstep, runs, 2),
+         line.tran.tstep),
+        ("stiff block", stiff_block(), speech_like(seconds, rate, runs, 3), 1 / rate),
+        ("duffing resonator", bn.duffing_resonator(amp=DUFFING_HARD), None,
+         bn.duffing_resonator().tran.tstep),
+        ("pipeline features 8x3", bn.pipeline_features(),
+         SPEECH_LEVEL * speech_like(seconds, 16000.0, runs, 4), 1 / 16000.0),
+        ("pipeline classifier 8x3", bn.pipeline_classifier(),
+         SPEECH_LEVEL * speech_like(seconds, 16000.0, runs, 5), 1 / 16000.0),
+    ]
+
+
 def _pipeline_cases(scale: float, runs: int) -> list[Case]:
     """The keyword-spotting pipeline's own networks at 8x3 on its 16 kHz grid: the feature
     network `train` simulates and the whole classifier `eval` simulates (float64 only: its

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import ast
 import re
+from pathlib import Path
 from dataclasses import dataclass
 
 from springc.kernels import expint, terms
@@ -177,6 +178,22 @@ class Layout:
     slot_max: int = SLOT_MAX  # terms of each list a thread holds in registers
     slot_code_max: int = SLOT_CODE_MAX  # most term blocks written out per thread
     max_registers: int | None = MAX_REGISTERS  # registers a thread (None: ptxas's)
+
+
+def kernel_shape(path: str | None) -> dict:
+    """A generated CUDA kernel file's threads per run, register limit and whether it holds
+    terms in registers (read from its module constants; {} for anything else, such as a CPU
+    kernel's file)."""
+    if not path or not str(path).endswith(".py"):
+        return {}
+    text = Path(path).read_text()
+    found = {k: re.search(rf"^{k} = (\S+)", text, re.M) for k in ("T", "MAX_REGISTERS")}
+    slots = re.search(r"^SLOTS = (.*)$", text, re.M)
+    if not found["T"] or "CUDA = True" not in text:
+        return {}
+    return {"threads_per_run": int(found["T"].group(1)),
+            "max_registers": ast.literal_eval(found["MAX_REGISTERS"].group(1)),
+            "registers_held": bool(slots and ast.literal_eval(slots.group(1)))}
 
 
 def register_limit(threads: int, max_registers: int | None = MAX_REGISTERS) -> int | None:

@@ -12,6 +12,7 @@ on the device at a time: a recording of any length fits. numba's CUDA simulator
 
 from __future__ import annotations
 
+import os
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -48,6 +49,27 @@ def layout(steps_per_call: int | None = None, **changes) -> Iterator[None]:
         yield
     finally:
         _LAYOUT.pop()
+
+
+def split_threads(threads: int | None) -> dict:
+    """`layout`'s changes for the CUDA form's threads per run of networks split over a
+    block (`cudagen.Layout.split_threads`; 0 or None: springc's choice; 1: none split, one
+    run per thread)."""
+    if threads == 1:
+        return {"split_min": 10**9}
+    return {"split_threads": threads or None}
+
+
+def env_layout() -> dict:
+    """`layout`'s changes from SPRINGC_SLOT_MAX and SPRINGC_MAX_REGISTERS where set (the
+    measuring scripts' register terms and registers a thread of the split form, which
+    scripts/gpu_check.sh sets to the fastest of its sweep)."""
+    changes: dict = {}
+    if os.environ.get("SPRINGC_SLOT_MAX"):
+        changes["slot_max"] = int(os.environ["SPRINGC_SLOT_MAX"])
+    if int(os.environ.get("SPRINGC_MAX_REGISTERS") or 0):
+        changes["max_registers"] = int(os.environ["SPRINGC_MAX_REGISTERS"])
+    return changes
 
 
 def current_layout() -> cudagen.Layout:

@@ -220,3 +220,26 @@ def test_a_population_has_each_netlists_modes_alone() -> None:
             assert len(found.eigenvalues) == len(want)
             gap = np.abs(found.eigenvalues[:, None] - want[None, :]).min(axis=1)
             assert gap.max() <= 1e-12 * scale
+
+
+@pytest.mark.parametrize("method", ["rk4", "ssprk3"])
+def test_step_limits_of_many_are_each_one_alone(method: str) -> None:
+    """`step_limits` finds the candidates of all its sets of modes at once: each limit (step
+    and mode) is the one `step_limit` finds alone, for stable sets, an unstable one
+    (negative damping: Re lambda > 0, step 0) and one without modes."""
+    b = IRBuilder()
+    b.mass("M1", "a", 1.0, b=-1.0)
+    b.spring("K1", "a", 4.0)
+    unstable = b.finish()
+    founds = [linear.modes(net) for net in
+              (_mixed_damped(), _chain(6, 3.0, 1.0, alpha=0.2), unstable, _scaled(_mixed(), 1))]
+    founds.insert(1, linear.Modes(np.zeros(0, complex), np.zeros(0), np.zeros(0), np.zeros(0),
+                                  [], [], 0.0))
+    together = linear.step_limits(founds, method)
+    assert together[1].dt == np.inf and together[3].dt == 0.0
+    for found, limit in zip(founds, together):
+        alone = linear.step_limit(found, method)
+        assert limit.dt == alone.dt
+        assert (limit.mode is None) == (alone.mode is None)
+        if limit.mode is not None:
+            assert limit.mode.lam == alone.mode.lam

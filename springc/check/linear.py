@@ -667,38 +667,45 @@ def step_limits(founds: list[Modes], method: str = DEFAULT_METHOD) -> list[StepL
     """`step_limit` of every set of modes, each the same as alone (one `ray_limits` call
     for all their candidate modes: each ray's limit is computed on its own)."""
     tab = get_tableau(method)
-    out: list[StepLimit | None] = [None] * len(founds)
-    pending = []
-    for k, found in enumerate(founds):
-        lam = found.eigenvalues
-        if len(lam) == 0:
-            out[k] = StepLimit(method, np.inf)
-        elif np.any(lam.real > ZERO_TOL * np.abs(lam)):
-            out[k] = StepLimit(method, 0.0, found.mode(int(np.argmax(lam.real))))
-        else:
-            pending.append((k, *_candidates(tab, lam)))
-    if not pending:
+    out = [StepLimit(method, np.inf) for _ in founds]
+    some = [k for k, found in enumerate(founds) if len(found.eigenvalues)]
+    if not some:
         return out
-    limits = ray_limits(tab, np.concatenate([lam[cand] / mag[cand]
-                                             for _, lam, mag, cand in pending]))
-    ends = np.cumsum([len(cand) for _, _, _, cand in pending])
-    for (k, lam, mag, cand), end in zip(pending, ends):
-        steps = limits[end - len(cand):end] / mag[cand]
-        best = int(np.argmin(steps))
-        out[k] = (StepLimit(method, np.inf) if not np.isfinite(steps[best]) else
-                  StepLimit(method, float(steps[best]), founds[k].mode(int(cand[best]))))
+    sizes = np.array([len(founds[k].eigenvalues) for k in some])
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    lam = np.concatenate([founds[k].eigenvalues for k in some])
+    mag = np.abs(lam)
+    unstable = np.logical_or.reduceat(lam.real > ZERO_TOL * mag, starts)
+    for k, first in zip(np.array(some)[unstable], starts[unstable]):
+        own = lam[first:first + len(founds[k].eigenvalues)]
+        out[k] = StepLimit(method, 0.0, founds[k].mode(int(np.argmax(own.real))))
+    owner = np.repeat(np.arange(len(some)), sizes)
+    cand = _candidates(tab, lam, mag, starts, owner)
+    cand = cand[~unstable[owner[cand]]]
+    if not len(cand):
+        return out
+    steps = ray_limits(tab, lam[cand] / mag[cand]) / mag[cand]
+    # each netlist's first candidate with the smallest step (np.argmin's choice)
+    order = np.lexsort((cand, steps, owner[cand]))
+    best = order[np.r_[True, np.diff(owner[cand][order]) != 0]]
+    for b in best:
+        j = int(owner[cand[b]])
+        k = some[j]
+        out[k] = (StepLimit(method, np.inf) if not np.isfinite(steps[b]) else
+                  StepLimit(method, float(steps[b]), founds[k].mode(int(cand[b] - starts[j]))))
     return out
 
 
-def _candidates(tab: Tableau, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(lam, |lam|, the modes that may set the step). h = s(angle) / |lam|: s estimated
-    from a cached table of angles, and only the modes whose estimate is within the table's
-    interpolation error of the smallest are computed exactly."""
-    mag = np.abs(lam)
+def _candidates(tab: Tableau, lam: np.ndarray, mag: np.ndarray, starts: np.ndarray,
+                owner: np.ndarray) -> np.ndarray:
+    """The modes that may set each netlist's step (`lam`: every netlist's eigenvalues one
+    after another from `starts`, `owner` the netlist of each): h = s(angle) / |lam|, s
+    estimated from a cached table of angles, and only the modes whose estimate is within the
+    table's interpolation error of their netlist's smallest are computed exactly."""
     angles, table, error = _ray_table(tab)
     estimate = np.interp(np.clip(np.angle(lam), angles[0], angles[-1]), angles, table) / mag
-    cand = np.nonzero(estimate <= estimate.min() * (1 + 2 * error + 1e-3) + 1e-300)[0]
-    return lam, mag, cand
+    lowest = np.minimum.reduceat(estimate, starts)
+    return np.nonzero(estimate <= lowest[owner] * (1 + 2 * error + 1e-3) + 1e-300)[0]
 
 
 @cache

@@ -293,8 +293,8 @@ def modes_many(nets: list[FlatNetlist],
     raws: list = [None] * len(nets)
     large: list = []
     with _blas().limit(limits=1, user_api="blas"):
-        for batch in _dense_batches(nets, lins):
-            for i, raw in zip(batch, _dense_modes_batch([nets[i] for i in batch])):
+        for batch, labels in _dense_batches(nets, lins):
+            for i, raw in zip(batch, _dense_modes_batch([nets[i] for i in batch], labels)):
                 raws[i] = raw
         for i, (net, lin) in enumerate(zip(nets, lins)):
             if raws[i] is None:
@@ -341,30 +341,32 @@ def pattern(net: FlatNetlist) -> tuple:
                                            d.j, p.ptr, p.var, p.exp)))
 
 
-def _dense_batches(nets: list[FlatNetlist], lins: list) -> list[list[int]]:
+def _dense_batches(nets: list[FlatNetlist], lins: list) -> list[tuple[list[int], np.ndarray]]:
     """The netlists whose modes `_dense_modes_batch` finds, as lists of indices of equal
-    pattern: those with no linearisation given and every component dense."""
+    pattern with their component labels: those with no linearisation given and every
+    component dense."""
     batches: dict[tuple, list[int]] = {}
-    dense: dict[tuple, bool] = {}
+    labels: dict[tuple, np.ndarray | None] = {}
     for i, (net, lin) in enumerate(zip(nets, lins)):
         if lin is not None:
             continue
         key = pattern(net)
-        if key not in dense:
-            count, labels = component_labels(net)
-            dense[key] = bool(np.bincount(labels, minlength=count).max(initial=0) <= DENSE_MAX)
-        if dense[key]:
+        if key not in labels:
+            count, found = component_labels(net)
+            dense = np.bincount(found, minlength=count).max(initial=0) <= DENSE_MAX
+            labels[key] = found if dense else None
+        if labels[key] is not None:
             batches.setdefault(key, []).append(i)
-    return list(batches.values())
+    return [(batch, labels[key]) for key, batch in batches.items()]
 
 
-def _dense_modes_batch(nets: list[FlatNetlist]) -> list[_Raw]:
-    """The modes of netlists of one pattern whose components are all dense, each the same
-    as alone (a netlist alone is a batch of one): the blocks are summed entry by entry in
-    the same order for every netlist, and the eigensolvers solve each block on its own."""
+def _dense_modes_batch(nets: list[FlatNetlist], labels: np.ndarray) -> list[_Raw]:
+    """The modes of netlists of one pattern whose components (`labels`, `component_labels`)
+    are all dense, each the same as alone (a netlist alone is a batch of one): the blocks
+    are summed entry by entry in the same order for every netlist, and the eigensolvers
+    solve each block on its own."""
     first = nets[0]
-    count, labels = component_labels(first)
-    sizes = np.bincount(labels, minlength=count)
+    sizes = np.bincount(labels, minlength=int(labels.max(initial=-1)) + 1)
     k_rows, k_cols, _ = (np.concatenate(a) for a in _stiffness_entries(first))
     b_rows, b_cols, _ = (np.concatenate(a) for a in damping_entries(first))
     k_vals = np.array([np.concatenate(_stiffness_entries(net)[2]) for net in nets])

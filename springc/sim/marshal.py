@@ -10,7 +10,6 @@ kernels on them.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from collections.abc import Callable
 from typing import Protocol
 
 import numpy as np
@@ -59,14 +58,14 @@ def coefficient_columns(nets: list[FlatNetlist], dtype) -> dict[str, np.ndarray]
     u = lambda a: np.ascontiguousarray(a, dtype=np.uint64)  # noqa: E731
 
     def col(table: str, key: str) -> np.ndarray:
-        return np.array([getattr(getattr(n, table), key) for n in nets], dtype=float)
+        return _column(nets, table, key)
 
     d, q, b, p = net.duffings, net.quads, net.dashpots, net.monomials
     fi, fc = sources.input_forces(net), sources.common_forces(net)
     force = net.forces
     chans = [force.source[e].channel for e in fi]
     minv = 1.0 / _per_node(net, col("masses", "m"))
-    kdiag, l_ptr, l_col, l_val = linear_rows_many(nets, minv, col)
+    kdiag, l_ptr, l_col, l_val = linear_rows_many(nets, minv)
     ground = b.j < 0
     bj = np.where(ground, 0.0, col("dashpots", "b") * minv[:, np.where(ground, 0, b.j)])
     qg, qa, gain = col("quads", "g"), col("quads", "a"), col("forces", "gain")
@@ -95,6 +94,11 @@ def kernel_pattern(net: FlatNetlist) -> tuple:
     return pattern(net), net.forces.node.tobytes(), sources_
 
 
+def _column(nets: list[FlatNetlist], table: str, key: str) -> np.ndarray:
+    """(netlists, elements): coefficient `key` of element table `table` of every netlist."""
+    return np.array([getattr(getattr(n, table), key) for n in nets], dtype=float)
+
+
 def _per_node(net: FlatNetlist, values: np.ndarray) -> np.ndarray:
     """(netlists, n): each netlist's `M` values summed per node (`FlatNetlist.mass`)."""
     out = np.zeros((len(values), net.n))
@@ -109,23 +113,19 @@ def linear_rows(net: FlatNetlist, minv: np.ndarray) -> tuple[np.ndarray, ...]:
     node's row into registers and stores its acceleration once: a coupling pushed to both
     ends costs two loads and a store of the force rows per end (the kernel is memory-bound).
     A coupling k/(2a) (x_i - a x_j)^2 puts k/a on i's diagonal, k a on j's and -k off it."""
-    def col(table: str, key: str) -> np.ndarray:
-        return getattr(getattr(net, table), key)[None, :]
-
-    diag, ptr, cols, vals = linear_rows_many([net], minv[None, :], col)
+    diag, ptr, cols, vals = linear_rows_many([net], minv[None, :])
     return diag[0], ptr, cols, vals[0]
 
 
-def linear_rows_many(nets: list[FlatNetlist], minv: np.ndarray,
-                     col: Callable[[str, str], np.ndarray]) -> tuple[np.ndarray, ...]:
-    """`linear_rows` of netlists of one pattern: `minv` and the values of `col(table, key)`
-    with a leading axis over the netlists, as are the diagonal and values returned."""
+def linear_rows_many(nets: list[FlatNetlist], minv: np.ndarray) -> tuple[np.ndarray, ...]:
+    """`linear_rows` of netlists of one pattern: `minv` with a leading axis over the
+    netlists, as have the diagonal and values returned."""
     net = nets[0]
     s, c, n = net.springs, net.couplings, net.n
     rows = np.concatenate([s.node, c.i, c.j, c.i, c.j])
     cols = np.concatenate([s.node, c.i, c.j, c.j, c.i])
-    ck, ca = col("couplings", "k"), col("couplings", "a")
-    vals = np.concatenate([col("springs", "k"), ck / ca, ck * ca, -ck, -ck], axis=1)
+    ck, ca = _column(nets, "couplings", "k"), _column(nets, "couplings", "a")
+    vals = np.concatenate([_column(nets, "springs", "k"), ck / ca, ck * ca, -ck, -ck], axis=1)
     vals = vals * minv[:, rows]
     # sum duplicate (row, col) entries in row-major order (numpy: scipy.sparse's set-up is a
     # noticeable share of a small network's simulation call)
@@ -192,48 +192,51 @@ def lane_arrays(nets: list[FlatNetlist], coeffs: dict, st: Settings, reps: int,
     netlist stays shared, the others get a column per run. Arrays other than the
     coefficients (an exponential scheme's blocks, the index arrays) must be equal
     (`LanesRefused`)."""
-    dtype = np.dtype(st.precision)
-    others = _member_arrays([kernel_netlist(n) for n in nets[1:]], st, dtype)
-    sizes = {k for k in coeffs if k.startswith("lw")}  # a Lawson kernel's block sizes
-    if any({k for k in o if k.startswith("lw")} != sizes for o in others):
-        raise LanesRefused(_differs("lw", st))
+    members = _member_columns([kernel_netlist(n) for n in nets], coeffs, st)
     allowed = codegen.coefficient_names() | PER_RUN_EXTRA | lawson_propagators(coeffs, st)
     per_run = {}
-    members = {key: [first] + [o[key] for o in others]
-               for key, first in coeffs.items()
-               if key not in sums and key != "fi_w"}  # fi_w: only where `sums` has it
-    for key, columns in {**members, **sums}.items():
-        if _all_equal(columns):
+    for key, columns in {**{k: v for k, v in members.items() if k not in sums},
+                         **sums}.items():
+        stacked = _stacked(columns)
+        if stacked is not None and (stacked == stacked[0]).all():
             continue
-        if key not in allowed:
+        if key not in allowed or stacked is None:
             raise LanesRefused(_differs(key, st))
         # the runs last: (entries, runs), a propagator's (blocks, fractions, rows, cols, runs)
-        per_run[key] = np.ascontiguousarray(np.repeat(np.stack(columns, -1), reps, -1))
+        per_run[key] = np.ascontiguousarray(np.repeat(np.moveaxis(stacked, 0, -1), reps, -1))
     x0, v0 = (np.repeat(np.stack(s, 1), reps, 1)
               for s in zip(*(n.initial_state() for n in nets)))
     return Lanes(nets, reps, per_run, x0, v0)
 
 
-def _member_arrays(nets: list[FlatNetlist], st: Settings, dtype) -> list[dict[str, np.ndarray]]:
-    """`kernel_arrays` of every netlist; where the scheme is Runge-Kutta and all share one
-    kernel pattern, from one `coefficient_columns` (each netlist's rows as views)."""
-    if not nets:
-        return []
+def _member_columns(nets: list[FlatNetlist], coeffs: dict, st: Settings) -> dict:
+    """Every kernel array of the kernel netlists `nets` (the first's are `coeffs`), stacked
+    over the netlists where it can be: where the scheme is Runge-Kutta and all share one
+    kernel pattern, from one `coefficient_columns` (the index arrays, equal by the pattern,
+    once); else each netlist's `kernel_arrays` as a list (`LanesRefused` where a Lawson
+    kernel's blocks differ in size). `fi_w` is left to `member_arrays`."""
+    coeffs = {k: v for k, v in coeffs.items() if k != "fi_w"}
     first = kernel_pattern(nets[0])
-    if expint.is_split(st.method) or any(kernel_pattern(n) != first for n in nets[1:]):
-        return [kernel_arrays(n, st, dtype) for n in nets]
-    columns = coefficient_columns(nets, dtype)
-    return [{key: value[row] if key in COEFFICIENT_KEYS else value
-             for key, value in columns.items()} for row in range(len(nets))]
+    if not expint.is_split(st.method) and all(kernel_pattern(n) == first for n in nets[1:]):
+        columns = coefficient_columns(nets[1:], np.dtype(st.precision)) if nets[1:] else {}
+        return {key: np.concatenate([value[None], columns[key]]) if columns and
+                key in COEFFICIENT_KEYS else value[None] for key, value in coeffs.items()}
+    others = [kernel_arrays(n, st, np.dtype(st.precision)) for n in nets[1:]]
+    sizes = {k for k in coeffs if k.startswith("lw")}  # a Lawson kernel's block sizes
+    if any({k for k in o if k.startswith("lw")} != sizes for o in others):
+        raise LanesRefused(_differs("lw", st))
+    return {key: [value] + [o[key] for o in others] for key, value in coeffs.items()}
 
 
-def _all_equal(columns: list[np.ndarray]) -> bool:
-    """Whether every array equals the first (shape and values; NaN equals nothing)."""
+def _stacked(columns: np.ndarray | list[np.ndarray]) -> np.ndarray | None:
+    """The arrays of every netlist as one array with a leading axis over them (None where
+    their shapes differ)."""
+    if isinstance(columns, np.ndarray):
+        return columns
     try:
-        stacked = np.stack(columns)
+        return np.stack(columns)
     except ValueError:  # shapes differ
-        return False
-    return bool((stacked == stacked[0]).all())
+        return None
 
 
 def kernel_arrays(net: FlatNetlist, st: Settings, dtype) -> dict[str, np.ndarray]:

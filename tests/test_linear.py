@@ -243,3 +243,22 @@ def test_step_limits_of_many_are_each_one_alone(method: str) -> None:
         assert (limit.mode is None) == (alone.mode is None)
         if limit.mode is not None:
             assert limit.mode.lam == alone.mode.lam
+
+
+@pytest.mark.parametrize("method", list(TABLEAUX))
+def test_grouped_ray_search_finds_the_first_exit_of_every_ray(method: str) -> None:
+    """Rays of a population (angles within 1e-7 to 1e-3 of each other, near the imaginary
+    axis, at a Q of 2 and on the negative real axis) found from their group's middle ray
+    give the first exit that scanning every radius of every ray gives."""
+    tab = TABLEAUX[method]
+    rng = np.random.default_rng(5)
+    radii = np.linspace(0.0, 8.0, 4001)[1:]
+    centres = np.array([np.pi / 2, np.pi / 2 + 0.02, 2.0, 2.9, np.pi - 1e-4])
+    spreads = np.array([1e-7, 1e-5, 3e-4])
+    angles = np.concatenate([np.clip(c + rng.normal(0, s, 40), np.pi / 2, np.pi)
+                             for c in centres for s in spreads] + [[np.pi / 2] * 9])
+    d = np.exp(1j * angles)
+    grouped = linear._first_exits(tab, d, radii)
+    assert len(np.unique(grouped)) > 5  # the rays exit at many different radii
+    each = linear._scan(tab, d, radii, np.zeros(len(d), dtype=int))
+    np.testing.assert_array_equal(grouped, each)

@@ -144,8 +144,8 @@ def _before_steps(nets: list[FlatNetlist]) -> list[CheckResult | None]:
     pattern (`linear.pattern`) applied to their coefficients at once: a netlist they pass
     skips its own `element_signs`, which would find nothing."""
     groups: dict[tuple, list[int]] = {}
-    for i, net in enumerate(nets):
-        groups.setdefault(linear.pattern(net), []).append(i)
+    for i, key in enumerate(linear.patterns(nets)):
+        groups.setdefault(key, []).append(i)
     out: list[CheckResult | None] = [None] * len(nets)
     for group in groups.values():
         clean = _signs_clean([nets[i] for i in group])

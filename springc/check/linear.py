@@ -336,10 +336,26 @@ def pattern(net: FlatNetlist) -> tuple:
     """Every index array of the element tables and the node count: netlists with equal
     patterns differ in coefficients alone (the linearisation's sparsity, the components and
     each table's length are the same)."""
+    return (net.n, *(a.tobytes() for a in _index_arrays(net)))
+
+
+def patterns(nets: list[FlatNetlist]) -> list[tuple]:
+    """`pattern` of every netlist, computed once for netlists that hold the same index
+    array objects (a population's samples share them)."""
+    known: dict[tuple, tuple] = {}
+    out = []
+    for net in nets:  # the netlists stay alive here, so ids name the same arrays
+        ids = (net.n, *map(id, _index_arrays(net)))
+        if ids not in known:
+            known[ids] = pattern(net)
+        out.append(known[ids])
+    return out
+
+
+def _index_arrays(net: FlatNetlist) -> tuple[np.ndarray, ...]:
     m, s, du, c, q, d, p = (net.masses, net.springs, net.duffings, net.couplings, net.quads,
                             net.dashpots, net.monomials)
-    return (net.n, *(a.tobytes() for a in (m.node, s.node, du.node, c.i, c.j, q.i, q.j, d.i,
-                                           d.j, p.ptr, p.var, p.exp)))
+    return (m.node, s.node, du.node, c.i, c.j, q.i, q.j, d.i, d.j, p.ptr, p.var, p.exp)
 
 
 def _dense_batches(nets: list[FlatNetlist], lins: list) -> list[tuple[list[int], np.ndarray]]:
@@ -348,10 +364,9 @@ def _dense_batches(nets: list[FlatNetlist], lins: list) -> list[tuple[list[int],
     component dense."""
     batches: dict[tuple, list[int]] = {}
     labels: dict[tuple, np.ndarray | None] = {}
-    for i, (net, lin) in enumerate(zip(nets, lins)):
+    for i, (net, lin, key) in enumerate(zip(nets, lins, patterns(nets))):
         if lin is not None:
             continue
-        key = pattern(net)
         if key not in labels:
             count, found = component_labels(net)
             dense = np.bincount(found, minlength=count).max(initial=0) <= DENSE_MAX

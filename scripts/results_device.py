@@ -4,6 +4,7 @@ thermal noise at physical scale, and the energy budget against the 53 dB a decis
 
     python scripts/results_device.py run --data CORPUS --out DIR [--sizes 4x2 8x3]
     python scripts/results_device.py page --out DIR --md docs/results-device.md
+    python scripts/results_device.py cv --data CORPUS --out DIR [--folds 3]
 
 `run` trains both designs per size on CORPUS (skipped where DIR holds the model), and
 through `springc.evaluate` measures the whole network's accuracy on the test split, the
@@ -13,7 +14,10 @@ clips; and the 8x3 mass-spring network trained at --epsilon 1 (the buffered desi
 1e-6. With --leave-out ENGINE, the same two 8x3 networks trained on a corpus without that
 text-to-speech engine and tested on their own split and on a corpus of that engine alone
 (voices no model heard). Results go to DIR/results.json as they come. `page` writes the
-markdown and the plot.
+markdown and the plot. `cv` cross-validates the 8x3 designs over speakers: per fold of
+`springc.kws.evaluation.crossval.write_fold_views` both trained and their whole networks
+evaluated on the fold's test split, the summing design's devices at a 1e-3 spread too
+(DIR/cv.json, and a table printed).
 """
 
 from __future__ import annotations
@@ -131,6 +135,58 @@ def run(args) -> None:
         path.write_text(json.dumps(results, indent=1))
 
 
+def cv(args) -> None:
+    from springc.kws.evaluation.crossval import write_fold_views
+
+    out = Path(args.out)
+    path = out / "cv.json"
+    results = json.loads(path.read_text()) if path.exists() else {}
+    for k, view in enumerate(write_fold_views(Path(args.data), args.folds, out / "views")):
+        for design, realisation in DESIGNS.items():
+            key = f"fold{k} {design}"
+            if key not in results:
+                results[key] = _fold_row(view, out / "models" / f"cv-{key.replace(' ', '-')}",
+                                         realisation, args)
+                path.write_text(json.dumps(results, indent=1))
+                print(key, results[key], flush=True)
+    print(cv_table(results, args.folds))
+
+
+def _fold_row(view: Path, folder: Path, realisation: str, args) -> dict:
+    """One fold of one design: trained on the view, its whole network on the test split
+    (and, for summing heads, `args.devices` devices at a 1e-3 spread on `args.clips`)."""
+    start = time.perf_counter()
+    if not (folder / "settings.json").exists():
+        springc.train(view, folder, bins=8, delays=3, realisation=realisation)
+    rep = springc.evaluate(folder)
+    row = {"accuracy": rep["accuracy"], "n": rep["n"],
+           "loss_db": rep["insertion_loss_db"]["median"]}
+    if realisation == "device":
+        row["spread"] = _spread(folder, 1e-3, args)
+    row["seconds"] = time.perf_counter() - start
+    return row
+
+
+def cv_table(results: dict, folds: int) -> str:
+    """Per design: each fold's accuracy, the clip-weighted mean and the standard error of
+    the folds' mean (in %); the summing devices' mean at 1e-3 beside its nominal."""
+    lines = ["| design | " + " | ".join(f"fold {k} %" for k in range(folds))
+             + " | mean % | devices at 1e-3, mean % |", "|---" * (folds + 3) + "|"]
+    for design in DESIGNS:
+        rows = [results.get(f"fold{k} {design}") for k in range(folds)]
+        if None in rows:
+            continue
+        acc = [100 * r["accuracy"] for r in rows]
+        n = [r["n"] for r in rows]
+        mean = sum(a * w for a, w in zip(acc, n)) / sum(n)
+        se = (sum((a - sum(acc) / folds) ** 2 for a in acc) / (folds - 1) / folds) ** 0.5
+        dev = [100 * r["spread"]["mean"] for r in rows if "spread" in r]
+        devices = f"{sum(dev) / len(dev):.1f}" if dev else "-"
+        lines.append(f"| {design} | " + " | ".join(f"{a:.1f} (n={w})" for a, w in zip(acc, n))
+                     + f" | {mean:.1f} +- {se:.1f} | {devices} |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -145,12 +201,20 @@ def main() -> None:
     r.add_argument("--budget", type=int, default=8)
     r.add_argument("--leave-out", choices=ENGINES, default="flite")
     r.add_argument("--voice-clips", type=int, default=1600)
+    c = sub.add_parser("cv")
+    c.add_argument("--data", required=True)
+    c.add_argument("--out", required=True)
+    c.add_argument("--folds", type=int, default=3)
+    c.add_argument("--devices", type=int, default=4)
+    c.add_argument("--clips", type=int, default=48)
     p = sub.add_parser("page")
     p.add_argument("--out", required=True)
     p.add_argument("--md", default="docs/results-device.md")
     args = parser.parse_args()
     if args.command == "run":
         run(args)
+    elif args.command == "cv":
+        cv(args)
     else:
         from springc.kws.evaluation.device_page import write_page
 

@@ -140,3 +140,27 @@ def test_mass_spring_features_cross_validated_beside_digital(tmp_path, monkeypat
     assert gap["points"] == pytest.approx(100 * (d["balanced_accuracy"] - m["balanced_accuracy"]))
     assert gap["ci95"][0] <= gap["points"] + 1e-9 and gap["points"] - 1e-9 <= gap["ci95"][1]
     assert len(m["c_per_fold"]) == 4 and "gap" not in d
+
+
+def test_fold_views_are_speaker_disjoint_data_sets_of_the_same_clips(tmp_path):
+    """Each view is a data set of its own (opened as any other): its test split one fold,
+    its validation split the next, its training split the rest, no speaker in two of
+    them, and every word clip of the corpus in exactly one view's test split."""
+    from springc.kws.data.dataset import open_dataset
+
+    data = make_corpus(tmp_path / "data", per_speaker=2)
+    views = crossval.write_fold_views(data, 3, tmp_path / "views")
+    words = {f"{c.path.parent.name}/{c.path.name}" for c in open_dataset(data).clips
+             if c.label != "_silence_"}
+    tested = []
+    for view in views:
+        clips = [c for c in open_dataset(view).clips if c.label != "_silence_"]
+        assert {f"{c.path.parent.name}/{c.path.name}" for c in clips} == words
+        speakers = {s: {c.speaker for c in clips if c.split == s}
+                    for s in ("train", "validation", "test")}
+        assert all(speakers.values())
+        assert not speakers["train"] & speakers["test"]
+        assert not speakers["train"] & speakers["validation"]
+        assert not speakers["validation"] & speakers["test"]
+        tested += [f"{c.path.parent.name}/{c.path.name}" for c in clips if c.split == "test"]
+    assert sorted(tested) == sorted(words)

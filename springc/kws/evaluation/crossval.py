@@ -76,6 +76,35 @@ def speaker_folds(groups: np.ndarray, folds: int) -> np.ndarray:
     return np.array([of_group[g] for g in groups])
 
 
+def write_fold_views(data: Path, folds: int, out: Path) -> list[Path]:
+    """Per speaker fold k (`speaker_folds` of every word clip of `data`), a GSCD-layout
+    folder `out/fold{k}` of links to `data`'s files: its test list fold k, its validation
+    list fold k+1, the other folds its training split, the noise folder linked whole. Every
+    command that reads a data set (`springc train`, `eval`) then runs one fold of a
+    speaker-disjoint cross-validation, its whole network included."""
+    from springc.kws.data.dataset import open_dataset
+
+    data = Path(data).resolve()
+    clips = [c for c in open_dataset(data).clips if c.label != SILENCE]
+    fold = speaker_folds(speaker_groups(clips), folds)
+    names = [f"{c.path.parent.name}/{c.path.name}" for c in clips]
+    views = []
+    for k in range(folds):
+        view = Path(out) / f"fold{k}"
+        for name in names:
+            (view / name).parent.mkdir(parents=True, exist_ok=True)
+            if not (view / name).is_symlink():
+                (view / name).symlink_to(data / name)
+        noise = view / "_background_noise_"
+        if not noise.is_symlink():
+            noise.symlink_to(data / "_background_noise_")
+        for listed, f in (("testing_list.txt", k), ("validation_list.txt", (k + 1) % folds)):
+            chosen = [n for n, g in zip(names, fold) if g == f]
+            (view / listed).write_text("\n".join(chosen) + "\n")
+        views.append(view)
+    return views
+
+
 def balanced_accuracy(y: np.ndarray, correct: np.ndarray, weight: np.ndarray | None = None,
                       classes: np.ndarray | None = None) -> float:
     """Mean over classes of the (weighted) fraction of that class's clips classified right."""

@@ -303,7 +303,7 @@ def modes_many(nets: list[FlatNetlist],
     tops = sparse.top_many([c.kt for c in large], SPARSE_MODES)
     for comp, top in zip(large, tops):
         _sparse_component(comp, top)
-    return [_assemble(raw, net.nodes) for raw, net in zip(raws, nets)]
+    return _assemble_many(raws, [net.nodes for net in nets])
 
 
 @cache
@@ -460,16 +460,17 @@ def _dense_blocks(nets: list, nodes: np.ndarray, m: np.ndarray, k: np.ndarray, b
     a[..., size:, :size] = -k[coupled] / m[coupled][..., None]
     a[..., size:, size:] = -b[coupled] / m[coupled][..., None]
     lam_c, vec_c = np.linalg.eig(a) if len(coupled) else (a, a)
-    row = {int(n): r for r, n in enumerate(coupled)}
-    for n, (net, raw) in enumerate(zip(nets, raws)):
-        raw.omega2_max = max(raw.omega2_max, float(omega2[n].max(initial=0.0)))
-        for g in range(groups):
-            _record_zero(net, nodes[g], omega2[n, g], shapes[n, g], raw)
-        for g in range(groups):
-            if diagonal[n]:
-                _record_modes(nodes[g], lam[n, g], np.hstack([shapes[n, g], shapes[n, g]]), raw)
-            else:
-                _record_modes(nodes[g], lam_c[row[n], g], vec_c[row[n], g][:size], raw)
+    top = omega2.reshape(len(nets), -1).max(axis=1, initial=0.0)
+    for n, raw in enumerate(raws):
+        raw.omega2_max = max(raw.omega2_max, float(top[n]))
+    _record_zeros(nets, nodes, omega2, shapes, raws)
+    lam = lam.astype(complex)
+    if len(coupled):
+        lam[coupled] = lam_c
+    vectors = [np.concatenate([shapes, shapes], axis=-1), vec_c[..., :size, :]]
+    where = np.zeros(len(nets), np.int64)
+    where[coupled] = np.arange(len(coupled))
+    _record_kept(nodes, lam, vectors, diagonal, where, raws)
 
 
 def _is_diagonal(mats: np.ndarray) -> np.ndarray:
@@ -489,11 +490,32 @@ def _pair_roots(gamma: np.ndarray, omega2: np.ndarray) -> np.ndarray:
     return np.concatenate([-gamma / 2 + root, -gamma / 2 - root], axis=-1)
 
 
-def _record_zero(net, nodes, omega2, shapes, raw: _Raw) -> None:
-    scale = float(np.max(np.abs(omega2), initial=0.0))
-    zero = np.abs(omega2) <= ZERO_TOL**2 * scale if scale > 0 else np.ones(len(omega2), bool)
-    if zero.any():
-        raw.zero.append(_zero_entry(net, nodes, shapes[:, zero], int(zero.sum())))
+def _record_zeros(nets: list, nodes: np.ndarray, omega2: np.ndarray, shapes: np.ndarray,
+                  raws: list[_Raw]) -> None:
+    """Each block's zero modes (|omega^2| within ZERO_TOL^2 of its largest, all where that
+    is 0) as a `ZeroModes` entry of its netlist, blocks in order."""
+    scale = np.abs(omega2).max(axis=-1, initial=0.0)[..., None]
+    zero = np.where(scale > 0, np.abs(omega2) <= ZERO_TOL**2 * scale, True)
+    for n, g in zip(*np.nonzero(zero.any(axis=-1))):
+        raws[n].zero.append(_zero_entry(nets[n], nodes[g], shapes[n, g][:, zero[n, g]],
+                                        int(zero[n, g].sum())))
+
+
+def _record_kept(nodes: np.ndarray, lam: np.ndarray, vectors: list[np.ndarray],
+                 diagonal: np.ndarray, where: np.ndarray, raws: list[_Raw]) -> None:
+    """`_record_modes` of every block ((nets, groups, 2 size) eigenvalues; netlist n's
+    shapes from vectors[0][n] where its damping is diagonal, else vectors[1][where[n]]),
+    the masks for all blocks at once."""
+    mag = np.abs(lam)
+    scale = mag.max(axis=-1, initial=0.0)[..., None]
+    keep = (mag > ZERO_TOL * scale) & (lam.imag >= -ZERO_TOL * mag)
+    fixed = np.where(np.abs(lam.imag) <= ZERO_TOL * mag, lam.real.astype(complex), lam)
+    for n, raw in enumerate(raws):
+        vecs = vectors[0][n] if diagonal[n] else vectors[1][where[n]]
+        for g in range(len(nodes)):
+            kept = np.flatnonzero(keep[n, g])
+            raw.lam += fixed[n, g, kept].tolist()
+            raw.shapes += [(nodes[g], vecs[g][:, j]) for j in kept]
 
 
 def _zero_entry(net, nodes, basis: np.ndarray, count: int) -> ZeroModes:
@@ -661,18 +683,30 @@ def _count_zero(sub, tau: float) -> tuple[int, sparse.Factor]:
     return below, factor
 
 
-def _assemble(raw: _Raw, names: list[str]) -> Modes:
-    lam = np.asarray(raw.lam, dtype=complex)
-    omega = np.abs(lam)
-    order = np.argsort(omega, kind="stable")
-    lam, omega = lam[order], omega[order]
-    rate = -lam.real
-    rate[np.abs(rate) <= 1e-12 * omega] = 0.0  # round-off of undamped modes
-    with np.errstate(divide="ignore", invalid="ignore"):
-        q = np.where(rate > 0, omega / (2 * rate), np.inf)
-    shapes = [raw.shapes[k] for k in order]
-    return Modes(lam, omega / (2 * np.pi), rate, q, shapes, raw.zero,
-                 float(np.sqrt(raw.omega2_max)), list(names), raw.complete, raw.margin)
+def _assemble_many(raws: list[_Raw], names: list[list[str]]) -> list[Modes]:
+    """Every netlist's `Modes` from its raw data, sorted by |lambda|: the raws with equal
+    mode counts as one array (each row what it gives alone: the operations are
+    elementwise, the sort per row)."""
+    out: list = [None] * len(raws)
+    by_count: dict[int, list[int]] = {}
+    for i, raw in enumerate(raws):
+        by_count.setdefault(len(raw.lam), []).append(i)
+    for count, idx in by_count.items():
+        lam = np.array([raws[i].lam for i in idx], dtype=complex).reshape(len(idx), count)
+        omega = np.abs(lam)
+        order = np.argsort(omega, axis=1, kind="stable")
+        lam, omega = np.take_along_axis(lam, order, 1), np.take_along_axis(omega, order, 1)
+        rate = -lam.real
+        rate[np.abs(rate) <= 1e-12 * omega] = 0.0  # round-off of undamped modes
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = np.where(rate > 0, omega / (2 * rate), np.inf)
+        freqs = omega / (2 * np.pi)
+        top = np.sqrt(np.array([raws[i].omega2_max for i in idx]))
+        for r, i in enumerate(idx):
+            raw = raws[i]
+            out[i] = Modes(lam[r], freqs[r], rate[r], q[r], [raw.shapes[k] for k in order[r]],
+                           raw.zero, float(top[r]), list(names[i]), raw.complete, raw.margin)
+    return out
 
 
 def step_limit(found: Modes, method: str = DEFAULT_METHOD) -> StepLimit:

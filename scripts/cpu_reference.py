@@ -15,7 +15,7 @@ Each network runs RK4 (or `--method`; the substeps of `springc.bench.suite.DEVIC
 `--seconds` of speech-like input (`springc.bench.suite.speech_like`), recording nothing and
 summing the final energy, in float64 and float32 (the classifier float64 only). A first call
 compiles the kernel and is not timed; the best of `--repeat` timed calls gives runs per second.
-The CPU uses every core this process may use (`springc.sim.simulate.threads`).
+The CPU uses every core this process may use (`springc.sim.execute.threads`).
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ from springc.bench import suite  # noqa: E402
 from springc.check import check  # noqa: E402
 from springc.kernels import cuda as cudagen  # noqa: E402
 from springc.sim import gpu  # noqa: E402
+from springc.sim import execute  # noqa: E402
 from springc.sim import simulate as sm  # noqa: E402
 
 
@@ -94,7 +95,7 @@ def kernel_resources(path: str) -> dict:
 
 def info(device: str, rows: list[dict]) -> dict:
     """The rows with the machine they ran on."""
-    return {"machine": platform.processor() or platform.machine(), "cores": sm.threads(),
+    return {"machine": platform.processor() or platform.machine(), "cores": execute.threads(),
             "cpu_count": os.cpu_count(), "device": device, "rows": rows}
 
 
@@ -118,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
                              "capped where a block would not fit)")
     parser.add_argument("--json", help="write the rows here")
     args = parser.parse_args(argv)
-    runs = args.runs or (10000 if args.device == "cuda" else 8 * sm.threads())
+    runs = args.runs or (10000 if args.device == "cuda" else 8 * execute.threads())
     rows = []
     for name, net, u, tstep in suite.device_cases(args.seconds, runs):
         if args.only and name not in args.only:

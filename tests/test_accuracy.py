@@ -14,7 +14,8 @@ from springc.check import accuracy
 from springc.bench import suite as benchsuite
 from springc.errors import UsageError
 from springc.lang.ir import IRBuilder, Tran
-from springc.sim.simulate import likely_cause, settings, simulate
+from springc.sim.finish import likely_cause
+from springc.sim.simulate import settings, simulate
 from springc.check import check
 
 

@@ -134,7 +134,7 @@ def test_first_touch_is_timed():
 def test_store_seconds_writes_every_line_of_the_record(dtype):
     """Every value of every run's row, both threads' runs (3 runs: one and two), written;
     a misaligned record is refused (the stores would fault)."""
-    from springc.sim.simulate import record_buffer
+    from springc.sim.execute import record_buffer
 
     rec = record_buffer(2, 100, 3, dtype)
     took = ceiling.store_seconds(rec, threads=2)

@@ -260,7 +260,7 @@ def test_runs_in_lanes_match_runs_alone(tmp_path, monkeypatch):
     each run's value and gradient as when it runs alone."""
     import importlib
 
-    monkeypatch.setattr(importlib.import_module("springc.sim.simulate"), "threads",
+    monkeypatch.setattr(importlib.import_module("springc.sim.execute"), "threads",
                         lambda: 2)
     # the lanes of springc.grad.adjoint's element loops, not the written-out kernels
     monkeypatch.setattr(importlib.import_module("springc.grad.written"), "eligible",

@@ -47,7 +47,7 @@ def _gradient(monkeypatch, use_written: bool, every: int | None = None, runs: in
     if not use_written:
         monkeypatch.setattr(written, "eligible", lambda net: False)
         monkeypatch.setattr(lanes, "CHOICES", (1,))
-    monkeypatch.setattr(importlib.import_module("springc.sim.simulate"), "threads", lambda: 1)
+    monkeypatch.setattr(importlib.import_module("springc.sim.execute"), "threads", lambda: 1)
     net = check(load_text(NET.replace(".tran", options + ".tran"), "<written>"))
     rng = np.random.default_rng(3)
     inputs = 0.5 * rng.standard_normal((runs, 2, 51))

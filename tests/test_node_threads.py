@@ -12,6 +12,7 @@ from springc.check import check
 from springc.kernels import codegen, terms
 from springc.lang.ir import IRBuilder, Source, Tran
 from springc.sim import marshal
+from springc.sim import execute
 from springc.sim import simulate as sm
 
 W = 2 * np.pi * 40.0
@@ -111,7 +112,7 @@ def settings(method: str = "rk4") -> sm.Settings:
 
 @pytest.mark.parametrize("cores", [1, 2, 16])
 def test_nodes_are_split_above_the_threshold_for_fewer_runs_than_cores(monkeypatch, cores):
-    monkeypatch.setattr(sm, "threads", lambda: cores)
+    monkeypatch.setattr(execute, "threads", lambda: cores)
     net = lattice_net(2, 10)  # 100 masses
     monkeypatch.setattr(sm, "NODE_THREADS_FROM", 200)
     st = settings()
@@ -123,7 +124,7 @@ def test_nodes_are_split_above_the_threshold_for_fewer_runs_than_cores(monkeypat
 
 
 def test_kernel_form_puts_every_run_in_one_chunk_when_split(monkeypatch):
-    monkeypatch.setattr(sm, "threads", lambda: 16)
+    monkeypatch.setattr(execute, "threads", lambda: 16)
     net = lattice_net(1, 100)
     co = marshal.coefficient_arrays(net, np.float64)
     opts = codegen.KernelOptions("rk4", lanes=1)

@@ -15,6 +15,7 @@ import springc
 from springc.check import check
 from springc.kernels import codegen
 from springc.sim import marshal
+from springc.sim import execute
 from springc.sim import simulate as sm
 
 # every term kind, with global and local draws on masses, dampers, springs, couplings,
@@ -141,7 +142,7 @@ def test_same_seed_same_bits_whatever_the_batch_and_threads(population, monkeypa
                                                            threads):
     reduce = ["final:x(a)", "msq:v(b)", "energy", "work:in", "dissipated:all"]
     reference = population.simulate(_inputs(1), reduce=reduce, kernel="shared", batch=12)
-    monkeypatch.setattr(sm, "threads", lambda: threads)
+    monkeypatch.setattr(execute, "threads", lambda: threads)
     res = population.simulate(_inputs(1), reduce=reduce, kernel="shared", batch=batch)
     assert res.info["calls"] == 1 and res.info["kernels"] == reference.info["kernels"]
     for name in ("x(a)", "v(b)", *reduce):

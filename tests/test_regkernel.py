@@ -11,6 +11,7 @@ from reference_nets import RUNS, assert_matches_scipy, every_kind, inputs
 from springc.bench import networks as bn, suite as benchsuite
 from springc.kernels import codegen, regkernel, terms
 from springc.sim import marshal
+from springc.sim import execute
 from springc.sim import simulate as sm
 from springc.errors import SimulationError
 from springc.lang.ir import IRBuilder, Source, Tran
@@ -115,7 +116,7 @@ def test_which_simulations_get_a_register_kernel(monkeypatch):
     for the shared kernel; a network beyond REGISTER_ALWAYS masses only where the force code
     would be written out (a long simulation, or asked for). The lanes are chosen as on two
     cores, whatever this machine has."""
-    monkeypatch.setattr(sm, "threads", lambda: 2)
+    monkeypatch.setattr(execute, "threads", lambda: 2)
     net = every_kind()
     assert _opts(net, 1).registers is not None
     assert _opts(net, FEW).registers is not None

@@ -225,10 +225,10 @@ def test_cli_refuses_with_a_located_message_and_no_output(tmp_path, text, args, 
 
 
 def test_cli_memory_check_counts_the_points(tmp_path, monkeypatch):
-    from springc.sim import simulate
+    from springc.sim import execute
 
     # one point's records (1 probe x 1 run x 10,001 samples) fit; 50 points' do not
-    monkeypatch.setattr(simulate, "available_memory", lambda: 2_000_000)
+    monkeypatch.setattr(execute, "available_memory", lambda: 2_000_000)
     text = ".param m0={gauss(1, 0.01)}\nM1 a m={m0}\nK1 a k=1\n.probe x(a)\n.mc 50\n" \
            ".tran 1m 10\n.options method=rk4 substeps=1\n"
     result, out = _sim(tmp_path, text)

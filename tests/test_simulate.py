@@ -20,7 +20,7 @@ from springc.errors import CheckError, DivergedRuns, SimulationError, UsageError
 from springc.kernels.integrators import TABLEAUX, amplification, get_tableau, stability_polynomial
 from springc.lang.ir import IRBuilder, Source, Tran
 from springc.bench.reference import rk4_numpy, solve_ivp_reference
-from springc.sim import simulate as sm
+from springc.sim import execute
 from springc.sim.marshal import linear_rows
 from springc.sim.simulate import simulate
 from springc.check import check
@@ -340,7 +340,7 @@ def test_runs_over_several_calls_equal_one_call(precision):
     net = nonlinear_net()
     u = np.random.default_rng(6).standard_normal((14, 1, 501))
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(sm, "threads", lambda: 2)  # 4 lanes: 14 / 2 and 8 / 2 runs per thread
+        mp.setattr(execute, "threads", lambda: 2)  # 4 lanes: 14 / 2 and 8 / 2 runs per thread
         one = simulate(check(net), u, tstop=0.5, precision=precision, reductions=["msq:x(a)"])
         calls = simulate(check(net), u, tstop=0.5, precision=precision, batch=8,
                          reductions=["msq:x(a)"])

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from springc.lang.ir import IRBuilder, Tran
+from springc.sim import execute
 from springc.sim import simulate as sm
 from springc.sim.simulate import simulate
 from springc.kernels.stackalign import align_stack
@@ -64,7 +65,7 @@ def _two_masses():
     (1, False),  # a register kernel for one run: scalars
 ])
 def test_register_kernels_for_lanes_align_their_frame_first(runs, aligned, monkeypatch):
-    monkeypatch.setattr(sm, "threads", lambda: 2)  # 16 runs: lanes as on two cores
+    monkeypatch.setattr(execute, "threads", lambda: 2)  # 16 runs: lanes as on two cores
     res = simulate(_two_masses(), np.zeros((runs, 1, 11)), method="rk4", write_out=True)
     assert np.isfinite(res.probes["x(c)"]).all() and res.probes["x(c)"].any()
     lines = Path(res.info["kernel"]).read_text().splitlines()

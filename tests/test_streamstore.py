@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from springc.kernels.codegen import RECORD_ALIGN
-from springc.sim.simulate import record_buffer
+from springc.sim.execute import record_buffer
 from springc.kernels.streamstore import store_fence, stream_store
 from springc.check import check
 
@@ -56,8 +56,9 @@ def test_record_buffer_rows_are_aligned_and_padded(dtype, runs):
 
 
 def test_a_kernel_refuses_a_misaligned_record_buffer(monkeypatch):
-    from springc.sim import simulate as sim
     from springc.lang.ir import IRBuilder, Tran
+    from springc.sim import execute
+    from springc.sim import simulate as sim
 
     b = IRBuilder("oscillator")
     b.mass("M1", "a", 1.0, 1.0)
@@ -71,7 +72,7 @@ def test_a_kernel_refuses_a_misaligned_record_buffer(monkeypatch):
         width = good.shape[2]
         return good.ravel()[1:1 + probes * runs * width].reshape(probes, runs, width)
 
-    monkeypatch.setattr(sim, "record_buffer", shifted)
+    monkeypatch.setattr(execute, "record_buffer", shifted)
     with pytest.raises(ValueError, match="64-byte aligned"):
         # the shared kernel: a register kernel (one run, a few masses) stores ordinarily
         sim.simulate(check(net), np.zeros((4, 1, 11)), write_out=False)

@@ -394,7 +394,7 @@ def touch_pages(flat: np.ndarray, lo: int, hi: int, stride: int) -> None:
 
 def store_seconds(rec: np.ndarray, threads: int = 2) -> float:
     """Wall time to write every line of the record `rec` (probe, run, record; rows padded to
-    and aligned on 64-byte lines, as `simulate.record_buffer` makes it) once with
+    and aligned on 64-byte lines, as `execute.record_buffer` makes it) once with
     non-temporal line stores, as the kernels write their records, by `threads` threads each
     on the rows of its own runs; `rec` is first written once untimed, so its pages are
     handed out already (a reused record buffer)."""

@@ -174,9 +174,9 @@ def run_noise(runs: int = 64, seconds: float = 0.25, rounds: int = 7, osc_runs: 
               osc_tstop: float = 1000.0,
               progress: Callable[[str], None] = lambda m: None) -> dict:
     """Measure (see the module docstring); returns the numbers as a dict."""
-    from springc.sim import simulate as sm
+    from springc.sim import execute
 
-    out: dict = {"threads": sm.threads(), "load": os.getloadavg()[0]}
+    out: dict = {"threads": execute.threads(), "load": os.getloadavg()[0]}
     cost = measure(runs=runs, seconds=seconds, rounds=rounds)
     out["cost"] = cost.as_dict()
     out["load_after_cost"] = os.getloadavg()[0]

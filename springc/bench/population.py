@@ -64,12 +64,13 @@ def run_population(masses: int = MASSES, samples: int = SAMPLES, tstop: float = 
     from springc.bench.reference import solve_ivp_reference
     from springc.bench.suite import machine_info
     from springc.check.points import check_points
+    from springc.sim import execute
     from springc.sim import simulate as sm
     from springc.sim.points import simulate_points
 
     machine = machine_info()
     out: dict = {"masses": masses, "samples": samples, "tstop": tstop, "tstep": TSTEP,
-                 "threads": sm.threads(), "load": machine["load"], "when": machine["when"],
+                 "threads": execute.threads(), "load": machine["load"], "when": machine["when"],
                  "cpu": machine["cpu"]}
     start = time.perf_counter()
     net = springc.load(population_text(masses, samples))

@@ -41,6 +41,7 @@ def measure_stages(dims: int, side: int, steps: int) -> dict:
     second), the kernel form and the peak memory."""
     from springc.check import check
     from springc.lang import load_text
+    from springc.sim import execute
     from springc.sim import simulate as sm
 
     text = lattice_text(dims, side)
@@ -57,7 +58,7 @@ def measure_stages(dims: int, side: int, steps: int) -> dict:
     split = sm.split_nodes(net, res.info["settings"], 1, None)
     return {"masses": net.n, "elaborate": elaborate, "check": checks,
             "compile": first.info["compile_s"], "simulate": wall / (steps * TSTEP),
-            "steps": steps, "threads": sm.threads() if split else 1, "peak_gb": peak_gb()}
+            "steps": steps, "threads": execute.threads() if split else 1, "peak_gb": peak_gb()}
 
 
 def measure_threads(side: int, steps: int, split: bool) -> dict:
@@ -65,6 +66,7 @@ def measure_threads(side: int, steps: int, split: bool) -> dict:
     its nodes split over `threads()`: wall, CPU seconds of the process and of its busiest
     thread (the wall an idle machine would give), peak memory, and the probes' last values."""
     from springc.check import check
+    from springc.sim import execute
     from springc.sim import simulate as sm
 
     net = lattice_net(2, side)
@@ -77,7 +79,7 @@ def measure_threads(side: int, steps: int, split: bool) -> dict:
     after = thread_cpu()
     busiest = max(after[t] - before.get(t, 0.0) for t in after)
     return {"masses": net.n, "steps": steps, "split": split,
-            "threads": sm.threads() if split else 1, "wall": wall,
+            "threads": execute.threads() if split else 1, "wall": wall,
             "cpu": time.process_time() - cpu0, "busiest": busiest, "peak_gb": peak_gb(),
             "last": {k: float(v[0, -1]) for k, v in res.probes.items()}}
 

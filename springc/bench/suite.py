@@ -29,7 +29,8 @@ from springc.check import CheckedNetlist, check
 from springc.kernels import expint
 from springc.errors import SimulationError
 from springc.lang.ir import FlatNetlist, IRBuilder, Source, Tran
-from springc.sim.simulate import method_order, record_shape, simulate
+from springc.sim.execute import record_shape
+from springc.sim.simulate import method_order, simulate
 
 REF_CHECK_RTOL = 1e-12  # the independent check of the reference: scipy DOP853 at this rtol
 REF_CHECK_MAX_STEP = 32  # ... with max_step tstep / 32 (kinks of the interpolated input)

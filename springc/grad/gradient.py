@@ -24,6 +24,7 @@ from springc.kernels.integrators import get_tableau
 from springc.lang.draws import Sample
 from springc.lang.ir import FlatNetlist
 from springc.lang.variation import PointSet
+from springc.sim import execute
 from springc.sim import simulate as sim
 from springc.sim import sources
 
@@ -176,7 +177,7 @@ class _Job:
         self.rows = seeds.plan(items, net, st.h, st.nsteps)
         self.ds, self.ms, self.gp, self.gdecay = self.rows.arrays()
         # as wide as the runs allow while every core gets a chunk
-        per_thread = -(-runs // sim.threads())
+        per_thread = -(-runs // execute.threads())
         self.written = written.eligible(net)
         if self.written:
             self.lanes = written.choose_lanes(per_thread)
@@ -200,7 +201,7 @@ class _Job:
             lo = bounds[c]
             parts[c] = self.chunk(lo, min(self.runs, lo + self.lanes), weights)
 
-        sim.on_threads(len(bounds), one)
+        execute.on_threads(len(bounds), one)
         vals = {k: np.concatenate([p[0][k] for p in parts]) for k in parts[0][0]}
         coefs = {k: np.concatenate([p[1][k] for p in parts]) for k in parts[0][1]}
         return vals, coefs

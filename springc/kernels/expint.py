@@ -70,6 +70,11 @@ def is_split(method: str) -> bool:
     return method in SCHEMES
 
 
+def stage_tableau(method: str) -> Tableau:
+    """The tableau whose stage times the kernel of `method` evaluates forces at."""
+    return SCHEMES[method].tableau if is_split(method) else get_tableau(method)
+
+
 @dataclass
 class Blocks:
     """The exactly propagated blocks of a netlist: per block its node indices, its input force

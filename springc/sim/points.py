@@ -27,8 +27,8 @@ from springc.errors import CheckError, DivergedRuns, UsageError
 from springc.lang.variation import Point, PointSet
 from springc.sim import results, thermal
 from springc.sim.marshal import LanesRefused
-from springc.sim.simulate import (SimResult, require_memory, resolve_probes,
-                                  settings, simulate, simulate_lanes)
+from springc.sim.execute import require_memory
+from springc.sim.simulate import SimResult, resolve_probes, settings, simulate, simulate_lanes
 from springc.sim.simulate import _gather_inputs
 
 

@@ -149,7 +149,9 @@ def cv(args) -> None:
                                          realisation, args)
                 path.write_text(json.dumps(results, indent=1))
                 print(key, results[key], flush=True)
-    print(cv_table(results, args.folds))
+    from springc.kws.evaluation.device_page import cv_rows
+
+    print("\n".join(cv_rows(results)))
 
 
 def _fold_row(view: Path, folder: Path, realisation: str, args) -> dict:
@@ -165,26 +167,6 @@ def _fold_row(view: Path, folder: Path, realisation: str, args) -> dict:
         row["spread"] = _spread(folder, 1e-3, args)
     row["seconds"] = time.perf_counter() - start
     return row
-
-
-def cv_table(results: dict, folds: int) -> str:
-    """Per design: each fold's accuracy, the clip-weighted mean and the standard error of
-    the folds' mean (in %); the summing devices' mean at 1e-3 beside its nominal."""
-    lines = ["| design | " + " | ".join(f"fold {k} %" for k in range(folds))
-             + " | mean % | devices at 1e-3, mean % |", "|---" * (folds + 3) + "|"]
-    for design in DESIGNS:
-        rows = [results.get(f"fold{k} {design}") for k in range(folds)]
-        if None in rows:
-            continue
-        acc = [100 * r["accuracy"] for r in rows]
-        n = [r["n"] for r in rows]
-        mean = sum(a * w for a, w in zip(acc, n)) / sum(n)
-        se = (sum((a - sum(acc) / folds) ** 2 for a in acc) / (folds - 1) / folds) ** 0.5
-        dev = [100 * r["spread"]["mean"] for r in rows if "spread" in r]
-        devices = f"{sum(dev) / len(dev):.1f}" if dev else "-"
-        lines.append(f"| {design} | " + " | ".join(f"{a:.1f} (n={w})" for a, w in zip(acc, n))
-                     + f" | {mean:.1f} +- {se:.1f} | {devices} |")
-    return "\n".join(lines)
 
 
 def main() -> None:
@@ -218,7 +200,10 @@ def main() -> None:
     else:
         from springc.kws.evaluation.device_page import write_page
 
-        write_page(json.loads((Path(args.out) / "results.json").read_text()), Path(args.md))
+        out = Path(args.out)
+        cv_json = out / "cv.json"
+        write_page(json.loads((out / "results.json").read_text()), Path(args.md),
+                   cv=json.loads(cv_json.read_text()) if cv_json.exists() else None)
 
 
 if __name__ == "__main__":

@@ -45,3 +45,19 @@ def test_reading_survives_regeneration(tmp_path: Path) -> None:
     write_page(RESULTS, md)
     text = md.read_text()
     assert text.count(READING) == 1 and "The summing heads hold." in text
+
+
+def test_speaker_folds_reach_their_table(tmp_path: Path) -> None:
+    """Each fold's accuracy and clips, the clip-weighted mean with the standard error of
+    the folds' mean, the paired change and the devices' mean beside their nominal."""
+    cv = {"fold0 zero-mode": {"accuracy": 0.50, "n": 100},
+          "fold1 zero-mode": {"accuracy": 0.60, "n": 300},
+          "fold0 summing": {"accuracy": 0.52, "n": 100,
+                            "spread": {"mean": 0.55, "nominal": 0.56}},
+          "fold1 summing": {"accuracy": 0.60, "n": 300,
+                            "spread": {"mean": 0.57, "nominal": 0.58}}}
+    text = write_page(RESULTS, tmp_path / "page.md", intro="", cv=cv).read_text()
+    # zero-mode: (50*100 + 60*300)/400 = 57.5; folds' mean 55 +- sqrt(50/2)/... = 5.0
+    assert "| zero-mode | 50.0 (100) | 60.0 (300) | 57.5 +- 5.0 | +0.0 +- 0.0 | - |" in text
+    # summing: (52*100 + 60*300)/400 = 58.0, SE 4.0; change (2*100 + 0*300)/400 = +0.5, SE 1.0
+    assert "| summing | 52.0 (100) | 60.0 (300) | 58.0 +- 4.0 | +0.5 +- 1.0 | 56.0 (57.0) |" in text

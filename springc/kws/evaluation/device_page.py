@@ -165,9 +165,52 @@ def reading(md: Path) -> str:
     return text[start:end].rstrip() + "\n" if start >= 0 and end > start else ""
 
 
-def write_page(results: dict, md: Path, intro: str | None = None) -> Path:
+def cv_rows(cv: dict, designs: tuple[str, ...] = ("zero-mode", "summing")) -> list[str]:
+    """The speaker-fold table (`results_device.py cv`'s "fold{k} {design}" rows): per design
+    each fold's accuracy and test clips, the clip-weighted mean with the standard error of
+    the folds' mean, the paired change against the first design over the same clips, and
+    the summing devices at their spread (mean of the folds' device means, beside their
+    nominal on the same clips), in %."""
+    folds = sorted({key.split()[0] for key in cv})
+    head = ["| design | " + " | ".join(f"{f} % (clips)" for f in folds)
+            + " | mean % | change vs " + designs[0] + " | devices at 1e-3 % (nominal %) |",
+            "|---" * (len(folds) + 4) + "|"]
+    base = [cv[f"{f} {designs[0]}"] for f in folds]
+    out = []
+    for design in designs:
+        rows = [cv.get(f"{f} {design}") for f in folds]
+        if None in rows:
+            continue
+        acc = [100 * r["accuracy"] for r in rows]
+        mean, se = _fold_mean(acc, [r["n"] for r in rows])
+        change, change_se = _fold_mean([a - 100 * b["accuracy"] for a, b in zip(acc, base)],
+                                       [r["n"] for r in rows])
+        spread = [r["spread"] for r in rows if "spread" in r]
+        devices = (f"{_mean([100 * x['mean'] for x in spread]):.1f} "
+                   f"({_mean([100 * x['nominal'] for x in spread]):.1f})" if spread else "-")
+        out.append(f"| {design} | " + " | ".join(f"{a:.1f} ({r['n']})" for a, r in
+                                                 zip(acc, rows))
+                   + f" | {mean:.1f} +- {se:.1f} | {change:+.1f} +- {change_se:.1f} | "
+                   f"{devices} |")
+    return head + out
+
+
+def _mean(values: list[float]) -> float:
+    return sum(values) / len(values)
+
+
+def _fold_mean(values: list[float], weights: list[int]) -> tuple[float, float]:
+    """The weighted mean of per-fold values and the standard error of their plain mean."""
+    k = len(values)
+    spread = sum((v - _mean(values)) ** 2 for v in values) / (k - 1) if k > 1 else 0.0
+    return sum(v * w for v, w in zip(values, weights)) / sum(weights), (spread / k) ** 0.5
+
+
+def write_page(results: dict, md: Path, intro: str | None = None,
+               cv: dict | None = None) -> Path:
     """The page (tables in the order of `results`) and its plot beside it; `intro` (by
-    default the page's present reading section) goes between the plot and the tables."""
+    default the page's present reading section) goes between the plot and the tables;
+    `cv`, the speaker folds (`cv_rows`), after the first table."""
     intro = reading(md) if intro is None else intro
     unheard = results.get("unheard")
     results = {k: v for k, v in results.items() if k != "unheard"}
@@ -175,6 +218,7 @@ def write_page(results: dict, md: Path, intro: str | None = None) -> Path:
     plot(results, png)
     lines = ["# The keyword spotter as a device", "", f"![accuracy]({png.name})", "", intro,
              TABLES, "", *summary_rows(results), "",
+             *(["## Cross-validated over speakers", "", *cv_rows(cv), ""] if cv else []),
              "## Against fabrication spread", "", *spread_rows(results), "",
              "## Against device mass, with thermal noise", "", *noise_rows(results), "",
              "## Where the energy goes, at 2e-9 kg, 60 dB SPL, 1 mm^2, 300 K", "",

@@ -40,6 +40,8 @@ WRITE_OUT_FROM = 10_000_000
 # repay the threads' start and join, several a stage
 # (docs/performance.md#one-run-on-every-core).
 NODE_THREADS_FROM = 20_000
+
+
 @dataclass
 class SimResult:
     """Simulation output: `t` (T,), `probes[label]` (runs, T), `reductions[spec]` (runs,)."""

@@ -102,12 +102,16 @@ _CALL_TYPES: dict | None = None  # the call types resolved in the compiles under
 
 def _remember_on() -> None:
     global _CALL_TYPES
+    import inspect
+
     from numba.core.types import functions
 
-    if not getattr(functions.BaseFunction.get_call_type, "springc_remembers", False):
-        functions.BaseFunction.get_call_type = _remembering(
-            functions.BaseFunction.get_call_type)
-    _CALL_TYPES = {}
+    resolve = functions.BaseFunction.get_call_type
+    if getattr(resolve, "springc_remembers", False):
+        _CALL_TYPES = {}
+    elif list(inspect.signature(resolve).parameters) == ["self", "context", "args", "kws"]:
+        functions.BaseFunction.get_call_type = _remembering(resolve)
+        _CALL_TYPES = {}  # (a numba whose resolver takes other arguments is left as it is)
 
 
 def _remember_off(_: None) -> None:

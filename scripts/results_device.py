@@ -137,6 +137,7 @@ def run(args) -> None:
 
 def cv(args) -> None:
     from springc.kws.evaluation.crossval import write_fold_views
+    from springc.kws.evaluation.device_page import cv_rows
 
     out = Path(args.out)
     path = out / "cv.json"
@@ -149,8 +150,6 @@ def cv(args) -> None:
                                          realisation, args)
                 path.write_text(json.dumps(results, indent=1))
                 print(key, results[key], flush=True)
-    from springc.kws.evaluation.device_page import cv_rows
-
     print("\n".join(cv_rows(results)))
 
 

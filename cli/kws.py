@@ -88,6 +88,9 @@ _PAPER_STEPS = click.option(
 @click.option("--temp", type=float, default=None, help="Device: temperature (K) [300].")
 @click.option("--device-mass", type=float, default=None,
               help="Device: the whole device's mass (kg) [2e-9].")
+@click.option("--stage-stiffness", type=float, default=None, metavar="S",
+              help="Mass-spring/device: every stage after the Mel filters S times stiffer, "
+                   "up to S times more of the energy reaches them [1].")
 @_THRESHOLD
 @_TOLERANCE
 @_PAPER_STEPS
@@ -96,8 +99,8 @@ _PAPER_STEPS = click.option(
 @on_device
 def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, tau, fc,
               feature_rate, protocol, class_weights, jobs, seed, no_cache, out, epsilon,
-              heads, buffer, mvm_stiffness, spl, area, temp, device_mass, threshold,
-              tolerance, paper_steps, scheduler) -> None:
+              heads, buffer, mvm_stiffness, spl, area, temp, device_mass, stage_stiffness,
+              threshold, tolerance, paper_steps, scheduler) -> None:
     """Train the keyword spotter and write a model folder with weights and a test report."""
     from springc.kws.evaluation.api import train
 
@@ -108,7 +111,8 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
                    use_cache=not no_cache, epsilon=epsilon, threshold=threshold,
                    tolerance=tolerance, paper_steps=paper_steps, scheduler=scheduler,
                    heads=heads, buffer=buffer, mvm_stiffness=mvm_stiffness, spl=spl,
-                   area=area, temp=temp, device_mass=device_mass)
+                   area=area, temp=temp, device_mass=device_mass,
+                   stage_stiffness=stage_stiffness)
     click.echo(_summary(report))
     if "integration" in report:
         from springc.kws.features.integration import from_dict

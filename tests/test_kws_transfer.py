@@ -180,6 +180,11 @@ def test_train_builds_the_design_its_options_ask_for():
     design, scale = _design("device", None, None, None, None, none)
     assert design == tr.Design("summing") and scale == {"spl": 60.0, "area": 1e-6,
                                                         "temp": 300.0, "device_mass": 2e-9}
+    # summing heads hold their own nodes: no buffer at any eps (a buffer node has no mass
+    # without the zero-mode heads on it), and the zero-mode options refused
+    assert _design("device", 1.0, None, None, None, none)[0] == tr.Design("summing")
+    with pytest.raises(UsageError, match="summing heads have neither"):
+        _design("device", 1.0, None, (1.0, 1.0), None, none)
     design, _ = _design("mass-spring", 1.0, None, None, 3.0, none)
     assert design == tr.Design("zero-mode", tr.BUFFERED.buffer, 3.0)
     assert tr.Design.from_dict(design.to_dict()) == design

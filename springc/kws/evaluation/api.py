@@ -32,7 +32,8 @@ def train(data: str | Path, out: str | Path, *, bins: int = 8, delays: int = 3,
           heads: str | None = None, buffer: tuple[float, float] | None = None,
           mvm_stiffness: float | None = None, spl: float | None = None,
           area: float | None = None, temp: float | None = None,
-          device_mass: float | None = None, device: str | None = None) -> dict:
+          device_mass: float | None = None, stage_stiffness: float | None = None,
+          device: str | None = None) -> dict:
     """Train the keyword spotter on the data set folder `data` (GSCD layout), test it and
     write the model folder `out`, as `springc train`: `bins` mel bins of `delays` delays
     each, `realisation` digital, baseline, mass-spring or device (a mass-spring network
@@ -46,7 +47,9 @@ def train(data: str | Path, out: str | Path, *, bins: int = 8, delays: int = 3,
     chooses the integrator; `paper_steps`: RK4 x8 float32 instead), `scheduler` (a Dask
     address), `heads` (zero-mode or summing; None: zero-mode, summing for a device),
     `buffer` (kb, kg: a tap buffer in units of kc) and `mvm_stiffness` (None: the paper's
-    heads up to eps 1e-5, beyond it the buffered design `transfer.BUFFERED`), `device` (cpu,
+    heads up to eps 1e-5, beyond it the buffered design `transfer.BUFFERED`),
+    `stage_stiffness` (every stage after the Mel filters that many times stiffer,
+    `massspring.stage_scaled`; None: 1), `device` (cpu,
     cuda or auto; None: that of the innermost `springc.default_device`). Returns the training
     report: accuracy, n, per_class, confusion, counts, ... as report.json holds it, with each
     phase's wall "seconds"."""
@@ -55,6 +58,9 @@ def train(data: str | Path, out: str | Path, *, bins: int = 8, delays: int = 3,
 
     design, scale = _design(realisation, epsilon, heads, buffer, mvm_stiffness,
                             dict(spl=spl, area=area, temp=temp, device_mass=device_mass))
+    if stage_stiffness is not None and realisation not in ("mass-spring", "device"):
+        raise UsageError("--stage-stiffness is a setting of the mass-spring network",
+                         hint="--realisation mass-spring or device")
     realisation = "mass-spring" if realisation == "device" else realisation
 
     out = Path(out)
@@ -65,7 +71,7 @@ def train(data: str | Path, out: str | Path, *, bins: int = 8, delays: int = 3,
                         task=task, jobs=jobs, seed=seed, use_cache=use_cache,
                         epsilon=epsilon, scheduler=scheduler, protocol=protocol,
                         balance_weights=_balance(class_weights),
-                        massspring=_massspring(settings, threshold),
+                        massspring=_massspring(settings, threshold, stage_stiffness),
                         tolerance=_tolerance(tolerance, paper_steps), design=design,
                         device=scale)
     with _on(device):
@@ -234,9 +240,15 @@ def _design(realisation: str, epsilon: float | None, heads: str | None, buffer,
     if not (given or device):
         return None, physical
     base = transfer.default_design(epsilon or transfer.DEFAULT_EPSILON)
+    kind = heads or ("summing" if device else base.heads)
+    if kind == "summing":
+        # a buffer holds the zero modes of the multipliers; the summing nodes hold themselves
+        if buffer is not None or mvm_stiffness is not None:
+            raise UsageError("--buffer and --mvm-stiffness build zero-mode heads; summing "
+                             "heads have neither", hint="--heads zero-mode")
+        return transfer.Design(kind, None, 1.0), physical
     return transfer.Design(
-        heads or ("summing" if device else base.heads),
-        tapbuffer.TapBuffer(*buffer) if buffer is not None else base.buffer,
+        kind, tapbuffer.TapBuffer(*buffer) if buffer is not None else base.buffer,
         float(mvm_stiffness) if mvm_stiffness is not None else base.mvm_stiffness), physical
 
 
@@ -254,13 +266,17 @@ def _tolerance(tolerance: float, paper_steps: bool) -> float | None:
     return None if paper_steps else tolerance
 
 
-def _massspring(settings: FeatureSettings, threshold: float | None):
-    """Mass-spring settings for `--threshold`, or None (the defaults) without it."""
-    if threshold is None:
+def _massspring(settings: FeatureSettings, threshold: float | None,
+                stage_stiffness: float | None = None):
+    """Mass-spring settings for `--threshold` and `--stage-stiffness`, or None (the
+    defaults) without either."""
+    if threshold is None and stage_stiffness is None:
         return None
-    from springc.kws.features.massspring import from_features
+    from springc.kws.features.massspring import from_features, stage_scaled
 
-    return from_features(settings, threshold=threshold)
+    overrides = {} if threshold is None else {"threshold": threshold}
+    s = from_features(settings, **overrides)
+    return s if stage_stiffness is None else stage_scaled(s, stage_stiffness)
 
 
 def _on(device: str | None):

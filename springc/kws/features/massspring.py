@@ -194,6 +194,19 @@ class MassSpringSettings:
         return (self.base + 1) * self.site_delay
 
 
+def stage_scaled(s: MassSpringSettings, factor: float) -> MassSpringSettings:
+    """The network with every stage after the Mel filters `factor` times stiffer (klp, g,
+    kq, kc; their masses and dampers follow): the displacements after the squarers are those
+    of `s` times (1 + a_i) / (1 + factor a_i) per bin (the squarer's leverage a_i grows with
+    g; `envelope`), so every energy there is about `factor` times larger, while the filters
+    feel the same cubic stiffness (g / a_i does not change). The lever that brings more of
+    the sound into the later stages (docs/results-device.md); the classifier is trained on
+    the scaled network's features."""
+    if not factor > 0:
+        raise UsageError(f"the stage stiffness must be > 0, got {factor}")
+    return replace(s, klp=s.klp * factor, g=s.g * factor, kq=s.kq * factor, kc=s.kc * factor)
+
+
 def horizon(s: MassSpringSettings, clip_seconds: float) -> float:
     """Simulated time for a clip: the clip, the longest line's delay, and `settle` for the
     low-pass and (in the classifier) the readouts to catch up."""

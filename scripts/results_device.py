@@ -5,6 +5,8 @@ thermal noise at physical scale, and the energy budget against the 53 dB a decis
     python scripts/results_device.py run --data CORPUS --out DIR [--sizes 4x2 8x3]
     python scripts/results_device.py page --out DIR --md docs/results-device.md
     python scripts/results_device.py cv --data CORPUS --out DIR [--folds 3]
+    python scripts/results_device.py stiffness --data CORPUS --out DIR [--factors 1 10 100]
+        [--sizes 4x2] [--epsilon EPS]
 
 `run` trains both designs per size on CORPUS (skipped where DIR holds the model), and
 through `springc.evaluate` measures the whole network's accuracy on the test split, the
@@ -17,7 +19,9 @@ text-to-speech engine and tested on their own split and on a corpus of that engi
 markdown and the plot. `cv` cross-validates the 8x3 designs over speakers: per fold of
 `springc.kws.evaluation.crossval.write_fold_views` both trained and their whole networks
 evaluated on the fold's test split, the summing design's devices at a 1e-3 spread too
-(DIR/cv.json, and a table printed).
+(DIR/cv.json, and a table printed). `stiffness` trains the device design at each stage
+stiffness of --factors (`springc train --stage-stiffness`, heads at --epsilon) and records
+its accuracy and budget (DIR/stiffness.json).
 """
 
 from __future__ import annotations
@@ -168,6 +172,37 @@ def _fold_row(view: Path, folder: Path, realisation: str, args) -> dict:
     return row
 
 
+def stiffness(args) -> None:
+    """The device design at each stage stiffness (`springc train --stage-stiffness`): its
+    whole network's accuracy and its budget, per size, into DIR/stiffness.json."""
+    from springc.kws.evaluation.device_page import stiffness_rows
+    from springc.kws.evaluation.energy import budget_json
+
+    out = Path(args.out)
+    path = out / "stiffness.json"
+    results = json.loads(path.read_text()) if path.exists() else {}
+    for size in args.sizes:
+        n, m = (int(v) for v in size.split("x"))
+        for factor in args.factors:
+            tag = f"{size}-stiffness{factor:g}" + (f"-eps{args.epsilon:g}" if args.epsilon else "")
+            if tag in results:
+                continue
+            folder = out / "models" / f"device-{tag}"
+            start = time.perf_counter()
+            if not (folder / "settings.json").exists():
+                springc.train(args.data, folder, bins=n, delays=m, realisation="device",
+                              stage_stiffness=factor, epsilon=args.epsilon)
+            rep = springc.evaluate(folder)
+            eps = json.loads((folder / "settings.json").read_text())["transfer"]["epsilon"]
+            results[tag] = {"size": size, "factor": factor, "epsilon": eps,
+                            "accuracy": rep["accuracy"], "n": rep["n"],
+                            "budget": budget_json(springc.evaluate(folder, budget=args.budget)),
+                            "seconds": time.perf_counter() - start}
+            path.write_text(json.dumps(results, indent=1))
+            print(tag, results[tag]["accuracy"], flush=True)
+    print("\n".join(stiffness_rows(results)))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -188,6 +223,13 @@ def main() -> None:
     c.add_argument("--folds", type=int, default=3)
     c.add_argument("--devices", type=int, default=4)
     c.add_argument("--clips", type=int, default=48)
+    st = sub.add_parser("stiffness")
+    st.add_argument("--data", required=True)
+    st.add_argument("--out", required=True)
+    st.add_argument("--sizes", nargs="+", default=["4x2", "8x3"])
+    st.add_argument("--factors", nargs="+", type=float, default=[1.0, 10.0, 100.0, 1000.0])
+    st.add_argument("--epsilon", type=float, default=None)
+    st.add_argument("--budget", type=int, default=8)
     p = sub.add_parser("page")
     p.add_argument("--out", required=True)
     p.add_argument("--md", default="docs/results-device.md")
@@ -196,13 +238,15 @@ def main() -> None:
         run(args)
     elif args.command == "cv":
         cv(args)
+    elif args.command == "stiffness":
+        stiffness(args)
     else:
         from springc.kws.evaluation.device_page import write_page
 
         out = Path(args.out)
-        cv_json = out / "cv.json"
-        write_page(json.loads((out / "results.json").read_text()), Path(args.md),
-                   cv=json.loads(cv_json.read_text()) if cv_json.exists() else None)
+        extra = {name: json.loads((out / f"{name}.json").read_text())
+                 for name in ("cv", "stiffness") if (out / f"{name}.json").exists()}
+        write_page(json.loads((out / "results.json").read_text()), Path(args.md), **extra)
 
 
 if __name__ == "__main__":

@@ -61,3 +61,22 @@ def test_speaker_folds_reach_their_table(tmp_path: Path) -> None:
     assert "| zero-mode | 50.0 (100) | 60.0 (300) | 57.5 +- 5.0 | +0.0 +- 0.0 | - |" in text
     # summing: (52*100 + 60*300)/400 = 58.0, SE 4.0; change (2*100 + 0*300)/400 = +0.5, SE 1.0
     assert "| summing | 52.0 (100) | 60.0 (300) | 58.0 +- 4.0 | +0.5 +- 1.0 | 56.0 (57.0) |" in text
+
+
+def test_stage_stiffness_reaches_its_table_and_plot(tmp_path: Path) -> None:
+    """Each size and factor's accuracy and the later stages' dB of the sound as measured,
+    the readouts' k_B T, and the plot beside the page."""
+    def row(factor: float, acc: float, db: float) -> dict:
+        # k_B T from dB of the sound: the sound is 2.4e8 k_B T, 84 dB
+        stages = {name: {"db_of_sound": db - 10 * k, "kt": 10 ** ((db - 10 * k + 84) / 10)}
+                  for k, name in enumerate(("low-pass masses", "compressors", "terminals",
+                                            "mvm heads", "readouts"))}
+        return {"size": "4x2", "factor": factor, "epsilon": 1e-5, "accuracy": acc, "n": 120,
+                "budget": {"stages": stages, "bound_db": 52.9}}
+
+    st = {"a": row(1.0, 0.475, -160.5), "b": row(100.0, 0.5, -140.5)}
+    text = write_page(RESULTS, tmp_path / "page.md", intro="", stiffness=st).read_text()
+    assert ("| 4x2 | 100 | 1e-05 | 50.0 (120) | -140.5 | -150.5 | -160.5 | -170.5 | -180.5 "
+            "| 2.2e-10 |") in text
+    assert "| 4x2 | 1 | 1e-05 | 47.5 (120) | -160.5 |" in text
+    assert (tmp_path / "page-stiffness.png").stat().st_size > 0

@@ -6,7 +6,7 @@ thermal noise at physical scale, and the energy budget against the 53 dB a decis
     python scripts/results_device.py page --out DIR --md docs/results-device.md
     python scripts/results_device.py cv --data CORPUS --out DIR [--folds 3]
     python scripts/results_device.py stiffness --data CORPUS --out DIR [--factors 1 10 100]
-        [--sizes 4x2] [--epsilon EPS]
+        [--sizes 4x2] [--epsilon EPS] [--threshold A_C]
 
 `run` trains both designs per size on CORPUS (skipped where DIR holds the model), and
 through `springc.evaluate` measures the whole network's accuracy on the test split, the
@@ -20,8 +20,8 @@ markdown and the plot. `cv` cross-validates the 8x3 designs over speakers: per f
 `springc.kws.evaluation.crossval.write_fold_views` both trained and their whole networks
 evaluated on the fold's test split, the summing design's devices at a 1e-3 spread too
 (DIR/cv.json, and a table printed). `stiffness` trains the device design at each stage
-stiffness of --factors (`springc train --stage-stiffness`, heads at --epsilon) and records
-its accuracy and budget (DIR/stiffness.json).
+stiffness of --factors (`springc train --stage-stiffness`; heads at --epsilon, compression
+from --threshold) and records its accuracy and budget (DIR/stiffness.json).
 """
 
 from __future__ import annotations
@@ -176,31 +176,37 @@ def stiffness(args) -> None:
     """The device design at each stage stiffness (`springc train --stage-stiffness`): its
     whole network's accuracy and its budget, per size, into DIR/stiffness.json."""
     from springc.kws.evaluation.device_page import stiffness_rows
-    from springc.kws.evaluation.energy import budget_json
 
     out = Path(args.out)
     path = out / "stiffness.json"
     results = json.loads(path.read_text()) if path.exists() else {}
     for size in args.sizes:
-        n, m = (int(v) for v in size.split("x"))
         for factor in args.factors:
-            tag = f"{size}-stiffness{factor:g}" + (f"-eps{args.epsilon:g}" if args.epsilon else "")
-            if tag in results:
-                continue
-            folder = out / "models" / f"device-{tag}"
-            start = time.perf_counter()
-            if not (folder / "settings.json").exists():
-                springc.train(args.data, folder, bins=n, delays=m, realisation="device",
-                              stage_stiffness=factor, epsilon=args.epsilon)
-            rep = springc.evaluate(folder)
-            eps = json.loads((folder / "settings.json").read_text())["transfer"]["epsilon"]
-            results[tag] = {"size": size, "factor": factor, "epsilon": eps,
-                            "accuracy": rep["accuracy"], "n": rep["n"],
-                            "budget": budget_json(springc.evaluate(folder, budget=args.budget)),
-                            "seconds": time.perf_counter() - start}
-            path.write_text(json.dumps(results, indent=1))
-            print(tag, results[tag]["accuracy"], flush=True)
+            tag = (f"{size}-stiffness{factor:g}" + (f"-eps{args.epsilon:g}" if args.epsilon else "")
+                   + (f"-threshold{args.threshold:g}" if args.threshold else ""))
+            if tag not in results:
+                results[tag] = _stiffness_row(out / "models" / f"device-{tag}", size, factor,
+                                              args)
+                path.write_text(json.dumps(results, indent=1))
+                print(tag, results[tag]["accuracy"], flush=True)
     print("\n".join(stiffness_rows(results)))
+
+
+def _stiffness_row(folder: Path, size: str, factor: float, args) -> dict:
+    """One device model of `stiffness`: trained unless `folder` holds it, then measured."""
+    from springc.kws.evaluation.energy import budget_json
+
+    start = time.perf_counter()
+    if not (folder / "settings.json").exists():
+        n, m = (int(v) for v in size.split("x"))
+        springc.train(args.data, folder, bins=n, delays=m, realisation="device",
+                      stage_stiffness=factor, epsilon=args.epsilon, threshold=args.threshold)
+    rep = springc.evaluate(folder)
+    settings = json.loads((folder / "settings.json").read_text())
+    return {"size": size, "factor": factor, "epsilon": settings["transfer"]["epsilon"],
+            "threshold": settings["features"]["threshold"], "accuracy": rep["accuracy"],
+            "n": rep["n"], "budget": budget_json(springc.evaluate(folder, budget=args.budget)),
+            "seconds": time.perf_counter() - start}
 
 
 def main() -> None:
@@ -229,6 +235,7 @@ def main() -> None:
     st.add_argument("--sizes", nargs="+", default=["4x2", "8x3"])
     st.add_argument("--factors", nargs="+", type=float, default=[1.0, 10.0, 100.0, 1000.0])
     st.add_argument("--epsilon", type=float, default=None)
+    st.add_argument("--threshold", type=float, default=None)
     st.add_argument("--budget", type=int, default=8)
     p = sub.add_parser("page")
     p.add_argument("--out", required=True)

@@ -199,16 +199,16 @@ STIFFNESS_STAGES = ("low-pass masses", "compressors", "terminals", "mvm heads", 
 
 
 def stiffness_rows(st: dict) -> list[str]:
-    """The stage-stiffness table (`results_device.py stiffness`'s rows): per size, factor
-    and heads' eps, the whole network's accuracy and each later stage's energy in dB of the
-    sound, with the readouts' k_B T."""
-    head = ["| size | stage stiffness | heads' eps | network % (clips) | "
+    """The stage-stiffness table (`results_device.py stiffness`'s rows): per size, factor,
+    heads' eps and compression threshold, the whole network's accuracy and each later
+    stage's energy in dB of the sound, with the readouts' k_B T."""
+    head = ["| size | stage stiffness | heads' eps | threshold A_c (m) | network % (clips) | "
             + " | ".join(f"{stage} dB" for stage in STIFFNESS_STAGES) + " | readouts k_B T |",
-            "|---" * (len(STIFFNESS_STAGES) + 5) + "|"]
+            "|---" * (len(STIFFNESS_STAGES) + 6) + "|"]
     rows = []
     for r in st.values():
         stages = r["budget"]["stages"]
-        rows.append(f"| {r['size']} | {r['factor']:g} | {r['epsilon']:g} | "
+        rows.append(f"| {r['size']} | {r['factor']:g} | {r['epsilon']:g} | {r['threshold']:g} | "
                     f"{100 * r['accuracy']:.1f} ({r['n']}) | "
                     + " | ".join(f"{stages[name]['db_of_sound']:.1f}"
                                  for name in STIFFNESS_STAGES)
@@ -217,23 +217,22 @@ def stiffness_rows(st: dict) -> list[str]:
 
 
 def plot_stiffness(st: dict, path: Path) -> None:
-    """Per size against the stage stiffness: each stage's energy (dB of the sound, with the
-    bound a decision may lose) and the whole network's accuracy."""
+    """Per size, heads' eps and threshold against the stage stiffness: the readouts' energy
+    (dB of the sound, with the bound a decision may lose) and the whole network's accuracy."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, (energy, acc) = plt.subplots(1, 2, figsize=(11, 4))
-    lines = dict.fromkeys((r["size"], r["epsilon"]) for r in st.values())
-    for size, eps in lines:
-        rows = [r for r in st.values() if (r["size"], r["epsilon"]) == (size, eps)]
+    lines = dict.fromkeys((r["size"], r["epsilon"], r["threshold"]) for r in st.values())
+    for line in lines:
+        rows = [r for r in st.values() if (r["size"], r["epsilon"], r["threshold"]) == line]
         factors = [r["factor"] for r in rows]
-        for stage, marker in zip(STIFFNESS_STAGES, "ov^sD"):
-            energy.plot(factors, [r["budget"]["stages"][stage]["db_of_sound"] for r in rows],
-                        marker=marker, label=f"{size} eps {eps:g} {stage}")
-        acc.plot(factors, [100 * r["accuracy"] for r in rows], marker="o",
-                 label=f"{size} eps {eps:g}")
+        name = f"{line[0]} eps {line[1]:g} A_c {line[2]:g}"
+        energy.plot(factors, [r["budget"]["stages"]["readouts"]["db_of_sound"] for r in rows],
+                    marker="o", label=f"{name}: readouts")
+        acc.plot(factors, [100 * r["accuracy"] for r in rows], marker="o", label=name)
     bound = next(iter(st.values()))["budget"]["bound_db"]
     energy.axhline(-bound, color="black", lw=0.8)
     energy.text(1, -bound, f" -{bound:.1f} dB: what a decision may lose", fontsize="small",

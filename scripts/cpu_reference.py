@@ -47,32 +47,43 @@ def measure(name: str, net, inputs, tstep: float, seconds: float, precision: str
               tstop=seconds, precision=precision, probes=[], reductions=["energy"],
               device=device, check_step=False)
     runs = len(inputs)
-    # compile: the CPU kernel's lanes follow the runs per thread, so its warm-up call is a
-    # whole one; the CUDA kernel is the same for any number of runs
-    sm.simulate(checked, inputs if device == "cpu" else inputs[:2], **kw)
-    best = float("inf")
-    for _ in range(repeat):
-        start = time.perf_counter()
-        res = sm.simulate(checked, inputs, **kw)
-        best = min(best, time.perf_counter() - start)
+    best, res = _best_wall(checked, inputs, kw, device, repeat)
     row = {"network": name, "dofs": net.n, "precision": precision, "device": device,
            "method": method, "threads_per_run": None, "slot_max": None, "max_registers": None,
            "runs": runs, "seconds": seconds, "substeps": kw["substeps"], "wall_s": best,
            "runs_per_s": runs / best, "run_seconds_per_s": runs * seconds / best}
-    shown = device
-    if device == "cuda":  # the layout the kernel took (its text's constants)
-        shape = cudagen.kernel_shape(res.info["kernel"])
-        held = shape["registers_held"]
-        slot_max = gpu.current_layout().slot_max
-        row.update(shape, slot_max=slot_max if shape["threads_per_run"] > 1 else None,
-                   kernel=kernel_resources(res.info["kernel"]))
-        shown = (f"cuda T={shape['threads_per_run']} S={slot_max if held else 0} "
-                 f"R={shape['max_registers']}")
+    shown = _cuda_layout(row, res) if device == "cuda" else device
     if row.get("kernel"):
         shown += f" ({row['kernel'].get('regs_per_thread', '?')} registers a thread)"
     print(f"{name:28s} {precision} {method} {shown}: {runs} runs of {seconds} s in {best:.3f} s = "
           f"{runs / best:,.0f} runs/s", flush=True)
     return row
+
+
+def _best_wall(checked, inputs, kw: dict, device: str, repeat: int) -> tuple[float, object]:
+    """The best wall time of `repeat` simulate calls after an untimed compiling one, and the
+    last call's result."""
+    # compile: the CPU kernel's lanes follow the runs per thread, so its warm-up call is a
+    # whole one; the CUDA kernel is the same for any number of runs
+    sm.simulate(checked, inputs if device == "cpu" else inputs[:2], **kw)
+    best, res = float("inf"), None
+    for _ in range(repeat):
+        start = time.perf_counter()
+        res = sm.simulate(checked, inputs, **kw)
+        best = min(best, time.perf_counter() - start)
+    return best, res
+
+
+def _cuda_layout(row: dict, res) -> str:
+    """Adds the layout the CUDA kernel took (its text's constants) to `row`; the device as
+    shown in the printed line."""
+    shape = cudagen.kernel_shape(res.info["kernel"])
+    held = shape["registers_held"]
+    slot_max = gpu.current_layout().slot_max
+    row.update(shape, slot_max=slot_max if shape["threads_per_run"] > 1 else None,
+               kernel=kernel_resources(res.info["kernel"]))
+    return (f"cuda T={shape['threads_per_run']} S={slot_max if held else 0} "
+            f"R={shape['max_registers']}")
 
 
 def kernel_resources(path: str) -> dict:
@@ -99,7 +110,8 @@ def info(device: str, rows: list[dict]) -> dict:
             "cpu_count": os.cpu_count(), "device": device, "rows": rows}
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
+    """The command line: device, runs, networks, precisions and the CUDA layouts to try."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     parser.add_argument("--runs", type=int, default=None,
@@ -118,7 +130,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="cuda: a split run's registers a thread (0: ptxas's choice, "
                              "capped where a block would not fit)")
     parser.add_argument("--json", help="write the rows here")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
     runs = args.runs or (10000 if args.device == "cuda" else 8 * execute.threads())
     rows = []
     for name, net, u, tstep in suite.device_cases(args.seconds, runs):
@@ -129,21 +145,27 @@ def main(argv: list[str] | None = None) -> int:
         for precision in args.precision:
             if name == "pipeline classifier 8x3" and precision == "float32":
                 continue
-            for threads, slot_max, regs in itertools.product(args.threads, args.slot_max,
-                                                             args.max_registers):
-                lay = {**gpu.split_threads(threads), "slot_max": slot_max,
-                       "max_registers": regs or None}
-                try:
-                    with gpu.layout(**lay):
-                        rows.append(measure(name, net, u, tstep, args.seconds, precision,
-                                            args.device, args.repeat, args.method))
-                except Exception as err:  # report and go on: one must not stop the rest
-                    print(f"{name} {precision}: FAILED {type(err).__name__}: {err}",
-                          flush=True)
-                    rows.append({"network": name, "precision": precision, "error": str(err)})
-                if args.json:  # after every row: a stage stopped at its limit keeps them
-                    Path(args.json).write_text(json.dumps(info(args.device, rows), indent=1))
+            _measure_layouts(args, name, net, u, tstep, precision, rows)
     return 0 if all("error" not in r for r in rows) else 1
+
+
+def _measure_layouts(args: argparse.Namespace, name: str, net, u, tstep: float,
+                     precision: str, rows: list[dict]) -> None:
+    """Appends one row to `rows` per CUDA layout the options name (one on the CPU), a failed
+    one as an error row, and rewrites the JSON after each."""
+    for threads, slot_max, regs in itertools.product(args.threads, args.slot_max,
+                                                     args.max_registers):
+        lay = {**gpu.split_threads(threads), "slot_max": slot_max,
+               "max_registers": regs or None}
+        try:
+            with gpu.layout(**lay):
+                rows.append(measure(name, net, u, tstep, args.seconds, precision,
+                                    args.device, args.repeat, args.method))
+        except Exception as err:  # report and go on: one must not stop the rest
+            print(f"{name} {precision}: FAILED {type(err).__name__}: {err}", flush=True)
+            rows.append({"network": name, "precision": precision, "error": str(err)})
+        if args.json:  # after every row: a stage stopped at its limit keeps them
+            Path(args.json).write_text(json.dumps(info(args.device, rows), indent=1))
 
 
 if __name__ == "__main__":

@@ -125,11 +125,17 @@ def compare(name: str, net, inputs, precision: str, reference=None, device: str 
                f"cuda {row['cuda_vs_float64']:.2e}")
     print(f"{'ok  ' if ok else 'FAIL'} {name:48s} {precision} worst {worst:.2e} "
           f"(cpu {mid - start:.1f} s, cuda {end - mid:.1f} s){own}", flush=True)
+    _progress(row)
+    return {**row, "result": cpu}
+
+
+def _progress(row: dict) -> None:
+    """Adds one case to PROGRESS and rewrites --json: a run stopped at its time limit keeps
+    the cases done."""
     PROGRESS.append(row)
-    for path in JSON_PATH:  # a run stopped at its time limit keeps the cases done
+    for path in JSON_PATH:
         with open(path, "w") as fh:
             json.dump(PROGRESS, fh, indent=1)
-    return {**row, "result": cpu}
 
 
 def tiny() -> list[dict]:
@@ -141,6 +147,27 @@ def tiny() -> list[dict]:
     on the default device (`gpu.default_device`)."""
     net = every_kind()
     u = smooth_inputs(2, 2, 70, seed=0)  # two runs: two blocks of the split form
+    out = _three_forms(net, u)
+    # split, no term added after the node loop: the combine folded into the last stage's;
+    # springc's layout (a node a thread: a warp, most of its threads without a node) and a
+    # register limit in the text (which the simulator, taking none, leaves out)
+    with gpu.layout(write_out_max=0, split_min=1, split_threads=None, max_registers=64):
+        row = compare("unscattered kinds, split, a node a thread, at most 64 registers, rk4 x1",
+                      every_kind(False), u, "float64", method="rk4", substeps=1,
+                      reductions=REDUCE, outrate=5e3, write_out=False)
+    out.append({k: v for k, v in row.items() if k != "result"})
+    out += lawson()
+    with gpu.default_device("cuda"):  # a simulation that names no device runs there
+        row = compare("every kind, the default device", net, u, "float64", device=None,
+                      method="rk4", substeps=1, reductions=REDUCE, outrate=5e3,
+                      write_out=False)
+    out.append({k: v for k, v in row.items() if k != "result"})
+    return out
+
+
+def _three_forms(net, u) -> list[dict]:
+    """`tiny`'s first cases: the every-kind network written out, in loops and split over 3
+    threads a run, under RK4 and Heun3 in float64 and RK4 in float32, 13 steps a call."""
     out = []
     default = gpu.current_layout()
     for form, write_out, split_min in (("written out", default.write_out_max, 10**9),
@@ -158,20 +185,6 @@ def tiny() -> list[dict]:
                               precision, method=method, substeps=sub, reductions=REDUCE,
                               outrate=5e3, write_out=False, fma=fma)
             out.append({k: v for k, v in row.items() if k != "result"})
-    # split, no term added after the node loop: the combine folded into the last stage's;
-    # springc's layout (a node a thread: a warp, most of its threads without a node) and a
-    # register limit in the text (which the simulator, taking none, leaves out)
-    with gpu.layout(write_out_max=0, split_min=1, split_threads=None, max_registers=64):
-        row = compare("unscattered kinds, split, a node a thread, at most 64 registers, rk4 x1",
-                      every_kind(False), u, "float64", method="rk4", substeps=1,
-                      reductions=REDUCE, outrate=5e3, write_out=False)
-    out.append({k: v for k, v in row.items() if k != "result"})
-    out += lawson()
-    with gpu.default_device("cuda"):  # a simulation that names no device runs there
-        row = compare("every kind, the default device", net, u, "float64", device=None,
-                      method="rk4", substeps=1, reductions=REDUCE, outrate=5e3,
-                      write_out=False)
-    out.append({k: v for k, v in row.items() if k != "result"})
     return out
 
 
@@ -236,7 +249,8 @@ def bench(seconds: float, runs: int, only: list[str] | None = None,
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
+    """The command line: which comparison, and the bench's time, runs, networks and scheme."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("which", choices=["tiny", "rounding", "bench"])
     parser.add_argument("--seconds", type=float, default=0.02, help="bench: simulated time")
@@ -246,7 +260,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--method", default="rk4", help="bench: rk4, or a Lawson scheme")
     parser.add_argument("--no-fma", action="store_true",
                         help="bench: no product fused with an add, on either device")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
     if args.json:
         JSON_PATH.append(args.json)
     # numba's CUDA simulator runs a block's threads as Python threads that meet at barriers:

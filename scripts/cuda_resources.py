@@ -47,7 +47,26 @@ def capture(only: list[str], threads: list[int], slot_max: list[int], fmas: list
     from springc.sim import simulate as sm
 
     specs = []
-    plain_run = gpu.run
+    gpu.run = _recording(gpu.run, specs)
+    code_max = gpu.current_layout().slot_code_max
+    for name, net, u, tstep in suite.device_cases(0.0005, 2):
+        if name not in only:
+            continue
+        checked = check(net)
+        for t, s, fma in itertools.product(threads, slot_max, fmas):
+            # a set thread count measures its register form at every size; 0 as springc chooses
+            lay = {**gpu.split_threads(t), "slot_max": s, "slot_code_max": 10**9 if t else code_max}
+            specs.append({"network": name, "method": method, "slot_max": s, "fma": bool(fma)})
+            with gpu.layout(**lay):
+                sm.simulate(checked, u, device="cuda", method=method, tstep=tstep,
+                            tstop=0.0005, substeps=suite.DEVICE_SUBSTEPS.get(name, 1), probes=[],
+                            reductions=["energy"], check_step=False, fma=bool(fma))
+    Path(out).write_text(json.dumps(specs, indent=1))
+
+
+def _recording(plain_run, specs: list[dict]):
+    """`gpu.run` that launches nothing: it records the kernel's file, layout and the launch's
+    argument types in `specs[-1]`."""
 
     def recording_run(kernel, args, runs):
         module = kernel.module
@@ -66,21 +85,7 @@ def capture(only: list[str], threads: list[int], slot_max: list[int], fmas: list
         specs[-1].update(path=str(kernel.path), threads=module.T, held=bool(module.SLOTS),
                          kernel_limit=module.MAX_REGISTERS)
 
-    gpu.run = recording_run
-    code_max = gpu.current_layout().slot_code_max
-    for name, net, u, tstep in suite.device_cases(0.0005, 2):
-        if name not in only:
-            continue
-        checked = check(net)
-        for t, s, fma in itertools.product(threads, slot_max, fmas):
-            # a set thread count measures its register form at every size; 0 as springc chooses
-            lay = {**gpu.split_threads(t), "slot_max": s, "slot_code_max": 10**9 if t else code_max}
-            specs.append({"network": name, "method": method, "slot_max": s, "fma": bool(fma)})
-            with gpu.layout(**lay):
-                sm.simulate(checked, u, device="cuda", method=method, tstep=tstep,
-                            tstop=0.0005, substeps=suite.DEVICE_SUBSTEPS.get(name, 1), probes=[],
-                            reductions=["energy"], check_step=False, fma=bool(fma))
-    Path(out).write_text(json.dumps(specs, indent=1))
+    return recording_run
 
 
 def _arg_type(value) -> tuple[str, int]:
@@ -111,19 +116,24 @@ def compile_one(spec: dict, arch: str, registers: list[int], ptxas: str) -> dict
         fh.write(ptx)
     try:
         for limit in dict.fromkeys([*registers, spec["kernel_limit"] or 0]):
-            flags = [f"-maxrregcount={limit}"] if limit else []
-            start = time.perf_counter()
-            rep = subprocess.run([ptxas, "-v", f"-arch={arch}", *flags, fh.name, "-o",
-                                  os.devnull], capture_output=True, text=True, check=True).stderr
-            row[f"ptxas_{limit or 'free'}"] = {
-                "s": time.perf_counter() - start,
-                "registers": _number(r"Used (\d+) registers", rep),
-                "spill_stores": _number(r"(\d+) bytes spill stores", rep),
-                "spill_loads": _number(r"(\d+) bytes spill loads", rep),
-                "shared": _number(r"(\d+) bytes smem", rep)}
+            row[f"ptxas_{limit or 'free'}"] = _ptxas_report(ptxas, arch, limit, fh.name)
     finally:
         os.unlink(fh.name)
     return row
+
+
+def _ptxas_report(ptxas: str, arch: str, limit: int, ptx_path: str) -> dict:
+    """ptxas -v on one PTX file at one register limit (0: none): its time, registers a
+    thread, spilled bytes and shared memory."""
+    flags = [f"-maxrregcount={limit}"] if limit else []
+    start = time.perf_counter()
+    rep = subprocess.run([ptxas, "-v", f"-arch={arch}", *flags, ptx_path, "-o",
+                          os.devnull], capture_output=True, text=True, check=True).stderr
+    return {"s": time.perf_counter() - start,
+            "registers": _number(r"Used (\d+) registers", rep),
+            "spill_stores": _number(r"(\d+) bytes spill stores", rep),
+            "spill_loads": _number(r"(\d+) bytes spill loads", rep),
+            "shared": _number(r"(\d+) bytes smem", rep)}
 
 
 def _number(pattern: str, text: str) -> int | None:
@@ -141,7 +151,8 @@ def _ptxas() -> str:
     return str(Path(list(nvidia.cuda_nvcc.__path__)[0]) / "bin" / "ptxas")
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
+    """The command line: the networks, layouts, scheme and register limits to compile."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", nargs="+", default=["pipeline features 8x3"])
     parser.add_argument("--threads", nargs="+", type=int, default=[0],
@@ -154,37 +165,52 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--arch", default="sm_90", help="ptxas's target (sm_90: H100, H200)")
     parser.add_argument("--json", help="write the rows here")
     parser.add_argument("--capture", help=argparse.SUPPRESS)  # the child's output file
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
     if args.capture:
         capture(args.only, args.threads, args.slot_max, args.fma, args.method, args.capture)
         return 0
     with tempfile.TemporaryDirectory() as tmp:
-        specs_path = str(Path(tmp) / "specs.json")
-        env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1",
-               "SPRINGC_CACHE": os.environ.get("SPRINGC_CACHE", str(Path(tmp) / "cache"))}
-        subprocess.run([sys.executable, __file__, "--capture", specs_path, "--only", *args.only,
-                        "--threads", *map(str, args.threads), "--method", args.method,
-                        "--slot-max",
-                        *map(str, args.slot_max), "--fma", *map(str, args.fma)], env=env,
-                       check=True)
-        specs = json.loads(Path(specs_path).read_text())
+        specs = _captured(args, tmp)
         ptxas, rows = _ptxas(), []
         for spec in specs:
             row = compile_one(spec, args.arch, args.max_registers, ptxas)
             rows.append(row)
-            reports = ", ".join(
-                f"limit {k.removeprefix('ptxas_')}: {v['registers']} registers, spills "
-                f"{v['spill_stores']}/{v['spill_loads']} B" for k, v in row.items()
-                if k.startswith("ptxas_"))
-            held = row["slot_max"] if row["held"] else 0
-            print(f"{row['network']} {row['method']} T={row['threads']} S={held} "
-                  f"fma={int(row['fma'])} (kernel's limit {row['kernel_limit']}): PTX in "
-                  f"{row['ptx_s']:.1f} s, "
-                  f"{row['fma_instructions']} fma.rn, {row['rounded_products']} mul.rn; "
-                  f"{reports}", flush=True)
+            _print_row(row)
     if args.json:
         Path(args.json).write_text(json.dumps({"arch": args.arch, "rows": rows}, indent=1))
     return 0
+
+
+def _captured(args: argparse.Namespace, tmp: str) -> list[dict]:
+    """The kernels' specs, from this script run as a child under numba's CUDA simulator
+    (numba reads NUMBA_ENABLE_CUDASIM when it is imported)."""
+    specs_path = str(Path(tmp) / "specs.json")
+    env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1",
+           "SPRINGC_CACHE": os.environ.get("SPRINGC_CACHE", str(Path(tmp) / "cache"))}
+    subprocess.run([sys.executable, __file__, "--capture", specs_path, "--only", *args.only,
+                    "--threads", *map(str, args.threads), "--method", args.method,
+                    "--slot-max",
+                    *map(str, args.slot_max), "--fma", *map(str, args.fma)], env=env,
+                   check=True)
+    return json.loads(Path(specs_path).read_text())
+
+
+def _print_row(row: dict) -> None:
+    """One kernel's line: its layout, PTX time and instructions, ptxas's report per limit."""
+    reports = ", ".join(
+        f"limit {k.removeprefix('ptxas_')}: {v['registers']} registers, spills "
+        f"{v['spill_stores']}/{v['spill_loads']} B" for k, v in row.items()
+        if k.startswith("ptxas_"))
+    held = row["slot_max"] if row["held"] else 0
+    print(f"{row['network']} {row['method']} T={row['threads']} S={held} "
+          f"fma={int(row['fma'])} (kernel's limit {row['kernel_limit']}): PTX in "
+          f"{row['ptx_s']:.1f} s, "
+          f"{row['fma_instructions']} fma.rn, {row['rounded_products']} mul.rn; "
+          f"{reports}", flush=True)
 
 
 if __name__ == "__main__":

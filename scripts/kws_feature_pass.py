@@ -72,14 +72,21 @@ def _measure(args: argparse.Namespace) -> int:
           f"(x{stretch:.2f} steps) {rate:,.1f} clips/s, a {args.corpus}-clip corpus "
           f"{args.corpus / rate:.1f} s", flush=True)
     if args.check:
-        want = phi(signals[:args.check], s, "cpu", args.precision)
-        row["phi_difference_vs_cpu"] = float(abs(out[:args.check] - want).max()
-                                              / abs(want).max())
-        print(f"Phi of {args.check} clips within {row['phi_difference_vs_cpu']:.2e} of the "
-              "CPU kernels' (max difference over max |Phi|)", flush=True)
+        _check_against_cpu(args, signals, s, out, row)
     if args.json:
         Path(args.json).write_text(json.dumps(row, indent=1))
     return 0
+
+
+def _check_against_cpu(args: argparse.Namespace, signals, s: msp.MassSpringSettings, out,
+                       row: dict) -> None:
+    """The first `--check` clips' Phi against the CPU kernels': the largest difference over
+    the largest |Phi|, into `row` and printed."""
+    want = phi(signals[:args.check], s, "cpu", args.precision)
+    row["phi_difference_vs_cpu"] = float(abs(out[:args.check] - want).max()
+                                          / abs(want).max())
+    print(f"Phi of {args.check} clips within {row['phi_difference_vs_cpu']:.2e} of the "
+          "CPU kernels' (max difference over max |Phi|)", flush=True)
 
 
 if __name__ == "__main__":

@@ -32,13 +32,18 @@ def _use_tree(tree: str) -> None:
     sys.path.insert(0, os.path.abspath(tree))
 
 
-def main() -> None:
+def _parser() -> argparse.ArgumentParser:
+    """The command line: the population's size, the tree to import and the results file."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--masses", type=int, default=500)
     parser.add_argument("--samples", type=int, default=256)
     parser.add_argument("--tree", help="import springc from this folder")
     parser.add_argument("--save", help="write every point's check results here (pickle)")
-    args = parser.parse_args()
+    return parser
+
+
+def main() -> None:
+    args = _parser().parse_args()
     if args.tree:
         _use_tree(args.tree)
     import springc
@@ -62,11 +67,17 @@ def main() -> None:
           f"sample), together {(checked - start) / n * 1e3:.1f} ms per sample; worst point "
           f"{index}: step limit {result.step.dt!r} s, omega_max {result.modes.omega_max!r}")
     if args.save:
-        rows = [(r.step.dt, r.modes.omega_max, r.modes.eigenvalues.tobytes(),
-                 r.step.mode.describe(), [d.message for d in r.diagnostics])
-                for r in points.checked]
-        with open(args.save, "wb") as f:
-            pickle.dump(rows, f)
+        _save(args.save, points)
+
+
+def _save(path: str, points) -> None:
+    """Every point's step limit, omega_max, eigenvalues, fastest mode and diagnostics, pickled
+    (two trees' files compare for equality)."""
+    rows = [(r.step.dt, r.modes.omega_max, r.modes.eigenvalues.tobytes(),
+             r.step.mode.describe(), [d.message for d in r.diagnostics])
+            for r in points.checked]
+    with open(path, "wb") as f:
+        pickle.dump(rows, f)
 
 
 if __name__ == "__main__":

@@ -177,15 +177,7 @@ def markdown(runs: list[Run], args: argparse.Namespace) -> str:
         "",
     ]
     for run in runs:
-        cores = sum(s[1] for s in run.samples) / max(len(run.samples), 1)
-        lines += [f"## `springc {' '.join(run.command[1:2])}`", "",
-                  f"{run.seconds:.1f} s, {cores:.2f} cores busy on average.", ""]
-        lines += table(run)
-        one = single_core(run)
-        worst = max((share for _, share in one), default=0.0)
-        lines += ["", f"Phases at most {ONE_CORE} cores busy: "
-                  + ("; ".join(f"{p} ({share:.0%})" for p, share in one) or "none")
-                  + f". Longest: {worst:.0%} of the run (target: at most 10%).", ""]
+        lines += _run_section(run)
     lines += [
         "## How it was measured",
         "",
@@ -198,6 +190,21 @@ def markdown(runs: list[Run], args: argparse.Namespace) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _run_section(run: Run) -> list[str]:
+    """One command's section: its time and mean busy cores, its phases' table and the phases
+    at most ONE_CORE cores busy."""
+    cores = sum(s[1] for s in run.samples) / max(len(run.samples), 1)
+    lines = [f"## `springc {' '.join(run.command[1:2])}`", "",
+             f"{run.seconds:.1f} s, {cores:.2f} cores busy on average.", ""]
+    lines += table(run)
+    one = single_core(run)
+    worst = max((share for _, share in one), default=0.0)
+    lines += ["", f"Phases at most {ONE_CORE} cores busy: "
+              + ("; ".join(f"{p} ({share:.0%})" for p, share in one) or "none")
+              + f". Longest: {worst:.0%} of the run (target: at most 10%).", ""]
+    return lines
 
 
 def main() -> None:

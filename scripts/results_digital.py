@@ -143,6 +143,28 @@ def rows_from_models(models: Path) -> tuple[list[dict], dict]:
 
 def document(rows: list[dict], pairs: dict, ds, data: Path, minutes: float) -> str:
     """The whole results page: the tables, what they show, then how it was measured."""
+    facts = _corpus_facts(ds, data)
+    return f"""# Digital realisation of the KWS architecture: test accuracy by size
+
+{table(rows)}
+
+Binary digit pairs (`--task digits-pairs`, 8 bins x 3 delays, two-mode; one SVM per pair):
+
+{pairs_table(pairs)}
+
+{findings(rows, facts['counts']['test'])}
+
+## How it was measured
+
+{_method_and_corpus(facts)}
+
+{_regenerate(data, facts['synth'], minutes)}
+"""
+
+
+def _corpus_facts(ds, data: Path) -> dict:
+    """The splits' sizes, the words spoken, the synthesis options that remake the corpus, the
+    test split's majority label and its share, and the training clips per command."""
     from springc.kws.data.dataset import WORDS, open_dataset
 
     counts = {s: len(ds.split(s)) for s in ("train", "validation", "test")}
@@ -155,18 +177,15 @@ def document(rows: list[dict], pairs: dict, ds, data: Path, minutes: float) -> s
     chance = test_labels.count(majority) / len(test_labels)
     train_labels = [c.label for c in ds.split("train")]
     per_command = np.mean([k for k in map(train_labels.count, COMMANDS) if k] or [0])
-    return f"""# Digital realisation of the KWS architecture: test accuracy by size
+    return {"counts": counts, "spoken": spoken, "synth": synth, "majority": majority,
+            "chance": chance, "per_command": per_command}
 
-{table(rows)}
 
-Binary digit pairs (`--task digits-pairs`, 8 bins x 3 delays, two-mode; one SVM per pair):
-
-{pairs_table(pairs)}
-
-{findings(rows, counts['test'])}
-
-## How it was measured
-
+def _method_and_corpus(facts: dict) -> str:
+    """What was measured and the caveat on the corpus (`_corpus_facts`)."""
+    counts, spoken, majority = facts["counts"], facts["spoken"], facts["majority"]
+    chance, per_command = facts["chance"], facts["per_command"]
+    return f"""\
 Test accuracy on the 12-class task (10 commands, `_unknown_`, `_silence_`) of the paper's
 architecture evaluated digitally (Sec. II: Mel filterbank, squaring, cube-root compression,
 50 Hz critically damped low-pass, m delays of t_d = 32 ms, tau = 80 s, linear SVM with squared
@@ -184,8 +203,12 @@ answering `{majority}` scores {100 * chance:.1f}% on its test split; with about
 {per_command:.0f} training clips per command word (GSCD has about 3000) the command
 classes are learnt from little data. The paper's 82.0% and 88.1%
 use a digital (triangular) Mel filterbank; its 81.4% / 75.2% compare two-mode and single-mode
-mechanical filterbanks (Fig. 4 caption), and 80.7% is its mass-spring model at 8 x 3.
+mechanical filterbanks (Fig. 4 caption), and 80.7% is its mass-spring model at 8 x 3."""
 
+
+def _regenerate(data: Path, synth: str, minutes: float) -> str:
+    """The commands that regenerate the page and train single rows."""
+    return f"""\
 Regenerate (the run above took about {minutes:.0f} minutes of wall-clock time on 2 cores shared
 with other jobs; features are cached, so a second run only refits the classifiers):
 
@@ -201,8 +224,7 @@ springc train --data {data} --bins 8 --delays 3 -o models/n8-m3
 springc train --data {data} --baseline -o models/baseline
 springc eval models/n8-m3 --json
 springc train --data {data} --task digits-pairs -o models/pairs
-```
-"""
+```"""
 
 
 def write_page(path: Path, text: str) -> None:

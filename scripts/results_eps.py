@@ -134,24 +134,26 @@ def stages(args) -> None:
                    "loss_db": float(np.median(loss))}
             rows.append(row)
             print(row, flush=True)
-    lines = ["| network | eps | delay taps | buffer nodes / g | readout | insertion loss dB |",
-             "|---|---|---|---|---|---|"]
-    for r in rows:
-        name = (f"buffered kb {r['buffer']['kb']:g} kc, kg {r['buffer']['kg']:g} kc"
-                if r["buffer"] else "plain")
-        buf = "-" if r["buffers"] is None else f"{r['buffers']:.2g}"
-        lines.append(f"| {name} | {r['eps']:g} | {r['taps']:.2g} | {buf} | "
-                     f"{r['readout']:.2g} | {r['loss_db']:.1f} |")
-    text = "\n".join(lines)
+    text = stages_table(rows)
     print(text)
     print(f"A = {amplitude:.4g} m, {len(signals)} clips, {time.time() - start:.0f} s")
     write(args.out, "stages", text, {"amplitude": amplitude, "clips": len(signals),
                                      "rows": rows, "seconds": time.time() - start})
 
 
+def stages_table(rows: list[dict]) -> str:
+    """Markdown: one row per network and eps, the distortion per stage."""
+    lines = ["| network | eps | delay taps | buffer nodes / g | readout | insertion loss dB |",
+             "|---|---|---|---|---|---|"]
+    for r in rows:
+        buf = "-" if r["buffers"] is None else f"{r['buffers']:.2g}"
+        lines.append(f"| {_network_name(r['buffer'])} | {r['eps']:g} | {r['taps']:.2g} | {buf} | "
+                     f"{r['readout']:.2g} | {r['loss_db']:.1f} |")
+    return "\n".join(lines)
+
+
 def accuracy(args) -> None:
     """A trained model's whole network at each eps, plain and buffered, on its test split."""
-    from springc.kws.data.task import open_task_data, targets
     from springc.kws.evaluation import evaluate as ev
     from springc.kws.features.distributed import session
     from springc.kws.training.model import load_model
@@ -161,34 +163,19 @@ def accuracy(args) -> None:
     model = load_model(args.model)
     s, _ = tr.model_heads(model)
     amplitude = float(model.settings["transfer"]["amplitude"])
-    ds = open_task_data(ev.trained_data(model), model.settings["task"],
-                        int(model.settings.get("seed", 0)), model.settings.get("protocol"),
-                        splits=("test",))
-    clips = ds.split("test")
-    signals = msp.load_signals(clips, False, 0, [])
-    y = targets(clips, model.settings["task"])
+    signals, y = _test_split(model)
     _, picker = ev.selection_models(model.models)[0]
+    plan = _integration(model, args.substeps)
     rows = []
     with session(None, args.jobs):
         for buffer in ([] if args.no_plain else [None]) + args.buffer:
             first = None
             for eps in args.eps:
-                heads = tb.rescaled(tr.heads_for(model.models, s,
-                                                 tb.amplitude(buffer, amplitude), eps), buffer)
-                net = classifier(heads, s, eps, buffer)
-                plan = ev.model_integration(model)
-                if args.substeps:  # a stiffer buffer than the model's step allows
-                    plan = replace(plan, substeps=args.substeps)
-                d, loss, _ = ev.simulate_network(net, heads, s, signals, jobs=args.jobs,
-                                                 plan=plan)
+                d, loss = _simulated(model.models, s, amplitude, buffer, eps, signals, plan,
+                                     args.jobs)
                 hits = (picker.predict(d) == y).astype(float)
                 first = hits if first is None else first
-                rows.append({"buffer": buffer.to_dict() if buffer else None, "eps": eps,
-                             "accuracy": 100 * float(np.mean(hits)), "se": 100 * se(hits),
-                             "paired": 100 * float(np.mean(hits - first)),
-                             "paired_se": 100 * se(hits - first),
-                             "loss_db": float(np.median(loss)), "n": len(hits),
-                             "seconds": time.time() - start})
+                rows.append(_accuracy_row(buffer, eps, hits, first, loss, start))
                 print(rows[-1], flush=True)
     text = accuracy_table(rows)
     print(text)
@@ -196,16 +183,57 @@ def accuracy(args) -> None:
                                        "seconds": time.time() - start})
 
 
+def _integration(model, substeps: int | None):
+    """The model's integration, at `substeps` where given (a stiffer buffer than the model's
+    step allows)."""
+    from springc.kws.evaluation import evaluate as ev
+
+    plan = ev.model_integration(model)
+    return replace(plan, substeps=substeps) if substeps else plan
+
+
+def _test_split(model) -> tuple:
+    """The model's test split: its clips' signals and targets."""
+    from springc.kws.data.task import open_task_data, targets
+    from springc.kws.evaluation import evaluate as ev
+
+    ds = open_task_data(ev.trained_data(model), model.settings["task"],
+                        int(model.settings.get("seed", 0)), model.settings.get("protocol"),
+                        splits=("test",))
+    clips = ds.split("test")
+    signals = msp.load_signals(clips, False, 0, [])
+    return signals, targets(clips, model.settings["task"])
+
+
+def _simulated(models, s, amplitude: float, buffer, eps: float, signals, plan, jobs: int):
+    """The whole network's readouts and insertion losses on `signals`: the heads of `models`
+    designed again at eps for the buffer's amplitude, plain (buffer None) or buffered."""
+    from springc.kws.evaluation import evaluate as ev
+
+    heads = tb.rescaled(tr.heads_for(models, s, tb.amplitude(buffer, amplitude), eps), buffer)
+    d, loss, _ = ev.simulate_network(classifier(heads, s, eps, buffer), heads, s, signals,
+                                     jobs=jobs, plan=plan)
+    return d, loss
+
+
+def _accuracy_row(buffer, eps: float, hits: np.ndarray, first: np.ndarray, loss: np.ndarray,
+                  start: float) -> dict:
+    """One network and eps (in %): accuracy, its SE, the paired change against the first eps
+    and the median insertion loss."""
+    return {"buffer": buffer.to_dict() if buffer else None, "eps": eps,
+            "accuracy": 100 * float(np.mean(hits)), "se": 100 * se(hits),
+            "paired": 100 * float(np.mean(hits - first)),
+            "paired_se": 100 * se(hits - first),
+            "loss_db": float(np.median(loss)), "n": len(hits),
+            "seconds": time.time() - start}
+
+
 def crossval(args) -> None:
     """A size's network plain and buffered at each eps, cross-validated over speakers."""
-    from springc.kws.data.task import open_task_data, task_weights
+    from springc.kws.data.task import open_task_data
     from springc.kws.evaluation import crossval as cv
-    from springc.kws.evaluation import evaluate as ev
-    from springc.kws.features.digital import FeatureSettings
     from springc.kws.features.distributed import session
     from springc.kws.features.integration import Integration
-    from springc.kws.training.svm import SVM_GRID
-    from springc.kws.training.train import feature_matrices
 
     start = time.time()
     stiffer_mvms(args.mvm_stiffness)
@@ -213,39 +241,9 @@ def crossval(args) -> None:
     y = np.array([c.label for c in clips])
     groups = cv.speaker_groups(clips)
     fold = cv.speaker_folds(groups, args.folds)
-    weight = task_weights("kws12")
     plan = Integration(args.method, args.substeps, "float64")
-    buffers = ([] if args.no_plain else [None]) + args.buffer
-    outcome = {(label(b and b.to_dict()), eps): {"test": [], "ok": [], "loss": []}
-               for b in buffers for eps in args.eps}
     with session(None, args.jobs):
-        bins, delays = (int(v) for v in args.size.split("x"))
-        given = replace(msp.physical_settings(FeatureSettings(bins=bins, delays=delays)),
-                        threshold=args.threshold)
-        s, _, ref = msp.integrated(msp.physical_settings(None, given), clips, 1e-3)
-        x = feature_matrices(clips, "cv", "mass-spring", [s], noise_files=[], jobs=args.jobs,
-                             use_cache=True)[0]
-        for k in range(args.folds):
-            model, _ = cv.fold_model(x, y, fold, k, SVM_GRID, weight)
-            test = np.sort(np.random.default_rng(k).permutation(
-                np.flatnonzero(fold == k))[:args.test or None])
-            signals = msp.load_signals([clips[i] for i in test], False, 0, [])
-            for buffer in buffers:
-                for eps in args.eps:
-                    heads = tb.rescaled(tr.heads_for([(tuple(model.classes), model)], s,
-                                                     tb.amplitude(buffer, ref.amplitude), eps),
-                                        buffer)
-                    d, loss, _ = ev.simulate_network(classifier(heads, s, eps, buffer),
-                                                     heads, s, signals, jobs=args.jobs,
-                                                     plan=plan)
-                    name = label(buffer and buffer.to_dict())
-                    row = outcome[(name, eps)]
-                    row["test"] += test.tolist()
-                    row["ok"] += (model.classes[d.argmax(1)] == y[test]).tolist()
-                    row["loss"] += loss.tolist()
-                    print(f"fold {k} {name} eps {eps:g}: "
-                          f"{np.mean(row['ok'][-len(test):]):.3f}, {np.median(loss):.1f} dB "
-                          f"({time.time() - start:.0f} s)", flush=True)
+        outcome = _cv_outcome(args, clips, y, fold, plan, start)
     rows = cv_rows(outcome, y, groups)
     text = cv_table(rows, args)
     print(text)
@@ -254,6 +252,53 @@ def crossval(args) -> None:
                                  "threshold": args.threshold, "rows": rows,
                                  "mvm_stiffness": args.mvm_stiffness,
                                  "plan": plan.describe(), "seconds": time.time() - start})
+
+
+def _cv_outcome(args, clips, y: np.ndarray, fold: np.ndarray, plan, start: float) -> dict:
+    """Per (network, eps): every fold's held-out clips simulated (indices, whether each was
+    right, insertion losses), each fold's SVM trained on the other folds."""
+    from springc.kws.data.task import task_weights
+    from springc.kws.evaluation import crossval as cv
+    from springc.kws.training.svm import SVM_GRID
+
+    weight = task_weights("kws12")
+    buffers = ([] if args.no_plain else [None]) + args.buffer
+    outcome = {(label(b and b.to_dict()), eps): {"test": [], "ok": [], "loss": []}
+               for b in buffers for eps in args.eps}
+    s, ref, x = _cv_features(args, clips)
+    for k in range(args.folds):
+        model, _ = cv.fold_model(x, y, fold, k, SVM_GRID, weight)
+        test = np.sort(np.random.default_rng(k).permutation(
+            np.flatnonzero(fold == k))[:args.test or None])
+        signals = msp.load_signals([clips[i] for i in test], False, 0, [])
+        for buffer in buffers:
+            for eps in args.eps:
+                d, loss = _simulated([(tuple(model.classes), model)], s, ref.amplitude, buffer,
+                                     eps, signals, plan, args.jobs)
+                name = label(buffer and buffer.to_dict())
+                row = outcome[(name, eps)]
+                row["test"] += test.tolist()
+                row["ok"] += (model.classes[d.argmax(1)] == y[test]).tolist()
+                row["loss"] += loss.tolist()
+                print(f"fold {k} {name} eps {eps:g}: "
+                      f"{np.mean(row['ok'][-len(test):]):.3f}, {np.median(loss):.1f} dB "
+                      f"({time.time() - start:.0f} s)", flush=True)
+    return outcome
+
+
+def _cv_features(args, clips) -> tuple:
+    """The mass-spring settings of --size at --threshold, its reference run and every clip's
+    features (cached)."""
+    from springc.kws.features.digital import FeatureSettings
+    from springc.kws.training.train import feature_matrices
+
+    bins, delays = (int(v) for v in args.size.split("x"))
+    given = replace(msp.physical_settings(FeatureSettings(bins=bins, delays=delays)),
+                    threshold=args.threshold)
+    s, _, ref = msp.integrated(msp.physical_settings(None, given), clips, 1e-3)
+    x = feature_matrices(clips, "cv", "mass-spring", [s], noise_files=[], jobs=args.jobs,
+                         use_cache=True)[0]
+    return s, ref, x
 
 
 def cv_rows(outcome: dict, y: np.ndarray, groups: np.ndarray) -> list[dict]:
@@ -349,11 +394,16 @@ def accuracy_table(rows: list[dict]) -> str:
     lines = ["| network | eps | accuracy % | change vs first eps (paired) | "
              "insertion loss dB |", "|---|---|---|---|---|"]
     for r in rows:
-        name = (f"buffered kb {r['buffer']['kb']:g} kc, kg {r['buffer']['kg']:g} kc"
-                if r["buffer"] else "plain")
-        lines.append(f"| {name} | {r['eps']:g} | {r['accuracy']:.1f} +- {r['se']:.1f} | "
-                     f"{r['paired']:+.1f} +- {r['paired_se']:.1f} | {r['loss_db']:.1f} |")
+        lines.append(f"| {_network_name(r['buffer'])} | {r['eps']:g} | {r['accuracy']:.1f} +- "
+                     f"{r['se']:.1f} | {r['paired']:+.1f} +- {r['paired_se']:.1f} | "
+                     f"{r['loss_db']:.1f} |")
     return "\n".join(lines)
+
+
+def _network_name(buffer: dict | None) -> str:
+    """A network's name in the tables: its buffer's springs, or plain."""
+    return (f"buffered kb {buffer['kb']:g} kc, kg {buffer['kg']:g} kc" if buffer
+            else "plain")
 
 
 def label(buffer: dict | None) -> str:
@@ -406,30 +456,8 @@ def figure8(args) -> None:
     rows = [dict(r, size=run["size"], threshold=run["threshold"]) for run in runs
             for r in run["rows"]]
     fig, (ax_e, ax_f) = plt.subplots(1, 2, figsize=(11, 4.2))
-    sweep = [r for r in rows if r["threshold"] == msp.MassSpringSettings.threshold]
-    lines = dict.fromkeys((r["size"], r["network"]) for r in sweep
-                          if sum(q["size"] == r["size"] and q["network"] == r["network"]
-                                 for q in sweep) > 1)
-    for size, name in lines:
-        mine = sorted((r for r in sweep if (r["size"], r["network"]) == (size, name)),
-                      key=lambda r: r["eps"])
-        ax_e.errorbar([r["loss_db"] for r in mine], [r["accuracy"] for r in mine],
-                      [r["se"] for r in mine], fmt="o-", capsize=2, label=f"{size} {name}")
-        for r in mine:
-            ax_e.annotate(f"{r['eps']:g}", (r["loss_db"], r["accuracy"]), fontsize=7)
-    ax_e.set_title("(e) eps (points labelled), per size and network")
-    at_one = [r for r in rows if r["eps"] == 1.0 and r["network"] != "plain"]
-    marker = {4: "o", 6: "^", 8: "s"}
-    shades = sorted({r["threshold"] for r in at_one})
-    cmap = plt.get_cmap("viridis", max(len(shades), 2))
-    for r in at_one:
-        bins, delays = (int(v) for v in r["size"].split("x"))
-        ax_f.errorbar(r["loss_db"], r["accuracy"], r["se"], fmt=marker.get(bins, "D"),
-                      ms=8, capsize=2, mfc=cmap(shades.index(r["threshold"])),
-                      mec="black" if delays == 3 else "0.6", ecolor="0.6")
-        ax_f.annotate(f"{r['size']}, A_c {r['threshold']:g}", (r["loss_db"], r["accuracy"]),
-                      fontsize=7)
-    ax_f.set_title("(f) eps = 1, buffered: sizes and compression A_c")
+    _figure8e(ax_e, rows)
+    _figure8f(ax_f, rows, plt.get_cmap)
     for ax in (ax_e, ax_f):
         ax.set_xlabel("insertion loss (dB, median)")
         ax.set_ylabel("accuracy % (balanced, speaker-fold CV)")
@@ -445,6 +473,40 @@ def figure8(args) -> None:
     print(args.png)
 
 
+def _figure8e(ax, rows: list[dict]) -> None:
+    """Fig. 8e: at the default threshold, accuracy against insertion loss over eps, a line per
+    size and network run at more than one eps."""
+    sweep = [r for r in rows if r["threshold"] == msp.MassSpringSettings.threshold]
+    lines = dict.fromkeys((r["size"], r["network"]) for r in sweep
+                          if sum(q["size"] == r["size"] and q["network"] == r["network"]
+                                 for q in sweep) > 1)
+    for size, name in lines:
+        mine = sorted((r for r in sweep if (r["size"], r["network"]) == (size, name)),
+                      key=lambda r: r["eps"])
+        ax.errorbar([r["loss_db"] for r in mine], [r["accuracy"] for r in mine],
+                    [r["se"] for r in mine], fmt="o-", capsize=2, label=f"{size} {name}")
+        for r in mine:
+            ax.annotate(f"{r['eps']:g}", (r["loss_db"], r["accuracy"]), fontsize=7)
+    ax.set_title("(e) eps (points labelled), per size and network")
+
+
+def _figure8f(ax, rows: list[dict], get_cmap) -> None:
+    """Fig. 8f: the buffered networks at eps = 1, a marker per bins, shaded by the compression
+    threshold, edged black at 3 delays."""
+    at_one = [r for r in rows if r["eps"] == 1.0 and r["network"] != "plain"]
+    marker = {4: "o", 6: "^", 8: "s"}
+    shades = sorted({r["threshold"] for r in at_one})
+    cmap = get_cmap("viridis", max(len(shades), 2))
+    for r in at_one:
+        bins, delays = (int(v) for v in r["size"].split("x"))
+        ax.errorbar(r["loss_db"], r["accuracy"], r["se"], fmt=marker.get(bins, "D"),
+                    ms=8, capsize=2, mfc=cmap(shades.index(r["threshold"])),
+                    mec="black" if delays == 3 else "0.6", ecolor="0.6")
+        ax.annotate(f"{r['size']}, A_c {r['threshold']:g}", (r["loss_db"], r["accuracy"]),
+                    fontsize=7)
+    ax.set_title("(f) eps = 1, buffered: sizes and compression A_c")
+
+
 def write(out: Path, name: str, text: str, data: dict) -> None:
     """OUT/NAME.md and OUT/NAME.json."""
     out.mkdir(parents=True, exist_ok=True)
@@ -452,7 +514,8 @@ def write(out: Path, name: str, text: str, data: dict) -> None:
     (out / f"{name}.json").write_text(json.dumps(data, indent=2) + "\n")
 
 
-def main() -> None:
+def _parser() -> argparse.ArgumentParser:
+    """The command line: one subcommand per study, the networks' options on four of them."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="what", required=True)
     st = sub.add_parser("stages")
@@ -468,6 +531,21 @@ def main() -> None:
     pk.add_argument("--model", type=Path, required=True)
     pk.add_argument("--clips", type=int, default=96)
     pk.add_argument("--out", type=Path, default=Path("eps-out"))
+    cvp = _cv_parser(sub)
+    ie = sub.add_parser("integration")
+    ie.add_argument("--data", type=Path, required=True)
+    f8 = sub.add_parser("fig8")
+    f8.add_argument("--runs", type=Path, nargs="+", required=True, help="cv --out folders")
+    f8.add_argument("--png", type=Path, default=Path("results-fig8.png"))
+    pl = sub.add_parser("plot")
+    pl.add_argument("--out", type=Path, default=Path("eps-out"))
+    for p in (st, acc, cvp, ie):
+        _network_options(p)
+    return ap
+
+
+def _cv_parser(sub) -> argparse.ArgumentParser:
+    """The `cv` subcommand: the corpus, size, threshold, folds and integration."""
     cvp = sub.add_parser("cv")
     cvp.add_argument("--data", type=Path, required=True)
     cvp.add_argument("--size", default="8x3", help="bins x delays")
@@ -479,20 +557,20 @@ def main() -> None:
     cvp.add_argument("--no-plain", action="store_true", help="only the buffered networks")
     cvp.add_argument("--method", default="exp-rk4")
     cvp.add_argument("--substeps", type=int, default=4)
-    ie = sub.add_parser("integration")
-    ie.add_argument("--data", type=Path, required=True)
-    f8 = sub.add_parser("fig8")
-    f8.add_argument("--runs", type=Path, nargs="+", required=True, help="cv --out folders")
-    f8.add_argument("--png", type=Path, default=Path("results-fig8.png"))
-    pl = sub.add_parser("plot")
-    pl.add_argument("--out", type=Path, default=Path("eps-out"))
-    for p in (st, acc, cvp, ie):
-        p.add_argument("--eps", type=float, nargs="+", default=[1e-6, 1e-2, 1e-1, 1.0])
-        p.add_argument("--buffer", type=parse_buffer, action="append", default=[])
-        p.add_argument("--mvm-stiffness", type=float, default=1.0,
-                       help="the heads' mvm stiffness d over its default (not the ideal's)")
-        p.add_argument("--out", type=Path, default=Path("eps-out"))
-    args = ap.parse_args()
+    return cvp
+
+
+def _network_options(p: argparse.ArgumentParser) -> None:
+    """The options of the subcommands that build networks: eps, buffers, mvm stiffness, out."""
+    p.add_argument("--eps", type=float, nargs="+", default=[1e-6, 1e-2, 1e-1, 1.0])
+    p.add_argument("--buffer", type=parse_buffer, action="append", default=[])
+    p.add_argument("--mvm-stiffness", type=float, default=1.0,
+                   help="the heads' mvm stiffness d over its default (not the ideal's)")
+    p.add_argument("--out", type=Path, default=Path("eps-out"))
+
+
+def main() -> None:
+    args = _parser().parse_args()
     {"stages": stages, "accuracy": accuracy, "peaks": peaks, "cv": crossval,
      "integration": integration_error, "fig8": figure8, "plot": plot}[args.what](args)
 

@@ -97,3 +97,25 @@ def test_stiffer_stages_receive_that_many_times_the_energy():
             assert np.all(np.abs(parts[stage] / plain[stage] / want - 1) < factor * a), stage
     with pytest.raises(UsageError, match="stage stiffness must be > 0"):
         msp.stage_scaled(s, 0.0)
+
+
+def test_a_squarer_nearer_its_range_passes_that_much_more():
+    """With the stages after it scaled to its leverage (factor a_i = 1, so the low-pass level
+    is y^2 / 4 whatever R), the squarer's range R sets how much reaches them: a_i ~ R^2, so
+    R / sqrt(100) passes 100 times the energy, as it detunes the filter 100 times more
+    ((y / R)^2 of its stiffness, 1e-4 at y = 1e-2 and R = 1: the bound on the change)."""
+    from dataclasses import replace
+
+    s = msp.MassSpringSettings(bins=2, delays=2)
+    t = np.arange(4000) / msp.INPUT_RATE
+    sig = 1e-2 * np.sin(2 * np.pi * msp.filters(s)[1].centre * t) * np.hanning(len(t))
+    parts = []
+    for squarer_range in (10.0, 1.0):
+        r = replace(s, squarer_range=squarer_range)
+        net = msp.feature_network(msp.stage_scaled(r, 1 / msp.leverages(r)[1]))
+        parts.append(energy.run_budget(net, sig[None], 0.3))
+    assert abs(parts[1]["work in"][0] / parts[0]["work in"][0] - 1) < 1e-4
+    for stage in ("low-pass masses", "compressors", "terminals"):
+        assert abs(parts[1][stage][0] / parts[0][stage][0] / 100 - 1) < 2e-4, stage
+    with pytest.raises(UsageError, match="squarer range must be > 0"):
+        replace(s, squarer_range=0.0).validate()

@@ -95,7 +95,9 @@ class MassSpringSettings:
     the low-pass cut-off: quasi-static) and its damping ratio there. `filter_scale`,
     `compression_scale`: per bin, factors that `springc tune` found (empty: all 1): the Mel
     filter's frequencies (fa and alpha times the factor: the same response, shifted on a log
-    axis) and the compressor's Duffing stiffness l_i."""
+    axis) and the compressor's Duffing stiffness l_i. `squarer_range`: the filter amplitude R
+    (m) at which the squarer's own quartic term detunes a filter fully (`leverages`); a
+    smaller R passes more energy to the low-pass and detunes loud filters more."""
 
     bins: int = 8
     delays: int = 3
@@ -121,6 +123,7 @@ class MassSpringSettings:
     substeps: int = SUBSTEPS
     filter_scale: tuple[float, ...] = ()
     compression_scale: tuple[float, ...] = ()
+    squarer_range: float = SQUARER_RANGE
 
     def __post_init__(self) -> None:
         # settings.json gives lists; the settings are hashed (cached networks)
@@ -137,9 +140,9 @@ class MassSpringSettings:
         if self.sites < 2 or self.base < 2:
             raise UsageError("delay lines need at least 2 sites per td and a base of 2 sites")
         if min(self.td, self.tau, self.fc, self.klp, self.kc, self.g, self.threshold,
-               self.input_gain, self.kq, self.fq, self.zeta) <= 0:
-            raise UsageError("td, tau, fc, klp, kc, g, threshold, input gain, kq, fq and zeta "
-                             "must be > 0")
+               self.input_gain, self.kq, self.fq, self.zeta, self.squarer_range) <= 0:
+            raise UsageError("td, tau, fc, klp, kc, g, threshold, input gain, kq, fq, zeta and "
+                             "the squarer range must be > 0")
         if self.line_damping() * self.delays >= self.lowpass_damping():
             raise UsageError(f"{self.delays} delay lines (impedance {self.line_damping():.3g} "
                              f"N s/m each) overload the low-pass (damping "
@@ -150,14 +153,16 @@ class MassSpringSettings:
                 raise UsageError(f"{name} needs {self.bins} positive factors, got {scale}")
 
     def to_dict(self) -> dict:
-        """Plain dict (settings.json, cache keys); the tuned factors only where set, so an
-        untuned network keeps its keys."""
+        """Plain dict (settings.json, cache keys); the tuned factors and the squarer range
+        only where set, so the paper's network keeps its keys."""
         d = asdict(self)
         for name in ("filter_scale", "compression_scale"):
             if d[name]:
                 d[name] = list(d[name])
             else:
                 del d[name]
+        if d["squarer_range"] == SQUARER_RANGE:
+            del d["squarer_range"]
         return d
 
     def filter_factors(self) -> np.ndarray:
@@ -222,10 +227,11 @@ def filters(s: MassSpringSettings) -> tuple[MelFilter, ...]:
 
 
 def leverages(s: MassSpringSettings) -> np.ndarray:
-    """a_i = 6 g R^2 / w_a,i^2 (R = SQUARER_RANGE): the squarer leverage whose own compression
-    (cubic stiffness 6 (g/a) y^2 = w_a^2 at |y| = R) lies far above every filter amplitude."""
+    """a_i = 6 g R^2 / w_a,i^2 (R = `squarer_range`, by default SQUARER_RANGE): the squarer
+    leverage whose own compression (cubic stiffness 6 (g/a) y^2 = w_a^2 at |y| = R) lies far
+    above every filter amplitude."""
     wa = np.array([2 * np.pi * f.fa for f in filters(s)])
-    return 6 * s.g * SQUARER_RANGE**2 / wa**2
+    return 6 * s.g * s.squarer_range**2 / wa**2
 
 
 def envelope(s: MassSpringSettings, amplitude: float) -> np.ndarray:

@@ -91,6 +91,9 @@ _PAPER_STEPS = click.option(
 @click.option("--stage-stiffness", type=float, default=None, metavar="S",
               help="Mass-spring/device: every stage after the Mel filters S times stiffer, "
                    "up to S times more of the energy reaches them [1].")
+@click.option("--squarer-range", type=float, default=None, metavar="R",
+              help="Mass-spring/device: filter amplitude (m) at which the squarers detune the "
+                   "filters fully; smaller passes more energy on [10].")
 @_THRESHOLD
 @_TOLERANCE
 @_PAPER_STEPS
@@ -100,7 +103,7 @@ _PAPER_STEPS = click.option(
 def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, tau, fc,
               feature_rate, protocol, class_weights, jobs, seed, no_cache, out, epsilon,
               heads, buffer, mvm_stiffness, spl, area, temp, device_mass, stage_stiffness,
-              threshold, tolerance, paper_steps, scheduler) -> None:
+              squarer_range, threshold, tolerance, paper_steps, scheduler) -> None:
     """Train the keyword spotter and write a model folder with weights and a test report."""
     from springc.kws.evaluation.api import train
 
@@ -112,7 +115,7 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
                    tolerance=tolerance, paper_steps=paper_steps, scheduler=scheduler,
                    heads=heads, buffer=buffer, mvm_stiffness=mvm_stiffness, spl=spl,
                    area=area, temp=temp, device_mass=device_mass,
-                   stage_stiffness=stage_stiffness)
+                   stage_stiffness=stage_stiffness, squarer_range=squarer_range)
     click.echo(_summary(report))
     if "integration" in report:
         from springc.kws.features.integration import from_dict

@@ -93,6 +93,8 @@ def test_installed_command_runs(env):
      "--stage-stiffness is a setting of the mass-spring network"),
     (["train", "--data", "{data}", "--realisation", "device", "--stage-stiffness", "0", "-o",
       "{root}/m"], "the stage stiffness must be > 0"),
+    (["train", "--data", "{data}", "--squarer-range", "1", "-o", "{root}/m"],
+     "--squarer-range is a setting of the mass-spring network"),
     (["eval", "{root}/nomodel"], "no such model folder"),
     (["eval", "{model}", "--realisation", "baseline"], "trained with the digital"),
     (["eval", "{model}", "--data", "{root}/nowhere"], "no such data folder"),

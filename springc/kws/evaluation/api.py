@@ -33,7 +33,7 @@ def train(data: str | Path, out: str | Path, *, bins: int = 8, delays: int = 3,
           mvm_stiffness: float | None = None, spl: float | None = None,
           area: float | None = None, temp: float | None = None,
           device_mass: float | None = None, stage_stiffness: float | None = None,
-          device: str | None = None) -> dict:
+          squarer_range: float | None = None, device: str | None = None) -> dict:
     """Train the keyword spotter on the data set folder `data` (GSCD layout), test it and
     write the model folder `out`, as `springc train`: `bins` mel bins of `delays` delays
     each, `realisation` digital, baseline, mass-spring or device (a mass-spring network
@@ -49,7 +49,8 @@ def train(data: str | Path, out: str | Path, *, bins: int = 8, delays: int = 3,
     `buffer` (kb, kg: a tap buffer in units of kc) and `mvm_stiffness` (None: the paper's
     heads up to eps 1e-5, beyond it the buffered design `transfer.BUFFERED`),
     `stage_stiffness` (every stage after the Mel filters that many times stiffer,
-    `massspring.stage_scaled`; None: 1), `device` (cpu,
+    `massspring.stage_scaled`; None: 1), `squarer_range` (m of filter output where the
+    squarers detune the filters fully; None: `massspring.SQUARER_RANGE`), `device` (cpu,
     cuda or auto; None: that of the innermost `springc.default_device`). Returns the training
     report: accuracy, n, per_class, confusion, counts, ... as report.json holds it, with each
     phase's wall "seconds"."""
@@ -58,9 +59,11 @@ def train(data: str | Path, out: str | Path, *, bins: int = 8, delays: int = 3,
 
     design, scale = _design(realisation, epsilon, heads, buffer, mvm_stiffness,
                             dict(spl=spl, area=area, temp=temp, device_mass=device_mass))
-    if stage_stiffness is not None and realisation not in ("mass-spring", "device"):
-        raise UsageError("--stage-stiffness is a setting of the mass-spring network",
-                         hint="--realisation mass-spring or device")
+    given = {"--stage-stiffness": stage_stiffness, "--squarer-range": squarer_range}
+    for name, value in given.items():
+        if value is not None and realisation not in ("mass-spring", "device"):
+            raise UsageError(f"{name} is a setting of the mass-spring network",
+                             hint="--realisation mass-spring or device")
     realisation = "mass-spring" if realisation == "device" else realisation
 
     out = Path(out)
@@ -71,7 +74,8 @@ def train(data: str | Path, out: str | Path, *, bins: int = 8, delays: int = 3,
                         task=task, jobs=jobs, seed=seed, use_cache=use_cache,
                         epsilon=epsilon, scheduler=scheduler, protocol=protocol,
                         balance_weights=_balance(class_weights),
-                        massspring=_massspring(settings, threshold, stage_stiffness),
+                        massspring=_massspring(settings, threshold, stage_stiffness,
+                                               squarer_range),
                         tolerance=_tolerance(tolerance, paper_steps), design=design,
                         device=scale)
     with _on(device):
@@ -267,15 +271,16 @@ def _tolerance(tolerance: float, paper_steps: bool) -> float | None:
 
 
 def _massspring(settings: FeatureSettings, threshold: float | None,
-                stage_stiffness: float | None = None):
-    """Mass-spring settings for `--threshold` and `--stage-stiffness`, or None (the
-    defaults) without either."""
-    if threshold is None and stage_stiffness is None:
+                stage_stiffness: float | None = None, squarer_range: float | None = None):
+    """Mass-spring settings for `--threshold`, `--squarer-range` and `--stage-stiffness`, or
+    None (the defaults) without any."""
+    if threshold is None and stage_stiffness is None and squarer_range is None:
         return None
     from springc.kws.features.massspring import from_features, stage_scaled
 
-    overrides = {} if threshold is None else {"threshold": threshold}
-    s = from_features(settings, **overrides)
+    given = {"threshold": threshold, "squarer_range": squarer_range}
+    s = from_features(settings, **{k: v for k, v in given.items() if v is not None})
+    s.validate()
     return s if stage_stiffness is None else stage_scaled(s, stage_stiffness)
 
 

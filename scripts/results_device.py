@@ -6,7 +6,7 @@ thermal noise at physical scale, and the energy budget against the 53 dB a decis
     python scripts/results_device.py page --out DIR --md docs/results-device.md
     python scripts/results_device.py cv --data CORPUS --out DIR [--folds 3]
     python scripts/results_device.py stiffness --data CORPUS --out DIR [--factors 1 10 100]
-        [--sizes 4x2] [--epsilon EPS] [--threshold A_C]
+        [--sizes 4x2] [--epsilon EPS] [--threshold A_C] [--squarer-range R]
 
 `run` trains both designs per size on CORPUS (skipped where DIR holds the model), and
 through `springc.evaluate` measures the whole network's accuracy on the test split, the
@@ -21,7 +21,8 @@ markdown and the plot. `cv` cross-validates the 8x3 designs over speakers: per f
 evaluated on the fold's test split, the summing design's devices at a 1e-3 spread too
 (DIR/cv.json, and a table printed). `stiffness` trains the device design at each stage
 stiffness of --factors (`springc train --stage-stiffness`; heads at --epsilon, compression
-from --threshold) and records its accuracy and budget (DIR/stiffness.json).
+from --threshold, squarers of --squarer-range) and records its accuracy and budget
+(DIR/stiffness.json).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ import time
 from pathlib import Path
 
 import springc
+from springc.kws.features.massspring import SQUARER_RANGE
 
 DESIGNS = {"zero-mode": "mass-spring", "summing": "device"}
 SPREADS = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 3e-2)
@@ -183,7 +185,8 @@ def stiffness(args) -> None:
     for size in args.sizes:
         for factor in args.factors:
             tag = (f"{size}-stiffness{factor:g}" + (f"-eps{args.epsilon:g}" if args.epsilon else "")
-                   + (f"-threshold{args.threshold:g}" if args.threshold else ""))
+                   + (f"-threshold{args.threshold:g}" if args.threshold else "")
+                   + (f"-range{args.squarer_range:g}" if args.squarer_range else ""))
             if tag not in results:
                 results[tag] = _stiffness_row(out / "models" / f"device-{tag}", size, factor,
                                               args)
@@ -200,11 +203,14 @@ def _stiffness_row(folder: Path, size: str, factor: float, args) -> dict:
     if not (folder / "settings.json").exists():
         n, m = (int(v) for v in size.split("x"))
         springc.train(args.data, folder, bins=n, delays=m, realisation="device",
-                      stage_stiffness=factor, epsilon=args.epsilon, threshold=args.threshold)
+                      stage_stiffness=factor, epsilon=args.epsilon, threshold=args.threshold,
+                      squarer_range=args.squarer_range)
     rep = springc.evaluate(folder)
     settings = json.loads((folder / "settings.json").read_text())
     return {"size": size, "factor": factor, "epsilon": settings["transfer"]["epsilon"],
-            "threshold": settings["features"]["threshold"], "accuracy": rep["accuracy"],
+            "threshold": settings["features"]["threshold"],
+            "squarer_range": settings["features"].get("squarer_range", SQUARER_RANGE),
+            "accuracy": rep["accuracy"],
             "n": rep["n"], "budget": budget_json(springc.evaluate(folder, budget=args.budget)),
             "seconds": time.perf_counter() - start}
 
@@ -236,6 +242,7 @@ def main() -> None:
     st.add_argument("--factors", nargs="+", type=float, default=[1.0, 10.0, 100.0, 1000.0])
     st.add_argument("--epsilon", type=float, default=None)
     st.add_argument("--threshold", type=float, default=None)
+    st.add_argument("--squarer-range", type=float, default=None)
     st.add_argument("--budget", type=int, default=8)
     p = sub.add_parser("page")
     p.add_argument("--out", required=True)

@@ -72,12 +72,13 @@ def test_stage_stiffness_reaches_its_table_and_plot(tmp_path: Path) -> None:
                   for k, name in enumerate(("low-pass masses", "compressors", "terminals",
                                             "mvm heads", "readouts"))}
         return {"size": "4x2", "factor": factor, "epsilon": 1e-5, "threshold": 1e-3,
+                "squarer_range": 10.0,
                 "accuracy": acc, "n": 120,
                 "budget": {"stages": stages, "bound_db": 52.9}}
 
     st = {"a": row(1.0, 0.475, -160.5), "b": row(100.0, 0.5, -140.5)}
     text = write_page(RESULTS, tmp_path / "page.md", intro="", stiffness=st).read_text()
-    assert ("| 4x2 | 100 | 1e-05 | 0.001 | 50.0 (120) | -140.5 | -150.5 | -160.5 | -170.5 | -180.5 "
+    assert ("| 4x2 | 100 | 10 | 1e-05 | 0.001 | 50.0 (120) | -140.5 | -150.5 | -160.5 | -170.5 | -180.5 "
             "| 2.2e-10 |") in text
-    assert "| 4x2 | 1 | 1e-05 | 0.001 | 47.5 (120) | -160.5 |" in text
+    assert "| 4x2 | 1 | 10 | 1e-05 | 0.001 | 47.5 (120) | -160.5 |" in text
     assert (tmp_path / "page-stiffness.png").stat().st_size > 0

@@ -200,15 +200,17 @@ STIFFNESS_STAGES = ("low-pass masses", "compressors", "terminals", "mvm heads", 
 
 def stiffness_rows(st: dict) -> list[str]:
     """The stage-stiffness table (`results_device.py stiffness`'s rows): per size, factor,
-    heads' eps and compression threshold, the whole network's accuracy and each later
-    stage's energy in dB of the sound, with the readouts' k_B T."""
-    head = ["| size | stage stiffness | heads' eps | threshold A_c (m) | network % (clips) | "
+    squarer range, heads' eps and compression threshold, the whole network's accuracy and
+    each later stage's energy in dB of the sound, with the readouts' k_B T."""
+    head = ["| size | stage stiffness | squarer range R (m) | heads' eps | threshold A_c (m) "
+            "| network % (clips) | "
             + " | ".join(f"{stage} dB" for stage in STIFFNESS_STAGES) + " | readouts k_B T |",
-            "|---" * (len(STIFFNESS_STAGES) + 6) + "|"]
+            "|---" * (len(STIFFNESS_STAGES) + 7) + "|"]
     rows = []
     for r in st.values():
         stages = r["budget"]["stages"]
-        rows.append(f"| {r['size']} | {r['factor']:g} | {r['epsilon']:g} | {r['threshold']:g} | "
+        rows.append(f"| {r['size']} | {r['factor']:g} | {r['squarer_range']:g} | "
+                    f"{r['epsilon']:g} | {r['threshold']:g} | "
                     f"{100 * r['accuracy']:.1f} ({r['n']}) | "
                     + " | ".join(f"{stages[name]['db_of_sound']:.1f}"
                                  for name in STIFFNESS_STAGES)
@@ -216,20 +218,25 @@ def stiffness_rows(st: dict) -> list[str]:
     return head + rows
 
 
+def _line(r: dict) -> tuple:
+    """What a line of the stiffness plot holds fixed."""
+    return r["size"], r["squarer_range"], r["epsilon"], r["threshold"]
+
+
 def plot_stiffness(st: dict, path: Path) -> None:
-    """Per size, heads' eps and threshold against the stage stiffness: the readouts' energy
-    (dB of the sound, with the bound a decision may lose) and the whole network's accuracy."""
+    """Per size, squarer range, heads' eps and threshold against the stage stiffness: the
+    readouts' energy (dB of the sound, with the bound a decision may lose) and the whole
+    network's accuracy."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, (energy, acc) = plt.subplots(1, 2, figsize=(11, 4))
-    lines = dict.fromkeys((r["size"], r["epsilon"], r["threshold"]) for r in st.values())
-    for line in lines:
-        rows = [r for r in st.values() if (r["size"], r["epsilon"], r["threshold"]) == line]
+    for key in dict.fromkeys(_line(r) for r in st.values()):
+        rows = [r for r in st.values() if _line(r) == key]
         factors = [r["factor"] for r in rows]
-        name = f"{line[0]} eps {line[1]:g} A_c {line[2]:g}"
+        name = f"{key[0]} R {key[1]:g} eps {key[2]:g} A_c {key[3]:g}"
         energy.plot(factors, [r["budget"]["stages"]["readouts"]["db_of_sound"] for r in rows],
                     marker="o", label=f"{name}: readouts")
         acc.plot(factors, [100 * r["accuracy"] for r in rows], marker="o", label=name)

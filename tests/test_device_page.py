@@ -78,7 +78,7 @@ def test_stage_stiffness_reaches_its_table_and_plot(tmp_path: Path) -> None:
 
     st = {"a": row(1.0, 0.475, -160.5), "b": row(100.0, 0.5, -140.5)}
     text = write_page(RESULTS, tmp_path / "page.md", intro="", stiffness=st).read_text()
-    assert ("| 4x2 | 100 | 10 | 1e-05 | 0.001 | 50.0 (120) | -140.5 | -150.5 | -160.5 | -170.5 | -180.5 "
-            "| 2.2e-10 |") in text
+    assert ("| 4x2 | 100 | 10 | 1e-05 | 0.001 | 50.0 (120) | -140.5 | -150.5 | -160.5 "
+            "| -170.5 | -180.5 | 2.2e-10 |") in text
     assert "| 4x2 | 1 | 10 | 1e-05 | 0.001 | 47.5 (120) | -160.5 |" in text
     assert (tmp_path / "page-stiffness.png").stat().st_size > 0

@@ -78,6 +78,28 @@ def size_run(args, clips, y, fold, groups, bins: int, delays: int, eps_list) -> 
     weight = task_weights("kws12")
     plan, out = None, {eps: {"test": [], "transferred": [], "refit": [], "il_t": [],
                              "il_r": [], "c": []} for eps in eps_list}
+    sig = _signal_cache(clips)
+    for k, model, models, idx, eps in _fold_cases(args, x, y, fold, weight, eps_list):
+        heads = tr.heads_for(models, s, ref.amplitude, eps)
+        net = load_text(tr.classifier_text(heads, s, epsilon=eps), "<classifier>")
+        if plan is None:  # chosen once per size, on the first fold's loudest network
+            plan = tr.choose_classifier_integration(check(net), heads, s, ref.signals[:16])
+            print(f"{bins}x{delays}: classifier integration {plan.describe()}", flush=True)
+        t0 = time.perf_counter()
+        got = {n: rf.response(net, heads, s, sig(i), plan, jobs=args.jobs) for n, i in idx.items()}
+        fitted = _refitted(got, y, idx, heads, models, weight)
+        again = _refit_response(fitted, heads, s, ref.amplitude, eps, sig(idx["test"]), plan,
+                                args.jobs)
+        _record(out[eps], idx["test"], got["test"], again, fitted, model.classes, y)
+        print(f"{bins}x{delays} fold {k} eps {eps:g}: transferred "
+              f"{np.mean(out[eps]['transferred'][-len(idx['test']):]):.3f} refit "
+              f"{np.mean(out[eps]['refit'][-len(idx['test']):]):.3f} "
+              f"({time.perf_counter() - t0:.0f} s)", flush=True)
+    return {"plan": plan.describe(), "eps": out}
+
+
+def _signal_cache(clips):
+    """idx -> the clips' signals stacked, each clip loaded once for the whole size."""
     signals = {}
 
     def sig(idx):
@@ -87,47 +109,54 @@ def size_run(args, clips, y, fold, groups, bins: int, delays: int, eps_list) -> 
                 signals[i] = row
         return np.stack([signals[i] for i in idx])
 
+    return sig
+
+
+def _fold_cases(args, x, y, fold, weight, eps_list):
+    """Per fold (in order) and eps: the fold, its SVM trained on the other folds (C chosen on
+    the next), that SVM as the heads' models, and its drawn test, refit ("fit") and C-choosing
+    ("val") clips."""
     k_folds = int(fold.max()) + 1
     for k in range(k_folds):
         nxt = (k + 1) % k_folds
         inner, val = (fold != k) & (fold != nxt), fold == nxt
         model, _ = cv.fold_model(x, y, fold, k, SVM_GRID, weight)
         models = [(tuple(model.classes), model)]
-        test = draw(np.flatnonzero(fold == k), args.test, k)
-        fit_idx = draw(np.flatnonzero(inner), args.refit, 100 + k)
-        val_idx = draw(np.flatnonzero(val), args.val, 200 + k)
+        idx = {"test": draw(np.flatnonzero(fold == k), args.test, k),
+               "fit": draw(np.flatnonzero(inner), args.refit, 100 + k),
+               "val": draw(np.flatnonzero(val), args.val, 200 + k)}
         for eps in eps_list:
-            heads = tr.heads_for(models, s, ref.amplitude, eps)
-            net = load_text(tr.classifier_text(heads, s, epsilon=eps), "<classifier>")
-            if plan is None:  # chosen once per size, on the first fold's loudest network
-                plan = tr.choose_classifier_integration(check(net), heads, s, ref.signals[:16])
-                print(f"{bins}x{delays}: classifier integration {plan.describe()}", flush=True)
-            t0 = time.perf_counter()
-            got = {n: rf.response(net, heads, s, sig(i), plan, jobs=args.jobs)
-                   for n, i in (("test", test), ("fit", fit_idx), ("val", val_idx))}
-            fitted = rf.fit((got["fit"].j, y[fit_idx]), (got["val"].j, y[val_idx]), heads,
-                            models, "kws12", weight)
-            both = np.concatenate([fit_idx, val_idx])  # C chosen: fit on every training clip
-            fitted.weights, fitted.intercepts = rf.fit_rows(
-                np.concatenate([got["fit"].j, got["val"].j]), y[both], heads, models,
-                fitted.c, weight)
-            new = tr.reweighted_heads(heads, fitted.weights, fitted.intercepts, s,
-                                       ref.amplitude, eps)
-            net2 = load_text(tr.classifier_text(new, s, epsilon=eps), "<refit classifier>")
-            again = rf.response(net2, new, s, sig(test), plan, jobs=args.jobs)
-            row = out[eps]
-            row["test"] += test.tolist()
-            row["transferred"] += (model.classes[got["test"].decisions.argmax(1)]
-                                   == y[test]).tolist()
-            row["refit"] += (model.classes[again.decisions.argmax(1)] == y[test]).tolist()
-            row["il_t"] += got["test"].loss_db.tolist()
-            row["il_r"] += again.loss_db.tolist()
-            row["c"].append(fitted.c)
-            print(f"{bins}x{delays} fold {k} eps {eps:g}: transferred "
-                  f"{np.mean(row['transferred'][-len(test):]):.3f} refit "
-                  f"{np.mean(row['refit'][-len(test):]):.3f} "
-                  f"({time.perf_counter() - t0:.0f} s)", flush=True)
-    return {"plan": plan.describe(), "eps": out}
+            yield k, model, models, idx, eps
+
+
+def _refitted(got: dict, y, idx: dict, heads, models, weight):
+    """The refit of the heads on the exact responses: C chosen on the "val" clips, then fitted
+    again with it on every training clip ("fit" and "val")."""
+    fitted = rf.fit((got["fit"].j, y[idx["fit"]]), (got["val"].j, y[idx["val"]]), heads,
+                    models, "kws12", weight)
+    both = np.concatenate([idx["fit"], idx["val"]])  # C chosen: fit on every training clip
+    fitted.weights, fitted.intercepts = rf.fit_rows(
+        np.concatenate([got["fit"].j, got["val"].j]), y[both], heads, models,
+        fitted.c, weight)
+    return fitted
+
+
+def _refit_response(fitted, heads, s, amplitude: float, eps: float, signals, plan, jobs: int):
+    """The refitted heads' whole network simulated on `signals`."""
+    new = tr.reweighted_heads(heads, fitted.weights, fitted.intercepts, s, amplitude, eps)
+    net2 = load_text(tr.classifier_text(new, s, epsilon=eps), "<refit classifier>")
+    return rf.response(net2, new, s, signals, plan, jobs=jobs)
+
+
+def _record(row: dict, test, got, again, fitted, classes, y) -> None:
+    """One fold's test clips into `row`: the transferred and the refitted networks' outcomes
+    and insertion losses, and the refit's C."""
+    row["test"] += test.tolist()
+    row["transferred"] += (classes[got.decisions.argmax(1)] == y[test]).tolist()
+    row["refit"] += (classes[again.decisions.argmax(1)] == y[test]).tolist()
+    row["il_t"] += got.loss_db.tolist()
+    row["il_r"] += again.loss_db.tolist()
+    row["c"].append(fitted.c)
 
 
 def summarise(run: dict, y, groups) -> list[dict]:
@@ -222,18 +251,7 @@ def page(results: dict, meta: dict) -> str:
     lines = ["# Results: the accuracy-insertion loss front, transferred against refitted",
              "", "Plot: `results-front.png` beside this page after a run (not committed).", ""]
     for size, res in results.items():
-        rows = res["rows"]
-        lines += [f"## {size} ({res['plan']})", "",
-                  "| eps | transferred % | refitted % | gain (points) | IL transferred dB "
-                  "| IL refitted dB | C per fold |", "|---|---|---|---|---|---|---|"]
-        for r in rows:
-            lines.append(
-                f"| {r['eps']:g} | {100 * r['transferred']:.1f} +- {100 * r['se_t']:.1f} | "
-                f"{100 * r['refit']:.1f} +- {100 * r['se_r']:.1f} | "
-                f"{100 * r['gain']:+.1f} +- {100 * r['se_gain']:.1f} | {r['il_t']:.1f} | "
-                f"{r['il_r']:.1f} | {', '.join(f'{c:g}' for c in r['c'])} |")
-        lines += ["", "Against the transferred front (linear between its points):", ""]
-        lines += front_lines(rows) + [""]
+        lines += _size_section(size, res)
     lines += ["## How it was measured", "",
               "Regenerate with `python scripts/results_front.py --data DIR` (its docstring "
               f"gives the corpus command; springc at {meta['commit']}, {meta['minutes']:.1f} "
@@ -249,6 +267,22 @@ def page(results: dict, meta: dict) -> str:
               "decision; accuracies are class-balanced with speaker-bootstrap standard errors; "
               "the gain is paired (same clips).", ""]
     return "\n".join(lines)
+
+
+def _size_section(size: str, res: dict) -> list[str]:
+    """One size's table per eps and where its refitted points sit against the front."""
+    rows = res["rows"]
+    lines = [f"## {size} ({res['plan']})", "",
+             "| eps | transferred % | refitted % | gain (points) | IL transferred dB "
+             "| IL refitted dB | C per fold |", "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(
+            f"| {r['eps']:g} | {100 * r['transferred']:.1f} +- {100 * r['se_t']:.1f} | "
+            f"{100 * r['refit']:.1f} +- {100 * r['se_r']:.1f} | "
+            f"{100 * r['gain']:+.1f} +- {100 * r['se_gain']:.1f} | {r['il_t']:.1f} | "
+            f"{r['il_r']:.1f} | {', '.join(f'{c:g}' for c in r['c'])} |")
+    lines += ["", "Against the transferred front (linear between its points):", ""]
+    return lines + front_lines(rows) + [""]
 
 
 def write(results: dict, meta: dict, out: Path) -> None:

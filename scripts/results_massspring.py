@@ -66,6 +66,19 @@ READING = [
     "readouts no longer follow c.Phi and the accuracy falls.",
 ]
 
+# The features section's heading and text, before its correlation table.
+FEATURES = [
+    "## Features: mass-spring against digital",
+    "",
+    "Correlation of the simulated compressed feature c_i(t) with the digital "
+    "realisation's feature (`springc.kws.features.digital`: filter, |y|^(2/3), low-pass) of "
+    "the same bin, 8 bins, 16 test clips (medians). Where they differ: the mechanical "
+    "compression is cube-root only above the threshold A_c (pure squaring below) and acts on "
+    "the low-passed envelope (the digital one before the low-pass), the compressor lags by "
+    "about 1 ms, and the digital path filters band-limited in the frequency domain.",
+    "",
+]
+
 
 def run_size(data: Path, models: Path, bins: int, delays: int, task: str, jobs: int) -> dict:
     """Digital and mass-spring models of one size; the mass-spring network simulated."""
@@ -160,14 +173,33 @@ def page(data: Path, sizes: list[dict], pairs: dict, eps: list[dict], comp: list
          seconds: float, plot: Path, corr: list[str], budget: list[str]) -> str:
     """The page: the plot, the accuracy tables, the features, the energy budget and the
     reading of it all, then how it was measured."""
-    net8 = sizes[-1]["network"]["throughput"]
-    counts = {s: sizes[0]["network"]["n"] if s == "test" else "-" for s in ("test",)}
-    s = msp.MassSpringSettings()
     lines = [
         "# Mass-spring keyword spotter: results",
         "",
         f"Plot: `{plot.name}` beside this page after a run (not committed).",
         "",
+        *_size_section(sizes),
+        "## Digit pairs (paper Fig. 8b), 4 x 2",
+        "",
+        *pairs_table(pairs),
+        "",
+        *_sweep_section(eps, comp),
+        *FEATURES,
+        *corr,
+        "",
+        *budget,
+        *READING,
+        "",
+        *_throughput(sizes, seconds),
+        *_parameters(msp.MassSpringSettings()),
+        *_how_measured(sizes[0]["network"]["n"]),
+    ]
+    return "\n".join(lines)
+
+
+def _size_section(sizes: list[dict]) -> list[str]:
+    """The 12-class accuracy table by size, what one clip is worth, and its columns."""
+    return [
         "## GSCD 12-class task by size",
         "",
         *size_table(sizes),
@@ -181,10 +213,12 @@ def page(data: Path, sizes: list[dict], pairs: dict, eps: list[dict], comp: list
         "read out exactly from the simulated features (so its difference to the network is due "
         "to the physical classifier alone); *network* is the simulated mass-spring classifier.",
         "",
-        "## Digit pairs (paper Fig. 8b), 4 x 2",
-        "",
-        *pairs_table(pairs),
-        "",
+    ]
+
+
+def _sweep_section(eps: list[dict], comp: list[dict]) -> list[str]:
+    """The squaring-error and compression-threshold sweeps (paper Fig. 8e-f)."""
+    return [
         "## Accuracy against insertion loss (paper Fig. 8e-f), "
         f"{SWEEP_SIZE[0]} x {SWEEP_SIZE[1]}",
         "",
@@ -199,20 +233,13 @@ def page(data: Path, sizes: list[dict], pairs: dict, eps: list[dict], comp: list
         "",
         *sweep_table(comp, "threshold", "A_c"),
         "",
-        "## Features: mass-spring against digital",
-        "",
-        "Correlation of the simulated compressed feature c_i(t) with the digital "
-        "realisation's feature (`springc.kws.features.digital`: filter, |y|^(2/3), low-pass) of "
-        "the same bin, 8 bins, 16 test clips (medians). Where they differ: the mechanical "
-        "compression is cube-root only above the threshold A_c (pure squaring below) and acts on "
-        "the low-passed envelope (the digital one before the low-pass), the compressor lags by "
-        "about 1 ms, and the digital path filters band-limited in the frequency domain.",
-        "",
-        *corr,
-        "",
-        *budget,
-        *READING,
-        "",
+    ]
+
+
+def _throughput(sizes: list[dict], seconds: float) -> list[str]:
+    """The largest size's network's clips per second and the whole script's time."""
+    net8 = sizes[-1]["network"]["throughput"]
+    return [
         "## Throughput",
         "",
         f"The {sizes[-1]['bins']} x {sizes[-1]['delays']} classifier network "
@@ -222,18 +249,30 @@ def page(data: Path, sizes: list[dict], pairs: dict, eps: list[dict], comp: list
         f"compile). Whole script: {seconds / 60:.1f} "
         "min.",
         "",
+    ]
+
+
+def _parameters(s: msp.MassSpringSettings) -> list[str]:
+    """The network's default parameters as a table."""
+    return [
         "## Network parameters (defaults)",
         "",
         "| parameter | value |",
         "|---|---|",
         *[f"| {k} | {v} |" for k, v in settings_table(s)],
         "",
+    ]
+
+
+def _how_measured(test_clips: int) -> list[str]:
+    """The command, the corpus and what every mass-spring accuracy simulates."""
+    return [
         "## How it was measured",
         "",
         "Regenerated by `python scripts/results_massspring.py --data DIR --out "
         "docs/results-massspring.md` (the corpus: `springc data synth DIR --clips 1600 --seed 1 "
         f"--words {CORPUS_WORDS}`, the built-in synthetic GSCD-layout corpus, held-out splits "
-        f"class-balanced as in the paper; {counts['test']} test clips). Every "
+        f"class-balanced as in the paper; {test_clips} test clips). Every "
         "mass-spring accuracy is a simulation of the whole network, sound to decision: the "
         "feature extraction (two-mode Mel filters, quadratic couplings into critically damped "
         "50 Hz low-pass masses, cube-root compressors, delay lines with reflection-free "
@@ -244,7 +283,6 @@ def page(data: Path, sizes: list[dict], pairs: dict, eps: list[dict], comp: list
         "readout / design scale + intercept; no parameter is fitted on test data.",
         "",
     ]
-    return "\n".join(lines)
 
 
 def main() -> None:

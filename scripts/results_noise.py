@@ -34,6 +34,23 @@ CONDITIONS = {(300.0, 60.0): MASSES,
               (300.0, 80.0): (MASSES[1] * 100,)}
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 
+# Why heavier devices are noisier, and how the decision error grows with mass (the page's
+# reading, between the thresholds and where the noise enters).
+SCALING = [
+    "- At a given sound a heavier device is the noisier one: the force p A does not grow "
+    "with the device, its dampers do (every b is mu times the normalised one), and so do "
+    "their thermal forces, 4 k_B T b. In normalised units only T mu / (p A)^2 matters: "
+    "cooling from 300 K to 4 K allows a 75 times heavier device, 20 dB more sound a 100 "
+    "times heavier one. The 4 K and 80 dB rows are simulated at the masses this maps onto "
+    "the 300 K, 60 dB one at 1e-38 kg, with the same noise seed, and agree with it to "
+    "every digit shown.",
+    "- The decision error grows as the square root of the mass (a factor 10 per 2 "
+    "decades: thermal force amplitudes go as sqrt(T mu) against the fixed p A), from "
+    "0.1% at 1e-42 kg per unit to 9% at 1e-38 and to more than the decisions themselves "
+    "from 1e-34 on; the 2-point threshold rests on one clip lost at 1e-38 (one clip is "
+    "4.2 points here), so it is located to within the 4-decade step, no better.",
+]
+
 
 def measure(models: Path, store: Path, clips: int, seed: int) -> dict:
     """Every (temperature, level, mass) row not yet in `store`, saved after each."""
@@ -143,34 +160,19 @@ def _decision(row: dict) -> str:
 
 
 def _reading(data: dict) -> list[str]:
+    """The page's reading of the results, then how they were measured."""
+    return [*_findings(data), "", *_how_measured(data)]
+
+
+def _findings(data: dict) -> list[str]:
+    """Where accuracy falls 2 points per condition, why mass matters and where noise enters."""
     units = data["units"]
     t300 = threshold(data, 300.0, 60.0)
-    found = []
-    for (temp, spl) in CONDITIONS:
-        t, how = threshold(data, temp, spl), ""
-        if t is None and t300 is not None:  # one mass measured: the scaling law's value
-            t, how = t300 * (300 / temp) * 10 ** ((spl - 60) / 10), " (by the scaling law)"
-        found.append(f"{temp:g} K and {spl:g} dB SPL: " + (
-            f"mass scale {t:.2g} kg per unit, a device of {t * units:.2g} kg{how}" if t else
-            "not within the masses measured"))
-    seconds = sum(r["seconds"] for r in data["rows"].values())
-    n = data["noiseless"]["n"]
     return [
         "## Reading the results", "",
         "- Accuracy falls 2 points below the noiseless one above (interpolated on log mass "
-        "between the measured masses): " + "; ".join(found) + ".",
-        "- At a given sound a heavier device is the noisier one: the force p A does not grow "
-        "with the device, its dampers do (every b is mu times the normalised one), and so do "
-        "their thermal forces, 4 k_B T b. In normalised units only T mu / (p A)^2 matters: "
-        "cooling from 300 K to 4 K allows a 75 times heavier device, 20 dB more sound a 100 "
-        "times heavier one. The 4 K and 80 dB rows are simulated at the masses this maps onto "
-        "the 300 K, 60 dB one at 1e-38 kg, with the same noise seed, and agree with it to "
-        "every digit shown.",
-        "- The decision error grows as the square root of the mass (a factor 10 per 2 "
-        "decades: thermal force amplitudes go as sqrt(T mu) against the fixed p A), from "
-        "0.1% at 1e-42 kg per unit to 9% at 1e-38 and to more than the decisions themselves "
-        "from 1e-34 on; the 2-point threshold rests on one clip lost at 1e-38 (one clip is "
-        "4.2 points here), so it is located to within the 4-decade step, no better.",
+        "between the measured masses): " + "; ".join(_thresholds(data, t300)) + ".",
+        *SCALING,
         "- The masses are far from any device"
         + (f": {t300 * units:.2g} kg at 300 K and 60 dB is "
            f"{t300 * units / 9.11e-31:.2g} electron masses" if t300 else "")
@@ -183,7 +185,30 @@ def _reading(data: dict) -> list[str]:
         "readouts about, while the signal they carry is minute after the design's insertion "
         "loss (near 300 dB, docs/results-massspring.md). A physical keyword "
         "spotter needs heads with far less insertion loss than the transferred ones.",
-        "",
+    ]
+
+
+def _thresholds(data: dict, t300: float | None) -> list[str]:
+    """Per condition, the mass scale at which accuracy falls 2 points (where one mass was
+    measured, the 300 K, 60 dB threshold carried over by the scaling law)."""
+    units = data["units"]
+    found = []
+    for (temp, spl) in CONDITIONS:
+        t, how = threshold(data, temp, spl), ""
+        if t is None and t300 is not None:  # one mass measured: the scaling law's value
+            t, how = t300 * (300 / temp) * 10 ** ((spl - 60) / 10), " (by the scaling law)"
+        found.append(f"{temp:g} K and {spl:g} dB SPL: " + (
+            f"mass scale {t:.2g} kg per unit, a device of {t * units:.2g} kg{how}" if t else
+            "not within the masses measured"))
+    return found
+
+
+def _how_measured(data: dict) -> list[str]:
+    """The date, the commands, the mass and noise model and the runs' resolution."""
+    units = data["units"]
+    seconds = sum(r["seconds"] for r in data["rows"].values())
+    n = data["noiseless"]["n"]
+    return [
         "## How it was measured", "",
         f"- {data.get('date', '')} on a 2-core Intel Xeon shared with other work.",
         f"- `python scripts/results_noise.py --models MODELS --clips {data['clips']}` (each "

@@ -84,8 +84,6 @@ def errors(data: Path, model: Path, clips: int = CHECK_CLIPS) -> dict:
     reference (RK4 x16 float64) on the first `clips` test clips: the relative error (per
     clip, of its largest value; the worst clip) of Phi (the features' integration, single
     precision, loud clips at finer steps) and of the readouts x(r_k) (the whole network's)."""
-    from functools import partial
-
     import numpy as np
 
     from springc.check import check
@@ -93,7 +91,6 @@ def errors(data: Path, model: Path, clips: int = CHECK_CLIPS) -> dict:
     from springc.kws.features import massspring as msp
     from springc.kws.training import transfer as tr
     from springc.kws.features.distributed import session
-    from springc.kws.evaluation.evaluate import model_integration
     from springc.kws.training.model import load_model
     from springc.kws.data.task import open_task_data
     from springc.lang import load_file
@@ -103,24 +100,41 @@ def errors(data: Path, model: Path, clips: int = CHECK_CLIPS) -> dict:
     test = open_task_data(data, "kws12", 0, None).split("test")[:clips]
     sig = msp.load_signals(test, False, 0, [])
     method, substeps, precision = itg.REFERENCE
-    tight = itg.Integration(method, substeps, precision)
     checked = check(load_file(model / "classifier.spr"))
-    specs = tr.readout_reductions(heads)
-    tstop = msp.horizon(s, sig.shape[1] / msp.INPUT_RATE)
-    rows = [f"final:x(r{k})" for k in range(len(heads))]
     with session(None, 2):
         phi = msp.dataset_phi(test, "test", s, noise_files=[])
         phi_ref = msp.simulate_phi(sig, s, method=method, substeps=substeps,
                                    precision=precision, chunk=msp.BATCH)
-        out = {}
-        for name, plan in (("chosen", model_integration(trained)), ("reference", tight)):
-            work = partial(tr.classifier_batch, checked=checked, specs=specs, tstop=tstop,
-                           plan=plan, s=s)
-            reds = msp.map_pooled(work, sig, f"readouts, {name}")
-            out[name] = np.stack([reds[r] for r in rows], axis=1)
+        out = _readouts(trained, checked, heads, s, sig)
     return {"clips": len(test), "phi": itg.relative_error(phi, phi_ref),
             "readouts": itg.relative_error(out["chosen"], out["reference"]),
             "loud": int(np.sum(msp.stiffness(sig, s) / s.substeps > itg.MAX_WH))}
+
+
+def _readouts(trained, checked, heads, s, sig) -> dict:
+    """The readouts x(r_k) (clips, heads) of the whole network on `sig`, "chosen" at the
+    model's integration and "reference" at the tight one (RK4 x16 float64)."""
+    from functools import partial
+
+    import numpy as np
+
+    from springc.kws.evaluation.evaluate import model_integration
+    from springc.kws.features import integration as itg
+    from springc.kws.features import massspring as msp
+    from springc.kws.training import transfer as tr
+
+    method, substeps, precision = itg.REFERENCE
+    tight = itg.Integration(method, substeps, precision)
+    specs = tr.readout_reductions(heads)
+    tstop = msp.horizon(s, sig.shape[1] / msp.INPUT_RATE)
+    rows = [f"final:x(r{k})" for k in range(len(heads))]
+    out = {}
+    for name, plan in (("chosen", model_integration(trained)), ("reference", tight)):
+        work = partial(tr.classifier_batch, checked=checked, specs=specs, tstop=tstop,
+                       plan=plan, s=s)
+        reds = msp.map_pooled(work, sig, f"readouts, {name}")
+        out[name] = np.stack([reds[r] for r in rows], axis=1)
+    return out
 
 
 def run(clips: int, out: Path) -> dict:
@@ -151,28 +165,40 @@ def run(clips: int, out: Path) -> dict:
 
 def markdown(r: dict) -> str:
     """docs/results-scale.md: the tables and figures first, how it was measured after."""
-    n, t, ms = r["counts"], r["seconds"], r["reports"]["mass-spring"]
-    total = sum(n.values())
-    phases = ms.get("seconds", {})
     lines = [
         "# Keyword spotting at data-set scale (8x3)",
         "",
-        "| stage | wall s | clips | clips/s | 105,829 clips on this machine |",
-        "|---|---|---|---|---|",
+        *_stages(r),
+        *_extrapolation(r),
+        *_accuracy(r),
+        *_how_measured(r),
     ]
+    return "\n".join(lines)
+
+
+def _stages(r: dict) -> list[str]:
+    """Each stage's wall time and rate, scaled to the GSCD's clips; training by phase."""
+    n, ms = r["counts"], r["reports"]["mass-spring"]
+    total = sum(n.values())
+    lines = ["| stage | wall s | clips | clips/s | 105,829 clips on this machine |",
+             "|---|---|---|---|---|"]
     per = {"synth": r["clips"], "train digital": total, "train mass-spring": total,
            "eval mass-spring network": n["test"]}
-    for stage, sec in t.items():
+    for stage, sec in r["seconds"].items():
         rate = per[stage] / sec
         lines.append(f"| {stage} | {sec:.0f} | {per[stage]} | {rate:.1f} | "
                      f"{GSCD_CLIPS / rate / 3600:.1f} h |")
     lines += ["", "Mass-spring training by phase (its report's `seconds`):", "",
               "| phase | wall s |", "|---|---|"]
-    lines += [f"| {k} | {v:.0f} |" for k, v in phases.items()]
+    return lines + [f"| {k} | {v:.0f} |" for k, v in ms.get("seconds", {}).items()]
+
+
+def _extrapolation(r: dict) -> list[str]:
+    """The features' scaling over workers and the GSCD's hours at 2, 16 and 64 workers."""
     sc = r["scaling"]
     eff = sc[2] / (2 * sc[1])
     ev = ms_eval_rate(r)
-    lines += [
+    lines = [
         "",
         f"Scaling of the mass-spring features ({SCALING_CLIPS} clips, uncached, workers "
         f"warm): 1 worker {sc[1]:.1f} clips/s, 2 workers {sc[2]:.1f} clips/s "
@@ -189,14 +215,21 @@ def markdown(r: dict) -> str:
         feat_h = GSCD_CLIPS / (sc[1] * w * eff) / 3600
         eval_h = 11005 / (ev / 2 * w) / 3600  # ev: already 2 workers' rate
         lines.append(f"| {w} | {feat_h:.2f} h | {eval_h:.2f} h |")
+    return lines
+
+
+def _accuracy(r: dict) -> list[str]:
+    """The test accuracies and, where measured, the integration errors against the tight
+    reference."""
+    ms = r["reports"]["mass-spring"]
     acc = {k: v["accuracy"] for k, v in r["reports"].items()}
     net, ni = r["reports"]["network"], r["network_integration"]
-    lines += ["", f"Test accuracy: digital {100 * acc['digital']:.1f}%, mass-spring features "
-              f"(ideal readout) {100 * acc['mass-spring']:.1f}%, the whole network simulated "
-              f"{100 * acc['network']:.1f}% (readout error {net.get('readout_error', 0):.2g}, "
-              f"integration {ni['method']} x{ni['substeps']} {ni['precision']}, within "
-              f"{ni['error']:.2g} of {ni['reference']} on {ni['clips']} clips); insertion loss "
-              f"{net['insertion_loss_db']['median']:.0f} dB median.", ""]
+    lines = ["", f"Test accuracy: digital {100 * acc['digital']:.1f}%, mass-spring features "
+             f"(ideal readout) {100 * acc['mass-spring']:.1f}%, the whole network simulated "
+             f"{100 * acc['network']:.1f}% (readout error {net.get('readout_error', 0):.2g}, "
+             f"integration {ni['method']} x{ni['substeps']} {ni['precision']}, within "
+             f"{ni['error']:.2g} of {ni['reference']} on {ni['clips']} clips); insertion loss "
+             f"{net['insertion_loss_db']['median']:.0f} dB median.", ""]
     if "errors" in r:
         e, fi = r["errors"], ms.get("integration", {}).get("features", {})
         lines += [f"Integration as the pipeline runs it, against {ni['reference']} on the "
@@ -206,7 +239,13 @@ def markdown(r: dict) -> str:
                   f"predicted too stiff for it and integrated at finer steps), readouts "
                   f"{e['readouts']:.2g} (whole network {ni['method']} x{ni['substeps']} "
                   f"{ni['precision']}); tolerance 1e-3.", ""]
-    lines += [
+    return lines
+
+
+def _how_measured(r: dict) -> list[str]:
+    """The command, the machine and its load, and the corpus's splits."""
+    n = r["counts"]
+    return [
         "## How it was measured",
         "",
         f"Generated by `python scripts/results_scale.py --clips {r['clips']}` on "
@@ -215,10 +254,9 @@ def markdown(r: dict) -> str:
         "(compile times included).",
         "",
         f"Corpus: {r['clips']} synthesised clips (all 35 words), of which the 12-class task "
-        f"uses {total} (train {n['train']}, validation {n['validation']}, test "
+        f"uses {sum(n.values())} (train {n['train']}, validation {n['validation']}, test "
         f"{n['test']}; class-balanced held-out splits).",
         ""]
-    return "\n".join(lines)
 
 
 def ms_eval_rate(r: dict) -> float:

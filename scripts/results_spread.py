@@ -36,6 +36,21 @@ DEVICES = {"4x2": (16, 4), "8x3": (8, 2)}
 FEW_FROM = 1e-3
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 
+# How the decision error grows with spread, until the devices decide at chance (the page's
+# reading, after the stages).
+RUNAWAY = (
+    "- The decision error grows in proportion to the spread while it is small (about "
+    "10x per decade) and from 0.01% on the readouts run away (errors of 1e3 and more): "
+    "the devices then decide at chance. A device the checks find statically unstable (its "
+    "stiffness at rest not positive semidefinite) or whose simulation diverges scores 0 "
+    "and is counted in the last column.")
+# How each device's coefficients are drawn (the page's "How it was measured").
+DRAWS = (
+    "- Device k multiplies every coefficient (masses, damping, stiffnesses, leverages, "
+    "monomial coefficients, input gains) by its own draw of gauss(1, S) in Monte Carlo "
+    "sample k, local mismatch (`--spread-kind local`); the draws are those of "
+    "`springc.lang.draws` at each element's instance path and key.")
+
 
 def measure(models: Path, store: Path, clips: int, seed: int) -> dict:
     """Every (size, stage, spread) row not yet in `store`, saved after each."""
@@ -86,6 +101,8 @@ def threshold(data: dict, size: str, loss: float = 0.02) -> float | None:
 
 
 def plot(data: dict, path: Path) -> None:
+    """Accuracy and decision error against spread per size, and the accuracy with one stage
+    spread at a time."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -94,18 +111,7 @@ def plot(data: dict, path: Path) -> None:
     fig, (ax, ex, bx) = plt.subplots(1, 3, figsize=(15, 4.2),
                                      gridspec_kw={"width_ratios": [3, 2.4, 2]})
     for size, colour in zip(SIZES, ("tab:blue", "tab:red")):
-        rows = [data["rows"][_key(size, "all", s)] for s in SPREADS]
-        mean = np.array([100 * r["accuracy"]["mean"] for r in rows])
-        err = np.array([100 * r["accuracy"]["stderr"] for r in rows])
-        worst = np.array([100 * r["accuracy"]["worst"] for r in rows])
-        x = 100 * np.array(SPREADS)
-        ax.errorbar(x, mean, err, color=colour, marker="o", capsize=3, label=f"{size} mean")
-        ax.plot(x, worst, color=colour, marker="v", ls=":", label=f"{size} worst")
-        ax.axhline(100 * data["nominal"][size]["accuracy"], color=colour, ls="--", lw=1,
-                   label=f"{size} nominal design")
-        errs = [_error(r) for r in rows]
-        ex.plot([xi for xi, e in zip(x, errs) if e != "-"],
-                [float(e) for e in errs if e != "-"], color=colour, marker="o", label=size)
+        _size_curves(ax, ex, data, size, colour)
     ax.axhline(100 / 12, color="grey", lw=1, label="chance (12 classes)")
     ax.set(xscale="log", xlabel="spread of every coefficient (%, relative sd)",
            ylabel="test accuracy (%)", title="Fabricated devices: accuracy against spread")
@@ -114,6 +120,30 @@ def plot(data: dict, path: Path) -> None:
            ylabel="median |device - nominal decision| / |nominal|",
            title="How far the decisions move")
     ex.legend(fontsize=7)
+    _stage_bars(bx, data)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def _size_curves(ax, ex, data: dict, size: str, colour: str) -> None:
+    """One size's mean (+- standard error), worst and nominal accuracy on `ax`, its median
+    decision error on `ex`."""
+    rows = [data["rows"][_key(size, "all", s)] for s in SPREADS]
+    mean = np.array([100 * r["accuracy"]["mean"] for r in rows])
+    err = np.array([100 * r["accuracy"]["stderr"] for r in rows])
+    worst = np.array([100 * r["accuracy"]["worst"] for r in rows])
+    x = 100 * np.array(SPREADS)
+    ax.errorbar(x, mean, err, color=colour, marker="o", capsize=3, label=f"{size} mean")
+    ax.plot(x, worst, color=colour, marker="v", ls=":", label=f"{size} worst")
+    ax.axhline(100 * data["nominal"][size]["accuracy"], color=colour, ls="--", lw=1,
+               label=f"{size} nominal design")
+    errs = [_error(r) for r in rows]
+    ex.plot([xi for xi, e in zip(x, errs) if e != "-"],
+            [float(e) for e in errs if e != "-"], color=colour, marker="o", label=size)
+
+
+def _stage_bars(bx, data: dict) -> None:
+    """The mean accuracy with each stage alone spread, against the nominal design's."""
     rows = [data["rows"][_key(STAGE_SIZE, st, STAGE_SPREAD)] for st in dv.STAGES]
     bx.bar(dv.STAGES, [100 * r["accuracy"]["mean"] for r in rows],
            yerr=[100 * r["accuracy"]["stderr"] for r in rows], capsize=3, color="tab:blue")
@@ -123,8 +153,6 @@ def plot(data: dict, path: Path) -> None:
            title=f"{STAGE_SIZE}, {100 * STAGE_SPREAD:g}% spread in one stage")
     bx.tick_params(axis="x", labelsize=8, rotation=20)
     bx.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
 
 
 def page(data: dict) -> str:
@@ -202,24 +230,34 @@ def _order(rows: dict) -> str:
 
 
 def _reading(data: dict, stage_rows: dict) -> list[str]:
-    worst_stage = min(stage_rows, key=lambda st: (stage_rows[st]["accuracy"]["mean"],
-                                                  -_median_error(stage_rows[st])))
-    seconds = sum(r["seconds"] for r in data["rows"].values())
-
-    def say(size: str) -> str:
-        t = threshold(data, size)
-        if t:
-            return f"about {100 * t:.2g}%"
-        first = data["rows"][_key(size, "all", SPREADS[0])]["accuracy"]["mean"]
-        if first <= data["nominal"][size]["accuracy"] - 0.02:
-            return f"{100 * SPREADS[0]:g}% or less"
-        return f"more than {100 * SPREADS[-1]:g}%"
-
-    n = data["nominal"]["8x3"]["n"]
+    """The page's reading of the results, then how they were measured."""
     return [
         "## Reading the results", "",
-        f"- The 8x3 whole network loses 2 points of accuracy at a spread of {say('8x3')} "
-        f"(4x2: {say('4x2')}), interpolated on log spread between the measured spreads. "
+        _sizes_finding(data),
+        _stage_finding(stage_rows),
+        RUNAWAY,
+        "",
+        *_how_measured(data),
+    ]
+
+
+def _say(data: dict, size: str) -> str:
+    """The spread at which the size loses 2 points, in words."""
+    t = threshold(data, size)
+    if t:
+        return f"about {100 * t:.2g}%"
+    first = data["rows"][_key(size, "all", SPREADS[0])]["accuracy"]["mean"]
+    if first <= data["nominal"][size]["accuracy"] - 0.02:
+        return f"{100 * SPREADS[0]:g}% or less"
+    return f"more than {100 * SPREADS[-1]:g}%"
+
+
+def _sizes_finding(data: dict) -> str:
+    """Where each size loses 2 points, and how far its decisions move with spread."""
+    n = data["nominal"]["8x3"]["n"]
+    return (
+        f"- The 8x3 whole network loses 2 points of accuracy at a spread of {_say(data, '8x3')} "
+        f"(4x2: {_say(data, '4x2')}), interpolated on log spread between the measured spreads. "
         f"At the smallest spread ({SPREADS[0]:g} relative) the devices' mean is "
         f"{_change(data, '4x2')} (4x2) and {_change(data, '8x3')} points (8x3) from the "
         f"nominal design's, their decisions moving by {_error(_first(data, '4x2'))} and "
@@ -228,7 +266,14 @@ def _reading(data: dict, stage_rows: dict) -> list[str]:
         "a decision boundary. The decisions themselves move by 10% near "
         f"{_crossing(data, '8x3')} at 8x3 ({_crossing(data, '4x2')} at 4x2), interpolated "
         f"on log spread, and by more than their own size from {_beyond(data, '8x3')} on at "
-        f"8x3 ({_beyond(data, '4x2')} at 4x2).",
+        f"8x3 ({_beyond(data, '4x2')} at 4x2).")
+
+
+def _stage_finding(stage_rows: dict) -> str:
+    """The most sensitive stage, and why the heads' zero modes make it so."""
+    worst_stage = min(stage_rows, key=lambda st: (stage_rows[st]["accuracy"]["mean"],
+                                                  -_median_error(stage_rows[st])))
+    return (
         f"- The most sensitive stage is the {worst_stage} (lowest mean accuracy with "
         f"{100 * STAGE_SPREAD:g}% spread in that stage alone; the decision error orders "
         f"the stages: {_order(stage_rows)}). The classifier heads' matrix-vector "
@@ -241,13 +286,14 @@ def _reading(data: dict, stage_rows: dict) -> list[str]:
         "simulates the devices without judging the step and lets the clip show what the "
         "device does. Spreading the couplings alone makes the very devices of spreading "
         "every stage at this spread (a draw depends on the element, not on the stage "
-        "chosen), with the same decision error: the other stages add nothing measurable.",
-        "- The decision error grows in proportion to the spread while it is small (about "
-        "10x per decade) and from 0.01% on the readouts run away (errors of 1e3 and more): "
-        "the devices then decide at chance. A device the checks find statically unstable (its "
-        "stiffness at rest not positive semidefinite) or whose simulation diverges scores 0 "
-        "and is counted in the last column.",
-        "",
+        "chosen), with the same decision error: the other stages add nothing measurable.")
+
+
+def _how_measured(data: dict) -> list[str]:
+    """The date, the commands and models, the devices per point and the runs' resolution."""
+    seconds = sum(r["seconds"] for r in data["rows"].values())
+    n = data["nominal"]["8x3"]["n"]
+    return [
         "## How it was measured", "",
         f"- {data.get('date', '')} on a 2-core Intel Xeon shared with other work.",
         f"- `python scripts/results_spread.py --models MODELS --clips {data['clips']}` "
@@ -261,10 +307,7 @@ def _reading(data: dict, stage_rows: dict) -> list[str]:
         f"{DEVICES['4x2'][0]} at 4x2 and {DEVICES['8x3'][0]} at 8x3, from "
         f"{100 * FEW_FROM:g}% on (where every device decides at chance) "
         f"{DEVICES['4x2'][1]} and {DEVICES['8x3'][1]}.",
-        "- Device k multiplies every coefficient (masses, damping, stiffnesses, leverages, "
-        "monomial coefficients, input gains) by its own draw of gauss(1, S) in Monte Carlo "
-        "sample k, local mismatch (`--spread-kind local`); the draws are those of "
-        "`springc.lang.draws` at each element's instance path and key.",
+        DRAWS,
         f"- A point's devices run in the lanes of one kernel call, {dv.DEVICE_GROUP} at a "
         f"time (`springc.kws.evaluation.device.devices_batch`); {seconds / 60:.0f} min of "
         "simulation in all. The standard errors are those of "

@@ -98,25 +98,33 @@ def table(rows: dict[float, dict[str, float]]) -> str:
     return "\n".join(lines)
 
 
-def main() -> None:
+def _parser() -> argparse.ArgumentParser:
+    """The command line: the corpus, the model (default: stand-in heads), clips and output."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", type=Path, required=True)
     ap.add_argument("--model", type=Path)
     ap.add_argument("--clips", type=int, default=4)
     ap.add_argument("--out", type=Path, default=Path("stages-out"))
-    args = ap.parse_args()
+    return ap
+
+
+def _heads(model_path: Path | None, s: msp.MassSpringSettings) -> tuple:
+    """(settings, heads, models): a trained model's, or stand-in heads at `s` (models None)."""
+    if not model_path:
+        return s, tr.stand_in_heads(s), None
+    from springc.kws.training.model import load_model
+
+    model = load_model(model_path)
+    s, heads = tr.model_heads(model)
+    return s, heads, model.models
+
+
+def main() -> None:
+    args = _parser().parse_args()
     start = time.time()
     s = msp.MassSpringSettings(bins=8, delays=3)
     signals = first_command_clips(args.data, args.clips)
-    models = None
-    if args.model:
-        from springc.kws.training.model import load_model
-
-        model = load_model(args.model)
-        s, heads = tr.model_heads(model)
-        models = model.models
-    else:
-        heads = tr.stand_in_heads(s)
+    s, heads, models = _heads(args.model, s)
     # at eps -> 0 no stage depends on A (the readout and head squares are in units of c . Phi)
     ideal = run(s, heads, signals, EPS_IDEAL, 1.0, models)
     # A as training measures it: the median over the clips of the peak terminal displacement

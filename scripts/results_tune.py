@@ -86,6 +86,18 @@ def row(name: str, rep: dict, seconds: float) -> str:
 def write(args: argparse.Namespace, size: str, base: tuple, runs: list, load: tuple) -> None:
     """docs/results-tune.md: the table and each run's losses first, how it was measured after."""
     folder, rep0, train_s = base
+    lines = [*_results(rep0, train_s, runs), "", *_how_measured(args, size)]
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
+                            text=True).stdout.strip() or "unknown"
+    lines += ["", f"springc at {commit}. Machine: {os.cpu_count()} cores, load average "
+              f"{load[0]:.2f} before and "
+              f"{load[1]:.2f} after the runs; train wall time is NaN for a reused model "
+              f"({folder}).", "", HISTORY, ""]
+    args.out.write_text("\n".join(lines))
+
+
+def _results(rep0: dict, train_s: float, runs: list) -> list[str]:
+    """The table of the transferred and every tuned model, then each run's losses."""
     lines = [
         "# Results: `springc tune` against the SVM-transferred network",
         "",
@@ -101,8 +113,12 @@ def write(args: argparse.Namespace, size: str, base: tuple, runs: list, load: tu
               "epoch whose parameters the tuned folder keeps:", ""]
     for weight, rep in runs:
         lines.append(f"- il-weight {weight:g}: {tune_history_text(rep['tune'])}")
-    lines += [
-        "",
+    return lines
+
+
+def _how_measured(args: argparse.Namespace, size: str) -> list[str]:
+    """The command, the corpus and split, and the tuning's options."""
+    return [
         "## How it was measured",
         "",
         "Regenerate with `python scripts/results_tune.py --data DIR --work DIR` (its docstring "
@@ -116,13 +132,6 @@ def write(args: argparse.Namespace, size: str, base: tuple, runs: list, load: tu
         "every model is evaluated as `springc eval` does (the whole network, the model's "
         "own integration). Groups tuned: filter, compression, couplings, readout (intercepts).",
     ]
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                            text=True).stdout.strip() or "unknown"
-    lines += ["", f"springc at {commit}. Machine: {os.cpu_count()} cores, load average "
-              f"{load[0]:.2f} before and "
-              f"{load[1]:.2f} after the runs; train wall time is NaN for a reused model "
-              f"({folder}).", "", HISTORY, ""]
-    args.out.write_text("\n".join(lines))
 
 
 def main() -> None:

@@ -38,6 +38,34 @@ LIST_FILES = ("validation_list.txt", "testing_list.txt")
 NOTES = "<!-- notes below are kept by scripts/results_voices.py -->"
 ROOT = Path(__file__).resolve().parents[1]
 
+# How the leave-one-engine-out runs are made and read, and the speakers flite and festival
+# share (the page's "How it was measured", after the command).
+METHOD = [
+    "The built-in corpus speaks with three engines: espeak-ng (formant synthesis, 8 English "
+    "accents x its voice variants), flite (kal16, awb, rms, slt) and festival "
+    "(kal_diphone, ked_diphone, slt HTS). For each engine E an 8x3 model is trained on a "
+    "corpus of the other two (`springc data synth DIR --engines ...`; the 12-class task, "
+    "class-balanced held-out splits) and tested on its own test split (speakers it did "
+    "not train on, engines it did) and on corpora of E alone whose split lists were "
+    "removed, so that `springc eval MODEL --data DIR_E` tests on every clip of them "
+    "(`--draws` of them, each synthesised with a seed of its own: one draw of 211 test "
+    "clips moved festival's left-out accuracy by 10 points against another, far more "
+    "than its binomial error). The left-out accuracy is the mean over the draws; the "
+    "gap is own-test minus left-out-engine accuracy, in points; its mean over the three "
+    "engines is the measure. Accuracies in percent, test clips in brackets (all draws "
+    "together, then the range of the draws' accuracies). A mass-spring "
+    "model is tested by its simulated features and the ideal readout c.Phi (its training "
+    "report's own-test accuracy; the corpus of E read as `springc eval` reads it), not "
+    "by simulating its whole classifier network, which reproduces c.Phi and would take "
+    "several times longer.",
+    "",
+    "**flite and festival share speakers**: kal (flite kal16, festival kal_diphone) and "
+    "slt (flite slt, festival cmu_us_slt_arctic_hts) are the same recorded people. "
+    "Leaving flite out still trains on festival's kal and slt, and leaving festival out "
+    "on flite's, so those two rows test an unheard engine, not wholly unheard speakers. "
+    "Leaving espeak out trains on the 5 recorded speakers alone.",
+]
+
 
 def springc(args: list[str]) -> str:
     """Run `springc ARGS` and return its standard output (a failure stops the script;
@@ -242,29 +270,7 @@ def markdown(r: dict, before: dict | None, notes: str) -> str:
         + (" --fixed-tests /tmp/voices/before" if fixed_tests(r) else "")
         + (" --before docs/results-voices-before.json" if before else "") + "`.",
         "",
-        "The built-in corpus speaks with three engines: espeak-ng (formant synthesis, 8 English "
-        "accents x its voice variants), flite (kal16, awb, rms, slt) and festival "
-        "(kal_diphone, ked_diphone, slt HTS). For each engine E an 8x3 model is trained on a "
-        "corpus of the other two (`springc data synth DIR --engines ...`; the 12-class task, "
-        "class-balanced held-out splits) and tested on its own test split (speakers it did "
-        "not train on, engines it did) and on corpora of E alone whose split lists were "
-        "removed, so that `springc eval MODEL --data DIR_E` tests on every clip of them "
-        "(`--draws` of them, each synthesised with a seed of its own: one draw of 211 test "
-        "clips moved festival's left-out accuracy by 10 points against another, far more "
-        "than its binomial error). The left-out accuracy is the mean over the draws; the "
-        "gap is own-test minus left-out-engine accuracy, in points; its mean over the three "
-        "engines is the measure. Accuracies in percent, test clips in brackets (all draws "
-        "together, then the range of the draws' accuracies). A mass-spring "
-        "model is tested by its simulated features and the ideal readout c.Phi (its training "
-        "report's own-test accuracy; the corpus of E read as `springc eval` reads it), not "
-        "by simulating its whole classifier network, which reproduces c.Phi and would take "
-        "several times longer.",
-        "",
-        "**flite and festival share speakers**: kal (flite kal16, festival kal_diphone) and "
-        "slt (flite slt, festival cmu_us_slt_arctic_hts) are the same recorded people. "
-        "Leaving flite out still trains on festival's kal and slt, and leaving festival out "
-        "on flite's, so those two rows test an unheard engine, not wholly unheard speakers. "
-        "Leaving espeak out trains on the 5 recorded speakers alone.",
+        *METHOD,
         "",
     ]
     return "\n".join(lines) + "\n" + NOTES + "\n" + notes

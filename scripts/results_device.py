@@ -215,52 +215,49 @@ def _stiffness_row(folder: Path, size: str, factor: float, args) -> dict:
             "seconds": time.perf_counter() - start}
 
 
-def main() -> None:
+def page(args) -> None:
+    """The page from DIR's results.json (and cv.json, stiffness.json where they are)."""
+    from springc.kws.evaluation.device_page import write_page
+
+    out = Path(args.out)
+    extra = {name: json.loads((out / f"{name}.json").read_text())
+             for name in ("cv", "stiffness") if (out / f"{name}.json").exists()}
+    write_page(json.loads((out / "results.json").read_text()), Path(args.md), **extra)
+
+
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
     r = sub.add_parser("run")
-    r.add_argument("--data", required=True)
-    r.add_argument("--out", required=True)
     r.add_argument("--sizes", nargs="+", default=["4x2", "8x3"])
     r.add_argument("--spreads", nargs="+", type=float, default=list(SPREADS))
     r.add_argument("--masses", nargs="+", type=float, default=list(MASSES))
-    r.add_argument("--devices", type=int, default=4)
-    r.add_argument("--clips", type=int, default=48)
-    r.add_argument("--budget", type=int, default=8)
     r.add_argument("--leave-out", choices=ENGINES, default="flite")
     r.add_argument("--voice-clips", type=int, default=1600)
     c = sub.add_parser("cv")
-    c.add_argument("--data", required=True)
-    c.add_argument("--out", required=True)
     c.add_argument("--folds", type=int, default=3)
-    c.add_argument("--devices", type=int, default=4)
-    c.add_argument("--clips", type=int, default=48)
+    for studied in (r, c):
+        studied.add_argument("--devices", type=int, default=4)
+        studied.add_argument("--clips", type=int, default=48)
     st = sub.add_parser("stiffness")
-    st.add_argument("--data", required=True)
-    st.add_argument("--out", required=True)
     st.add_argument("--sizes", nargs="+", default=["4x2", "8x3"])
     st.add_argument("--factors", nargs="+", type=float, default=[1.0, 10.0, 100.0, 1000.0])
-    st.add_argument("--epsilon", type=float, default=None)
-    st.add_argument("--threshold", type=float, default=None)
-    st.add_argument("--squarer-range", type=float, default=None)
-    st.add_argument("--budget", type=int, default=8)
+    for name in ("--epsilon", "--threshold", "--squarer-range"):
+        st.add_argument(name, type=float, default=None)
+    for trained in (r, c, st):
+        trained.add_argument("--data", required=True)
+    for budgeted in (r, st):
+        budgeted.add_argument("--budget", type=int, default=8)
     p = sub.add_parser("page")
-    p.add_argument("--out", required=True)
     p.add_argument("--md", default="docs/results-device.md")
-    args = parser.parse_args()
-    if args.command == "run":
-        run(args)
-    elif args.command == "cv":
-        cv(args)
-    elif args.command == "stiffness":
-        stiffness(args)
-    else:
-        from springc.kws.evaluation.device_page import write_page
+    for each in (r, c, st, p):
+        each.add_argument("--out", required=True)
+    return parser
 
-        out = Path(args.out)
-        extra = {name: json.loads((out / f"{name}.json").read_text())
-                 for name in ("cv", "stiffness") if (out / f"{name}.json").exists()}
-        write_page(json.loads((out / "results.json").read_text()), Path(args.md), **extra)
+
+def main() -> None:
+    args = _parser().parse_args()
+    {"run": run, "cv": cv, "stiffness": stiffness, "page": page}[args.command](args)
 
 
 if __name__ == "__main__":

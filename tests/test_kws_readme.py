@@ -100,3 +100,23 @@ def test_a_model_without_test_results_says_so(env, tmp_path):
     assert "Not evaluated on the test split" in section(text, "Accuracy on the test split")
     assert sorted(p.name for p in out.iterdir()) == ["README.md", "report.json",
                                                     "settings.json", "weights.npz"]
+
+
+def test_stage_stiffness_and_squarer_range_have_their_options():
+    """A mass-spring model trained with `--squarer-range 1 --stage-stiffness 100` prints
+    both options, and nothing beside the command; klp alone changed is no stage stiffness
+    and is named beside it instead."""
+    from dataclasses import replace
+
+    from springc.kws.features import massspring as msp
+
+    base = msp.from_features(FeatureSettings(bins=4, delays=2), squarer_range=1.0)
+    settings = {"realisation": "mass-spring", "task": "kws12", "transfer": {"epsilon": 1e-5},
+                "features": msp.stage_scaled(base, 100.0).to_dict()}
+    args, missing = train_arguments(settings)
+    assert " ".join(args).endswith("--threshold 0.001 --squarer-range 1 "
+                                   "--stage-stiffness 100 --epsilon 1e-05 --paper-steps")
+    assert missing == {}
+    settings["features"] = replace(base, klp=1000.0).to_dict()
+    args, missing = train_arguments(settings)
+    assert "--stage-stiffness" not in args and missing == {"klp": 1000.0}

@@ -202,17 +202,28 @@ def train_arguments(settings: dict) -> tuple[list[str], dict]:
 
 def _massspring_arguments(settings: dict, f: dict, size: dict,
                           args: list[str]) -> tuple[list[str], dict]:
-    """The mass-spring options: threshold, epsilon, and how the integration was set."""
-    from springc.kws.features.massspring import from_features
+    """The mass-spring options: threshold, squarer range, stage stiffness, epsilon, and how
+    the integration was set."""
+    from springc.kws.features.massspring import SQUARER_RANGE, from_features, stage_scaled
     from springc.kws.features.digital import FeatureSettings
 
-    args += ["--threshold", f"{f['threshold']:g}",
-             "--epsilon", f"{settings['transfer']['epsilon']:g}"]
+    squarer_range = f.get("squarer_range", SQUARER_RANGE)
+    given = from_features(FeatureSettings(**size), threshold=f["threshold"],
+                          squarer_range=squarer_range)
+    # `stage_scaled` multiplies klp, g, kq and kc alike; other changes are named
+    ratios = [f[name] / getattr(given, name) for name in ("klp", "g", "kq", "kc")]
+    factor = ratios[0] if max(ratios) - min(ratios) <= 1e-12 * ratios[0] else 1.0
+    args += ["--threshold", f"{f['threshold']:g}"]
+    if squarer_range != SQUARER_RANGE:
+        args += ["--squarer-range", f"{squarer_range:g}"]
+    if factor != 1:
+        args += ["--stage-stiffness", f"{factor:g}"]
+        given = stage_scaled(given, factor)
+    args += ["--epsilon", f"{settings['transfer']['epsilon']:g}"]
     tolerance = settings.get("integration", {}).get("features", {}).get("tolerance")
     args += ["--paper-steps"] if tolerance is None else ["--tolerance", f"{tolerance:g}"]
-    given = from_features(FeatureSettings(**size), threshold=f["threshold"]).to_dict()
     chosen = ("method", "substeps")  # chosen by the integration, not given
-    return args, {k: v for k, v in _differences(f, given).items() if k not in chosen}
+    return args, {k: v for k, v in _differences(f, given.to_dict()).items() if k not in chosen}
 
 
 def _differences(stored: dict, given: dict) -> dict:

@@ -7,6 +7,7 @@ thermal noise at physical scale, and the energy budget against the 53 dB a decis
     python scripts/results_device.py cv --data CORPUS --out DIR [--folds 3]
     python scripts/results_device.py stiffness --data CORPUS --out DIR [--factors 1 10 100]
         [--sizes 4x2] [--epsilon EPS] [--threshold A_C] [--squarer-range R]
+        [--masses KG ...] [--spreads S ...]
 
 `run` trains both designs per size on CORPUS (skipped where DIR holds the model), and
 through `springc.evaluate` measures the whole network's accuracy on the test split, the
@@ -21,7 +22,8 @@ markdown and the plot. `cv` cross-validates the 8x3 designs over speakers: per f
 evaluated on the fold's test split, the summing design's devices at a 1e-3 spread too
 (DIR/cv.json, and a table printed). `stiffness` trains the device design at each stage
 stiffness of --factors (`springc train --stage-stiffness`; heads at --epsilon, compression
-from --threshold, squarers of --squarer-range) and records its accuracy and budget
+from --threshold, squarers of --squarer-range) and records its accuracy and budget, and
+where asked its thermal noise at --masses and its population at --spreads
 (DIR/stiffness.json).
 """
 
@@ -187,12 +189,22 @@ def stiffness(args) -> None:
             tag = (f"{size}-stiffness{factor:g}" + (f"-eps{args.epsilon:g}" if args.epsilon else "")
                    + (f"-threshold{args.threshold:g}" if args.threshold else "")
                    + (f"-range{args.squarer_range:g}" if args.squarer_range else ""))
+            folder = out / "models" / f"device-{tag}"
             if tag not in results:
-                results[tag] = _stiffness_row(out / "models" / f"device-{tag}", size, factor,
-                                              args)
-                path.write_text(json.dumps(results, indent=1))
-                print(tag, results[tag]["accuracy"], flush=True)
+                results[tag] = _stiffness_row(folder, size, factor, args)
+            _stiffness_studies(results[tag], folder, args)
+            path.write_text(json.dumps(results, indent=1))
+            print(tag, results[tag]["accuracy"], flush=True)
     print("\n".join(stiffness_rows(results)))
+
+
+def _stiffness_studies(row: dict, folder: Path, args) -> None:
+    """The noise study at --masses and the population at --spreads, where asked and not
+    yet in `row`."""
+    if args.masses and "noise" not in row:
+        row["noise"] = [_noise(folder, mass, args) for mass in args.masses]
+    if args.spreads and "spread" not in row:
+        row["spread"] = [_spread(folder, spread, args) for spread in args.spreads]
 
 
 def _stiffness_row(folder: Path, size: str, factor: float, args) -> dict:
@@ -228,27 +240,24 @@ def page(args) -> None:
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    r = sub.add_parser("run")
-    r.add_argument("--sizes", nargs="+", default=["4x2", "8x3"])
+    r, c, st, p = (sub.add_parser(name) for name in ("run", "cv", "stiffness", "page"))
     r.add_argument("--spreads", nargs="+", type=float, default=list(SPREADS))
     r.add_argument("--masses", nargs="+", type=float, default=list(MASSES))
     r.add_argument("--leave-out", choices=ENGINES, default="flite")
     r.add_argument("--voice-clips", type=int, default=1600)
-    c = sub.add_parser("cv")
     c.add_argument("--folds", type=int, default=3)
-    for studied in (r, c):
-        studied.add_argument("--devices", type=int, default=4)
-        studied.add_argument("--clips", type=int, default=48)
-    st = sub.add_parser("stiffness")
-    st.add_argument("--sizes", nargs="+", default=["4x2", "8x3"])
     st.add_argument("--factors", nargs="+", type=float, default=[1.0, 10.0, 100.0, 1000.0])
     for name in ("--epsilon", "--threshold", "--squarer-range"):
         st.add_argument(name, type=float, default=None)
-    for trained in (r, c, st):
-        trained.add_argument("--data", required=True)
-    for budgeted in (r, st):
-        budgeted.add_argument("--budget", type=int, default=8)
-    p = sub.add_parser("page")
+    for name in ("--masses", "--spreads"):
+        st.add_argument(name, nargs="+", type=float, default=[])
+    for sized in (r, st):
+        sized.add_argument("--sizes", nargs="+", default=["4x2", "8x3"])
+        sized.add_argument("--budget", type=int, default=8)
+    for studied in (r, c, st):
+        studied.add_argument("--data", required=True)
+        studied.add_argument("--devices", type=int, default=4)
+        studied.add_argument("--clips", type=int, default=48)
     p.add_argument("--md", default="docs/results-device.md")
     for each in (r, c, st, p):
         each.add_argument("--out", required=True)

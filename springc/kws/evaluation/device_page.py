@@ -165,13 +165,16 @@ def reading(md: Path) -> str:
     return text[start:end].rstrip() + "\n" if start >= 0 and end > start else ""
 
 
-def cv_rows(cv: dict, designs: tuple[str, ...] = ("zero-mode", "summing")) -> list[str]:
+def cv_rows(cv: dict, designs: tuple[str, ...] | None = None) -> list[str]:
     """The speaker-fold table (`results_device.py cv`'s "fold{k} {design}" rows): per design
-    each fold's accuracy and test clips, the clip-weighted mean with the standard error of
+    (by default every one measured, zero-mode first) each fold's accuracy and test clips, the clip-weighted mean with the standard error of
     the folds' mean, the paired change against the first design over the same clips, and
     the summing devices at their spread (mean of the folds' device means, beside their
     nominal on the same clips), in %."""
     folds = sorted({key.split()[0] for key in cv})
+    if designs is None:  # as measured, zero-mode (the paper's) first
+        designs = tuple(sorted({key.split(" ", 1)[1] for key in cv},
+                               key=lambda d: (d != "zero-mode", d)))
     head = ["| design | " + " | ".join(f"{f} % (clips)" for f in folds)
             + " | mean % | change vs " + designs[0] + " | devices at 1e-3 % (nominal %) |",
             "|---" * (len(folds) + 4) + "|"]

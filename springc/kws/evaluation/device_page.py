@@ -167,10 +167,10 @@ def reading(md: Path) -> str:
 
 def cv_rows(cv: dict, designs: tuple[str, ...] | None = None) -> list[str]:
     """The speaker-fold table (`results_device.py cv`'s "fold{k} {design}" rows): per design
-    (by default every one measured, zero-mode first) each fold's accuracy and test clips, the clip-weighted mean with the standard error of
-    the folds' mean, the paired change against the first design over the same clips, and
-    the summing devices at their spread (mean of the folds' device means, beside their
-    nominal on the same clips), in %."""
+    (by default every one measured, zero-mode first) each fold's accuracy and test clips, the
+    clip-weighted mean with the standard error of the folds' mean, the paired change against
+    the first design over the same clips, and the summing devices at their spread (mean of
+    the folds' device means, beside their nominal on the same clips), in %."""
     folds = sorted({key.split()[0] for key in cv})
     if designs is None:  # as measured, zero-mode (the paper's) first
         designs = tuple(sorted({key.split(" ", 1)[1] for key in cv},

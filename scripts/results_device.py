@@ -8,6 +8,7 @@ thermal noise at physical scale, and the energy budget against the 53 dB a decis
     python scripts/results_device.py stiffness --data CORPUS --out DIR [--factors 1 10 100]
         [--sizes 4x2] [--epsilon EPS] [--threshold A_C] [--squarer-range R]
         [--masses KG ...] [--spreads S ...]
+    python scripts/results_device.py stiffness-page
 
 `run` trains both designs per size on CORPUS (skipped where DIR holds the model), and
 through `springc.evaluate` measures the whole network's accuracy on the test split, the
@@ -24,8 +25,9 @@ evaluated on the fold's test split, the summing design's devices at a 1e-3 sprea
 the stiffness study's levers. `stiffness` trains the device design at each stage
 stiffness of --factors (`springc train --stage-stiffness`; heads at --epsilon, compression
 from --threshold, squarers of --squarer-range) and records its accuracy and budget, and
-where asked its thermal noise at --masses and its population at --spreads
-(DIR/stiffness.json).
+where asked its thermal noise at --masses and its population at --spreads (the models in
+DIR/models, the rows in --store, docs/results-stiffness.json, then docs/results-stiffness.md
+written from them; `stiffness-page` writes that page alone from the stored rows).
 """
 
 from __future__ import annotations
@@ -186,11 +188,10 @@ def _fold_row(view: Path, folder: Path, options: dict, args) -> dict:
 
 def stiffness(args) -> None:
     """The device design at each stage stiffness (`springc train --stage-stiffness`): its
-    whole network's accuracy and its budget, per size, into DIR/stiffness.json."""
-    from springc.kws.evaluation.device_page import stiffness_rows
+    whole network's accuracy and its budget, per size, into --store, then the page."""
+    from springc.kws.evaluation.stiffness_page import stiffness_rows
 
-    out = Path(args.out)
-    path = out / "stiffness.json"
+    out, path = Path(args.out), Path(args.store)
     results = json.loads(path.read_text()) if path.exists() else {}
     for size in args.sizes:
         for factor in args.factors:
@@ -204,6 +205,14 @@ def stiffness(args) -> None:
             path.write_text(json.dumps(results, indent=1))
             print(tag, results[tag]["accuracy"], flush=True)
     print("\n".join(stiffness_rows(results)))
+    stiffness_page(args)
+
+
+def stiffness_page(args) -> None:
+    """docs/results-stiffness.md (--md) from the stored rows (--store)."""
+    from springc.kws.evaluation.stiffness_page import write_page
+
+    write_page(json.loads(Path(args.store).read_text()), Path(args.md))
 
 
 def _stiffness_studies(row: dict, folder: Path, args) -> None:
@@ -236,19 +245,20 @@ def _stiffness_row(folder: Path, size: str, factor: float, args) -> dict:
 
 
 def page(args) -> None:
-    """The page from DIR's results.json (and cv.json, stiffness.json where they are)."""
+    """The page from DIR's results.json (and cv.json where it is)."""
     from springc.kws.evaluation.device_page import write_page
 
     out = Path(args.out)
-    extra = {name: json.loads((out / f"{name}.json").read_text())
-             for name in ("cv", "stiffness") if (out / f"{name}.json").exists()}
-    write_page(json.loads((out / "results.json").read_text()), Path(args.md), **extra)
+    cv_json = out / "cv.json"
+    write_page(json.loads((out / "results.json").read_text()), Path(args.md),
+               cv=json.loads(cv_json.read_text()) if cv_json.exists() else None)
 
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    r, c, st, p = (sub.add_parser(name) for name in ("run", "cv", "stiffness", "page"))
+    r, c, st, p, sp = (sub.add_parser(name)
+                       for name in ("run", "cv", "stiffness", "page", "stiffness-page"))
     r.add_argument("--spreads", nargs="+", type=float, default=list(SPREADS))
     r.add_argument("--masses", nargs="+", type=float, default=list(MASSES))
     r.add_argument("--leave-out", choices=ENGINES, default="flite")
@@ -269,6 +279,9 @@ def _parser() -> argparse.ArgumentParser:
         studied.add_argument("--devices", type=int, default=4)
         studied.add_argument("--clips", type=int, default=48)
     p.add_argument("--md", default="docs/results-device.md")
+    for stored in (st, sp):
+        stored.add_argument("--store", default="docs/results-stiffness.json")
+        stored.add_argument("--md", default="docs/results-stiffness.md")
     for each in (r, c, st, p):
         each.add_argument("--out", required=True)
     return parser
@@ -276,7 +289,8 @@ def _parser() -> argparse.ArgumentParser:
 
 def main() -> None:
     args = _parser().parse_args()
-    {"run": run, "cv": cv, "stiffness": stiffness, "page": page}[args.command](args)
+    {"run": run, "cv": cv, "stiffness": stiffness, "page": page,
+     "stiffness-page": stiffness_page}[args.command](args)
 
 
 if __name__ == "__main__":

@@ -154,14 +154,14 @@ READING = "## Reading the results"
 TABLES = "## Accuracy of the whole network"
 
 
-def reading(md: Path) -> str:
+def reading(md: Path, tables: str = TABLES) -> str:
     """The page's own reading of its results (written by a person, kept when the tables are
-    regenerated): the text from READING up to the first table's heading, or ''."""
+    regenerated): the text from READING up to the first table's heading `tables`, or ''."""
     if not md.exists():
         return ""
     text = md.read_text()
     start = text.find(READING)
-    end = text.find(TABLES, start)
+    end = text.find(tables, start)
     return text[start:end].rstrip() + "\n" if start >= 0 and end > start else ""
 
 
@@ -198,83 +198,6 @@ def cv_rows(cv: dict, designs: tuple[str, ...] | None = None) -> list[str]:
     return head + out
 
 
-STIFFNESS_STAGES = ("low-pass masses", "compressors", "terminals", "mvm heads", "readouts")
-
-
-def stiffness_rows(st: dict) -> list[str]:
-    """The stage-stiffness table (`results_device.py stiffness`'s rows): per size, factor,
-    squarer range, heads' eps and compression threshold, the whole network's accuracy and
-    each later stage's energy in dB of the sound, with the readouts' k_B T."""
-    head = ["| size | stage stiffness | squarer range R (m) | heads' eps | threshold A_c (m) "
-            "| network % (clips) | "
-            + " | ".join(f"{stage} dB" for stage in STIFFNESS_STAGES) + " | readouts k_B T |",
-            "|---" * (len(STIFFNESS_STAGES) + 7) + "|"]
-    rows = []
-    for r in st.values():
-        stages = r["budget"]["stages"]
-        rows.append(f"| {r['size']} | {r['factor']:g} | {r['squarer_range']:g} | "
-                    f"{r['epsilon']:g} | {r['threshold']:g} | "
-                    f"{100 * r['accuracy']:.1f} ({r['n']}) | "
-                    + " | ".join(f"{stages[name]['db_of_sound']:.1f}"
-                                 for name in STIFFNESS_STAGES)
-                    + f" | {stages['readouts']['kt']:.2g} |")
-    return head + rows
-
-
-def stiffness_study_rows(st: dict) -> list[str]:
-    """The stiffness study's models that were also measured with thermal noise (300 K, 60
-    dB SPL, 1 mm^2) and as fabricated populations: per model and device mass the accuracy
-    beside its noiseless one, per spread the mean device beside the nominal design."""
-    rows = ["| design | study | accuracy % | without it % |", "|---|---|---|---|"]
-    for r in st.values():
-        name = (f"{r['size']}, S {r['factor']:g}, R {r['squarer_range']:g}, "
-                f"eps {r['epsilon']:g}")
-        rows += [f"| {name} | noise at {p['device_mass']:g} kg | {100 * p['accuracy']:.1f} | "
-                 f"{100 * p['noiseless']:.1f} |" for p in r.get("noise", [])]
-        rows += [f"| {name} | spread {p['spread']:g}, mean device | "
-                 f"{100 * p['mean']:.1f} +- {100 * p['stderr']:.1f} | "
-                 f"{100 * p['nominal']:.1f} |" for p in r.get("spread", [])]
-    return rows if len(rows) > 2 else []
-
-
-def _line(r: dict) -> tuple:
-    """What a line of the stiffness plot holds fixed."""
-    return r["size"], r["squarer_range"], r["epsilon"], r["threshold"]
-
-
-def plot_stiffness(st: dict, path: Path) -> None:
-    """Per size, squarer range, heads' eps and threshold against the stage stiffness: the
-    readouts' energy (dB of the sound, with the bound a decision may lose) and the whole
-    network's accuracy."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (energy, acc) = plt.subplots(1, 2, figsize=(11, 4))
-    for key in dict.fromkeys(_line(r) for r in st.values()):
-        rows = [r for r in st.values() if _line(r) == key]
-        factors = [r["factor"] for r in rows]
-        name = f"{key[0]} R {key[1]:g} eps {key[2]:g} A_c {key[3]:g}"
-        energy.plot(factors, [r["budget"]["stages"]["readouts"]["db_of_sound"] for r in rows],
-                    marker="o", label=f"{name}: readouts")
-        acc.plot(factors, [100 * r["accuracy"] for r in rows], marker="o", label=name)
-    bound = next(iter(st.values()))["budget"]["bound_db"]
-    energy.axhline(-bound, color="black", lw=0.8)
-    energy.text(1, -bound, f" -{bound:.1f} dB: what a decision may lose", fontsize="small",
-                va="bottom")
-    energy.set_ylabel("energy (dB of the sound, median clip)")
-    acc.set_ylabel("test accuracy (%)")
-    acc.axhline(100 / 12, color="grey", lw=0.8, ls=":")
-    for ax in (energy, acc):
-        ax.set_xscale("log")
-        ax.set_xlabel("stage stiffness (springc train --stage-stiffness)")
-        ax.legend(fontsize="x-small")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
 def _mean(values: list[float]) -> float:
     return sum(values) / len(values)
 
@@ -287,11 +210,10 @@ def _fold_mean(values: list[float], weights: list[int]) -> tuple[float, float]:
 
 
 def write_page(results: dict, md: Path, intro: str | None = None,
-               cv: dict | None = None, stiffness: dict | None = None) -> Path:
+               cv: dict | None = None) -> Path:
     """The page (tables in the order of `results`) and its plot beside it; `intro` (by
     default the page's present reading section) goes between the plot and the tables;
-    `cv`, the speaker folds (`cv_rows`), after the first table; `stiffness`, the stage
-    stiffness study (`stiffness_rows`, and its plot), after the budget."""
+    `cv`, the speaker folds (`cv_rows`), after the first table."""
     intro = reading(md) if intro is None else intro
     unheard = results.get("unheard")
     results = {k: v for k, v in results.items() if k != "unheard"}
@@ -304,7 +226,6 @@ def write_page(results: dict, md: Path, intro: str | None = None,
              "## Against device mass, with thermal noise", "", *noise_rows(results), "",
              "## Where the energy goes, at 2e-9 kg, 60 dB SPL, 1 mm^2, 300 K", "",
              *budget_rows(results), "",
-             *(_stiffness_section(stiffness, md) if stiffness else []),
              f"## Thresholds: where {100 * LOSS:g} points are lost", "",
              *threshold_rows(results), "",
              *(["## eps 1 against 1e-6 on voices no model heard", "",
@@ -312,12 +233,3 @@ def write_page(results: dict, md: Path, intro: str | None = None,
              f"Regenerated by `{COMMAND}`."]
     md.write_text("\n".join(lines) + "\n")
     return md
-
-
-def _stiffness_section(st: dict, md: Path) -> list[str]:
-    png = md.with_name(md.stem + "-stiffness.png")
-    plot_stiffness(st, png)
-    studies = stiffness_study_rows(st)
-    return ["## Against the stage stiffness, at 2e-9 kg, 60 dB SPL, 1 mm^2, 300 K", "",
-            f"![stage stiffness]({png.name})", "", *stiffness_rows(st), "",
-            *([*studies, ""] if studies else [])]

@@ -102,6 +102,29 @@ def test_failing_point_is_named_as_alone() -> None:
     assert message.endswith(f"at {first[0].describe(var.count)}")
 
 
+def test_stability_of_many_equals_each_alone() -> None:
+    """`require_stable_many` (one vectorised pass for a method the check did not compute)
+    refuses exactly the points that refuse alone, with the same message, at a step between
+    the smallest and largest of their own limits."""
+    from springc.check.checks import require_stable_many
+
+    var = _variation(DIRECT)
+    points = check_points(var.point_set(), "rk4")
+    alone = [check(var.netlist(point), "rk4") for point in points.points]
+    limits = [a.step_limit("ssprk3").dt for a in alone]
+    h = float(np.median(limits))
+    assert min(limits) < h < max(limits)
+    got = require_stable_many(list(points.checked), "ssprk3", h, 1)
+    for member, err in zip(alone, got):
+        try:
+            member.require_stable("ssprk3", h, 1)
+            expected = None
+        except CheckError as own:
+            expected = own.diagnostics[0].message
+        assert (err.diagnostics[0].message if err else None) == expected
+    assert sum(err is not None for err in got) == sum(dt < h for dt in limits) > 0
+
+
 def test_large_components_checked_together_as_alone() -> None:
     # 320 masses: above linear.DENSE_MAX, so the Lanczos runs of the samples go in lockstep
     from springc.bench.population import population_text

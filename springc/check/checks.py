@@ -86,6 +86,27 @@ class CheckedNetlist(CheckResult):
             raise CheckError([_unstable(self.net, method, h, substeps, limit)])
 
 
+def require_stable_many(members: list[CheckedNetlist], method: str, h: float,
+                        substeps: int) -> list[CheckError | None]:
+    """`require_stable` of every member, each result its `CheckError` or None: the limits
+    of a Runge-Kutta `method` not yet known are computed for all members in one vectorised
+    pass (`linear.step_limits`, each the same as alone), which is what keeps a population
+    of 10^4 points' checks at a fraction of its simulation."""
+    if not expint.is_split(method):
+        todo = [m for m in members if m.modes is not None and method not in m.limits
+                and not (method == m.method and m.step is not None)]
+        for member, limit in zip(todo, linear.step_limits([m.modes for m in todo], method)):
+            member.limits[method] = limit
+    found: list[CheckError | None] = []
+    for member in members:
+        try:
+            member.require_stable(method, h, substeps)
+            found.append(None)
+        except CheckError as err:
+            found.append(err)
+    return found
+
+
 def check(net: FlatNetlist, method: str | None = None, *, tstep: float | None = None,
           substeps: int | None = None, judge_step: bool | None = None) -> CheckedNetlist:
     """Run every check; raise `CheckError` with all error diagnostics if there is any, else

@@ -25,7 +25,7 @@ from springc.sim.reductions import plan as reductions_plan
 from springc.sim.timegrid import Settings, settings
 from springc.sim.audio import resample
 from springc.errors import CheckError, UsageError
-from springc.check.checks import CheckedNetlist, require_checked
+from springc.check.checks import CheckedNetlist, require_checked, require_stable_many
 from springc.lang.ir import FlatNetlist, Probe
 
 DEFAULT_BATCH = 256  # runs per kernel call (one progress-bar tick)
@@ -269,14 +269,13 @@ def _kernel(plan: RunPlan, knet: FlatNetlist, coeffs: dict, lanes: Lanes | None,
 def _require_stable(group: list[CheckedNetlist], labels: list[str] | None,
                     st: Settings) -> None:
     """Every netlist's step within its stability limit; a member's error names its label."""
-    for k, member in enumerate(group):
-        try:
-            member.require_stable(st.method, st.h, st.substeps)
-        except CheckError as err:
-            if labels is None:
-                raise
-            raise CheckError([replace(d, message=f"{d.message} at {labels[k]}")
-                              for d in err.diagnostics]) from None
+    for k, err in enumerate(require_stable_many(group, st.method, st.h, st.substeps)):
+        if err is None:
+            continue
+        if labels is None:
+            raise err
+        raise CheckError([replace(d, message=f"{d.message} at {labels[k]}")
+                          for d in err.diagnostics]) from None
 
 
 def _lanes_serve(net: FlatNetlist, rplan, dev: str) -> None:

@@ -113,6 +113,21 @@ GRAM = "gram:0.5:x,y"
 DASHPOTS_SPECS = ["work:in", "dissipated:all", "dissipated:B1", "loss:all", "final:v(y)"]
 
 
+# the network whose finite-difference test below covers each term kind of the kernels
+KIND_NETS = {"quad": LEVER, "duffing": DUFFING, "dashpot": DASHPOTS, "common": DUFFING}
+
+
+def test_every_term_kind_has_a_gradient_test():
+    """A kind added to `terms.KINDS` fails here until a network with it is checked against
+    finite differences (the adjoint spells each kind's force by hand)."""
+    from springc.kernels import codegen, lower, terms
+
+    assert set(KIND_NETS) == {kind.name for kind in terms.KINDS}
+    for kind in terms.KINDS:
+        net = check(ParamNetlist.from_text(KIND_NETS[kind.name]).netlist()).net
+        assert getattr(codegen.features(lower.kernel_netlist(net)), kind.feature), kind.name
+
+
 def test_duffing_matches_finite_differences():
     assert_matches_fd(DUFFING, DUFFING_SPECS, ["w0", "l0", "bb", "amp", "xs", "mass"])
 

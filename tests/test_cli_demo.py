@@ -18,20 +18,22 @@ def _kernel_cache(monkeypatch):
     monkeypatch.setenv("SPRINGC_CACHE", str(KERNELS))
 
 
-def test_demo_trains_both_realisations_and_simulates_the_network(tmp_path):
+def test_demo_trains_every_realisation_and_simulates_the_networks(tmp_path):
     data = make_corpus(tmp_path / "data", per_speaker=2)
     out = tmp_path / "demo"
     res = CliRunner().invoke(main, ["demo", "--out", str(out), "--data", str(data), "--bins",
                                     "2", "--delays", "2", "--jobs", "1"])
     assert res.exit_code == 0, res.output
     assert "mass-spring network (simulated end to end)" in res.output
+    assert "device network, summing heads (end to end)" in res.output
     assert "time per stage:" in res.output
     summary = json.loads((out / "summary.json").read_text())
-    assert len(summary["accuracy"]) == 3
+    assert len(summary["accuracy"]) == 4
     assert all(0.0 <= a <= 1.0 for a in summary["accuracy"].values())
     for name in ("accuracy.png", "features.png", "confusion-network.png",
                  "model-mass-spring/classifier.spr", "model-mass-spring/head0.spr",
-                 "model-mass-spring/features.spr", "model-digital/weights.npz"):
+                 "model-mass-spring/features.spr", "model-digital/weights.npz",
+                 "model-device/classifier.spr"):
         assert (out / name).is_file(), name
 
 

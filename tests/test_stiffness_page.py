@@ -23,16 +23,19 @@ def row(factor: float, acc: float, db: float) -> dict:
 def test_stage_stiffness_reaches_its_table_and_plot(tmp_path: Path) -> None:
     """Each size and factor's accuracy and the later stages' dB of the sound as measured,
     the readouts' k_B T, and the plot beside the page."""
-    st = {"a": row(1.0, 0.475, -160.5), "b": row(100.0, 0.5, -140.5)}
+    st = {"b": row(100.0, 0.5, -140.5), "a": row(1.0, 0.475, -160.5)}
     text = write_page(st, tmp_path / "page.md", intro="").read_text()
     assert ("| 4x2 | 100 | 10 | 1e-05 | 0.001 | 50.0 (120) | -140.5 | -150.5 | -160.5 "
             "| -170.5 | -180.5 | 2.2e-10 |") in text
     assert "| 4x2 | 1 | 10 | 1e-05 | 0.001 | 47.5 (120) | -160.5 |" in text
+    # by size, range, eps, threshold, then stiffness, whatever the order measured
+    assert text.index("| 4x2 | 1 | 10 |") < text.index("| 4x2 | 100 | 10 |")
     assert "| design | study |" not in text  # no noise or population measured
-    st["b"]["noise"] = [{"device_mass": 1e-36, "accuracy": 0.25, "noiseless": 0.5}]
+    st["b"]["noise"] = [{"device_mass": 1e-36, "accuracy": 0.25, "noiseless": 0.5,
+                         "decision_error": 0.379}]
     st["b"]["spread"] = [{"spread": 1e-3, "mean": 0.495, "stderr": 0.005, "nominal": 0.5}]
     text = write_page(st, tmp_path / "page.md", intro="").read_text()
-    assert "| 4x2, S 100, R 10, eps 1e-05 | noise at 1e-36 kg | 25.0 | 50.0 |" in text
+    assert "| 4x2, S 100, R 10, eps 1e-05 | noise at 1e-36 kg | 25.0 | 50.0 | 0.379 |" in text
     assert "| 4x2, S 100, R 10, eps 1e-05 | spread 0.001, mean device | 49.5 +- 0.5 | 50.0 |" \
         in text
     assert (tmp_path / "page.png").stat().st_size > 0

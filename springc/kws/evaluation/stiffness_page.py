@@ -5,6 +5,7 @@ population studies of the models measured with them."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from springc.kws.evaluation.device_page import reading
@@ -40,17 +41,25 @@ def stiffness_rows(st: dict) -> list[str]:
 def stiffness_study_rows(st: dict) -> list[str]:
     """The stiffness study's models that were also measured with thermal noise (300 K, 60
     dB SPL, 1 mm^2) and as fabricated populations: per model and device mass the accuracy
-    beside its noiseless one, per spread the mean device beside the nominal design."""
-    rows = ["| design | study | accuracy % | without it % |", "|---|---|---|---|"]
+    beside its noiseless one and the decision error (rms error of the decision values over
+    their spread between classes), per spread the mean device beside the nominal design."""
+    rows = ["| design | study | accuracy % | without it % | decision error |",
+            "|---|---|---|---|---|"]
     for r in st.values():
         name = (f"{r['size']}, S {r['factor']:g}, R {r['squarer_range']:g}, "
                 f"eps {r['epsilon']:g}")
         rows += [f"| {name} | noise at {p['device_mass']:g} kg | {100 * p['accuracy']:.1f} | "
-                 f"{100 * p['noiseless']:.1f} |" for p in r.get("noise", [])]
+                 f"{100 * p['noiseless']:.1f} | {p.get('decision_error', math.nan):.3g} |"
+                 for p in r.get("noise", [])]
         rows += [f"| {name} | spread {p['spread']:g}, mean device | "
                  f"{100 * p['mean']:.1f} +- {100 * p['stderr']:.1f} | "
-                 f"{100 * p['nominal']:.1f} |" for p in r.get("spread", [])]
+                 f"{100 * p['nominal']:.1f} | - |" for p in r.get("spread", [])]
     return rows if len(rows) > 2 else []
+
+
+def _order(r: dict) -> tuple:
+    """Rows by size, then squarer range (largest first), heads' eps, threshold, stiffness."""
+    return r["size"], -r["squarer_range"], r["epsilon"], r["threshold"], r["factor"]
 
 
 def _line(r: dict) -> tuple:
@@ -95,6 +104,7 @@ def write_page(st: dict, md: Path, intro: str | None = None) -> Path:
     """The page and its plot beside it; `intro` (by default the page's present reading
     section) goes between the plot and the tables."""
     intro = reading(md, TABLES) if intro is None else intro
+    st = dict(sorted(st.items(), key=lambda item: _order(item[1])))
     png = md.with_suffix(".png")
     plot_stiffness(st, png)
     studies = stiffness_study_rows(st)

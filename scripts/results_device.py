@@ -254,6 +254,15 @@ def page(args) -> None:
                cv=json.loads(cv_json.read_text()) if cv_json.exists() else None)
 
 
+def _stiffness_options(st: argparse.ArgumentParser) -> None:
+    """`stiffness`'s own options: the factors and the design's other levers."""
+    st.add_argument("--factors", nargs="+", type=float, default=[1.0, 10.0, 100.0, 1000.0])
+    for name in ("--epsilon", "--threshold", "--squarer-range"):
+        st.add_argument(name, type=float, default=None)
+    for name in ("--masses", "--spreads"):
+        st.add_argument(name, nargs="+", type=float, default=[])
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -266,11 +275,7 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--folds", type=int, default=3)
     c.add_argument("--designs", nargs="+", choices=list(CV_DESIGNS),
                    default=["zero-mode", "summing"])
-    st.add_argument("--factors", nargs="+", type=float, default=[1.0, 10.0, 100.0, 1000.0])
-    for name in ("--epsilon", "--threshold", "--squarer-range"):
-        st.add_argument(name, type=float, default=None)
-    for name in ("--masses", "--spreads"):
-        st.add_argument(name, nargs="+", type=float, default=[])
+    _stiffness_options(st)
     for sized in (r, st):
         sized.add_argument("--sizes", nargs="+", default=["4x2", "8x3"])
         sized.add_argument("--budget", type=int, default=8)

@@ -209,10 +209,14 @@ def stiffness(args) -> None:
 
 
 def stiffness_page(args) -> None:
-    """docs/results-stiffness.md (--md) from the stored rows (--store)."""
+    """docs/results-stiffness.md (--md) from the stored rows (--store) and, where it is
+    beside them, the speaker folds of `cv --designs summing summing-stiff` (--store's name
+    with -cv: docs/results-stiffness-cv.json, a copy of that run's DIR/cv.json)."""
     from springc.kws.evaluation.stiffness_page import write_page
 
-    write_page(json.loads(Path(args.store).read_text()), Path(args.md))
+    cv_json = Path(args.store).with_name(Path(args.store).stem + "-cv.json")
+    write_page(json.loads(Path(args.store).read_text()), Path(args.md),
+               cv=json.loads(cv_json.read_text()) if cv_json.exists() else None)
 
 
 def _stiffness_studies(row: dict, folder: Path, args) -> None:

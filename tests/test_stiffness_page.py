@@ -48,3 +48,13 @@ def test_reading_survives_regeneration(tmp_path: Path) -> None:
     write_page(st, md)
     text = md.read_text()
     assert text.count(READING) == 1 and "Stiffer stages take more." in text
+
+
+def test_speaker_folds_follow_the_first_table(tmp_path: Path) -> None:
+    cv = {"fold0 summing": {"accuracy": 0.50, "n": 100},
+          "fold0 summing-stiff": {"accuracy": 0.52, "n": 100,
+                                  "spread": {"mean": 0.51, "nominal": 0.52}}}
+    text = write_page({"a": row(1.0, 0.475, -160.5)}, tmp_path / "page.md", intro="",
+                      cv=cv).read_text()
+    assert text.index("## Against the stage stiffness") < text.index("## Cross-validated")
+    assert "| summing-stiff | 52.0 (100) | 52.0 +- 0.0 | +2.0 +- 0.0 | 51.0 (52.0) |" in text

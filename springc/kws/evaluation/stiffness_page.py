@@ -41,8 +41,9 @@ def stiffness_rows(st: dict) -> list[str]:
 def stiffness_study_rows(st: dict) -> list[str]:
     """The stiffness study's models that were also measured with thermal noise (300 K, 60
     dB SPL, 1 mm^2) and as fabricated populations: per model and device mass the accuracy
-    beside its noiseless one and the decision error (rms error of the decision values over
-    their spread between classes), per spread the mean device beside the nominal design."""
+    beside its noiseless one and the decision error (`device.decision_error`: the median
+    change of a decision value over the median decision value), per spread the mean device
+    beside the nominal design."""
     rows = ["| design | study | accuracy % | without it % | decision error |",
             "|---|---|---|---|---|"]
     for r in st.values():

@@ -51,6 +51,11 @@ SPREADS = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 3e-2)
 MASSES = (1e-40, 1e-36, 1e-30, 1e-20, 1e-10)
 
 
+def stored(path: Path, default):
+    """The JSON stored at `path`, or `default` where there is none yet."""
+    return json.loads(path.read_text()) if path.exists() else default
+
+
 def model(out: Path, data: Path, size: str, realisation: str, epsilon=None) -> Path:
     """The model folder of one design and size, trained on `data` unless it is there."""
     n, m = (int(v) for v in size.split("x"))
@@ -128,7 +133,7 @@ def unheard(out: Path, engine: str, clips: int) -> dict:
 def run(args) -> None:
     out = Path(args.out)
     path = out / "results.json"
-    results = json.loads(path.read_text()) if path.exists() else {}
+    results = stored(path, {})
     for size in args.sizes:
         for design, realisation in DESIGNS.items():
             key = f"{size} {design}"
@@ -158,7 +163,7 @@ def cv(args) -> None:
 
     out = Path(args.out)
     path = out / "cv.json"
-    results = json.loads(path.read_text()) if path.exists() else {}
+    results = stored(path, {})
     for k, view in enumerate(write_fold_views(Path(args.data), args.folds, out / "views")):
         for design in args.designs:
             key = f"fold{k} {design}"
@@ -192,7 +197,7 @@ def stiffness(args) -> None:
     from springc.kws.evaluation.stiffness_page import stiffness_rows
 
     out, path = Path(args.out), Path(args.store)
-    results = json.loads(path.read_text()) if path.exists() else {}
+    results = stored(path, {})
     for size in args.sizes:
         for factor in args.factors:
             tag = (f"{size}-stiffness{factor:g}" + (f"-eps{args.epsilon:g}" if args.epsilon else "")
@@ -216,7 +221,7 @@ def stiffness_page(args) -> None:
 
     cv_json = Path(args.store).with_name(Path(args.store).stem + "-cv.json")
     write_page(json.loads(Path(args.store).read_text()), Path(args.md),
-               cv=json.loads(cv_json.read_text()) if cv_json.exists() else None)
+               cv=stored(cv_json, None))
 
 
 def _stiffness_studies(row: dict, folder: Path, args) -> None:
@@ -255,7 +260,7 @@ def page(args) -> None:
     out = Path(args.out)
     cv_json = out / "cv.json"
     write_page(json.loads((out / "results.json").read_text()), Path(args.md),
-               cv=json.loads(cv_json.read_text()) if cv_json.exists() else None)
+               cv=stored(cv_json, None))
 
 
 def _stiffness_options(st: argparse.ArgumentParser) -> None:

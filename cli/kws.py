@@ -154,6 +154,10 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
                    "kind of coefficient).  [default: local]")
 @click.option("--stage", type=click.Choice(STAGES + ("all",)), default=None,
               help="With --mc: spread only this stage's coefficients.  [default: all]")
+@click.option("--trim", type=int, default=None, metavar="K",
+              help="With --mc: also trim each device on K labelled validation clips (the "
+                   "gain and offset each readout is read with, refitted) and print the "
+                   "trimmed accuracy beside the untrimmed.")
 @click.option("--temp", type=float, default=None, metavar="K",
               help="Mass-spring models: instead, the network at physical scale (with --mass, "
                    "--spl, --area) with thermal noise on every damper at K kelvin.")
@@ -175,8 +179,8 @@ def train_cmd(data, bins, delays, realisation, baseline, filterbank, task, td, t
 @run_user_errors
 @on_device
 def eval_cmd(model_dir, data, realisation, protocol, as_json, jobs, no_cache, scheduler,
-             budget, devices, spread, spread_kind, stage, temp, mass, device_mass, spl, area,
-             seed, clips) -> None:
+             budget, devices, spread, spread_kind, stage, trim, temp, mass, device_mass, spl,
+             area, seed, clips) -> None:
     """Evaluate a trained model on the test split of a labelled folder in the GSCD layout:
     the clips testing_list.txt names, or every clip where the folder has no such list.
     --mc/--spread: a population of fabricated devices; --temp/--mass/--spl/--area: the
@@ -188,7 +192,8 @@ def eval_cmd(model_dir, data, realisation, protocol, as_json, jobs, no_cache, sc
                       use_cache=not no_cache, scheduler=scheduler, budget=budget, mc=devices,
                       spread=spread, spread_kind=spread_kind, stage=stage, temp=temp,
                       mass=mass, spl=spl, area=area, seed=seed, clips=clips,
-                      device_mass=device_mass, progress=lambda s: click.echo(s, err=True))
+                      device_mass=device_mass, trim=trim,
+                      progress=lambda s: click.echo(s, err=True))
     which = None if budget else device.study(
         devices, spread, spread_kind, stage, seed, temp,
         report.get("mass", mass), spl, area)

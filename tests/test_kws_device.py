@@ -252,6 +252,8 @@ def test_the_snr_of_the_features():
     (["--mc", "2", "--spread", "0.01", "--temp", "300"], "are separate studies"),
     (["--seed", "3"], "--seed draws the devices of --mc or the noise of --temp"),
     (["--clips", "3"], "--clips goes with --mc or --temp"),
+    (["--trim", "8"], "--trim trims fabricated devices"),
+    (["--mc", "2", "--spread", "0.01", "--trim", "1"], "--trim must measure at least 2 clips"),
 ])
 def test_bad_options_exit_1_with_a_clear_message(tmp_path, args, message):
     result = CliRunner().invoke(main, ["eval", str(tmp_path / "model"), *args])

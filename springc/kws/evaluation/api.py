@@ -89,8 +89,8 @@ def evaluate(model: str | Path, data: str | Path | None = None, *,
              spread_kind: str | None = None, stage: str | None = None,
              temp: float | None = None, mass: float | None = None, spl: float | None = None,
              area: float | None = None, seed: int | None = None, clips: int | None = None,
-             device_mass: float | None = None, device: str | None = None,
-             progress: Progress = None) -> dict:
+             device_mass: float | None = None, trim: int | None = None,
+             device: str | None = None, progress: Progress = None) -> dict:
     """Evaluate the model folder `model` on the test split of `data` (default: the data set
     it was trained on), as `springc eval`: `realisation` must match the model's (None: the
     model's), `protocol` lists or balanced (None: the model's), `jobs`, `use_cache`,
@@ -108,10 +108,14 @@ def evaluate(model: str | Path, data: str | Path | None = None, *,
     normalised unit, or `device_mass` for the whole device), `spl` (dB), `area` (m^2), `seed`:
     the device at physical scale with thermal noise (a device model's recorded spl, area and
     device mass where not given); `clips`: with `mc` or `temp`, that many
-    test clips spread over the split; `progress` hears the population's progress."""
+    test clips spread over the split; `trim=K` with `mc`: each device and the nominal design
+    also trimmed on K validation clips (`springc.kws.evaluation.trim`), "trimmed" beside
+    each accuracy; `progress` hears the population's progress."""
     from springc.kws.evaluation import device as dv
 
     model, data = Path(model), Path(data) if data else None
+    if trim is not None:
+        _trim_allowed(trim, budget, mc)
     if budget:
         return _budget(model, data, budget, protocol, mc, spread, clips, recorded_scale(
             model, dict(spl=spl, area=area, temp=temp, device_mass=device_mass, mass=mass)))
@@ -125,12 +129,33 @@ def evaluate(model: str | Path, data: str | Path | None = None, *,
     with _on(device):
         if study is not None or clips is not None:
             setup = _device_setup(model, data, study, realisation, budget, clips, protocol)
+            if isinstance(study, dv.Spread) and trim is not None:
+                return _trimmed(setup, model, data, trim, protocol, mc, study, scheduler,
+                                jobs, progress)
             if isinstance(study, dv.Spread):
                 return dv.evaluate_spread(setup, mc, study, scheduler=scheduler, jobs=jobs,
                                           progress=progress)
             return dv.evaluate_physical(setup, study, scheduler=scheduler, jobs=jobs)
         return evaluate_split(model, data, realisation, jobs=jobs, use_cache=use_cache,
                               scheduler=scheduler, protocol=protocol)
+
+
+def _trim_allowed(clips: int, budget: int | None, devices: int | None) -> None:
+    """UsageError for `trim` where it does not go: without a population, or too few clips."""
+    if budget or devices is None:
+        raise UsageError("--trim trims fabricated devices", hint="give it with --mc and --spread")
+    if clips < 2:
+        raise UsageError(f"--trim must measure at least 2 clips, not {clips}")
+
+
+def _trimmed(setup, model: Path, data: Path | None, clips: int, protocol: str | None,
+             devices: int, spread, scheduler, jobs: int, progress: Progress) -> dict:
+    """`trim.evaluate_trimmed` of `devices` devices trimmed on `clips` validation clips."""
+    from springc.kws.evaluation import trim as tr
+
+    cal = tr.calibration_setup(setup, model, data, clips, protocol)
+    return tr.evaluate_trimmed(setup, cal, devices, spread, scheduler=scheduler, jobs=jobs,
+                               progress=progress)
 
 
 def recorded_scale(model: Path, given: dict) -> dict:

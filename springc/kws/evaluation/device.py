@@ -319,9 +319,10 @@ class Setup:
 
 
 def load_setup(model_dir: Path, data: Path | None = None, clips: int | None = None,
-               protocol: str | None = None) -> Setup:
-    """The model's network and its test split (the first `clips` clips, default all), read
-    as `springc eval` reads them. UsageError for a model that is not mass-spring."""
+               protocol: str | None = None, split: str = "test") -> Setup:
+    """The model's network and its test split (or `split`; `clips` clips spread evenly over
+    it, default all), read as `springc eval` reads them. UsageError for a model that is not
+    mass-spring."""
     from springc.kws.training.model import load_model
     from springc.lang import load_file
 
@@ -331,8 +332,8 @@ def load_setup(model_dir: Path, data: Path | None = None, clips: int | None = No
                          "is a mass-spring network", hint="train with --realisation mass-spring")
     ds = open_task_data(Path(data) if data else trained_data(model), model.settings["task"],
                         int(model.settings.get("seed", 0)),
-                        protocol or model.settings.get("protocol"), splits=("test",))
-    test = ds.split("test")
+                        protocol or model.settings.get("protocol"), splits=(split,))
+    test = ds.split(split)
     if clips is not None and clips < len(test):  # spread evenly: classes in proportion
         test = [test[k] for k in np.linspace(0, len(test) - 1, clips).round().astype(int)]
     s, heads = model_heads(model)
@@ -423,7 +424,7 @@ def evaluate_spread(setup: Setup, devices: int, spread: Spread, *,
             ks = range(first, min(first + DEVICE_GROUP, devices))
             rows += _devices(setup, ks, spread, nominal, scheduler, jobs)
             if progress:
-                progress(_progress(rows, devices, time.perf_counter() - start))
+                progress(progress_line(rows, devices, time.perf_counter() - start))
     acc = np.array([r["accuracy"] for r in rows])
     return {"devices": rows, "nominal": accuracy(setup, nominal), "accuracy": summary(acc),
             "n": len(setup.y), "spread": spread.sigma, "kind": spread.kind,
@@ -432,26 +433,38 @@ def evaluate_spread(setup: Setup, devices: int, spread: Spread, *,
 
 def _devices(setup: Setup, ks: range, spread: Spread, nominal: np.ndarray, scheduler,
              jobs) -> list[dict]:
-    """The rows of devices `ks`, simulated together (`device_decisions`); a device that the
-    checks find unstable, or whose network diverges, scores 0."""
-    rows, members = {}, {}
+    """The rows of devices `ks`, simulated together (`fabricated_decisions`); a device that
+    the checks find unstable, or whose network diverges, scores 0."""
+    rows = {}
+    for k, dk in fabricated_decisions(setup, ks, spread, scheduler, jobs).items():
+        rows[k] = (diverged_row(k, dk) if isinstance(dk, str) else
+                   {"device": k, "accuracy": accuracy(setup, dk), "diverged": False,
+                    "decision_error": decision_error(dk, nominal)})
+    return [rows[k] for k in ks]
+
+
+def fabricated_decisions(setup: Setup, ks: range, spread: Spread, scheduler=None,
+                         jobs: int = 0) -> dict[int, np.ndarray | str]:
+    """Device k's decisions (clips, rows) for every k of `ks`, simulated together
+    (`device_decisions`), or why it has none: the checks found it statically unstable, or
+    its network diverged at every retry."""
+    out: dict[int, np.ndarray | str] = {}
+    members = {}
     for k in ks:
         try:
             members[k] = check(fabricate(setup.net, spread, k), judge_step=False)
         except CheckError as err:  # statically unstable
-            rows[k] = _diverged(k, err.message)
+            out[k] = err.message
     if members:
         d = device_decisions(setup, list(members.values()), scheduler=scheduler, jobs=jobs,
                              desc=f"devices {ks.start}-{ks.stop - 1}")
         for k, dk in zip(members, d):
-            rows[k] = ({"device": k, "accuracy": accuracy(setup, dk), "diverged": False,
-                        "decision_error": decision_error(dk, nominal)}
-                       if np.isfinite(dk).all() else
-                       _diverged(k, "its network diverged at every integration retry"))
-    return [rows[k] for k in ks]
+            out[k] = dk if np.isfinite(dk).all() else \
+                "its network diverged at every integration retry"
+    return {k: out[k] for k in ks}
 
 
-def _diverged(k: int, why: str) -> dict:
+def diverged_row(k: int, why: str) -> dict:
     return {"device": k, "accuracy": 0.0, "diverged": True, "decision_error": None,
             "why": why}
 
@@ -461,7 +474,7 @@ def decision_error(d: np.ndarray, nominal: np.ndarray) -> float:
     return float(np.median(np.abs(d - nominal)) / np.median(np.abs(nominal)))
 
 
-def _progress(rows: list[dict], total: int, seconds: float) -> str:
+def progress_line(rows: list[dict], total: int, seconds: float) -> str:
     """'device 3 of 8: 51.56%; 0.8 devices/min, about 6 min left'."""
     done = len(rows)
     rate = done / seconds
@@ -561,17 +574,27 @@ def _validated(item: Spread | Physical) -> Spread | Physical:
 
 def spread_lines(report: dict, spread: Spread) -> list[str]:
     """The population's report as text: every device, then the summary."""
-    a = report["accuracy"]
+    trimmed = "trimmed" in report  # `eval --trim`: the trimmed figure beside each
     lines = [f"{len(report['devices'])} fabricated device(s), {spread.describe()}, "
-             f"{report['n']} test clips:",
-             f"  nominal design  {100 * report['nominal']:6.2f}%"]
+             f"{report['n']} test clips"
+             + (f"; trimmed on {report['trim_clips']} validation clips (untrimmed, trimmed):"
+                if trimmed else ":"),
+             f"  nominal design  {100 * report['nominal']:6.2f}%"
+             + (f"  {100 * report['nominal_trimmed']:6.2f}%" if trimmed else "")]
     for r in report["devices"]:
         lines.append(f"  device {r['device']:<7d} {100 * r['accuracy']:6.2f}%"
+                     + (f"  {100 * r['trimmed']:6.2f}%" if trimmed else "")
                      + ("  (diverged)" if r["diverged"] else ""))
-    lines.append(f"mean {100 * a['mean']:.2f}% (sd {100 * a['sd']:.2f}, standard error "
-                 f"{100 * a['stderr']:.2f}), 5th percentile {100 * a['p5']:.2f}%, worst "
-                 f"{100 * a['worst']:.2f}%")
+    lines.append(_summary_line("untrimmed: " if trimmed else "", report["accuracy"]))
+    if trimmed:
+        lines.append(_summary_line("trimmed:   ", report["trimmed"]))
     return lines
+
+
+def _summary_line(label: str, a: dict) -> str:
+    return (f"{label}mean {100 * a['mean']:.2f}% (sd {100 * a['sd']:.2f}, standard error "
+            f"{100 * a['stderr']:.2f}), 5th percentile {100 * a['p5']:.2f}%, worst "
+            f"{100 * a['worst']:.2f}%")
 
 
 def physical_lines(report: dict, phys: Physical) -> list[str]:

@@ -1,7 +1,8 @@
 """A population elaborated and checked by structure group (springc.lang.variation.PointSet,
 springc.check.points.check_points) gives every point exactly what elaborating and checking
 that point's netlist alone gives: the same coefficients bit for bit, the same diagnostics,
-modes and step limit, and the same refusal naming the same point."""
+modes and step limit (a large component: a certified bound at most 10% looser, from the first
+sample's), and the same refusal naming the same point."""
 
 from __future__ import annotations
 
@@ -125,21 +126,49 @@ def test_stability_of_many_equals_each_alone() -> None:
     assert sum(err is not None for err in got) == sum(dt < h for dt in limits) > 0
 
 
-def test_large_components_checked_together_as_alone() -> None:
-    # 320 masses: above linear.DENSE_MAX, so the Lanczos runs of the samples go in lockstep
+def test_large_components_take_a_certified_bound_from_the_first() -> None:
+    """320 masses (above linear.DENSE_MAX): the first sample is checked as alone; the others
+    take its bound by perturbation (`sparse.near`), at or above their own largest eigenvalue
+    (Weyl's inequality: no step is judged against an underestimate) and at most
+    `sparse.NEAR_MARGIN` above it, so their step limits are at most their own."""
     from springc.bench.population import population_text
+    from springc.check.sparse import NEAR_MARGIN
 
     var = _variation(population_text(masses=320, samples=3))
     points = check_points(var.point_set())
     for point in points.points:
         alone = check(var.netlist(point))
         got = points.checked[point.index]
-        assert not got.modes.complete  # the sparse path
-        assert (got.modes.omega_max, got.step.dt) == (alone.modes.omega_max, alone.step.dt)
-        assert got.modes.omega_margin == alone.modes.omega_margin
-        assert got.modes.eigenvalues.tobytes() == alone.modes.eigenvalues.tobytes()
-        assert all(a[1].tobytes() == b[1].tobytes()
-                   for a, b in zip(got.modes.shapes, alone.modes.shapes))
+        assert not got.modes.complete and not alone.modes.near  # the sparse path
+        if point.index == 0:
+            assert not got.modes.near
+            assert (got.modes.omega_max, got.step.dt) == (alone.modes.omega_max, alone.step.dt)
+            assert got.modes.eigenvalues.tobytes() == alone.modes.eigenvalues.tobytes()
+            continue
+        assert got.modes.near
+        # alone: ritz <= lambda_max <= bound, ritz = bound / (1 + margin), margin <= 1e-8
+        own_low = alone.modes.omega_max ** 2 / (1 + alone.modes.omega_margin)
+        assert own_low <= got.modes.omega_max ** 2 <= alone.modes.omega_max ** 2 * (1 + NEAR_MARGIN)
+        assert got.modes.omega_margin <= NEAR_MARGIN
+        assert got.step.dt <= alone.step.dt
+
+
+def test_a_step_refused_by_the_bound_is_judged_against_the_points_own() -> None:
+    """A pinned step between a sample's limit by perturbation and its own: accepted, with the
+    sample's own modes (a population is refused exactly where its points are alone)."""
+    from springc.bench.population import population_text
+
+    var = _variation(population_text(masses=320, samples=3))
+    near = check_points(var.point_set(), judge_step=False)
+    own = [check(var.netlist(p), judge_step=False).step.dt for p in near.points]
+    loose = near.checked[1].step.dt
+    assert loose < min(own)
+    h = (loose + min(own)) / 2
+    points = check_points(var.point_set(), tstep=h, substeps=1, judge_step=True)
+    assert all(c.step.dt >= h for c in points.checked)
+    assert not points.checked[1].modes.near and points.checked[1].step.dt == own[1]
+    with pytest.raises(CheckError, match="unstable"):
+        check_points(var.point_set(), tstep=1.01 * min(own), substeps=1, judge_step=True)
 
 
 def test_lockstep_lanczos_runs_equal_lone_runs() -> None:

@@ -125,22 +125,37 @@ def check_many(nets: list[FlatNetlist], method: str | None = None, *,
                tstep: float | None = None, substeps: int | None = None,
                judge_step: bool | None = None) -> list[CheckedNetlist | CheckError]:
     """`check` of every netlist (arguments as `check`), each result the checked netlist or
-    the `CheckError` that `check` raises, the same as alone; the modes of all that reach the
-    time step are computed together (`linear.modes_many`: the points of a population share
-    the work of their Lanczos runs)."""
+    the `CheckError` that `check` raises; the modes of all that reach the time step are
+    computed together (`linear.modes_many`: the points of a population share the work of
+    their Lanczos runs, and a large component close to the first of its size takes its
+    certified bound from that one's, `near`). Each is refused exactly where it is refused
+    alone: a step judged unstable against a bound by perturbation is judged again against
+    the netlist's own."""
     results = _before_steps(nets)
     going = [i for i, result in enumerate(results) if result is None]
-    found = dict(zip(going, linear.modes_many([nets[i] for i in going])))
-    names = {i: _method(nets[i], method)[0] for i in going}
-    limits = {}
-    for name in {n for n in names.values() if not expint.is_split(n)}:
-        ours = [i for i in going if names[i] == name]
-        limits.update(zip(ours, linear.step_limits([found[i] for i in ours], name)))
-    for i in going:
-        results[i] = time_step(nets[i], method, tstep=tstep, substeps=substeps,
-                               judge=judge_step, found=found[i], step=limits.get(i))
+    found = dict(zip(going, linear.modes_many([nets[i] for i in going], near=True)))
+    for i, result in _time_steps(nets, going, found, method, tstep, substeps, judge_step):
+        results[i] = result
+    again = [i for i in going if results[i].errors and found[i].near]
+    found.update(zip(again, linear.modes_many([nets[i] for i in again])))
+    for i, result in _time_steps(nets, again, found, method, tstep, substeps, judge_step):
+        results[i] = result
     return [CheckError(r.errors) if r.errors else CheckedNetlist(**vars(r), net=net, seal=_SEAL)
             for r, net in zip(results, nets)]
+
+
+def _time_steps(nets: list[FlatNetlist], which: list[int], found: dict, method: str | None,
+                tstep: float | None, substeps: int | None,
+                judge: bool | None) -> list[tuple[int, CheckResult]]:
+    """`time_step` of the netlists `which` with their modes `found`, the step limits of each
+    Runge-Kutta method computed for all of its netlists at once."""
+    names = {i: _method(nets[i], method)[0] for i in which}
+    limits = {}
+    for name in {n for n in names.values() if not expint.is_split(n)}:
+        ours = [i for i in which if names[i] == name]
+        limits.update(zip(ours, linear.step_limits([found[i] for i in ours], name)))
+    return [(i, time_step(nets[i], method, tstep=tstep, substeps=substeps, judge=judge,
+                          found=found[i], step=limits.get(i))) for i in which]
 
 
 def require_checked(value: object, who: str) -> CheckedNetlist:

@@ -238,6 +238,8 @@ class Modes:
     complete: bool = True
     # certified relative overestimate of omega_max^2 (0: exact; see `sparse.TopBound`)
     omega_margin: float = 0.0
+    # omega_max bounded from another netlist's by perturbation (`modes_many`'s `near`)
+    near: bool = False
 
     def __len__(self) -> int:
         return len(self.eigenvalues)
@@ -279,6 +281,7 @@ class _Raw:
     omega2_max: float = 0.0
     margin: float = 0.0
     complete: bool = True
+    near: bool = False
 
 
 def modes(net: FlatNetlist, lin: Linearisation | None = None) -> Modes:
@@ -286,10 +289,14 @@ def modes(net: FlatNetlist, lin: Linearisation | None = None) -> Modes:
     return modes_many([net], [lin])[0]
 
 
-def modes_many(nets: list[FlatNetlist],
-               lins: list[Linearisation | None] | None = None) -> list[Modes]:
+def modes_many(nets: list[FlatNetlist], lins: list[Linearisation | None] | None = None,
+               near: bool = False) -> list[Modes]:
     """`modes` of every netlist, each the same as alone; the Lanczos runs of all their large
-    components go together (`sparse.top_many`: a population's points in lockstep)."""
+    components go together (`sparse.top_many`: a population's points in lockstep). With
+    `near`, a large component whose stiffness has the sparsity of the first of its size
+    takes the top of its spectrum from that one's by a perturbation bound where it is
+    certified within `sparse.NEAR_MARGIN` (`sparse.near`; its `Modes.near` is True): the
+    fastest mode then is an upper bound up to 10% above its own, never below it."""
     lins = lins or [None] * len(nets)
     raws: list = [None] * len(nets)
     large: list = []
@@ -300,10 +307,33 @@ def modes_many(nets: list[FlatNetlist],
         for i, (net, lin) in enumerate(zip(nets, lins)):
             if raws[i] is None:
                 raws[i] = _dense_modes(net, lin, large)
-    tops = sparse.top_many([c.kt for c in large], SPARSE_MODES)
-    for comp, top in zip(large, tops):
+    for comp, (top, by_near) in zip(large, _tops([c.kt for c in large], near)):
+        comp.raw.near = comp.raw.near or by_near
         _sparse_component(comp, top)
     return _assemble_many(raws, [net.nodes for net in nets])
+
+
+def _tops(mats: list, near: bool) -> list[tuple[sparse.TopBound, bool]]:
+    """`sparse.top` of every large component's stiffness, and whether it came by
+    perturbation from the first of its size (`modes_many`'s `near`); the others' Lanczos
+    runs go in lockstep."""
+    first: dict[int, int] = {}  # size -> its reference, the first component of that size
+    if near:
+        for k, a in enumerate(mats):
+            first.setdefault(a.shape[0], k)
+    found: dict[int, sparse.TopBound | None] = {k: None for k in range(len(mats))}
+    refs = list(first.values())
+    found.update(zip(refs, sparse.top_many([mats[k] for k in refs], SPARSE_MODES)))
+    by_near = set()
+    for size, ref in first.items():
+        others = [k for k in range(len(mats)) if mats[k].shape[0] == size and k != ref]
+        for k, top in zip(others, sparse.near(mats[ref], found[ref], [mats[k] for k in others])):
+            if top is not None:
+                found[k] = top
+                by_near.add(k)
+    rest = [k for k, top in found.items() if top is None]
+    found.update(zip(rest, sparse.top_many([mats[k] for k in rest], SPARSE_MODES)))
+    return [(found[k], k in by_near) for k in range(len(mats))]
 
 
 @cache
@@ -705,7 +735,8 @@ def _assemble_many(raws: list[_Raw], names: list[list[str]]) -> list[Modes]:
         for r, i in enumerate(idx):
             raw = raws[i]
             out[i] = Modes(lam[r], freqs[r], rate[r], q[r], [raw.shapes[k] for k in order[r]],
-                           raw.zero, float(top[r]), list(names[i]), raw.complete, raw.margin)
+                           raw.zero, float(top[r]), list(names[i]), raw.complete, raw.margin,
+                           raw.near)
     return out
 
 

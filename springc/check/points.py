@@ -1,8 +1,9 @@
 """Every point of a `.step`/`.mc` netlist checked like a netlist of its own.
 
 `check_points(points, method)` checks each point's netlist as `springc.check.check` does
-(the points of one structure group together, `check_many`) and returns the point set with
-the checked netlists; a point that fails is a `CheckError` whose every
+(the points of one structure group together, `check_many`: a large component may take a
+certified bound from the first point's instead of a Lanczos run of its own) and returns the
+point set with the checked netlists; a point that fails is a `CheckError` whose every
 diagnostic names the point (step values, sample index, seed) beside the failed check. `worst`
 is the point with the smallest stable step, the one that sets the step of a run of them all.
 """
@@ -21,7 +22,7 @@ def check_points(points: PointSet, method: str | None = None, **options) -> Poin
     """`points` with every point's `CheckedNetlist` (`method` overrides `.options method=`,
     `options` are `check`'s tstep, substeps and judge_step); `CheckError` at the first point
     that fails, naming it. The points of one structure group are checked together
-    (`check_many`), each with the result it has alone."""
+    (`check_many`), each refused where it is refused alone."""
     results: list = [None] * len(points)
     for group in points.groups:
         found = check_many([points.nets[i] for i in group], method, **options)

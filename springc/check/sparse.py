@@ -28,6 +28,7 @@ if TYPE_CHECKING:
 LANCZOS_STEPS = 60  # Lanczos steps for the top of a spectrum, at least ...
 LANCZOS_WORK = 4_000_000  # ... and more while steps times size stays below this
 LANCZOS_TOL = 1e-8  # stop earlier once the certified margin is below this
+NEAR_MARGIN = 0.1  # largest certified overestimate `near` gives instead of a Lanczos run
 SUBSPACE_ITERATIONS = 60  # most inverse subspace iterations
 SUBSPACE_TOL = 1e-11  # ... stopped once the Ritz values move less than this, relatively
 
@@ -102,6 +103,37 @@ def top_many(mats: list, count: int, work: int = LANCZOS_WORK) -> list[TopBound]
         if count:
             for k, vectors in zip(ks, _ritz_vectors(group, starts, runs, picks)):
                 out[k].vectors = vectors
+    return out
+
+
+def near(ref: sp.csr_matrix, top_ref: TopBound, mats: list,
+         margin: float = NEAR_MARGIN) -> list[TopBound | None]:
+    """`top` of each matrix in `mats` from the reference's (`top_ref`, of `ref`) without a
+    Lanczos run, where Weyl's inequality certifies it closely: lambda_max(a) <= lambda_max(ref)
+    + ||a - ref||_2 <= `top_ref.bound` + the largest absolute row sum of a - ref, and the
+    Rayleigh quotients of the reference's Ritz vectors on `a` are a lower bound (and its
+    candidate vectors). None for a matrix whose sparsity differs from the reference's or
+    whose certified overestimate exceeds `margin`: it needs a run of its own (`top_many`)."""
+    import scipy.sparse as sp
+
+    ref = sp.csr_matrix(ref)
+    out: list[TopBound | None] = []
+    for a in mats:
+        a = sp.csr_matrix(a)
+        if (a.shape != ref.shape or top_ref.vectors.shape[1] == 0
+                or not (np.array_equal(a.indptr, ref.indptr)
+                        and np.array_equal(a.indices, ref.indices))):
+            out.append(None)
+            continue
+        change = np.add.reduceat(np.abs(a.data - ref.data), a.indptr[:-1]) \
+            if a.nnz else np.zeros(1)
+        change[np.diff(a.indptr) == 0] = 0.0  # reduceat repeats a value at an empty row
+        bound = min(float(gershgorin(a)[1].max(initial=0.0)),
+                    top_ref.bound + float(change.max(initial=0.0)))
+        v = top_ref.vectors
+        ritz = float(np.einsum("ij,ij->j", v, a @ v).max())
+        top = TopBound(max(bound, ritz), ritz, v)
+        out.append(top if ritz > 0 and top.margin <= margin else None)
     return out
 
 

@@ -9,6 +9,7 @@ thermal noise at physical scale, and the energy budget against the 53 dB a decis
         [--sizes 4x2] [--epsilon EPS] [--threshold A_C] [--squarer-range R]
         [--masses KG ...] [--spreads S ...]
     python scripts/results_device.py stiffness-page
+    python scripts/results_device.py trim-page [--reports SIZE=REPORT.json ...]
 
 `run` trains both designs per size on CORPUS (skipped where DIR holds the model), and
 through `springc.evaluate` measures the whole network's accuracy on the test split, the
@@ -28,6 +29,9 @@ from --threshold, squarers of --squarer-range) and records its accuracy and budg
 where asked its thermal noise at --masses and its population at --spreads (the models in
 DIR/models, the rows in --store, docs/results-stiffness.json, then docs/results-stiffness.md
 written from them; `stiffness-page` writes that page alone from the stored rows).
+`trim-page` writes docs/results-trim.md from its rows in docs/results-trim.json, after
+adding or replacing the rows of the given `springc eval MODEL --mc N --spread S --trim K
+--json` reports (SIZE: the model's, e.g. 8x3).
 """
 
 from __future__ import annotations
@@ -224,6 +228,21 @@ def stiffness_page(args) -> None:
                cv=stored(cv_json, None))
 
 
+def trim_page(args) -> None:
+    """docs/results-trim.md (--md) from the stored rows (--store), with the rows of
+    --reports SIZE=PATH (`eval --trim --json` outputs) added first, a row per size and
+    spread."""
+    from springc.kws.evaluation.trim_page import row, write_page
+
+    rows = {(r["size"], r["spread"]): r for r in stored(Path(args.store), [])}
+    for item in args.reports:
+        size, path = item.split("=", 1)
+        r = row(size, json.loads(Path(path).read_text().splitlines()[-1]))
+        rows[(r["size"], r["spread"])] = r
+    Path(args.store).write_text(json.dumps(list(rows.values()), indent=1) + "\n")
+    write_page(list(rows.values()), Path(args.md))
+
+
 def _stiffness_studies(row: dict, folder: Path, args) -> None:
     """The noise study at --masses and the population at --spreads, where asked and not
     yet in `row`."""
@@ -275,8 +294,8 @@ def _stiffness_options(st: argparse.ArgumentParser) -> None:
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    r, c, st, p, sp = (sub.add_parser(name)
-                       for name in ("run", "cv", "stiffness", "page", "stiffness-page"))
+    r, c, st, p, sp, tp = (sub.add_parser(name) for name in
+                           ("run", "cv", "stiffness", "page", "stiffness-page", "trim-page"))
     r.add_argument("--spreads", nargs="+", type=float, default=list(SPREADS))
     r.add_argument("--masses", nargs="+", type=float, default=list(MASSES))
     r.add_argument("--leave-out", choices=ENGINES, default="flite")
@@ -296,6 +315,9 @@ def _parser() -> argparse.ArgumentParser:
     for stored in (st, sp):
         stored.add_argument("--store", default="docs/results-stiffness.json")
         stored.add_argument("--md", default="docs/results-stiffness.md")
+    tp.add_argument("--reports", nargs="*", default=[], metavar="SIZE=PATH")
+    tp.add_argument("--store", default="docs/results-trim.json")
+    tp.add_argument("--md", default="docs/results-trim.md")
     for each in (r, c, st, p):
         each.add_argument("--out", required=True)
     return parser
@@ -304,7 +326,7 @@ def _parser() -> argparse.ArgumentParser:
 def main() -> None:
     args = _parser().parse_args()
     {"run": run, "cv": cv, "stiffness": stiffness, "page": page,
-     "stiffness-page": stiffness_page}[args.command](args)
+     "stiffness-page": stiffness_page, "trim-page": trim_page}[args.command](args)
 
 
 if __name__ == "__main__":

@@ -89,16 +89,11 @@ def top_many(mats: list, count: int, work: int = LANCZOS_WORK) -> list[TopBound]
         runs = _lanczos(group, starts, steps, np.array([highs[k] for k in ks]))
         picks = []
         for k, (alpha, beta) in zip(ks, runs):
-            # only the top pairs (MRRR on an index range): a full solve of a few hundred
-            # steps' tridiagonal matrix cost ten times more and used none of the rest
-            m = len(alpha)
-            vals, coeffs = scipy.linalg.eigh_tridiagonal(
-                alpha, beta[:-1], select="i", select_range=(max(m - max(count, 1), 0), m - 1),
-                lapack_driver="stemr")
+            vals, coeffs = scipy.linalg.eigh_tridiagonal(alpha, beta[:-1])
             # |beta_m s_m|: the residual norm of each Ritz pair of the tridiagonal projection
             residual = abs(beta[-1] * coeffs[-1])
             bound = min(highs[k], float(vals[-1] + residual[-1]))
-            picks.append(coeffs[:, ::-1][:, :count])
+            picks.append(coeffs[:, np.arange(len(vals))[::-1][:count]])
             out[k] = TopBound(max(bound, float(vals[-1])), float(vals[-1]), np.zeros((n, 0)))
         if count:
             for k, vectors in zip(ks, _ritz_vectors(group, starts, runs, picks)):

@@ -95,6 +95,6 @@ def test_eval_reports_every_device_untrimmed_and_trimmed(tmp_path_factory, monke
     assert "trimmed on 6 validation clips (untrimmed, trimmed):" in text
     assert "untrimmed: mean" in text and "trimmed:   mean" in text
     for row in report["devices"]:
-        assert row["diverged"] is False
+        assert row["diverged"] is False and set(row["priors"]) <= set(trim.PRIORS)
         assert f"  device {row['device']:<7d} {100 * row['accuracy']:6.2f}%  " \
                f"{100 * row['trimmed']:6.2f}%" in text

@@ -62,12 +62,13 @@ def plot(rows: list[dict], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for size in sorted({r["size"] for r in rows}):
         mine = sorted((r for r in rows if r["size"] == size), key=lambda r: r["spread"])
-        xs = [r["spread"] for r in mine]
+        xs, color = [r["spread"] for r in mine], None
         for key, style in (("untrimmed", "-"), ("trimmed", "--")):
             line = ax.errorbar(xs, [100 * r[key]["mean"] for r in mine],
                                [100 * r[key]["stderr"] for r in mine], marker="o", ls=style,
-                               label=f"{size} {key}")
-        ax.axhline(100 * mine[0]["nominal"], color=line[0].get_color(), lw=0.8, ls=":")
+                               color=color, label=f"{size} {key}")
+            color = line[0].get_color()  # one colour a size
+        ax.axhline(100 * mine[0]["nominal"], color=color, lw=0.8, ls=":")
     ax.axhline(100 / 12, color="grey", lw=0.8, ls=":")
     ax.set_xscale("log")
     ax.set_xlabel("local spread of every coefficient (relative)")

@@ -30,8 +30,8 @@ where asked its thermal noise at --masses and its population at --spreads (the m
 DIR/models, the rows in --store, docs/results-stiffness.json, then docs/results-stiffness.md
 written from them; `stiffness-page` writes that page alone from the stored rows).
 `trim-page` writes docs/results-trim.md from its rows in docs/results-trim.json, after
-adding or replacing the rows of the given `springc eval MODEL --mc N --spread S --trim K
---json` reports (SIZE: the model's, e.g. 8x3).
+adding or replacing the rows of the given `springc eval MODEL --mc N --spread S [--trim K |
+--stage X] --json` reports (SIZE: the model's, e.g. 8x3).
 """
 
 from __future__ import annotations
@@ -230,15 +230,18 @@ def stiffness_page(args) -> None:
 
 def trim_page(args) -> None:
     """docs/results-trim.md (--md) from the stored rows (--store), with the rows of
-    --reports SIZE=PATH (`eval --trim --json` outputs) added first, a row per size and
-    spread."""
+    --reports SIZE=PATH (`eval --mc --json` outputs, with --trim or --stage) added first, a
+    row per size, spread, stage and trim."""
     from springc.kws.evaluation.trim_page import row, write_page
 
-    rows = {(r["size"], r["spread"]): r for r in stored(Path(args.store), [])}
+    def key(r: dict) -> tuple:
+        return r["size"], r["spread"], r["stage"], "trimmed" in r
+
+    rows = {key(r): r for r in stored(Path(args.store), [])}
     for item in args.reports:
         size, path = item.split("=", 1)
         r = row(size, json.loads(Path(path).read_text().splitlines()[-1]))
-        rows[(r["size"], r["spread"])] = r
+        rows[key(r)] = r
     Path(args.store).write_text(json.dumps(list(rows.values()), indent=1) + "\n")
     write_page(list(rows.values()), Path(args.md))
 

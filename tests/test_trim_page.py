@@ -19,6 +19,7 @@ def report(spread: float, untrimmed: list[float], trimmed: list[float]) -> dict:
     devices = [{"device": k, "accuracy": u, "trimmed": t, "diverged": False,
                 "decision_error": 0.1} for k, (u, t) in enumerate(zip(untrimmed, trimmed))]
     return {"devices": devices, "nominal": 0.5, "nominal_trimmed": 0.52,
+            "nominal_priors": [100.0],
             "accuracy": summary(untrimmed), "trimmed": summary(trimmed), "n": 48,
             "trim_clips": 48, "spread": spread, "kind": "local", "stage": "all", "seed": 0}
 
@@ -43,3 +44,18 @@ def test_reading_survives_regeneration(tmp_path: Path) -> None:
     write_page(rows, md)
     text = md.read_text()
     assert text.count(READING) == 1 and "Trimming helps." in text
+
+
+def test_a_stage_spread_alone_reaches_the_stage_table(tmp_path: Path) -> None:
+    """A report of `eval --mc --stage delays` (no trim) is a row of the stage table beside
+    the trimmed report's every-stage row of the same size and spread; the trim table and
+    the plot take only trimmed rows."""
+    stage = report(0.03, [0.3, 0.32], [0.3, 0.32])
+    del stage["trimmed"], stage["trim_clips"], stage["nominal_trimmed"]
+    stage["stage"] = "delays"
+    rows = [row("4x2", stage), row("4x2", report(0.03, [0.25, 0.29], [0.27, 0.31]))]
+    text = write_page(rows, tmp_path / "page.md", intro="").read_text()
+    assert "| 4x2 | 0.03 | delays | 31.0 +- 1.0 | 30.0 | 19.0 |" in text
+    assert "| 4x2 | 0.03 | all | 27.0 +- 1.0 | 25.0 | 23.0 |" in text
+    assert text.index("| 4x2 | 0.03 | delays |") < text.index("| 4x2 | 0.03 | all |")
+    assert text.count("| 4x2 | 0.03 | 2 |") == 1  # the trim table: the trimmed row alone

@@ -22,8 +22,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-
-
 PRIORS = (1.0, 10.0, 100.0, 1e6)  # the ridge's weights tried, in clips
 FOLDS = 4  # folds of the labelled clips that choose it
 LOG_T = 8.0  # the temperature's range, e^-8 to e^8 (decisions are of order 1)
@@ -139,9 +137,11 @@ def evaluate_trimmed(setup, cal, devices: int, spread, *, scheduler: str | None 
                    y=np.concatenate([setup.y, cal.y]))
     n, models = len(setup.y), selection_models(setup.model.models)
 
-    def scored(d: np.ndarray) -> tuple[float, float, list[float]]:
+    def scored(d: np.ndarray) -> dict:
+        """Untrimmed and trimmed accuracy of decisions on `both`'s clips (test, then cal)."""
         t = fit(models, d[n:], cal.y)
-        return dv.accuracy(setup, d[:n]), dv.accuracy(setup, t.apply(d[:n])), list(t.priors)
+        return {"accuracy": dv.accuracy(setup, d[:n]),
+                "trimmed": dv.accuracy(setup, t.apply(d[:n])), "priors": list(t.priors)}
 
     rows, start = [], time.perf_counter()
     with session(scheduler, jobs or None):
@@ -150,15 +150,14 @@ def evaluate_trimmed(setup, cal, devices: int, spread, *, scheduler: str | None 
         for first in range(0, devices, dv.DEVICE_GROUP):
             ks = range(first, min(first + dv.DEVICE_GROUP, devices))
             for k, dk in dv.fabricated_decisions(both, ks, spread, scheduler, jobs).items():
-                rows.append({**dv.diverged_row(k, dk), "trimmed": 0.0} if isinstance(dk, str) else
-                            dict(zip(("accuracy", "trimmed", "priors"), scored(dk)), device=k,
-                                 diverged=False,
-                                 decision_error=dv.decision_error(dk[:n], nominal[:n])))
+                rows.append({**dv.diverged_row(k, dk), "trimmed": 0.0} if isinstance(dk, str)
+                            else {"device": k, **scored(dk), "diverged": False,
+                                  "decision_error": dv.decision_error(dk[:n], nominal[:n])})
             if progress:
                 progress(dv.progress_line(rows, devices, time.perf_counter() - start))
-    untrimmed, trimmed, priors = scored(nominal)
-    return {"devices": rows, "nominal": untrimmed, "nominal_trimmed": trimmed,
-            "nominal_priors": priors,
+    mine = scored(nominal)
+    return {"devices": rows, "nominal": mine["accuracy"], "nominal_trimmed": mine["trimmed"],
+            "nominal_priors": mine["priors"],
             "accuracy": dv.summary(np.array([r["accuracy"] for r in rows])),
             "trimmed": dv.summary(np.array([r["trimmed"] for r in rows])),
             "n": n, "trim_clips": len(cal.y), "spread": spread.sigma, "kind": spread.kind,

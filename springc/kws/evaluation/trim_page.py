@@ -1,7 +1,7 @@
 """docs/results-trim.md: the device design's fabricated devices trimmed after fabrication
 (`springc eval MODEL --mc N --spread S --trim K`), untrimmed beside trimmed, per size and
-spread, from the rows stored in docs/results-trim.json (`row` of each `eval --json` report),
-with a plot beside the page."""
+spread, and what a spread on one stage alone costs (`--stage`), from the rows stored in
+docs/results-trim.json (`row` of each `eval --json` report), with a plot beside the page."""
 
 from __future__ import annotations
 
@@ -11,18 +11,40 @@ from springc.kws.evaluation.device_page import reading
 
 COMMAND = "python scripts/results_device.py trim-page"
 TABLES = "## Untrimmed and trimmed"
+STAGES = ("filters", "compressors", "delays", "couplings", "readouts")  # device.STAGES
 
 
 def row(size: str, report: dict) -> dict:
-    """The stored row of one `eval --mc N --spread S --trim K --json` report of a model of
-    `size` ("8x3"): the nominal design's and the devices' accuracy, untrimmed and trimmed."""
+    """The stored row of one `eval --mc N --spread S [--stage X] [--trim K] --json` report of
+    a model of `size` ("8x3"): the nominal design's and the devices' accuracy, and where
+    trimmed the trimmed ones."""
     devices = report["devices"]
-    return {"size": size, "spread": report["spread"], "kind": report["kind"],
-            "n": report["n"], "trim_clips": report["trim_clips"], "devices": len(devices),
-            "diverged": sum(d["diverged"] for d in devices),
-            "nominal": report["nominal"], "nominal_trimmed": report["nominal_trimmed"],
-            "untrimmed": report["accuracy"], "trimmed": report["trimmed"],
-            "gain": [d["trimmed"] - d["accuracy"] for d in devices]}
+    out = {"size": size, "spread": report["spread"], "kind": report["kind"],
+           "stage": report["stage"], "n": report["n"], "devices": len(devices),
+           "diverged": sum(d["diverged"] for d in devices), "nominal": report["nominal"],
+           "untrimmed": report["accuracy"]}
+    if "trimmed" in report:
+        out.update(trim_clips=report["trim_clips"], nominal_trimmed=report["nominal_trimmed"],
+                   trimmed=report["trimmed"],
+                   gain=[d["trimmed"] - d["accuracy"] for d in devices])
+    return out
+
+
+def stage_rows(rows: list[dict]) -> list[str]:
+    """Per size and spread measured one stage at a time, each stage's mean device and the
+    points it loses against the nominal design, beside every stage at once."""
+    alone = [r for r in rows if r["stage"] != "all"]
+    out = ["| size | spread | stage spread | mean device % | worst device % | points lost |",
+           "|---|---|---|---|---|---|"]
+    for size, spread in sorted({(r["size"], r["spread"]) for r in alone}):
+        mine = [r for r in rows if (r["size"], r["spread"]) == (size, spread)]
+        order = {name: k for k, name in enumerate(STAGES + ("all",))}
+        for r in sorted(mine, key=lambda r: order[r["stage"]]):
+            u = r["untrimmed"]
+            out.append(f"| {size} | {spread:g} | {r['stage']} | {100 * u['mean']:.1f} +- "
+                       f"{100 * u['stderr']:.1f} | {100 * u['worst']:.1f} | "
+                       f"{100 * (r['nominal'] - u['mean']):.1f} |")
+    return out
 
 
 def table_rows(rows: list[dict]) -> list[str]:
@@ -31,7 +53,7 @@ def table_rows(rows: list[dict]) -> list[str]:
     out = ["| size | spread | devices | nominal % | trimmed nominal % | mean device % "
            "| trimmed % | worst device % | worst trimmed % | gain (points) |",
            "|---|---|---|---|---|---|---|---|---|---|"]
-    for r in sorted(rows, key=lambda r: (r["size"], r["spread"])):
+    for r in sorted(_trimmed(rows), key=lambda r: (r["size"], r["spread"])):
         u, t = r["untrimmed"], r["trimmed"]
         mean, err = _mean_err([100 * g for g in r["gain"]])
         out.append(f"| {r['size']} | {r['spread']:g} | {r['devices']} | "
@@ -41,6 +63,10 @@ def table_rows(rows: list[dict]) -> list[str]:
                    f"{100 * u['worst']:.1f} | {100 * t['worst']:.1f} | "
                    f"{mean:+.1f} +- {err:.1f} |")
     return out
+
+
+def _trimmed(rows: list[dict]) -> list[dict]:
+    return [r for r in rows if "trimmed" in r]
 
 
 def _mean_err(values: list[float]) -> tuple[float, float]:
@@ -60,6 +86,7 @@ def plot(rows: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 4.5))
+    rows = _trimmed(rows)
     for size in sorted({r["size"] for r in rows}):
         mine = sorted((r for r in rows if r["size"] == size), key=lambda r: r["spread"])
         xs, color = [r["spread"] for r in mine], None
@@ -85,7 +112,10 @@ def write_page(rows: list[dict], md: Path, intro: str | None = None) -> Path:
     intro = reading(md, TABLES) if intro is None else intro
     png = md.with_suffix(".png")
     plot(rows, png)
+    by_stage = any(r["stage"] != "all" for r in rows)
     lines = ["# Trimming fabricated devices", "", f"![accuracy]({png.name})", "", intro,
-             TABLES, "", *table_rows(rows), "", f"Regenerated by `{COMMAND}`."]
+             TABLES, "", *table_rows(rows), "",
+             *(["## One stage at a time", "", *stage_rows(rows), ""] if by_stage else []),
+             f"Regenerated by `{COMMAND}`."]
     md.write_text("\n".join(lines) + "\n")
     return md

@@ -330,16 +330,22 @@ def load_setup(model_dir: Path, data: Path | None = None, clips: int | None = No
     if model.settings["realisation"] != "mass-spring":
         raise UsageError(f"{model_dir} is a {model.settings['realisation']} model; a device "
                          "is a mass-spring network", hint="train with --realisation mass-spring")
+    s, heads = model_heads(model)
+    return Setup(model, s, heads, load_file(model.folder / "classifier.spr"),
+                 model_integration(model), *split_signals(model, data, clips, protocol, split))
+
+
+def split_signals(model, data: Path | None, clips: int | None, protocol: str | None,
+                  split: str) -> tuple[np.ndarray, np.ndarray]:
+    """The signals and classes of `clips` clips spread evenly over the model's `split` of
+    `data` (default: the data it was trained on; all clips where `clips` is None)."""
     ds = open_task_data(Path(data) if data else trained_data(model), model.settings["task"],
                         int(model.settings.get("seed", 0)),
                         protocol or model.settings.get("protocol"), splits=(split,))
-    test = ds.split(split)
-    if clips is not None and clips < len(test):  # spread evenly: classes in proportion
-        test = [test[k] for k in np.linspace(0, len(test) - 1, clips).round().astype(int)]
-    s, heads = model_heads(model)
-    return Setup(model, s, heads, load_file(model.folder / "classifier.spr"),
-                 model_integration(model), msp.load_signals(test, False, 0, []),
-                 targets(test, model.settings["task"]))
+    chosen = ds.split(split)
+    if clips is not None and clips < len(chosen):  # spread evenly: classes in proportion
+        chosen = [chosen[k] for k in np.linspace(0, len(chosen) - 1, clips).round().astype(int)]
+    return msp.load_signals(chosen, False, 0, []), targets(chosen, model.settings["task"])
 
 
 def outputs(setup: Setup, net: FlatNetlist, *, lam: float = 1.0, temp: float | None = None,
@@ -412,9 +418,30 @@ def evaluate_spread(setup: Setup, devices: int, spread: Spread, *,
     device's decision error: the median |device - nominal decision| over the median
     |nominal decision|. A device whose network diverges, or that the checks find statically
     unstable (stiffness at rest not positive semidefinite), scores 0 (marked "diverged")."""
+    spread.validate()
+
+    def row(k: int, dk: np.ndarray, nominal: np.ndarray) -> dict:
+        return {"device": k, "accuracy": accuracy(setup, dk), "diverged": False,
+                "decision_error": decision_error(dk, nominal)}
+
+    nominal, rows = population(setup, devices, spread, row, nominal=nominal,
+                               scheduler=scheduler, jobs=jobs, progress=progress)
+    acc = np.array([r["accuracy"] for r in rows])
+    return {"devices": rows, "nominal": accuracy(setup, nominal), "accuracy": summary(acc),
+            "n": len(setup.y), "spread": spread.sigma, "kind": spread.kind,
+            "stage": spread.stage, "seed": spread.seed}
+
+
+def population(setup: Setup, devices: int, spread: Spread,
+               row: Callable[[int, np.ndarray, np.ndarray], dict], *,
+               nominal: np.ndarray | None = None, scheduler: str | None = None, jobs: int = 0,
+               progress: Callable[[str], None] | None = None) -> tuple[np.ndarray, list[dict]]:
+    """The nominal design's decisions on the setup's clips (simulated unless `nominal` gives
+    them) and a row per device 0 .. N-1: `row(k, its decisions, the nominal's)`, or
+    `diverged_row` for a device the checks find unstable or whose network diverges; devices
+    simulated `DEVICE_GROUP` at a time, with progress after each group."""
     from springc.kws.features.distributed import session
 
-    spread.validate()
     rows, start = [], time.perf_counter()
     with session(scheduler, jobs or None):
         if nominal is None:
@@ -422,25 +449,11 @@ def evaluate_spread(setup: Setup, devices: int, spread: Spread, *,
                               desc="nominal design")["decisions"]
         for first in range(0, devices, DEVICE_GROUP):
             ks = range(first, min(first + DEVICE_GROUP, devices))
-            rows += _devices(setup, ks, spread, nominal, scheduler, jobs)
+            for k, dk in fabricated_decisions(setup, ks, spread, scheduler, jobs).items():
+                rows.append(diverged_row(k, dk) if isinstance(dk, str) else row(k, dk, nominal))
             if progress:
                 progress(progress_line(rows, devices, time.perf_counter() - start))
-    acc = np.array([r["accuracy"] for r in rows])
-    return {"devices": rows, "nominal": accuracy(setup, nominal), "accuracy": summary(acc),
-            "n": len(setup.y), "spread": spread.sigma, "kind": spread.kind,
-            "stage": spread.stage, "seed": spread.seed}
-
-
-def _devices(setup: Setup, ks: range, spread: Spread, nominal: np.ndarray, scheduler,
-             jobs) -> list[dict]:
-    """The rows of devices `ks`, simulated together (`fabricated_decisions`); a device that
-    the checks find unstable, or whose network diverges, scores 0."""
-    rows = {}
-    for k, dk in fabricated_decisions(setup, ks, spread, scheduler, jobs).items():
-        rows[k] = (diverged_row(k, dk) if isinstance(dk, str) else
-                   {"device": k, "accuracy": accuracy(setup, dk), "diverged": False,
-                    "decision_error": decision_error(dk, nominal)})
-    return [rows[k] for k in ks]
+    return nominal, rows
 
 
 def fabricated_decisions(setup: Setup, ks: range, spread: Spread, scheduler=None,

@@ -113,12 +113,12 @@ def loss(z: np.ndarray, d: np.ndarray, labels: np.ndarray, binary: bool,
 
 
 def calibration_setup(setup, model_dir, data, clips: int, protocol: str | None):
-    """The setup's model and network with `clips` labelled clips of the validation split
-    (spread evenly over it) as its signals: what a device is measured on to be trimmed."""
-    from springc.kws.evaluation.device import load_setup
+    """The setup with `clips` labelled clips of the validation split (spread evenly over it)
+    as its signals: what a device is measured on to be trimmed."""
+    from springc.kws.evaluation.device import split_signals
 
-    cal = load_setup(model_dir, data, clips, protocol, split="validation")
-    return replace(setup, signals=cal.signals, y=cal.y)
+    signals, y = split_signals(setup.model, data, clips, protocol, "validation")
+    return replace(setup, signals=signals, y=y)
 
 
 def evaluate_trimmed(setup, cal, devices: int, spread, *, scheduler: str | None = None,
@@ -126,11 +126,8 @@ def evaluate_trimmed(setup, cal, devices: int, spread, *, scheduler: str | None 
     """`device.evaluate_spread`'s report, each device (and the nominal design) also trimmed
     on the clips of `cal` (`calibration_setup`) and scored again on the same test clips:
     per device "trimmed" beside "accuracy", and their summaries."""
-    import time
-
     from springc.kws.evaluation import device as dv
     from springc.kws.evaluation.evaluate import selection_models
-    from springc.kws.features.distributed import session
 
     spread.validate()
     both = replace(setup, signals=np.concatenate([setup.signals, cal.signals]),
@@ -143,18 +140,13 @@ def evaluate_trimmed(setup, cal, devices: int, spread, *, scheduler: str | None 
         return {"accuracy": dv.accuracy(setup, d[:n]),
                 "trimmed": dv.accuracy(setup, t.apply(d[:n])), "priors": list(t.priors)}
 
-    rows, start = [], time.perf_counter()
-    with session(scheduler, jobs or None):
-        nominal = dv.outputs(both, both.net, scheduler=scheduler, jobs=jobs,
-                             desc="nominal design")["decisions"]
-        for first in range(0, devices, dv.DEVICE_GROUP):
-            ks = range(first, min(first + dv.DEVICE_GROUP, devices))
-            for k, dk in dv.fabricated_decisions(both, ks, spread, scheduler, jobs).items():
-                rows.append({**dv.diverged_row(k, dk), "trimmed": 0.0} if isinstance(dk, str)
-                            else {"device": k, **scored(dk), "diverged": False,
-                                  "decision_error": dv.decision_error(dk[:n], nominal[:n])})
-            if progress:
-                progress(dv.progress_line(rows, devices, time.perf_counter() - start))
+    def row(k: int, dk: np.ndarray, nominal: np.ndarray) -> dict:
+        return {"device": k, **scored(dk), "diverged": False,
+                "decision_error": dv.decision_error(dk[:n], nominal[:n])}
+
+    nominal, rows = dv.population(both, devices, spread, row, scheduler=scheduler, jobs=jobs,
+                                  progress=progress)
+    rows = [{**r, "trimmed": 0.0} if r["diverged"] else r for r in rows]
     mine = scored(nominal)
     return {"devices": rows, "nominal": mine["accuracy"], "nominal_trimmed": mine["trimmed"],
             "nominal_priors": mine["priors"],

@@ -4,9 +4,12 @@ what was measured."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
-from springc.bench.startup import INPUT_S, Row, keyword_rows
+from springc.bench.startup import INPUT_S, Row, keyword_rows, numba_floor
 
 
 def test_keyword_spotting_rows_simulate_their_input(tmp_path: Path) -> None:
@@ -26,3 +29,11 @@ def test_summary_is_median_and_range() -> None:
     row = Row("x", ["true"], warm=[1.0, 3.0, 2.0])
     assert row.summary("warm") == "2.00 (1.00-3.00)"
     assert row.summary("cold") == "-"
+
+
+def test_numba_floor_row_loads_its_function_from_numbas_cache(tmp_path: Path) -> None:
+    script = numba_floor(tmp_path)
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}  # cache beside it
+    for _ in range(2):  # the first run compiles and caches, the second loads
+        subprocess.run([sys.executable, str(script)], check=True, cwd=tmp_path, env=env)
+    assert list((tmp_path / "__pycache__").glob("numba_floor.total-*.nbi"))

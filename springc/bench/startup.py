@@ -5,8 +5,9 @@ Whole `springc` processes, timed from their start to their exit, several runs of
 (`networks.kws_network`) and of the 8x3 classifier (`networks.pipeline_classifier`, 788
 masses) on 0.25 s of speech-like input, warm (the kernel cache filled by one unmeasured run
 first) and cold (an empty `SPRINGC_CACHE` for every run). Beside them, in the same run:
-`python -c "import numba"` (the floor of a process that compiles with numba) and ngspice's
-batch run of each example netlist (`springc export --spice`), where ngspice is installed.
+`python -c "import numba"` (the floor of a process that compiles with numba), a process
+that calls one small numba function loaded from numba's own cache (the floor of any warm
+numba kernel: numba readies its compiler to load one), and ngspice's batch run of each example netlist (`springc export --spice`), where ngspice is installed.
 Writes bench-startup.md and bench/startup.json.
 """
 
@@ -80,13 +81,39 @@ def write_inputs(folder: Path) -> dict[str, Path]:
 
 def rows(folder: Path) -> list[Row]:
     """Every measured command line (files written to `folder`)."""
-    out = [Row("import numba", [sys.executable, "-c", "import numba"], "the floor")]
+    out = [Row("import numba", [sys.executable, "-c", "import numba"], "the floor"),
+           Row("numba cached function", [sys.executable, str(numba_floor(folder))],
+               "one small function from numba's cache: a warm kernel's floor")]
     for path in sorted(EXAMPLES.glob("*.spr")):
         out.append(Row(f"build {path.name}", springc_argv("build", str(path))))
         out.append(Row(f"sim {path.name}", springc_argv("sim", str(path), "-o",
                                                         str(folder / "out.npz")),
                        "integration chosen for 1e-3"))
     return out + keyword_rows(write_inputs(folder), folder)
+
+
+NUMBA_FLOOR = """import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def total(a):
+    s = 0.0
+    for i in range(a.shape[0]):
+        s += a[i]
+    return s
+
+
+total(np.ones(3))
+"""
+
+
+def numba_floor(folder: Path) -> Path:
+    """A script that calls one small `cache=True` numba function (cached beside it by the
+    row's unmeasured first run)."""
+    path = folder / "numba_floor.py"
+    path.write_text(NUMBA_FLOOR)
+    return path
 
 
 def keyword_rows(files: dict[str, Path], folder: Path) -> list[Row]:

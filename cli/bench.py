@@ -53,8 +53,8 @@ CASE_NAMES = ("feature", "kws", "delay", "stiff", "duffing", "kws-features", "kw
 @click.option("--startup", is_flag=True,
               help="Instead: whole springc processes, build and sim of the example netlists, "
                    "the 564-dof network and the 8x3 classifier, warm and cold kernel cache, "
-                   "beside `import numba`, a small function from numba's cache and ngspice (springc.bench.startup); writes "
-                   "OUT/bench-startup.md and OUT/bench/startup.json. With --quick: 2 warm "
+                   "beside `import numba`, a small function from numba's cache and ngspice "
+                   "(springc.bench.startup); writes OUT/bench-startup.md and OUT/bench/startup.json. With --quick: 2 warm "
                    "runs and 1 cold run per row.")
 @run_user_errors
 @on_device

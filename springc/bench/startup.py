@@ -7,7 +7,8 @@ masses) on 0.25 s of speech-like input, warm (the kernel cache filled by one unm
 first) and cold (an empty `SPRINGC_CACHE` for every run). Beside them, in the same run:
 `python -c "import numba"` (the floor of a process that compiles with numba), a process
 that calls one small numba function loaded from numba's own cache (the floor of any warm
-numba kernel: numba readies its compiler to load one), and ngspice's batch run of each example netlist (`springc export --spice`), where ngspice is installed.
+numba kernel: numba readies its compiler to load one), and ngspice's batch run of each
+example netlist (`springc export --spice`), where ngspice is installed.
 Writes bench-startup.md and bench/startup.json.
 """
 

@@ -54,8 +54,8 @@ CASE_NAMES = ("feature", "kws", "delay", "stiff", "duffing", "kws-features", "kw
               help="Instead: whole springc processes, build and sim of the example netlists, "
                    "the 564-dof network and the 8x3 classifier, warm and cold kernel cache, "
                    "beside `import numba`, a small function from numba's cache and ngspice "
-                   "(springc.bench.startup); writes OUT/bench-startup.md and OUT/bench/startup.json. With --quick: 2 warm "
-                   "runs and 1 cold run per row.")
+                   "(springc.bench.startup); writes OUT/bench-startup.md and "
+                   "OUT/bench/startup.json. With --quick: 2 warm runs and 1 cold run per row.")
 @run_user_errors
 @on_device
 def bench_cmd(case_names, outdir, quick, render_from, issue3, seconds, batch, stretch,

@@ -269,12 +269,12 @@ def split_layout(feat: Features, coeffs: dict, n: int) -> tuple[int, tuple]:
     return threads, tuple((sl.name, k, m > k) for sl, k, m in zip(lists, held, most))
 
 
-def load(net: FlatNetlist, opts: cudagen.CudaOptions) -> loader.Kernel:
-    """The CUDA kernel for the force netlist `net` (`force_netlist`) under `opts`, written to
-    the kernel cache and imported (compiled by numba.cuda at its first launch)."""
+def kernel_text(net: FlatNetlist, opts: cudagen.CudaOptions) -> str:
+    """The CUDA kernel's text for the force netlist `net` (`force_netlist`) under `opts`
+    (`springc.kernels.loader` imports it; numba.cuda compiles it at its first launch)."""
     from springc.kernels import cuda as cudagen
 
-    return loader.load(cudagen.generate(net, opts))
+    return cudagen.generate(net, opts)
 
 
 _STATE = ("x0", "v0")

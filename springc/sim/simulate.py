@@ -246,8 +246,16 @@ def _marshal(plan: RunPlan) -> tuple[FlatNetlist, dict, Lanes | None]:
 def _kernel(plan: RunPlan, knet: FlatNetlist, coeffs: dict, lanes: Lanes | None,
             write_out: bool | None, node_threads: bool | None, fma: bool) -> tuple:
     """The kernel of the plan's form (`kernel_form`; the CUDA form on a GPU), loaded, and
-    the arrays it takes: `coeffs` with each node's element ends where nodes gather them
-    (the node-split form; CUDA)."""
+    the arrays it takes (`_kernel_text`)."""
+    text, coeffs = _kernel_text(plan, knet, coeffs, lanes, write_out, node_threads, fma)
+    return loader.load(text), coeffs
+
+
+def _kernel_text(plan: RunPlan, knet: FlatNetlist, coeffs: dict, lanes: Lanes | None,
+                 write_out: bool | None, node_threads: bool | None, fma: bool
+                 ) -> tuple[str, dict]:
+    """The text of the plan's kernel and the arrays it takes: `coeffs` with each node's
+    element ends where nodes gather them (the node-split form; CUDA)."""
     st, rplan = plan.st, plan.rplan
     opts = codegen.KernelOptions(st.method, st.precision, plan.width,
                                  record=bool(plan.probes), work=rplan.work,
@@ -259,11 +267,26 @@ def _kernel(plan: RunPlan, knet: FlatNetlist, coeffs: dict, lanes: Lanes | None,
     if plan.device == "cuda" or opts.parallel:
         coeffs = {**coeffs, **terms.node_ends(coeffs, knet.n)}
     if plan.device != "cuda":
-        return loader.load(kernel_source(knet, opts)), coeffs
+        return kernel_source(knet, opts), coeffs
     fnet, blocks = gpu.force_netlist(knet, st.method)
     copts = gpu.options(fnet, blocks, st.method, st.precision, coeffs, len(plan.probes), rplan,
                         fma)
-    return gpu.load(fnet, copts), coeffs
+    return gpu.kernel_text(fnet, copts), coeffs
+
+
+def kernel_text(checked: CheckedNetlist, inputs=None, input_rate: float | None = None, *,
+                device: str = "cpu", write_out: bool | None = None,
+                node_threads: bool | None = None, fma: bool = True, **options) -> str:
+    """The text of the kernel `simulate` would load for these arguments (`device` "cuda":
+    the CUDA form's, generated without a GPU), generated, neither compiled nor run: what a
+    change to the code generators must keep for a kernel's bits to stay
+    (scripts/kernel_texts.py compares two versions' texts)."""
+    plan = _plan([checked], None, inputs, input_rate, None, device="cpu", **options)
+    if device == "cuda":
+        gpu.require(plan.nets[0], plan.st.method)
+        plan = replace(plan, device="cuda")
+    knet, coeffs, lanes = _marshal(plan)
+    return _kernel_text(plan, knet, coeffs, lanes, write_out, node_threads, fma)[0]
 
 
 def _require_stable(group: list[CheckedNetlist], labels: list[str] | None,

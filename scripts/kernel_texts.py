@@ -7,7 +7,8 @@ it without compiling anything: equal texts compile to equal kernels. Checks OLD_
 into a temporary `git worktree` and, in a subprocess per tree (PYTHONPATH: that tree),
 generates what `springc.sim.simulate.kernel_text` gives for every case:
 
-- every netlist of netlists/examples/*.spr and tests/cases/ok/*.spr that loads, under each
+- every netlist of netlists/examples/*.spr and tests/cases/ok/*.spr that loads, and a copy
+  of elements.spr (every element kind) with a sign `check` accepts, under each
   method of METHODS, float64 and float32, products fused or not (`fma`), with and without
   accumulated reductions (input work, dissipation, a mean square), in each CPU form
   (`write_out` None, False, True) and in the CUDA form (generated without a GPU);
@@ -55,7 +56,11 @@ def one(label, net, **kw):
 
 paths = sorted(glob.glob(root + "/netlists/examples/*.spr")
                + glob.glob(root + "/tests/cases/ok/*.spr"))
-for p in paths:
+# elements.spr has every element kind, but `check` refuses its Q1's sign: a copy that checks
+every = Path(folder) / "elements-checked.spr"
+every.write_text(Path(root, "tests/cases/ok/elements.spr").read_text().replace(
+    "Q1 a b g=1.5 a=-1", "Q1 a b g=1.5 a=1"))
+for p in paths + [str(every)]:
     try:
         net = springc.load(p)
     except Exception:

@@ -12,6 +12,7 @@ Why the loops look as they do: docs/performance.md#the-shared-kernels-shape.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 import importlib.util
@@ -342,6 +343,13 @@ class LaneLayout:
 
     width: int
     group: int
+    one_run: bool = False  # a form that holds one run (CUDA): no lane index (`one_run`)
+
+
+def one_run(stmt: str, name: str = "0") -> str:
+    """A lane statement (`xa[i, {b}]`, `X{b}`) for a form that holds one run per thread:
+    the lane index left out of every subscript, `{b}` in a name replaced by `name`."""
+    return re.sub(r", \{b\}\]", "]", stmt).replace("{b}", name)
 
 
 def lane_layout(opts: KernelOptions) -> LaneLayout:
@@ -381,7 +389,7 @@ def lanes(c: _Code, ln: LaneLayout, loads: list[str], arith: list[str],
         # stores to another, which the vectoriser cannot reorder (the rows might overlap)
         for stmt in part:
             for b in range(ln.group):
-                c(_lane_stmt(stmt, b, lane_names[b]))
+                c(one_run(stmt) if ln.one_run else _lane_stmt(stmt, b, lane_names[b]))
     if looped:
         c.dedent()
 
@@ -475,7 +483,7 @@ def emit_accel_body(c: _Code, feat: Features, width: LaneLayout,
             if getattr(feat, kind.feature):
                 _emit_kind(c, width, kind, lane)
     if feat.monomials:
-        _emit_monomials(c, width, lane)
+        emit_monomials(c, width, lane)
     if feat.common_forces and nodes is None:
         _emit_kind(c, width, terms.COMMON, lane)
     if feat.thermal:
@@ -540,7 +548,7 @@ def node_loop(parallel: bool) -> str:
 
 
 def emit_linear(c: _Code, feat: Features, width: LaneLayout, parallel: bool = False,
-                per_run: frozenset[str] = frozenset()) -> None:
+                per_run: frozenset[str] = frozenset(), loop: str | None = None) -> None:
     """Per node, all lanes in registers and one store: ka = -(bm v + km x), plus (with
     couplings) the node's off-diagonal stiffness row (`marshal.linear_rows`) and (with
     inputs) its input forces (`fi_ptr`: the node's range of the node-ordered inputs). Pushing
@@ -549,9 +557,10 @@ def emit_linear(c: _Code, feat: Features, width: LaneLayout, parallel: bool = Fa
     one accumulator are a chain, and only the lanes' independent chains keep the FMA units
     busy. `parallel`: the loop is a `prange`, and each node then adds its ends of the
     element kinds (`_emit_gathers`) before its one store. `per_run`: the coefficient
-    arrays read per lane (`_emit_linear_lanes`)."""
-    full = LaneLayout(width.width, width.width)
-    c(node_loop(parallel))
+    arrays read per lane (`_emit_linear_lanes`). `loop`: the header of the loop over the
+    nodes, where a form has its own (the CUDA split form's threads' shares)."""
+    full = dataclasses.replace(width, group=width.width)
+    c(loop or node_loop(parallel))
     c.indent()
     if per_run & {"bm", "km", "l_val", "fi_gm"}:
         _emit_linear_lanes(c, feat, full, per_run)
@@ -675,14 +684,16 @@ def _gather(c: _Code, full: LaneLayout, ptr: str, head: tuple[str, ...], row: st
     c.dedent()
 
 
-def _emit_monomials(c: _Code, width: LaneLayout,
-                    per_run: frozenset[str] = frozenset()) -> None:
-    # Each factor position contributes its partial derivative; summing them over positions is
-    # the product rule, so repeated variables need no special case. Rare and irregular: a
-    # plain lane loop.
+def emit_monomials(c: _Code, width: LaneLayout,
+                   per_run: frozenset[str] = frozenset()) -> None:
+    """The monomials' loop: each factor's partial derivative, summed over the factors (the
+    product rule, so repeated variables need no special case); rare and irregular, a plain
+    loop over the lanes (none where the form holds one run)."""
     lane = bool(per_run & {"p_c", "minv"})
     pc = f"{terms.lane_array('p_c')}[e, b]" if "p_c" in per_run else "p_c[e]"
     mi = f"{terms.lane_array('minv')}[i, b]" if "minv" in per_run else "minv[i]"
+    at = (lambda stmt: one_run(stmt, "")) if width.one_run else (
+        lambda stmt: stmt.replace("{b}", "b"))
     c("for e in range(p_c.shape[0]):")
     c.indent()
     c("lo = p_ptr[e]")
@@ -693,18 +704,19 @@ def _emit_monomials(c: _Code, width: LaneLayout,
     c("ex = p_exp[kf]")
     if not lane:
         c(f"cm = {pc} * ex * {mi}")
-    c(f"for b in range({width.width}):")
-    c.indent()
+    if not width.one_run:
+        c(f"for b in range({width.width}):")
+        c.indent()
     if lane:  # each lane its own point's coefficient
         c(f"cm = {pc} * ex * {mi}")
-    c("term = cm * xa[i, b] ** (ex - 1)")
+    c(at("term = cm * xa[i, {b}] ** (ex - 1)"))
     c("for ko in range(lo, hi):")
     c.indent()
     c("if ko != kf:")
-    c("    term *= xa[p_var[ko], b] ** p_exp[ko]")
+    c(at("    term *= xa[p_var[ko], {b}] ** p_exp[ko]"))
     c.dedent()
-    c("ka[i, b] -= term")
-    c.dedent(3)
+    c(at("ka[i, {b}] -= term"))
+    c.dedent(2 if width.one_run else 3)
 
 
 def _emit_run(c: _Code, feat: Features, opts: KernelOptions, tab: Tableau) -> None:
@@ -861,15 +873,23 @@ def emit_stage_input(c: _Code, tab: Tableau, s: int | None, width: LaneLayout) -
 def emit_interp(c: _Code, target: str, pos: str, width: LaneLayout, channels: str = "nch") -> None:
     """Linear interpolation of the staged input at input-grid position k0 + `pos` into the
     first `channels` rows of `target`."""
-    c(f"pos = {pos}")
-    c("kk = k0 + int(pos) - ubase")
-    c("fr = FT(pos - int(pos))")
-    c("gr = FT(1.0) - fr")
+    for line in interp_weights(pos, "k0 + {i} - ubase"):
+        c(line)
     c(f"for ch in range({channels}):")
     c.indent()
     lanes(c, width, ["A{b} = ustg[kk, ch, {b}]", "B{b} = ustg[kk + 1, ch, {b}]"], [],
           [f"{target}[ch, {{b}}] = gr * A{{b}} + fr * B{{b}}"])
     c.dedent()
+
+
+def interp_weights(pos: str, sample: str, suffix: str = "") -> list[str]:
+    """The statements of a linear interpolation on the input grid at position `pos` (in
+    samples): the sample before it, kk (`sample` with `{i}` standing for the position's
+    whole part), and the weights of the samples after (fr) and before it (gr); each name
+    with `suffix`."""
+    p = f"pos{suffix}"
+    return [f"{p} = {pos}", f"kk{suffix} = " + sample.replace("{i}", f"int({p})"),
+            f"fr{suffix} = FT({p} - int({p}))", f"gr{suffix} = FT(1.0) - fr{suffix}"]
 
 
 def emit_chunk_end(c: _Code, opts: KernelOptions) -> None:
@@ -914,6 +934,13 @@ def nystrom_coefficients(tab: Tableau) -> tuple[np.ndarray, np.ndarray, np.ndarr
 
 
 def emit_nystrom_coefficients(c: _Code, tab: Tableau) -> None:
+    """`emit_nystrom_constants`, and the stage tables where the stages are uniform."""
+    emit_nystrom_constants(c, tab)
+    if uniform_stages(tab):
+        emit_stage_tables(c, tab)
+
+
+def emit_nystrom_constants(c: _Code, tab: Tableau) -> None:
     """h- and h^2-scaled constants of `nystrom_coefficients` (typed like the state)."""
     cs, aa, ba, bsum = nystrom_coefficients(tab)
     for s in range(1, tab.stages):
@@ -923,8 +950,6 @@ def emit_nystrom_coefficients(c: _Code, tab: Tableau) -> None:
     c(f"hbs = FT(h * {bsum!r})")
     for k in np.flatnonzero(ba):
         c(f"hhb{k} = FT(h * h * {float(ba[k])!r})")
-    if uniform_stages(tab):
-        emit_stage_tables(c, tab)
 
 
 def uniform_stages(tab: Tableau) -> bool:

@@ -46,8 +46,10 @@ from dataclasses import dataclass
 
 from springc.kernels import expint, terms
 from springc.kernels.codegen import (Features, LaneLayout, _Code, accel_args, combine_terms,
-                                     emit_coefficients, emit_linear, features, gather_args,
-                                     nystrom_coefficients, source_hash, stage_terms)
+                                     emit_coefficients, emit_linear, emit_monomials,
+                                     emit_nystrom_constants, emit_step_start, features,
+                                     gather_args, interp_weights, one_run, source_hash,
+                                     stage_terms)
 from springc.kernels.integrators import Tableau, get_tableau
 from springc.lang.ir import FlatNetlist
 
@@ -79,6 +81,7 @@ SLOT_CODE_MAX = 32
 MAX_REGISTERS: int | None = None
 REGISTERS = 65536  # a multiprocessor's (and a block's) 32-bit registers, sm_70 to sm_90
 SHARED_BYTES = 48 * 1024
+ONE_RUN = LaneLayout(1, 1, one_run=True)  # codegen's lane statements, rendered for one run
 
 
 @dataclass(frozen=True)
@@ -378,7 +381,8 @@ def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
         c("r = cuda.grid(1)")
     c("if r >= xst.shape[1] or status[r] != 0:")
     c("    return")
-    _emit_constants(c, tab)
+    emit_coefficients(c, tab)  # h-scaled tableau and Nystrom constants, as codegen names them
+    emit_nystrom_constants(c, tab)
     if _lawson(opts):
         c("hh = FT(h)")
     if opts.nodes is not None:
@@ -391,10 +395,7 @@ def _body(feat: Features, opts: CudaOptions, tab: Tableau) -> str:
     _emit_counters(c)
     c("for step in range(s0, s1):")
     c.indent()
-    c("sub += 1")
-    c("if sub == substeps:")
-    c("    sub = 0")
-    c("    k0 += 1")
+    emit_step_start(c, inputs=False)  # the input is read from the device's whole call
     if _reads_inputs(feat, opts):
         _emit_step_inputs(c, _input_fractions(opts, tab))
     for s in range(tab.stages):
@@ -422,22 +423,6 @@ def _first(c: _Code, opts: CudaOptions) -> None:
 def _end_first(c: _Code, opts: CudaOptions) -> None:
     if opts.threads > 1:
         c.dedent()
-
-
-def _emit_constants(c: _Code, tab: Tableau) -> None:
-    """The h-scaled tableau (`codegen.emit_coefficients`) and Nystrom constants, as `codegen`
-    names them."""
-    emit_coefficients(c, tab)
-    cs, aa, ba, bsum = nystrom_coefficients(tab)
-    for s in range(1, tab.stages):
-        c(f"hc{s} = FT(h * {float(cs[s])!r})")
-        for k in range(tab.stages):
-            if aa[s, k] != 0.0:
-                c(f"hh{s}_{k} = FT(h * h * {float(aa[s, k])!r})")
-    c(f"hbs = FT(h * {bsum!r})")
-    for k in range(tab.stages):
-        if ba[k] != 0.0:
-            c(f"hhb{k} = FT(h * h * {float(ba[k])!r})")
 
 
 def _emit_state(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau) -> None:
@@ -571,10 +556,8 @@ def _emit_step_inputs(c: _Code, fractions: list[float]) -> None:
     samples wait on nothing, where read stage by stage each would wait for the barrier
     before its stage (the split form) and then hold up the stage."""
     for k, frac in enumerate(fractions):
-        c(f"pos = (sub + {frac!r}) / substeps")
-        c("kk = k0 + int(pos) - ubase")
-        c("fr = FT(pos - int(pos))")
-        c("gr = FT(1.0) - fr")
+        for line in interp_weights(f"(sub + {frac!r}) / substeps", "k0 + {i} - ubase"):
+            c(line)
         c("for ch in range(NCH):")
         c(f"    ut{k}[ch] = gr * u[ch, kk, r] + fr * u[ch, kk + 1, r]")
 
@@ -695,9 +678,8 @@ def _split_force_code(feat: Features, opts: CudaOptions) -> list[str]:
         out = _slot_force_code(feat, opts)
     else:
         sub = _Code()
-        emit_linear(sub, feat, LaneLayout(1, 1), parallel=True)
-        out = [re.sub(r", 0\]", "]", line.replace("for i in nb.prange(n):", _node_loop(opts)))
-               for line in sub.lines]
+        emit_linear(sub, feat, ONE_RUN, parallel=True, loop=_node_loop(opts))
+        out = sub.lines
     scattered = (_monomials() if feat.monomials else []) + (
         _kind_loop(terms.COMMON) if feat.common_forces else [])
     if scattered:
@@ -790,7 +772,7 @@ def _slot_term(sl: SlotList, fields: dict[str, str]) -> list[str]:
         for f, arr in kind.coefs:
             lines = [line.replace(f"{arr}[e]", fields[f]) for line in lines]
         # one lane, numbered 0 as the accumulator A0 is
-        return ["    " + re.sub(r", \{b\}\]", "]", line).replace("{b}", "0") for line in lines]
+        return ["    " + one_run(line) for line in lines]
 
     if kind.node_j is None:
         return [line[4:] for line in end(terms.gather_end(kind, "i"))]
@@ -819,16 +801,11 @@ def _linear(feat: Features) -> list[str]:
     return out + ["    ka[i] = A"]
 
 
-def _one_lane(stmt: str) -> str:
-    """A lane statement of `terms.element_loop` for the thread's one run."""
-    return re.sub(r", \{b\}\]", "]", stmt).replace("{b}", "")
-
-
 def _kind_loop(kind: terms.Kind) -> list[str]:
     """The loop over the elements of `kind` (`codegen._emit_kind` for one run)."""
     def element(code: terms.LoopCode, pad: str) -> list[str]:
         lines = code.head + code.loads + code.arith + code.stores
-        return [pad + _one_lane(line) for line in lines]
+        return [pad + one_run(line, "") for line in lines]
 
     out = [f"for e in range({kind.node_i}.shape[0]):"]
     if kind.ground is None:
@@ -840,13 +817,10 @@ def _kind_loop(kind: terms.Kind) -> list[str]:
 
 
 def _monomials() -> list[str]:
-    """The monomials' loop (`codegen._emit_monomials` for one run): each factor's partial
-    derivative, summed over the factors (the product rule)."""
-    return ["for e in range(p_c.shape[0]):", "    lo = p_ptr[e]", "    hi = p_ptr[e + 1]",
-            "    for kf in range(lo, hi):", "        i = p_var[kf]", "        ex = p_exp[kf]",
-            "        cm = p_c[e] * ex * minv[i]", "        term = cm * xa[i] ** (ex - 1)",
-            "        for ko in range(lo, hi):", "            if ko != kf:",
-            "                term *= xa[p_var[ko]] ** p_exp[ko]", "        ka[i] -= term"]
+    """The monomials' loop for the thread's one run (`codegen.emit_monomials`)."""
+    sub = _Code()
+    emit_monomials(sub, ONE_RUN)
+    return sub.lines
 
 
 def _emit_stage_reductions(c: _Code, feat: Features, opts: CudaOptions, s: int,

@@ -20,11 +20,11 @@ import functools
 
 from springc.kernels import terms, thermal
 from springc.kernels.codegen import (Features, KernelOptions, LaneLayout, _Code, combine_terms,
-                                     emit_chunk_end, emit_chunk_start, emit_lane_coefficients,
-                                     emit_record,
-                                     decorator, emit_run_head, emit_step_end, emit_step_start,
-                                     features, lane_layout, preamble, run_args, source_hash,
-                                     stage_terms, with_header)
+                                     decorator, emit_chunk_end, emit_chunk_start,
+                                     emit_lane_coefficients, emit_record, emit_run_head,
+                                     emit_step_end, emit_step_start, features, interp_weights,
+                                     lane_layout, preamble, run_args, source_hash, stage_terms,
+                                     with_header)
 from springc.kernels.integrators import TABLEAUX, Tableau, get_tableau
 from springc.kernels.terms import NodeTerms
 from springc.lang.ir import FlatNetlist
@@ -175,10 +175,8 @@ def _emit_input_positions(c: _Code, tab: Tableau, nodes: tuple[NodeTerms, ...],
     if not any(node.ins for node in nodes):
         return
     for s in _input_times(tab):
-        c(f"pos{s} = (sub + {tab.c[s]!r}) / substeps")
-        c(f"kk{s} = {base} + int(pos{s})")
-        c(f"fr{s} = FT(pos{s} - int(pos{s}))")
-        c(f"gr{s} = FT(1.0) - fr{s}")
+        for line in interp_weights(f"(sub + {tab.c[s]!r}) / substeps", base + " + {i}", str(s)):
+            c(line)
 
 
 def _emit_noise_loads(c: _Code, nodes: tuple[NodeTerms, ...], lane: str) -> None:

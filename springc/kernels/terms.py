@@ -18,7 +18,7 @@ coefficient arrays it reads, the subexpressions both ends share, and the force o
 
 A new term kind is a `Kind` here, its arrays in `springc.sim.marshal.coefficient_arrays`
 and its flag in `codegen.Features`. Monomials (any number of factors) keep their own loop,
-`codegen._emit_monomials`, in every form.
+`codegen.emit_monomials`, in every form.
 """
 
 from __future__ import annotations

@@ -161,6 +161,13 @@ def gather_args(feat: Features) -> list[str]:
             for name in terms.gather_args(kind)]
 
 
+# each accumulated reduction's arguments (`KernelOptions` names the reduction), in the order
+# every form takes them
+REDUCTION_ARGS = {"work": ["work_in", "work_c"], "dissipation": ["ds_i", "ds_j", "ds_b", "diss"],
+                  "msq": ["ms_node", "ms_isv", "ms_lo", "ms_hi", "msq"],
+                  "gram": ["gr_i", "gr_j", "gr_g", "gr_w", "gr_decay", "gram"]}
+
+
 def run_args(feat: Features, opts: KernelOptions) -> list[str]:
     """Names of all arguments of the generated `run`, in order."""
     names = ["x0", "v0", "u", "g", "nsteps", "substeps", "h", "chunk", "c0", "c1",
@@ -170,14 +177,9 @@ def run_args(feat: Features, opts: KernelOptions) -> list[str]:
         names += gather_args(feat)
     if opts.record:
         names += ["rec_every", "rec_node", "rec_isv", "rec", "rec_col"]
-    if opts.work:
-        names += ["work_in", "work_c"]
-    if opts.dissipation:
-        names += ["ds_i", "ds_j", "ds_b", "diss"]
-    if opts.msq:
-        names += ["ms_node", "ms_isv", "ms_lo", "ms_hi", "msq"]
-    if opts.gram:
-        names += ["gr_i", "gr_j", "gr_g", "gr_w", "gr_decay", "gram"]
+    for key, args in REDUCTION_ARGS.items():
+        if getattr(opts, key):
+            names += args
     names += ["xf", "vf", "status", "bad_node"]
     return names
 
@@ -1119,18 +1121,50 @@ def emit_stage_reductions(c: _Code, feat: Features, opts: KernelOptions,
         gain = read(gains, "e") if gains else \
             f"{read('fi_gm', 'e')} / {read('minv', 'fi_node[e]')}"
         _emit_lane_sum(c, "fi_node", f"hbd_[s_] * {gain}", "fw", set(arrays) & set(per),
-                       "w_in[e, b] += fw * uc[fi_chan[e], b] * va[fi_node[e], b]")
+                       in_lanes(work_in_update("va")))
     if opts.work and feat.common_forces:
         gain = f"{read('fc_gm', 'e')} / {read('minv', 'fc_node[e]')} * g[step, s_, e]"
         _emit_lane_sum(c, "fc_node", gain, "fv", {"fc_gm", "minv"} & set(per),
-                       "w_c[e, b] += hbd_[s_] * fv * va[fc_node[e], b]")
+                       in_lanes(work_common_update("va", "hbd_[s_]")))
     if opts.dissipation:
         c("for d in range(ds_i.shape[0]):")
         c("    i = ds_i[d]")
         c("    j = ds_j[d]")
         c("    for b in range(nb_):")
-        c("        dv = va[i, b] - (va[j, b] if j >= 0 else 0.0)")
-        c(f"        dsacc[d, b] += hbd_[s_] * {read('ds_b', 'd')} * dv * dv")
+        for stmt in damper_update("va", "hbd_[s_]", read("ds_b", "d")):
+            c("        " + in_lanes(stmt))
+
+
+# The reductions' updates, each written once as lane statements (`{b}`: the lane) that every
+# form renders: inside its loop over the lanes (`in_lanes`) or for one run (`one_run`).
+def in_lanes(stmt: str) -> str:
+    """A lane statement inside a loop over the lanes, `for b in ...`."""
+    return stmt.replace("{b}", "b")
+
+
+def work_in_update(va: str) -> str:
+    """Input force e's work over a stage: its stage weight times its gain (`fw`) times the
+    input times its node's stage velocity (`va`)."""
+    return f"w_in[e, {{b}}] += fw * uc[fi_chan[e], {{b}}] * {va}[fi_node[e], {{b}}]"
+
+
+def work_common_update(va: str, weight: str) -> str:
+    """Shared-signal force e's work over a stage: the stage's `weight` times its force `fv`
+    times its node's stage velocity."""
+    return f"w_c[e, {{b}}] += {weight} * fv * {va}[fc_node[e], {{b}}]"
+
+
+def damper_update(va: str, weight: str, coef: str) -> list[str]:
+    """Damper row d's (nodes i, j; j < 0: the ground) dissipation over a stage: the stage's
+    `weight` times its coefficient `coef` times the square of the velocity across it."""
+    return [f"dv = {va}[i, {{b}}] - ({va}[j, {{b}}] if j >= 0 else 0.0)",
+            f"dsacc[d, {{b}}] += {weight} * {coef} * dv * dv"]
+
+
+def msq_update() -> list[str]:
+    """Mean-square row m's sum after a step: its node's position or velocity, squared."""
+    return ["q = v[ms_node[m], {b}] if ms_isv[m] else x[ms_node[m], {b}]",
+            "msacc[m, {b}] += q * q"]
 
 
 def _lane_reader(per_run: tuple[str, ...]) -> Callable[[str, str], str]:
@@ -1209,8 +1243,8 @@ def emit_step_end(c: _Code, opts: KernelOptions, width: LaneLayout,
         c("for m in range(ms_node.shape[0]):")
         c("    if ms_lo[m] <= k1 and k1 <= ms_hi[m]:")
         c("        for b in range(nb_):")
-        c("            q = v[ms_node[m], b] if ms_isv[m] else x[ms_node[m], b]")
-        c("            msacc[m, b] += q * q")
+        for stmt in msq_update():
+            c("            " + in_lanes(stmt))
     if opts.gram:
         _emit_gram_step(c)
     if opts.record:

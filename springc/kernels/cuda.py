@@ -45,11 +45,12 @@ from pathlib import Path
 from dataclasses import dataclass
 
 from springc.kernels import expint, terms
-from springc.kernels.codegen import (Features, LaneLayout, _Code, accel_args, combine_terms,
-                                     emit_coefficients, emit_linear, emit_monomials,
-                                     emit_nystrom_constants, emit_step_start, features,
-                                     gather_args, interp_weights, one_run, source_hash,
-                                     stage_terms)
+from springc.kernels.codegen import (REDUCTION_ARGS, Features, LaneLayout, _Code, accel_args,
+                                     combine_terms, damper_update, emit_coefficients,
+                                     emit_linear, emit_monomials, emit_nystrom_constants,
+                                     emit_step_start, features, gather_args, interp_weights,
+                                     msq_update, one_run, source_hash, stage_terms,
+                                     work_common_update, work_in_update)
 from springc.kernels.integrators import Tableau, get_tableau
 from springc.lang.ir import FlatNetlist
 
@@ -255,9 +256,8 @@ def run_args(feat: Features, opts: CudaOptions) -> list[str]:
         names += ["frz"] + [f"lw{m}_{k}" for m in opts.blocks for k in ("node", "e", "p0", "p1")]
         names += ["fi_w"] if opts.work and feat.in_forces else []
     names += ["rec_every", "rec_node", "rec_isv", "rec", "rbase"]
-    names += ["work_in", "work_c", "ds_i", "ds_j", "ds_b", "diss"]
-    names += ["ms_node", "ms_isv", "ms_lo", "ms_hi", "msq"]
-    names += ["gr_i", "gr_j", "gr_g", "gr_w", "gr_decay", "gram"]
+    for args in REDUCTION_ARGS.values():  # every reduction's, used or not
+        names += args
     if opts.threads > 1:
         names += ["gr_ptr"]  # the split form's Gram pairs, ordered by group
     names += ["status", "bad_node"]
@@ -831,17 +831,17 @@ def _emit_stage_reductions(c: _Code, feat: Features, opts: CudaOptions, s: int,
         # a Lawson kernel's rest has its blocks' inputs at gain 0: their own gains, fi_w
         gain = "fi_w[e]" if _lawson(opts) else "(fi_gm[e] / minv[fi_node[e]])"
         c(f"    fw = hbd{s} * {gain}")
-        c(f"    w_in[e] += fw * uc[fi_chan[e]] * {va}[fi_node[e]]")
+        c("    " + one_run(work_in_update(va), ""))
     if opts.work and feat.common_forces:
         c("for e in range(NFC):")
         c(f"    fv = fc_gm[e] / minv[fc_node[e]] * g[step - s0, {s}, e]")
-        c(f"    w_c[e] += hbd{s} * fv * {va}[fc_node[e]]")
+        c("    " + one_run(work_common_update(va, f"hbd{s}"), ""))
     if opts.dampers:
         c(f"for d in range({opts.dampers}):")
         c("    i = ds_i[d]")
         c("    j = ds_j[d]")
-        c(f"    dv = {va}[i] - ({va}[j] if j >= 0 else 0.0)")
-        c(f"    dsacc[d] += hbd{s} * ds_b[d] * dv * dv")
+        for stmt in damper_update(va, f"hbd{s}", "ds_b[d]"):
+            c("    " + one_run(stmt, ""))
 
 
 def _emit_combine(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau) -> None:
@@ -883,8 +883,8 @@ def _emit_step_end(c: _Code, opts: CudaOptions) -> None:
     if opts.msq:
         c(f"for m in range({opts.msq}):")
         c("    if ms_lo[m] <= k1 and k1 <= ms_hi[m]:")
-        c("        q = v[ms_node[m]] if ms_isv[m] else x[ms_node[m]]")
-        c("        msacc[m] += q * q")
+        for stmt in msq_update():
+            c("        " + one_run(stmt, ""))
     if opts.gram and opts.threads == 1:
         c(f"for gq in range({opts.gram}):")
         c("    gracc[gq] *= gr_decay[gq]")

@@ -97,3 +97,24 @@ def test_a_refused_netlist_leaves_no_entry(parses, tmp_path) -> None:
     with pytest.raises(CheckError):
         springc.load(bad)
     assert not store.folder().exists()
+
+
+def test_a_memo_is_computed_once_per_key_and_again_when_damaged(tmp_path, monkeypatch) -> None:
+    monkeypatch.setenv("SPRINGC_CACHE", str(tmp_path))
+    calls = []
+
+    def compute(value):
+        calls.append(value)
+        return {"value": value, "array": np.arange(3.0) * value}
+
+    first = store.memo("a choice", ["network", b"\x00sample"], lambda: compute(1))
+    again = store.memo("a choice", ["network", b"\x00sample"], lambda: compute(2))
+    assert calls == [1] and again["value"] == 1 and np.array_equal(again["array"], first["array"])
+    store.memo("a choice", ["network", b"\x00other sample"], lambda: compute(3))
+    store.memo("another choice", ["network", b"\x00sample"], lambda: compute(4))
+    # the parts are delimited: moving a byte from one part to the next is another key
+    store.memo("a choice", ["networ", b"k\x00sample"], lambda: compute(5))
+    assert calls == [1, 3, 4, 5]
+    for entry in (tmp_path / "checked" / "memo").glob("*.pkl"):
+        entry.write_bytes(b"damaged")
+    assert store.memo("a choice", ["network", b"\x00sample"], lambda: compute(6))["value"] == 6

@@ -204,3 +204,28 @@ def test_a_garbled_integration_entry_is_a_named_data_error() -> None:
     assert integration.from_dict({"method": "exp-rk4", "substeps": 2}).substeps == 2
     with pytest.raises(DataError, match="m/settings.json.*unreadable integration entry"):
         integration.from_dict({"method": "rk4", "steps": 3}, "m/settings.json")
+
+
+def test_a_choice_is_remembered_for_the_same_network_sample_and_rules(tmp_path, monkeypatch,
+                                                                      capsys):
+    """A second training on the same front end and sample (the device design after the
+    mass-spring one) takes the choice the first measured; another sample, or other rules of
+    the choice, measure again."""
+    monkeypatch.setenv("SPRINGC_CACHE", str(tmp_path))
+    sample = np.ones((2, 5))
+    measured = []
+
+    def measure():
+        measured.append(1)
+        return integration.Integration("exp-rk4", 2, error=1e-5, clips=2)
+
+    parts = ["the network's text", integration.signal_key(sample)]
+    first = integration.remembered("features' integration", parts, measure)
+    again = integration.remembered("features' integration", parts, measure)
+    assert again == first and len(measured) == 1
+    assert "of an earlier run on the same network and sample" in capsys.readouterr().err
+    integration.remembered("features' integration",
+                           ["the network's text", integration.signal_key(2 * sample)], measure)
+    monkeypatch.setattr(integration, "TOLERANCE", 1e-4)
+    integration.remembered("features' integration", parts, measure)
+    assert len(measured) == 3

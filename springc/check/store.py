@@ -95,7 +95,24 @@ def remembered(checked: CheckedNetlist, name: str, compute: Callable[[], T]) -> 
     if entry is None:
         return compute()
     suffix = hashlib.sha256(name.encode()).hexdigest()[:16]
-    path = folder() / f"{entry}.{suffix}.pkl"
+    return _kept(folder() / f"{entry}.{suffix}.pkl", compute)
+
+
+def memo(name: str, parts: list[str | bytes], compute: Callable[[], T]) -> T:
+    """`compute()`, kept in the cache folder under `name` and a digest of `parts` (all that
+    the result depends on besides springc's source, which is in the key too): for results
+    on networks built in memory, which have no netlist entry (the keyword-spotting
+    trainings' integration choices, tens of seconds each). Computed once per key."""
+    digest = hashlib.sha256()
+    for part in [str(VERSION), __version__, code(), name, *parts]:
+        data = part if isinstance(part, bytes) else part.encode()
+        digest.update(len(data).to_bytes(8, "little") + data)
+    return _kept(folder() / "memo" / f"{digest.hexdigest()[:32]}.pkl", compute)
+
+
+def _kept(path: Path, compute: Callable[[], T]) -> T:
+    """The value pickled at `path`, or `compute()` written there (a damaged or unreadable
+    entry is computed again)."""
     try:
         with open(path, "rb") as fh:
             return pickle.load(fh)

@@ -18,6 +18,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
+from typing import TypeVar
 
 import numpy as np
 
@@ -153,6 +154,36 @@ def _timed(outputs: Outputs, *args) -> tuple[np.ndarray, float]:
     start = time.perf_counter()
     got = outputs(*args)
     return got, time.perf_counter() - start
+
+
+T = TypeVar("T")
+
+
+def remembered(name: str, parts: list[str | bytes], measure: Callable[[], T]) -> T:
+    """`measure()` (a choice and what it measured), or its result kept from an earlier run on
+    the same `parts` (the network, the sample, the tolerance) by the same springc
+    (`springc.check.store.memo`): a choice runs the tight reference on its sample, a large
+    share of a small training's time, and a second training on the same data and front end
+    (the device design after the mass-spring one) would run it again."""
+    from springc.check import store
+
+    ran = []
+
+    def run() -> T:
+        ran.append(True)
+        return measure()
+
+    rules = repr((REFERENCE, METHODS, TOLERANCE, LOUD_SHARE, MAX_SUBSTEPS, MAX_WH))
+    out = store.memo(name, [*parts, rules], run)
+    if not ran:
+        _say(f"integration: the {name} of an earlier run on the same network and sample")
+    return out
+
+
+def signal_key(signals: np.ndarray) -> bytes:
+    """The bytes that identify a sample of signals in a `remembered` key."""
+    a = np.ascontiguousarray(signals)
+    return f"{a.dtype} {a.shape}".encode() + a.tobytes()
 
 
 def _say(message: str) -> None:

@@ -475,14 +475,20 @@ def integrated(s: MassSpringSettings, clips: list, tol: float | None
     if tol is None:
         return s, integration.PAPER, None
     sample = sample_signals(clips)
-    runs = []  # the reference run, kept for its peaks
 
-    def reference() -> np.ndarray:
-        runs.append(reference_run(sample, s))
-        return runs[0].phi
+    def measure() -> tuple[integration.Integration, Reference]:
+        runs = []  # the reference run, kept for its peaks
 
-    chosen = choose_integration(s, sample, tol, reference)
-    return replace(s, method=chosen.method, substeps=chosen.substeps), chosen, runs[0]
+        def reference() -> np.ndarray:
+            runs.append(reference_run(sample, s))
+            return runs[0].phi
+
+        return choose_integration(s, sample, tol, reference), runs[0]
+
+    chosen, ref = integration.remembered(
+        "features' integration", [feature_text(s), repr(s), repr(tol),
+                                  integration.signal_key(sample)], measure)
+    return replace(s, method=chosen.method, substeps=chosen.substeps), chosen, ref
 
 
 def choose_integration(s: MassSpringSettings, signals: np.ndarray,

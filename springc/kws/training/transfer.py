@@ -445,9 +445,12 @@ def write_classifier(opts, fits: list, settings: dict,
     if opts.tolerance is not None:
         from springc.lang import load_text
 
-        net = load_text(classifier_text(heads, s, epsilon=eps, design=design), "<classifier>")
-        plan = choose_classifier_integration(check(net), heads, s,
-                                             sample[:CLASSIFIER_SAMPLE])
+        text = classifier_text(heads, s, epsilon=eps, design=design)
+        part = sample[:CLASSIFIER_SAMPLE]
+        plan = integration.remembered(
+            "classifier's integration", [text, repr(s), integration.signal_key(part)],
+            lambda: choose_classifier_integration(check(load_text(text, "<classifier>")),
+                                                  heads, s, part))
     settings["transfer"]["integration"] = plan.to_dict()
     files = {"features.spr": msp.feature_text(s),
              "classifier.spr": classifier_text(heads, s, include_heads=False, epsilon=eps,

@@ -23,7 +23,8 @@ def test_the_text_is_the_kernel_simulate_loads():
     res = net.simulate()  # the integrator springc chooses, as `springc sim duffing.spr`
     settings = res.settings
     text = kernel_text(net.checked, method=settings.method, substeps=settings.substeps)
-    assert Path(res.info["kernel"]) == loader.kernel_path(text)
+    # by name (the digest of the text): a kernel loaded earlier in the process keeps its path
+    assert Path(res.info["kernel"]).name == loader.kernel_path(text).name
 
 
 def test_the_cuda_forms_text_needs_no_gpu_and_refuses_what_it_cannot_run():

@@ -11,7 +11,8 @@ generates what `springc.sim.simulate.kernel_text` gives for every case:
   of elements.spr (every element kind) with a sign `check` accepts, under each
   method of METHODS, float64 and float32, products fused or not (`fma`), with and without
   accumulated reductions (input work, dissipation, a mean square), in each CPU form
-  (`write_out` None, False, True) and in the CUDA form (generated without a GPU);
+  (`write_out` None, False, True) and in the CUDA form (generated without a GPU), and with
+  thermal noise (300 K) under rk4 and exp-rk4 in each CPU form;
 - the bench's 564-dof network and 8x3 classifier (`springc.bench.networks`) under rk4,
   heun3 and exp-rk4, fused or not, with a Gram reduction, on the CPU and in the CUDA form.
 
@@ -74,6 +75,10 @@ for p in paths + [str(every)]:
         one(f"{Path(p).name} {method} {prec} fma={fma} reduce={red} {form}", net,
             method=method, substeps=2, precision=prec, fma=fma, reductions=reduce,
             tstep=1e-4, tstop=0.002, **kw)
+    for method, form in itertools.product(("rk4", "exp-rk4"), ("auto", "shared", "written-out")):
+        one(f"{Path(p).name} {method} thermal {form}", net, method=method, substeps=2,
+            tstep=1e-4, tstop=0.002, temp=300.0, seed=1,
+            write_out={"auto": None, "shared": False, "written-out": True}[form])
 for name, flat in (("kws564", networks.kws_network()),
                    ("classifier8x3", networks.pipeline_classifier())):
     path = Path(folder) / f"{name}.spr"
@@ -94,8 +99,11 @@ def texts(tree: Path, work: Path, label: str) -> dict[str, str]:
     out, folder = work / f"{label}.json", work / f"{label}-netlists"
     folder.mkdir()
     env = {**os.environ, "PYTHONPATH": str(tree)}
-    subprocess.run([sys.executable, "-c", DRIVER, str(out), str(ROOT), str(folder)],
-                   env=env, check=True, cwd=work)
+    done = subprocess.run([sys.executable, "-c", DRIVER, str(out), str(ROOT), str(folder)],
+                          env=env, cwd=work, capture_output=True, text=True)
+    if done.returncode != 0:
+        last = (done.stderr.strip().splitlines() or ["(no message)"])[-1]
+        raise SystemExit(f"kernel_texts.py: the springc in {tree} generated no texts: {last}")
     return json.loads(out.read_text())
 
 

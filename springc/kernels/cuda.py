@@ -767,23 +767,20 @@ def _slot_term(sl: SlotList, fields: dict[str, str]) -> list[str]:
         return ["A0 = A0 " + terms.INPUT.format(gm=fields["w"], u=f"uc[{fields['c']}]")]
     kind = terms.BY_NAME[sl.name]
 
-    def end(code: terms.LoopCode) -> list[str]:
-        lines = code.head + code.loads + code.arith
-        for f, arr in kind.coefs:
-            lines = [line.replace(f"{arr}[e]", fields[f]) for line in lines]
+    def end(which: str, ground: bool = False) -> list[str]:
+        code = terms.gather_end(kind, which, ground, coef=lambda f, _: fields[f])
         # one lane, numbered 0 as the accumulator A0 is
-        return ["    " + one_run(line) for line in lines]
+        return ["    " + one_run(line) for line in code.head + code.loads + code.arith]
 
     if kind.node_j is None:
-        return [line[4:] for line in end(terms.gather_end(kind, "i"))]
+        return [line[4:] for line in end("i")]
     out = [f"o = {fields['o']}", f"if {fields['end']} == 0:"]
     if kind.ground is not None:
-        out += ["    if o < 0:  # to ground"] + ["    " + line for line in
-                                                 end(terms.gather_end(kind, "i", True))]
-        out += ["    else:"] + ["    " + line for line in end(terms.gather_end(kind, "i"))]
+        out += ["    if o < 0:  # to ground"] + ["    " + line for line in end("i", True)]
+        out += ["    else:"] + ["    " + line for line in end("i")]
     else:
-        out += end(terms.gather_end(kind, "i"))
-    return out + ["else:"] + end(terms.gather_end(kind, "j"))
+        out += end("i")
+    return out + ["else:"] + end("j")
 
 
 def _linear(feat: Features) -> list[str]:

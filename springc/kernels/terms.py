@@ -299,16 +299,19 @@ def node_ends(co: dict, n: int) -> dict[str, np.ndarray]:
     return out
 
 
-def gather_end(kind: Kind, end: str, ground: bool = False) -> LoopCode:
+def gather_end(kind: Kind, end: str, ground: bool = False,
+               coef: Callable[[str, str], str] | None = None) -> LoopCode:
     """Node i's term as end `end` of element `e` of `kind` (its other node `o`), added to
     the node's accumulator A{b}: `element_loop`'s arithmetic for that end, with the node's
     running sum in place of its stored acceleration. `ground`: the other end is the
-    ground."""
+    ground. `coef(field, array)`: where a form reads a coefficient from (default
+    `array[e]`; the CUDA split form's registers)."""
     template = kind.ground if ground else dict(kind.force)[end]
     at = {"i": "i", "j": "o"} if end == "i" else {"i": "o", "j": "i"}
     temps = [(name, t) for name, t in kind.temps if "{" + name + "}" in template]
     used = " ".join([template] + [t for _, t in temps])
-    head = [f"{f} = {arr}[e]" for f, arr in kind.coefs if "{" + f + "}" in used]
+    read = coef or (lambda f, arr: f"{arr}[e]")
+    head = [f"{f} = {read(f, arr)}" for f, arr in kind.coefs if "{" + f + "}" in used]
     fields = {f: f for f, _ in kind.coefs}
     state = {s: s.upper() + "{b}" for s in STATE}
     loads = [f"{s.upper()}{{b}} = {'xa' if s[0] == 'x' else 'va'}[{at[s[1]]}, {{b}}]"

@@ -550,7 +550,8 @@ def node_loop(parallel: bool) -> str:
 
 
 def emit_linear(c: _Code, feat: Features, width: LaneLayout, parallel: bool = False,
-                per_run: frozenset[str] = frozenset(), loop: str | None = None) -> None:
+                per_run: frozenset[str] = frozenset(), loop: str | None = None,
+                store: list[str] | None = None) -> None:
     """Per node, all lanes in registers and one store: ka = -(bm v + km x), plus (with
     couplings) the node's off-diagonal stiffness row (`marshal.linear_rows`) and (with
     inputs) its input forces (`fi_ptr`: the node's range of the node-ordered inputs). Pushing
@@ -560,7 +561,9 @@ def emit_linear(c: _Code, feat: Features, width: LaneLayout, parallel: bool = Fa
     busy. `parallel`: the loop is a `prange`, and each node then adds its ends of the
     element kinds (`_emit_gathers`) before its one store. `per_run`: the coefficient
     arrays read per lane (`_emit_linear_lanes`). `loop`: the header of the loop over the
-    nodes, where a form has its own (the CUDA split form's threads' shares)."""
+    nodes, where a form has its own (the CUDA split form's threads' shares); `store`: the
+    lane statements that take the node's sum A{b} (default: into ka), where a form does more
+    with it (the CUDA split form's last stage combines the step there)."""
     full = dataclasses.replace(width, group=width.width)
     c(loop or node_loop(parallel))
     c.indent()
@@ -590,7 +593,7 @@ def emit_linear(c: _Code, feat: Features, width: LaneLayout, parallel: bool = Fa
                 terms.INPUT.format(gm="gm", u="Y{b}"))
     if parallel:
         _emit_gathers(c, feat, full)
-    lanes(c, full, [], [], ["ka[i, {b}] = A{b}"])
+    lanes(c, full, [], [], store or ["ka[i, {b}] = A{b}"])
     c.dedent()
 
 

@@ -507,9 +507,8 @@ def _emit_stage(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau, s: in
     xa, va = ("x", "v") if s == 0 else ("xs", "vs")
     if feat.common_forces:
         c(f"grow = g[step - s0, {s}]")
-    text = force_code(feat, opts)
-    if s == tab.stages - 1 and _folds(feat, opts, tab):
-        text = _fold_combine(text, tab)
+    folded = s == tab.stages - 1 and _folds(feat, opts, tab)
+    text = force_code(feat, opts, _combine_store(tab) if folded else STORE)
     for line in text:
         c(_rename(line, xa, va, f"kv{s}"))
     if tab.b[s] != 0.0 and (opts.dampers or opts.work and (feat.in_forces
@@ -522,21 +521,17 @@ def _emit_stage(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau, s: in
         _sync(c, opts)
 
 
-def _fold_combine(text: list[str], tab: Tableau) -> list[str]:
-    """The split force code with each node's store of its last stage force replaced by the
-    combine, that force read from the accumulator A0 (`_folds`)."""
+STORE = ["ka[i, {b}] = A{b}"]  # a node's sum A{b} into its stage force (a lane statement)
+
+
+def _combine_store(tab: Tableau) -> list[str]:
+    """The split form's folded combine (`_folds`) as the lane statements that take each
+    node's last stage force, its sum A{b}: the node's new state, that force kept in the
+    register rather than stored."""
     last = tab.stages - 1
-    xterm, vterm = combine_terms(tab, "V", lambda k: "A0" if k == last else f"kv{k}[i]")
-    combine = ["V = v[i]", f"x[i] = x[i] + ({xterm})", f"v[i] = V + ({vterm})"]
-    out = []
-    for line in text:
-        if line.strip() != "ka[i] = A0":
-            out.append(line)
-            continue
-        pad = line[:len(line) - len(line.lstrip())]
-        out += [pad + part for part in combine]
-    assert len(out) > len(text), "the split force code stores each node's force"
-    return out
+    xterm, vterm = combine_terms(tab, "V", lambda k: "A{b}" if k == last else f"kv{k}[i, {{b}}]")
+    return ["V = v[i, {b}]", f"x[i, {{b}}] = x[i, {{b}}] + ({xterm})",
+            f"v[i, {{b}}] = V + ({vterm})"]
 
 
 def _reads_inputs(feat: Features, opts: CudaOptions) -> bool:
@@ -647,10 +642,11 @@ def _at(expr: str, i: int) -> str:
     return expr.replace("[i]", f"[{i}]")
 
 
-def force_code(feat: Features, opts: CudaOptions) -> list[str]:
-    """ka = M^-1 F(xa, va, uc, grow) for one run, as lines (relative indentation)."""
+def force_code(feat: Features, opts: CudaOptions, store: list[str] = STORE) -> list[str]:
+    """ka = M^-1 F(xa, va, uc, grow) for one run, as lines (relative indentation); the split
+    form takes each node's sum with the lane statements `store`."""
     if opts.threads > 1:
-        return _split_force_code(feat, opts)
+        return _split_force_code(feat, opts, store)
     out: list[str] = []
     if opts.nodes is not None:
         for i, node in enumerate(opts.nodes):
@@ -669,16 +665,16 @@ def force_code(feat: Features, opts: CudaOptions) -> list[str]:
     return out
 
 
-def _split_force_code(feat: Features, opts: CudaOptions) -> list[str]:
+def _split_force_code(feat: Features, opts: CudaOptions, store: list[str]) -> list[str]:
     """The split form's forces: each thread's nodes sum their own terms and element ends
     (`codegen.emit_linear`'s parallel form, one lane; with `opts.slots`, `_slot_force_code`);
     monomials and shared signals, which scatter, are then added by thread 0 alone, after a
     barrier, and the run's threads meet again before anyone reads them."""
     if opts.slots:
-        out = _slot_force_code(feat, opts)
+        out = _slot_force_code(feat, opts, [one_run(line) for line in store])
     else:
         sub = _Code()
-        emit_linear(sub, feat, ONE_RUN, parallel=True, loop=_node_loop(opts))
+        emit_linear(sub, feat, ONE_RUN, parallel=True, loop=_node_loop(opts), store=store)
         out = sub.lines
     scattered = (_monomials() if feat.monomials else []) + (
         _kind_loop(terms.COMMON) if feat.common_forces else [])
@@ -720,7 +716,7 @@ def _emit_slot_loads(c: _Code, feat: Features, opts: CudaOptions) -> None:
                     c(f"s_{sl.name}{j}_{q}_{f} = sl_{sl.name}_{f}[{q}, s_c{j}]")
 
 
-def _slot_force_code(feat: Features, opts: CudaOptions) -> list[str]:
+def _slot_force_code(feat: Features, opts: CudaOptions, store: list[str]) -> list[str]:
     """The split form's force code with each of the thread's nodes written out (slot j), its
     terms' fields in the registers `_emit_slot_loads` filled, each term guarded by the
     node's count, the terms past a list's registers read in a loop: the same sum in the same
@@ -728,7 +724,7 @@ def _slot_force_code(feat: Features, opts: CudaOptions) -> list[str]:
     out: list[str] = []
     last = _slot_count(opts) - 1
     for j in range(last + 1):
-        body = [f"i = s_i{j}"] + _slot_node(feat, opts, j) + ["ka[i] = A0"]
+        body = [f"i = s_i{j}"] + _slot_node(feat, opts, j) + store
         if j == last and opts.n % opts.threads:
             out += [f"if s_i{j} < N:"] + ["    " + line for line in body]
         else:

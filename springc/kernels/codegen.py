@@ -551,7 +551,7 @@ def node_loop(parallel: bool) -> str:
 
 def emit_linear(c: _Code, feat: Features, width: LaneLayout, parallel: bool = False,
                 per_run: frozenset[str] = frozenset(), loop: str | None = None,
-                store: list[str] | None = None) -> None:
+                store: list[str] | None = None, rows: terms.Rows = terms.ROWS) -> None:
     """Per node, all lanes in registers and one store: ka = -(bm v + km x), plus (with
     couplings) the node's off-diagonal stiffness row (`marshal.linear_rows`) and (with
     inputs) its input forces (`fi_ptr`: the node's range of the node-ordered inputs). Pushing
@@ -563,7 +563,8 @@ def emit_linear(c: _Code, feat: Features, width: LaneLayout, parallel: bool = Fa
     arrays read per lane (`_emit_linear_lanes`). `loop`: the header of the loop over the
     nodes, where a form has its own (the CUDA split form's threads' shares); `store`: the
     lane statements that take the node's sum A{b} (default: into ka), where a form does more
-    with it (the CUDA split form's last stage combines the step there)."""
+    with it (the CUDA split form's last stage combines the step there); `rows`: the stage's
+    arrays (`terms.Rows`)."""
     full = dataclasses.replace(width, group=width.width)
     c(loop or node_loop(parallel))
     c.indent()
@@ -578,22 +579,23 @@ def emit_linear(c: _Code, feat: Features, width: LaneLayout, parallel: bool = Fa
     c("if bi != 0.0:")
     c.indent()
     own = terms.own_sum(True, True, "bi", "ki", "V{b}", "X{b}")
-    lanes(c, full, ["V{b} = va[i, {b}]", "X{b} = xa[i, {b}]"], [f"A{{b}} = {own}"], [])
+    xload = f"X{{b}} = {rows.x}[i, {{b}}]"
+    lanes(c, full, [f"V{{b}} = {rows.v}[i, {{b}}]", xload], [f"A{{b}} = {own}"], [])
     c.dedent()
     c("else:")
     c.indent()
     own = terms.own_sum(False, True, "bi", "ki", "V{b}", "X{b}")
-    lanes(c, full, ["X{b} = xa[i, {b}]"], [f"A{{b}} = {own}"], [])
+    lanes(c, full, [xload], [f"A{{b}} = {own}"], [])
     c.dedent()
     if feat.couplings:
-        _gather(c, full, "l_ptr", ("j = l_col[e]", "w = l_val[e]"), "xa[j, {b}]",
+        _gather(c, full, "l_ptr", ("j = l_col[e]", "w = l_val[e]"), f"{rows.x}[j, {{b}}]",
                 terms.ROW.format(w="w", xj="Y{b}"))
     if feat.in_forces:
         _gather(c, full, "fi_ptr", ("ch = fi_chan[e]", "gm = fi_gm[e]"), "uc[ch, {b}]",
                 terms.INPUT.format(gm="gm", u="Y{b}"))
     if parallel:
-        _emit_gathers(c, feat, full)
-    lanes(c, full, [], [], store or ["ka[i, {b}] = A{b}"])
+        _emit_gathers(c, feat, full, rows)
+    lanes(c, full, [], [], store or [f"{rows.k}[i, {{b}}] = A{{b}}"])
     c.dedent()
 
 
@@ -641,7 +643,8 @@ def _emit_linear_lanes(c: _Code, feat: Features, full: LaneLayout,
     lanes(c, full, [], [], ["ka[i, {b}] = A{b}"])
 
 
-def _emit_gathers(c: _Code, feat: Features, full: LaneLayout) -> None:
+def _emit_gathers(c: _Code, feat: Features, full: LaneLayout,
+                  rows: terms.Rows = terms.ROWS) -> None:
     """Node i's ends of every element kind (`terms.node_ends`), kind by kind in
     `terms.LOOP_ORDER` and element by element, added to its accumulator: the additions
     the element loops make to ka[i], in their order, so the sums round alike."""
@@ -653,7 +656,7 @@ def _emit_gathers(c: _Code, feat: Features, full: LaneLayout) -> None:
         c.indent()
         c(f"e = {names[1]}[k_]")
         if kind.node_j is None:
-            _emit_element(c, full, terms.gather_end(kind, "i"))
+            _emit_element(c, full, terms.gather_end(kind, "i", rows=rows))
             c.dedent()
             continue
         c(f"o = {names[2]}[k_]")
@@ -662,18 +665,18 @@ def _emit_gathers(c: _Code, feat: Features, full: LaneLayout) -> None:
         if kind.ground is not None:
             c("if o < 0:  # to ground")
             c.indent()
-            _emit_element(c, full, terms.gather_end(kind, "i", ground=True))
+            _emit_element(c, full, terms.gather_end(kind, "i", ground=True, rows=rows))
             c.dedent()
             c("else:")
             c.indent()
-            _emit_element(c, full, terms.gather_end(kind, "i"))
+            _emit_element(c, full, terms.gather_end(kind, "i", rows=rows))
             c.dedent()
         else:
-            _emit_element(c, full, terms.gather_end(kind, "i"))
+            _emit_element(c, full, terms.gather_end(kind, "i", rows=rows))
         c.dedent()
         c("else:")
         c.indent()
-        _emit_element(c, full, terms.gather_end(kind, "j"))
+        _emit_element(c, full, terms.gather_end(kind, "j", rows=rows))
         c.dedent(2)
 
 
@@ -689,8 +692,8 @@ def _gather(c: _Code, full: LaneLayout, ptr: str, head: tuple[str, ...], row: st
     c.dedent()
 
 
-def emit_monomials(c: _Code, width: LaneLayout,
-                   per_run: frozenset[str] = frozenset()) -> None:
+def emit_monomials(c: _Code, width: LaneLayout, per_run: frozenset[str] = frozenset(),
+                   rows: terms.Rows = terms.ROWS) -> None:
     """The monomials' loop: each factor's partial derivative, summed over the factors (the
     product rule, so repeated variables need no special case); rare and irregular, a plain
     loop over the lanes (none where the form holds one run)."""
@@ -714,13 +717,13 @@ def emit_monomials(c: _Code, width: LaneLayout,
         c.indent()
     if lane:  # each lane its own point's coefficient
         c(f"cm = {pc} * ex * {mi}")
-    c(at("term = cm * xa[i, {b}] ** (ex - 1)"))
+    c(at(f"term = cm * {rows.x}[i, {{b}}] ** (ex - 1)"))
     c("for ko in range(lo, hi):")
     c.indent()
     c("if ko != kf:")
-    c(at("    term *= xa[p_var[ko], {b}] ** p_exp[ko]"))
+    c(at(f"    term *= {rows.x}[p_var[ko], {{b}}] ** p_exp[ko]"))
     c.dedent()
-    c(at("ka[i, {b}] -= term"))
+    c(at(f"{rows.k}[i, {{b}}] -= term"))
     c.dedent(2 if width.one_run else 3)
 
 

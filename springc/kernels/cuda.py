@@ -508,9 +508,9 @@ def _emit_stage(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau, s: in
     if feat.common_forces:
         c(f"grow = g[step - s0, {s}]")
     folded = s == tab.stages - 1 and _folds(feat, opts, tab)
-    text = force_code(feat, opts, _combine_store(tab) if folded else STORE)
-    for line in text:
-        c(_rename(line, xa, va, f"kv{s}"))
+    rows = terms.Rows(xa, va, f"kv{s}")
+    for line in force_code(feat, opts, rows, _combine_store(tab) if folded else None):
+        c(line)
     if tab.b[s] != 0.0 and (opts.dampers or opts.work and (feat.in_forces
                                                            or feat.common_forces)):
         _first(c, opts)
@@ -519,9 +519,6 @@ def _emit_stage(c: _Code, feat: Features, opts: CudaOptions, tab: Tableau, s: in
     # a Lawson scheme's blocks read their nodes' stage forces in threads of their own
     if _lawson(opts) or 0 < s < tab.stages - 1:
         _sync(c, opts)
-
-
-STORE = ["ka[i, {b}] = A{b}"]  # a node's sum A{b} into its stage force (a lane statement)
 
 
 def _combine_store(tab: Tableau) -> list[str]:
@@ -606,13 +603,6 @@ def _emit_block_size(c: _Code, opts: CudaOptions, step, m: int, xo: str,
     c.dedent()
 
 
-def _rename(line: str, xa: str, va: str, ka: str) -> str:
-    """A force-code line with the stage's arrays in place of xa, va, ka."""
-    line = re.sub(r"\bxa\[", f"{xa}[", line)
-    line = re.sub(r"\bva\[", f"{va}[", line)
-    return re.sub(r"\bka\[", f"{ka}[", line)
-
-
 def _emit_stage_state(c: _Code, opts: CudaOptions, tab: Tableau, s: int) -> None:
     """xs = x + h c_s v + h^2 sum (A A)_sk kv_k, vs = v + h sum a_sj kv_j (where read)."""
     xterm, vterm = stage_terms(tab, s, "v[i]", lambda k: f"kv{k}[i]")
@@ -642,42 +632,48 @@ def _at(expr: str, i: int) -> str:
     return expr.replace("[i]", f"[{i}]")
 
 
-def force_code(feat: Features, opts: CudaOptions, store: list[str] = STORE) -> list[str]:
-    """ka = M^-1 F(xa, va, uc, grow) for one run, as lines (relative indentation); the split
-    form takes each node's sum with the lane statements `store`."""
+def force_code(feat: Features, opts: CudaOptions, rows: terms.Rows = terms.ROWS,
+               store: list[str] | None = None) -> list[str]:
+    """rows.k = M^-1 F(rows.x, rows.v, uc, grow) for one run, as lines (relative
+    indentation); the split form takes each node's sum with the lane statements `store`
+    (default: into rows.k)."""
     if opts.threads > 1:
-        return _split_force_code(feat, opts, store)
+        return _split_force_code(feat, opts, rows,
+                                 store or [f"{rows.k}[i, {{b}}] = A{{b}}"])
     out: list[str] = []
     if opts.nodes is not None:
         for i, node in enumerate(opts.nodes):
-            expr = terms.node_sum(i, node, lambda j: f"xa[{j}]", lambda j: f"va[{j}]",
-                                  lambda ch: f"uc[{ch}]", lambda e: f"grow[{e}]")
-            out.append(f"ka[{i}] = {expr}")
+            expr = terms.node_sum(i, node, lambda j: f"{rows.x}[{j}]",
+                                  lambda j: f"{rows.v}[{j}]", lambda ch: f"uc[{ch}]",
+                                  lambda e: f"grow[{e}]")
+            out.append(f"{rows.k}[{i}] = {expr}")
     else:
-        out += _linear(feat)
+        out += _linear(feat, rows)
         for kind in terms.LOOP_ORDER:
             if getattr(feat, kind.feature):
-                out += _kind_loop(kind)
+                out += _kind_loop(kind, rows)
     if feat.monomials:
-        out += _monomials()
+        out += _monomials(rows)
     if feat.common_forces and opts.nodes is None:
-        out += _kind_loop(terms.COMMON)
+        out += _kind_loop(terms.COMMON, rows)
     return out
 
 
-def _split_force_code(feat: Features, opts: CudaOptions, store: list[str]) -> list[str]:
+def _split_force_code(feat: Features, opts: CudaOptions, rows: terms.Rows,
+                      store: list[str]) -> list[str]:
     """The split form's forces: each thread's nodes sum their own terms and element ends
     (`codegen.emit_linear`'s parallel form, one lane; with `opts.slots`, `_slot_force_code`);
     monomials and shared signals, which scatter, are then added by thread 0 alone, after a
     barrier, and the run's threads meet again before anyone reads them."""
     if opts.slots:
-        out = _slot_force_code(feat, opts, [one_run(line) for line in store])
+        out = _slot_force_code(feat, opts, rows, [one_run(line) for line in store])
     else:
         sub = _Code()
-        emit_linear(sub, feat, ONE_RUN, parallel=True, loop=_node_loop(opts), store=store)
+        emit_linear(sub, feat, ONE_RUN, parallel=True, loop=_node_loop(opts), store=store,
+                    rows=rows)
         out = sub.lines
-    scattered = (_monomials() if feat.monomials else []) + (
-        _kind_loop(terms.COMMON) if feat.common_forces else [])
+    scattered = (_monomials(rows) if feat.monomials else []) + (
+        _kind_loop(terms.COMMON, rows) if feat.common_forces else [])
     if scattered:
         out += ["cuda.syncthreads()", "if t == 0:"] + ["    " + line for line in scattered]
         out += ["cuda.syncthreads()"]
@@ -716,7 +712,8 @@ def _emit_slot_loads(c: _Code, feat: Features, opts: CudaOptions) -> None:
                     c(f"s_{sl.name}{j}_{q}_{f} = sl_{sl.name}_{f}[{q}, s_c{j}]")
 
 
-def _slot_force_code(feat: Features, opts: CudaOptions, store: list[str]) -> list[str]:
+def _slot_force_code(feat: Features, opts: CudaOptions, rows: terms.Rows,
+                     store: list[str]) -> list[str]:
     """The split form's force code with each of the thread's nodes written out (slot j), its
     terms' fields in the registers `_emit_slot_loads` filled, each term guarded by the
     node's count, the terms past a list's registers read in a loop: the same sum in the same
@@ -724,7 +721,7 @@ def _slot_force_code(feat: Features, opts: CudaOptions, store: list[str]) -> lis
     out: list[str] = []
     last = _slot_count(opts) - 1
     for j in range(last + 1):
-        body = [f"i = s_i{j}"] + _slot_node(feat, opts, j) + store
+        body = [f"i = s_i{j}"] + _slot_node(feat, opts, j, rows) + store
         if j == last and opts.n % opts.threads:
             out += [f"if s_i{j} < N:"] + ["    " + line for line in body]
         else:
@@ -732,39 +729,40 @@ def _slot_force_code(feat: Features, opts: CudaOptions, store: list[str]) -> lis
     return out
 
 
-def _slot_node(feat: Features, opts: CudaOptions, j: int) -> list[str]:
+def _slot_node(feat: Features, opts: CudaOptions, j: int, rows: terms.Rows) -> list[str]:
     """Slot j's node's sum A0: own terms, then each list's terms."""
-    own = terms.own_sum(True, True, f"s_bm{j}", f"s_km{j}", "va[i]", "xa[i]")
-    spring = terms.own_sum(False, True, f"s_bm{j}", f"s_km{j}", "va[i]", "xa[i]")
+    v, x = f"{rows.v}[i]", f"{rows.x}[i]"
+    own = terms.own_sum(True, True, f"s_bm{j}", f"s_km{j}", v, x)
+    spring = terms.own_sum(False, True, f"s_bm{j}", f"s_km{j}", v, x)
     out = [f"if s_bm{j} != 0.0:", f"    A0 = {own}", "else:", f"    A0 = {spring}"]
     for sl, (_, k, looped) in zip(slot_lists(feat), opts.slots):
         for q in range(k):
             scalars = {f: f"s_{sl.name}{j}_{q}_{f}" for f, _, _ in sl.fields}
             out += [f"if s_n{sl.name}{j} > {q}:"] + [
-                "    " + line for line in _slot_term(sl, scalars)]
+                "    " + line for line in _slot_term(sl, scalars, rows)]
         if looped:
-            out += _slot_loop(sl, k)
+            out += _slot_loop(sl, k, rows)
     return out
 
 
-def _slot_loop(sl: SlotList, k: int) -> list[str]:
+def _slot_loop(sl: SlotList, k: int, rows: terms.Rows) -> list[str]:
     """A node's terms of list `sl` past its first k, read from the arrays."""
     at = f"{sl.elem}[q_]" if sl.elem else "q_"
     fields = {f: f"{arr}[{at if by_elem else 'q_'}]" for f, arr, by_elem in sl.fields}
     head = [f"for q_ in range({sl.ptr}[i] + np.uint64({k}), {sl.ptr}[i + 1]):"]
-    return head + ["    " + line for line in _slot_term(sl, fields)]
+    return head + ["    " + line for line in _slot_term(sl, fields, rows)]
 
 
-def _slot_term(sl: SlotList, fields: dict[str, str]) -> list[str]:
+def _slot_term(sl: SlotList, fields: dict[str, str], rows: terms.Rows) -> list[str]:
     """One term of list `sl` added to A0, its fields read from the expressions `fields`."""
     if sl.name == "row":
-        return ["A0 = A0 " + terms.ROW.format(w=fields["w"], xj=f"xa[{fields['c']}]")]
+        return ["A0 = A0 " + terms.ROW.format(w=fields["w"], xj=f"{rows.x}[{fields['c']}]")]
     if sl.name == "in":
         return ["A0 = A0 " + terms.INPUT.format(gm=fields["w"], u=f"uc[{fields['c']}]")]
     kind = terms.BY_NAME[sl.name]
 
     def end(which: str, ground: bool = False) -> list[str]:
-        code = terms.gather_end(kind, which, ground, coef=lambda f, _: fields[f])
+        code = terms.gather_end(kind, which, ground, coef=lambda f, _: fields[f], rows=rows)
         # one lane, numbered 0 as the accumulator A0 is
         return ["    " + one_run(line) for line in code.head + code.loads + code.arith]
 
@@ -779,22 +777,22 @@ def _slot_term(sl: SlotList, fields: dict[str, str]) -> list[str]:
     return out + ["else:"] + end("j")
 
 
-def _linear(feat: Features) -> list[str]:
+def _linear(feat: Features, rows: terms.Rows) -> list[str]:
     """Each node's own terms, stiffness row and inputs, stored once (`codegen.emit_linear`)."""
-    own = terms.own_sum(True, True, "bi", "ki", "va[i]", "xa[i]")
-    spring = terms.own_sum(False, True, "bi", "ki", "va[i]", "xa[i]")
+    own = terms.own_sum(True, True, "bi", "ki", f"{rows.v}[i]", f"{rows.x}[i]")
+    spring = terms.own_sum(False, True, "bi", "ki", f"{rows.v}[i]", f"{rows.x}[i]")
     out = ["for i in range(N):", "    bi = bm[i]", "    ki = km[i]", "    if bi != 0.0:",
            f"        A = {own}", "    else:", f"        A = {spring}"]
     if feat.couplings:
         out += ["    for e in range(l_ptr[i], l_ptr[i + 1]):",
-                "        A = A " + terms.ROW.format(w="l_val[e]", xj="xa[l_col[e]]")]
+                "        A = A " + terms.ROW.format(w="l_val[e]", xj=f"{rows.x}[l_col[e]]")]
     if feat.in_forces:
         out += ["    for e in range(fi_ptr[i], fi_ptr[i + 1]):",
                 "        A = A " + terms.INPUT.format(gm="fi_gm[e]", u="uc[fi_chan[e]]")]
-    return out + ["    ka[i] = A"]
+    return out + [f"    {rows.k}[i] = A"]
 
 
-def _kind_loop(kind: terms.Kind) -> list[str]:
+def _kind_loop(kind: terms.Kind, rows: terms.Rows) -> list[str]:
     """The loop over the elements of `kind` (`codegen._emit_kind` for one run)."""
     def element(code: terms.LoopCode, pad: str) -> list[str]:
         lines = code.head + code.loads + code.arith + code.stores
@@ -802,17 +800,17 @@ def _kind_loop(kind: terms.Kind) -> list[str]:
 
     out = [f"for e in range({kind.node_i}.shape[0]):"]
     if kind.ground is None:
-        return out + element(terms.element_loop(kind), "    ")
+        return out + element(terms.element_loop(kind, rows=rows), "    ")
     out += [f"    j = {kind.node_j}[e]", "    if j < 0:"]
-    out += element(terms.element_loop(kind, ground=True), "        ")
-    out += ["    else:"] + element(terms.element_loop(kind), "        ")
+    out += element(terms.element_loop(kind, ground=True, rows=rows), "        ")
+    out += ["    else:"] + element(terms.element_loop(kind, rows=rows), "        ")
     return out
 
 
-def _monomials() -> list[str]:
+def _monomials(rows: terms.Rows) -> list[str]:
     """The monomials' loop for the thread's one run (`codegen.emit_monomials`)."""
     sub = _Code()
-    emit_monomials(sub, ONE_RUN)
+    emit_monomials(sub, ONE_RUN, rows=rows)
     return sub.lines
 
 

@@ -201,6 +201,20 @@ def _end_template(kind: Kind, end: str, other: int) -> str:
 
 
 @dataclass(frozen=True)
+class Rows:
+    """The arrays a stage's force code reads positions (`x`) and velocities (`v`) from and
+    stores accelerations (`k`) into: the CPU kernels bind xa, va, ka in their loop over the
+    stages; a form that writes its stages out names each stage's own (the CUDA form)."""
+
+    x: str = "xa"
+    v: str = "va"
+    k: str = "ka"
+
+
+ROWS = Rows()
+
+
+@dataclass(frozen=True)
 class LoopCode:
     """An element loop's code for `codegen.lanes`: per-element scalar statements, then per
     lane the loads, the arithmetic and the stores (`{b}`: the lane)."""
@@ -212,12 +226,13 @@ class LoopCode:
 
 
 def element_loop(kind: Kind, ground: bool = False,
-                 per_run: frozenset[str] = frozenset()) -> LoopCode:
+                 per_run: frozenset[str] = frozenset(), rows: Rows = ROWS) -> LoopCode:
     """One element of `kind` in the shared kernel: its nodes and coefficients into scalars,
     the ends' state and accelerations loaded per lane, the shared subexpressions, then each
     end's acceleration stored. A kind with a `ground` force is rendered twice, inside a
     branch on `j = node_j[e]` (the caller's): `ground` True for a second end at the ground.
-    Coefficient arrays in `per_run` are loaded per lane from their `lane_array`."""
+    Coefficient arrays in `per_run` are loaded per lane from their `lane_array`; the state
+    and accelerations are read from and stored to `rows`."""
     two = kind.node_j is not None and not ground
     ends = ["i", "j"] if two else ["i"]
     forces = {"i": kind.ground} if ground else dict(kind.force)
@@ -233,11 +248,11 @@ def element_loop(kind: Kind, ground: bool = False,
     lane_fields = {f: f"C{f}{{b}}" for f, arr in coefs if arr in per_run}
     fields |= lane_fields
     state = {s: s.upper() + "{b}" for s in STATE}
-    loads = [f"{s.upper()}{{b}} = {'xa' if s[0] == 'x' else 'va'}[{s[1]}, {{b}}]"
+    loads = [f"{s.upper()}{{b}} = {rows.x if s[0] == 'x' else rows.v}[{s[1]}, {{b}}]"
              for s in STATE if "{" + s + "}" in used and s[1] in ends]
     loads += [f"{lane_fields[f]} = {lane_array(arr)}[e, {{b}}]" for f, arr in coefs
               if f in lane_fields]
-    loads += [f"O{e.upper()}{{b}} = ka[{e}, {{b}}]" for e in ends]
+    loads += [f"O{e.upper()}{{b}} = {rows.k}[{e}, {{b}}]" for e in ends]
     arith = []
     for name, temp in kind.temps:
         if "{" + name + "}" not in used:
@@ -248,7 +263,7 @@ def element_loop(kind: Kind, ground: bool = False,
         else:  # per element, not per lane
             head.append(f"{name} = " + _fill(temp, state, fields))
             fields[name] = name
-    stores = [f"ka[{e}, {{b}}] = O{e.upper()}{{b}} " + _fill(forces[e], state, fields)
+    stores = [f"{rows.k}[{e}, {{b}}] = O{e.upper()}{{b}} " + _fill(forces[e], state, fields)
               for e in ends]
     return LoopCode(head, loads, arith, stores)
 
@@ -300,12 +315,12 @@ def node_ends(co: dict, n: int) -> dict[str, np.ndarray]:
 
 
 def gather_end(kind: Kind, end: str, ground: bool = False,
-               coef: Callable[[str, str], str] | None = None) -> LoopCode:
+               coef: Callable[[str, str], str] | None = None, rows: Rows = ROWS) -> LoopCode:
     """Node i's term as end `end` of element `e` of `kind` (its other node `o`), added to
     the node's accumulator A{b}: `element_loop`'s arithmetic for that end, with the node's
     running sum in place of its stored acceleration. `ground`: the other end is the
     ground. `coef(field, array)`: where a form reads a coefficient from (default
-    `array[e]`; the CUDA split form's registers)."""
+    `array[e]`; the CUDA split form's registers); the state is read from `rows`."""
     template = kind.ground if ground else dict(kind.force)[end]
     at = {"i": "i", "j": "o"} if end == "i" else {"i": "o", "j": "i"}
     temps = [(name, t) for name, t in kind.temps if "{" + name + "}" in template]
@@ -314,7 +329,7 @@ def gather_end(kind: Kind, end: str, ground: bool = False,
     head = [f"{f} = {read(f, arr)}" for f, arr in kind.coefs if "{" + f + "}" in used]
     fields = {f: f for f, _ in kind.coefs}
     state = {s: s.upper() + "{b}" for s in STATE}
-    loads = [f"{s.upper()}{{b}} = {'xa' if s[0] == 'x' else 'va'}[{at[s[1]]}, {{b}}]"
+    loads = [f"{s.upper()}{{b}} = {rows.x if s[0] == 'x' else rows.v}[{at[s[1]]}, {{b}}]"
              for s in STATE if "{" + s + "}" in used]
     arith = []
     for name, temp in temps:

@@ -6,14 +6,15 @@ leaving one text-to-speech engine of the built-in corpus out of training in turn
 For each engine E (espeak, flite, festival), as a user would with `springc`:
 `data synth` a training corpus from the other two engines and `--draws` corpora of E alone
 (seeds of their own, their split lists removed, so that every clip is a test clip), `train`
-an 8x3 model on the first (digital and mass-spring), then test it on its own test split and
-on the corpora of E (their mean). The gap is own-test accuracy minus left-out-engine
+an 8x3 model on the first (digital, mass-spring and device), then test it on its own test
+split and on the corpora of E (their mean). The gap is own-test accuracy minus left-out-engine
 accuracy; the mean gap over the three engines
 is the measure of generalisation to unheard voices. A digital model is tested by `springc
 eval`; a mass-spring model by its simulated features and the ideal readout c.Phi (its own
 test accuracy is its training report's, the corpus of E is read as `springc eval` reads a
 folder), which saves the whole network's simulation (it reproduces c.Phi,
-docs/keyword-spotting.md).
+docs/keyword-spotting.md); a device model (summing heads), whose ideal readout is the
+mass-spring model's, by `springc eval`, its whole network simulated.
 
 The numbers go to OUT/voices.json after each model (a run that stops goes on where it
 stopped; `--realisations` adds realisations to an earlier run's JSON); the page is written
@@ -33,7 +34,7 @@ import time
 from pathlib import Path
 
 ENGINES = ("espeak", "flite", "festival")
-REALISATIONS = ("digital", "mass-spring")
+REALISATIONS = ("digital", "mass-spring", "device")
 LIST_FILES = ("validation_list.txt", "testing_list.txt")
 NOTES = "<!-- notes below are kept by scripts/results_voices.py -->"
 ROOT = Path(__file__).resolve().parents[1]
@@ -57,7 +58,9 @@ METHOD = [
     "model is tested by its simulated features and the ideal readout c.Phi (its training "
     "report's own-test accuracy; the corpus of E read as `springc eval` reads it), not "
     "by simulating its whole classifier network, which reproduces c.Phi and would take "
-    "several times longer.",
+    "several times longer. A device model (summing heads, `--realisation device`) shares "
+    "the mass-spring model's features and ideal readout, so it is tested by simulating its "
+    "whole network (`springc eval MODEL --data DIR --json`), own test split included.",
     "",
     "**flite and festival share speakers**: kal (flite kal16, festival kal_diphone) and "
     "slt (flite slt, festival cmu_us_slt_arctic_hts) are the same recorded people. "
@@ -92,8 +95,9 @@ def test_only(corpus: Path) -> Path:
 
 def evaluate(model: Path, data: Path | None) -> dict:
     """Accuracy and test clips of a model on its own test split (`data` None) or on a
-    folder's: `springc eval MODEL [--data DIR] --json` for a digital model, the simulated
-    features and c.Phi for a mass-spring one (`features_eval`)."""
+    folder's: `springc eval MODEL [--data DIR] --json` for a digital model and for a device
+    model (its whole network simulated), the simulated features and c.Phi for a mass-spring
+    one (`features_eval`)."""
     settings = json.loads((model / "settings.json").read_text())
     if settings["realisation"] != "mass-spring":
         return json.loads(springc(["eval", str(model), "--json"]
@@ -293,7 +297,7 @@ def main() -> None:
                         help="left-out corpora of each engine (seeds seed+1, ...); the "
                              "left-out accuracy is their mean")
     parser.add_argument("--realisations", default=",".join(REALISATIONS),
-                        help="comma-separated: digital, mass-spring")
+                        help="comma-separated: digital, mass-spring, device")
     parser.add_argument("--out", type=Path, default=Path("/tmp/voices/run"))
     parser.add_argument("--before", type=Path, default=None,
                         help="voices.json of an earlier run, shown as the table before")

@@ -99,7 +99,8 @@ def evaluate(model: Path, data: Path | None) -> dict:
     model (its whole network simulated), the simulated features and c.Phi for a mass-spring
     one (`features_eval`)."""
     settings = json.loads((model / "settings.json").read_text())
-    if settings["realisation"] != "mass-spring":
+    # a device model is a mass-spring realisation with its physical scale ("device")
+    if settings["realisation"] != "mass-spring" or settings.get("device"):
         return json.loads(springc(["eval", str(model), "--json"]
                                   + (["--data", str(data)] if data else [])))
     if data is None:

@@ -163,9 +163,9 @@ def gather_args(feat: Features) -> list[str]:
 
 # each accumulated reduction's arguments (`KernelOptions` names the reduction), in the order
 # every form takes them
-REDUCTION_ARGS = {"work": ["work_in", "work_c"], "dissipation": ["ds_i", "ds_j", "ds_b", "diss"],
-                  "msq": ["ms_node", "ms_isv", "ms_lo", "ms_hi", "msq"],
-                  "gram": ["gr_i", "gr_j", "gr_g", "gr_w", "gr_decay", "gram"]}
+REDUCTION_ARGS = {"work": ("work_in", "work_c"), "dissipation": ("ds_i", "ds_j", "ds_b", "diss"),
+                  "msq": ("ms_node", "ms_isv", "ms_lo", "ms_hi", "msq"),
+                  "gram": ("gr_i", "gr_j", "gr_g", "gr_w", "gr_decay", "gram")}
 
 
 def run_args(feat: Features, opts: KernelOptions) -> list[str]:
@@ -700,8 +700,7 @@ def emit_monomials(c: _Code, width: LaneLayout, per_run: frozenset[str] = frozen
     lane = bool(per_run & {"p_c", "minv"})
     pc = f"{terms.lane_array('p_c')}[e, b]" if "p_c" in per_run else "p_c[e]"
     mi = f"{terms.lane_array('minv')}[i, b]" if "minv" in per_run else "minv[i]"
-    at = (lambda stmt: one_run(stmt, "")) if width.one_run else (
-        lambda stmt: stmt.replace("{b}", "b"))
+    at = (lambda stmt: one_run(stmt, "")) if width.one_run else in_lanes
     c("for e in range(p_c.shape[0]):")
     c.indent()
     c("lo = p_ptr[e]")

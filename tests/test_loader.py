@@ -163,3 +163,35 @@ def test_call_types_resolved_once_give_the_same_machine_code():
                 if not line.startswith("\t.size")]
 
     assert code(plain) == code(remembered)
+
+
+BLAS_ALONE = """
+import sys
+import numpy as np
+from springc.kernels import loader
+loader.blas_module_alone()  # as a kernel's first compile or cache load does
+alone = "scipy.linalg" not in sys.modules and "scipy.linalg.cython_blas" in sys.modules
+from numba import njit
+
+@njit
+def product(a, b):
+    return np.dot(a, b)
+
+a = np.arange(12.0).reshape(3, 4)
+b = np.arange(8.0).reshape(4, 2) - 3.0
+assert np.array_equal(product(a, b), a @ b)  # numba's BLAS call, through the module loaded alone
+from scipy.linalg import blas, cython_blas
+assert cython_blas is sys.modules["scipy.linalg.cython_blas"] and "ddot" in cython_blas.__pyx_capi__
+assert blas.ddot(a[0], a[1]) == a[0] @ a[1]
+print(alone)
+"""
+
+
+def test_scipys_blas_module_loaded_alone_serves_numba_and_scipy() -> None:
+    """scipy's BLAS extension module loaded without scipy.linalg's package
+    (`loader.blas_module_alone`, at a kernel's first compile or cache load; that a warm `sim`
+    then imports no scipy.linalg is tests/test_startup_imports.py's): numba's BLAS calls in
+    the same process read it, and scipy.linalg imported afterwards finds it and works."""
+    done = subprocess.run([sys.executable, "-c", BLAS_ALONE], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["True"]

@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import gc
+import importlib.machinery
 import importlib.util
 import os
 import sys
@@ -152,10 +153,44 @@ call_types_remembered = _HeldSetting(_remember_on, _remember_off)
 @contextlib.contextmanager
 def compiling(path: Path) -> Iterator[None]:
     """The scope of a kernel's first call, which compiles it (or loads it from numba's cache):
-    the kernel file's lock (`compile_lock`), the SLP vectoriser on, the collector paused,
-    each call's type resolved once (`call_types_remembered`)."""
+    scipy's BLAS module loaded alone (`blas_module_alone`), the kernel file's lock
+    (`compile_lock`), the SLP vectoriser on, the collector paused, each call's type resolved
+    once (`call_types_remembered`)."""
+    blas_module_alone()
     with gc_paused(), compile_lock(path), slp_vectorize(), call_types_remembered():
         yield
+
+
+BLAS_MODULE = "scipy.linalg.cython_blas"
+
+
+def blas_module_alone() -> None:
+    """Load scipy's BLAS extension module by itself, before numba's first compile or cache
+    load in the process. numba's CPU target imports `scipy.linalg.cython_blas` when it loads
+    its registries, only to learn that a BLAS is there (`numba.np.linalg.ensure_blas`), and
+    that import runs scipy.linalg's whole package (docs/performance.md, "A warm command's
+    floor"). The extension module alone is what numba reads (a kernel calling BLAS takes its
+    functions from its C API table); `from scipy.linalg import cython_blas` finds it later.
+    Nothing to do where scipy.linalg is imported already or the module is not found: numba
+    then imports it its own way."""
+    if BLAS_MODULE in sys.modules or "scipy.linalg" in sys.modules:
+        return
+    try:
+        import scipy
+    except ImportError:
+        return
+    folder = Path(scipy.__file__).parent / "linalg"
+    found = [folder / f"cython_blas{s}" for s in importlib.machinery.EXTENSION_SUFFIXES]
+    path = next((p for p in found if p.exists()), None)
+    if path is None:
+        return
+    spec = importlib.util.spec_from_file_location(BLAS_MODULE, path)
+    try:
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[BLAS_MODULE] = module
+        spec.loader.exec_module(module)
+    except Exception:  # a scipy this does not know: numba imports it its own way
+        sys.modules.pop(BLAS_MODULE, None)
 
 
 def on_own_thread(call: Callable[[], T]) -> T:

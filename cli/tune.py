@@ -37,26 +37,35 @@ _GROUPS = "filter,compression,couplings,readout"
 @click.option("--lr", default=0.05, show_default=True, help="Adam step size on the variables.")
 @click.option("--il-weight", default=0.0, show_default=True,
               help="Loss weight per dB of mean insertion loss (0: accuracy alone).")
-@click.option("--seed", default=0, show_default=True, help="Clip draw and batch order.")
+@click.option("--mc", "devices", default=0, show_default=True, metavar="N",
+              help="Fabricated devices the loss is averaged over (with --spread): N new ones "
+                   "at every step, and a fixed N for the validation loss (0: the nominal "
+                   "network alone).")
+@click.option("--spread", default=0.0, show_default=True, metavar="S",
+              help="With --mc: relative spread of every coefficient of a device.")
+@click.option("--seed", default=0, show_default=True,
+              help="Clip draw, batch order and the devices' draws.")
 @click.option("--jobs", "-j", default=0, help="Worker processes (0: all cores).")
 @click.option("--scheduler", default=None, metavar="ADDRESS",
               help="Dask scheduler to send the batches to (default: a local cluster).")
 @run_user_errors
 def tune_cmd(model, data, out, params, refit, refit_clips, epochs, batch, clips, val_clips,
-             lr, il_weight, seed, jobs, scheduler):
-    """Tune MODEL (trained with --realisation mass-spring) through its simulated network:
-    the heads' weights refitted on the network's exact response, then softmax
-    cross-entropy of the readouts' decisions at a learnt temperature (plus --il-weight x
-    insertion loss), gradients by the discrete adjoint at RK4 x8, Adam; keeps the epoch with
-    the lowest validation loss; every tuned netlist passes the checks. Writes OUT like
-    train (netlists, settings, report of the test split, README); the parameters are saved
+             lr, il_weight, devices, spread, seed, jobs, scheduler):
+    """Tune MODEL (trained with --realisation mass-spring or device) through its simulated
+    network: the heads' weights refitted on the network's exact response (the paper's heads
+    only), then softmax cross-entropy of the readouts' decisions at a learnt temperature
+    (plus --il-weight x insertion loss), averaged over --mc fabricated devices where given,
+    gradients by the discrete adjoint at RK4 x8, Adam; keeps the epoch with the lowest
+    validation loss; every tuned netlist passes the checks. Writes OUT like train
+    (netlists, settings, report of the test split, README); the parameters are saved
     beside OUT after every epoch and a rerun resumes from them."""
     from springc.kws.training.readme import tune_history_text
     from springc.kws.tuning.tune import TuneOptions, tune
 
     opts = TuneOptions(model, data, out, tuple(p.strip() for p in params.split(",") if p),
                        epochs, batch, clips, val_clips, lr, il_weight, seed, jobs,
-                       scheduler, refit=refit, refit_clips=refit_clips)
+                       scheduler, refit=refit, refit_clips=refit_clips, devices=devices,
+                       spread=spread)
     report = tune(opts)
     click.echo(f"tuned {', '.join(opts.params)}: {tune_history_text(report['tune'])}")
     if "accuracy" in report:

@@ -14,11 +14,13 @@ from click.testing import CliRunner
 
 from springc.check import check
 from springc.design.emit import num
+from springc.design.scale import flat_text
 from springc.kws.features import massspring as msp
 from springc.kws.tuning import tune as T
 from springc.kws.training.model import load_model
 from springc.kws.data.task import targets
 from springc.kws.training.transfer import model_heads
+from springc.lang import load_file
 from springc_cli.main import main
 from kws_corpora import shared_corpus_and_model
 
@@ -84,6 +86,72 @@ def test_the_loss_gradient_matches_central_differences(env):
         richardson = (4 * diff(5e-4) - diff(1e-3)) / 3
         assert g[i] == pytest.approx(richardson, rel=1e-6), name
         assert abs(g[i]) > 1e-6, name  # a gradient that is there
+
+
+def test_a_populations_loss_gradient_matches_central_differences(env):
+    """With a population the loss is the mean over its devices (the network at z, each
+    coefficient times the device's fixed draw): the gradient a step takes is that mean's,
+    against central differences with the same devices, and the devices' loss is not the
+    nominal network's. The bound is the nominal test's: Richardson-extrapolated differences
+    of a smooth loss, below the 1e-5 relative error a device factor missed in the chain rule
+    would leave (the spread; the paper's zero-mode heads already lose accuracy there)."""
+    _, _, model_dir = env
+    opts, model, start, lay, tg, sig = setup(model_dir, 1, 0.0)
+    opts.devices, opts.spread = 2, 1e-5
+    sig = sig[:, :6400]
+    eps = float(model.settings["transfer"]["epsilon"])
+    z = T.initial_z(start, lay) + np.random.default_rng(3).normal(0, 0.3, lay.size)
+    idx, devices = np.arange(len(sig)), T.step_population(opts, 5)
+    assert devices == (10, 11)
+    b = T.make_batch(opts, start, lay, z, eps, tg,
+                     msp.horizon(start.s, sig.shape[1] / msp.INPUT_RATE), devices)
+    assert len(T.on_devices(b)) == 2
+    g, loss = T.z_gradient([T.batch_gradient((sig, idx), b)], lay, z)
+
+    def at(zz: np.ndarray, population=devices) -> float:
+        return T.loss_at(opts, start, zz, eps, tg, sig, idx, population)
+
+    assert loss == pytest.approx(at(z), rel=1e-12)
+    assert abs(loss - at(z, ())) > 1e-6 * abs(loss)
+    for name in ("filter", "couplings"):
+        i = lay.slices[name].start + 1
+
+        def diff(h: float) -> float:
+            zp, zm = z.copy(), z.copy()
+            zp[i] += h
+            zm[i] -= h
+            return (at(zp) - at(zm)) / (2 * h)
+
+        richardson = (4 * diff(5e-4) - diff(1e-3)) / 3
+        assert g[i] == pytest.approx(richardson, rel=1e-6), name
+        assert abs(g[i]) > 1e-6, name
+
+
+def test_tuning_starts_from_the_network_the_model_simulates(env, tmp_path):
+    """At the start (every factor 1) tune's network is the model folder's classifier.spr,
+    the network `springc eval` simulates, built as the model's recorded design says: here
+    the paper's heads, and in a copy whose settings record multipliers 10 times as stiff,
+    those (every coupling of a head's multiplier 10 times the paper's)."""
+    _, _, model_dir = env
+
+    def start_network(folder):
+        model, start = T.load_start(folder)
+        lay = T.layout(T.GROUPS, start.s.bins, start.heads)
+        eps = float(model.settings["transfer"]["epsilon"])
+        return T.network(*T.tuned(start, T.initial_z(start, lay), lay), eps, start.design).net
+
+    ours = start_network(model_dir)
+    assert flat_text(ours) == flat_text(check(load_file(model_dir / "classifier.spr")).net)
+    stiff = tmp_path / "stiff"
+    shutil.copytree(model_dir, stiff)
+    settings = json.loads((stiff / "settings.json").read_text())
+    settings["transfer"]["design"] = {"heads": "zero-mode", "mvm_stiffness": 10.0,
+                                      "buffer": None}
+    (stiff / "settings.json").write_text(json.dumps(settings))
+    other = start_network(stiff)
+    mvm = [e for e, name in enumerate(ours.couplings.names) if ".Xm." in name]
+    assert mvm and other.couplings.names == ours.couplings.names
+    np.testing.assert_allclose(other.couplings.k[mvm], 10 * ours.couplings.k[mvm], rtol=1e-12)
 
 
 def test_steps_lower_the_training_loss(tuned):
@@ -202,6 +270,9 @@ def test_bad_inputs_fail_cleanly(env, tmp_path):
         (["tune", str(tmp_path / "nomodel"), "-o", str(out)], ["nomodel", "no such model"]),
         (["tune", str(model), "--params", "filter,gain", "-o", str(out)], ["gain"]),
         (["tune", str(model), "-o", str(model)], ["output folder is the model"]),
+        (["tune", str(model), "-o", str(out), "--mc", "2"], ["--mc N and --spread S go"]),
+        (["tune", str(model), "-o", str(out), "--mc", "2", "--spread", "-1"],
+         ["--spread must be"]),
     ]
     for args, words in cases:
         result = CliRunner().invoke(main, args)

@@ -118,13 +118,14 @@ def _chain(dcoef: dict, dparam: dict) -> np.ndarray:
 def coefficient_gradient(checked: CheckedNetlist, of: Sequence[str], inputs=None,
                          input_rate: float | None = None, *, weights: Mapping | None = None,
                          tstep=None, tstop=None, substeps=None, method=None,
-                         channel: int | None = None, every: int | None = None
-                         ) -> CoefficientGradient:
+                         channel: int | None = None, every: int | None = None,
+                         check_step: bool = True) -> CoefficientGradient:
     """Values of the reductions `of` and the gradient of sum(weights[spec] * value) with
     respect to every element coefficient, per run, for the float64 computation `simulate`
     does with the same arguments (Runge-Kutta methods; inputs as `simulate` takes them).
     `every`: steps between checkpoints (default: all steps in one segment when its stages
-    fit in `MEMORY`, else about sqrt(steps))."""
+    fit in `MEMORY`, else about sqrt(steps)). `check_step`: refuse a step above the
+    stability limit, as `simulate` does."""
     net = require_checked(checked, "coefficient_gradient").net
     tstep0 = tstep or (net.tran.tstep if net.tran else None)
     # the simulator's own gathering of inputs: the same resampling, run names and stop time
@@ -133,7 +134,8 @@ def coefficient_gradient(checked: CheckedNetlist, of: Sequence[str], inputs=None
     if expint.is_split(st.method):
         raise UsageError(f"no gradient through the split scheme {st.method}",
                          hint="use a Runge-Kutta method (rk4, rk38, ...)")
-    checked.require_stable(st.method, st.h, st.substeps)
+    if check_step:
+        checked.require_stable(st.method, st.h, st.substeps)
     items = seeds.parse(list(of), net)
     w = seeds.weights_for(items, weights, len(names))
     job = _Job(net, st, items, signals, len(names), every)

@@ -90,8 +90,10 @@ def _settings(settings: dict) -> str:
                      f"{from_dict(transfer.get('integration')).describe()}")
     tune = settings.get("tune")
     if tune:
+        devices = (f", the loss over {tune['devices']} devices at a relative spread of "
+                   f"{tune['spread']:g}" if tune.get("devices") else "")
         lines.append(f"- tuned by `springc tune` from `{tune['from']}`: {', '.join(tune['params'])}"
-                     f" at {tune['integration']}, {tune_history_text(tune)}; the "
+                     f" at {tune['integration']}{devices}, {tune_history_text(tune)}; the "
                      "factors are transfer's couplings and intercepts and the features' "
                      "filter_scale and compression_scale")
     refit = (transfer or {}).get("refit")
@@ -161,6 +163,8 @@ def _reproduce(folder: Path, settings: dict) -> str:
                      f"{tune['clips']} --val-clips {tune.get('val_clips', 0)} "
                      f"--lr {tune['lr']:g} --il-weight {tune['il_weight']:g} "
                      f"--seed {tune['seed']}"
+                     + (f" --mc {tune['devices']} --spread {tune['spread']:g}"
+                        if tune.get("devices") else "")
                      + (f" --refit-clips {tune.get('refit_clips', 0)}" if tune.get("refit")
                         else " --no-refit"))
     lines += [f"springc eval {model} --data {shlex.quote(data)}   # this page's test split",

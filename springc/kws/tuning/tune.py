@@ -31,6 +31,12 @@ construction. The tuned values live in the model's settings (features: `filter_s
 re-derives the same network (`springc.kws.training.transfer.model_heads`). The folder gets the
 parameters of the epoch (the start included) with the lowest loss on `val_clips` clips of the
 validation split, so tuning on few clips cannot leave a worse network than it found there.
+
+With a population (`devices` N at a relative `spread`) the loss is the mean over N devices
+fabricated from the network at z (`springc.kws.evaluation.device.fabricate`: every
+coefficient times a draw of gauss(1, spread)), new devices at every step and one fixed
+population for the validation loss: the parameters a population does best with, not one
+exact network.
 """
 
 from __future__ import annotations
@@ -85,6 +91,8 @@ class TuneOptions:
     evaluate: bool = True
     refit: bool = True  # refit the heads' weights on the exact response first
     refit_clips: int = 0  # training clips the refit simulates (0: all)
+    devices: int = 0  # fabricated devices per step and in validation (0: the nominal network)
+    spread: float = 0.0  # their relative spread on every coefficient
 
 
 @dataclass
@@ -124,10 +132,12 @@ def check_params(params: tuple[str, ...]) -> tuple[str, ...]:
 
 @dataclass
 class Start:
-    """The untuned model's settings and heads (what every z is measured from)."""
+    """The untuned model's settings, heads and the design they were built with (what every z
+    is measured from)."""
 
     s: msp.MassSpringSettings
     heads: list[tr.Head]
+    design: tr.Design = field(default_factory=tr.Design)
 
 
 def factors(z: np.ndarray, lay: Layout, name: str, n: int) -> np.ndarray:
@@ -180,11 +190,14 @@ def initial_z(start: Start, lay: Layout) -> np.ndarray:
     return z
 
 
-def network(s: msp.MassSpringSettings, heads: list[tr.Head], epsilon: float):
-    """The checked classifier at RK4 x8 (CheckError for an illegal one)."""
+def network(s: msp.MassSpringSettings, heads: list[tr.Head], epsilon: float,
+            design: tr.Design = tr.Design()):
+    """The checked classifier built as `design` says, at RK4 x8 (CheckError for an illegal
+    one)."""
     from springc.lang import load_text
 
-    net = load_text(tr.classifier_text(heads, s, epsilon=epsilon), "<tuned classifier>")
+    net = load_text(tr.classifier_text(heads, s, epsilon=epsilon, design=design),
+                    "<tuned classifier>")
     return check(net, METHOD, substeps=SUBSTEPS)
 
 
@@ -197,7 +210,7 @@ def check_corners(start: Start, lay: Layout, epsilon: float) -> int:
         for name, sl in lay.slices.items():
             if name not in UNBOXED:
                 z[sl] = end
-        network(*tuned(start, z, lay), epsilon)
+        network(*tuned(start, z, lay), epsilon, start.design)
     return 2
 
 
@@ -235,9 +248,10 @@ def loss_terms(d: np.ndarray, t: Targets) -> tuple[np.ndarray, np.ndarray]:
             grad[:, lo] += np.where(mine, -np.where(y == 1, 1.0, -1.0) / (1 + np.exp(z)), 0)
             continue
         dd = d[:, lo:hi] - d[:, lo:hi].max(axis=1, keepdims=True)
-        p = np.exp(dd) / np.exp(dd).sum(axis=1, keepdims=True)
-        idx = np.maximum(y, 0)
-        loss += np.where(mine, -np.log(p[np.arange(len(d)), idx]), 0)
+        total = np.exp(dd).sum(axis=1)
+        p = np.exp(dd) / total[:, None]
+        idx = np.maximum(y, 0)  # -log p[idx] as log(total) - dd[idx]: finite however far off
+        loss += np.where(mine, np.log(total) - dd[np.arange(len(d)), idx], 0)
         onehot = np.eye(hi - lo)[idx]
         grad[:, lo:hi] += np.where(mine[:, None], p - onehot, 0)
     return loss, grad
@@ -259,6 +273,46 @@ class Batch:
     heads: int
     keep: tuple[int, ...]
     temperature: float = 1.0
+    population: tuple[int, ...] = ()  # Monte Carlo sample indices of the devices (): nominal
+    spread: float = 0.0
+    seed: int = 0
+    judged: bool = True  # the step judged stable (not on a fabricated device: `on_devices`)
+
+
+# the validation population's first sample index: far from every step's (step x devices + k)
+VALIDATION_DEVICES = 1 << 40
+
+
+def step_population(opts: TuneOptions, step: int) -> tuple[int, ...]:
+    """The devices of optimiser step `step`: new ones at every step."""
+    return tuple(range(step * opts.devices, (step + 1) * opts.devices))
+
+
+def validation_population(opts: TuneOptions) -> tuple[int, ...]:
+    """The devices every validation loss is scored on: the same each epoch."""
+    return tuple(range(VALIDATION_DEVICES, VALIDATION_DEVICES + opts.devices))
+
+
+def on_devices(b: Batch) -> list[Batch]:
+    """The batch on each device of its population (the nominal network fabricated with
+    relative spread `b.spread`, `springc.kws.evaluation.device.fabricate`), or the batch
+    itself without one. A device is checked as `springc eval --mc` checks it (its step not
+    judged: mismatch turns designed zero modes into slowly growing ones), and one the checks
+    find statically unstable is left out, as eval scores it apart."""
+    if not b.population:
+        return [b]
+    from springc.errors import CheckError
+    from springc.kws.evaluation.device import Spread, fabricate
+
+    spread, out = Spread(b.spread, seed=b.seed), []
+    for d in b.population:
+        try:
+            out.append(replace(b, checked=check(fabricate(b.checked.net, spread, d),
+                                                judge_step=False), population=(),
+                               judged=False))
+        except CheckError:
+            continue
+    return out
 
 
 def readouts(b: Batch, sig: np.ndarray) -> dict:
@@ -270,7 +324,7 @@ def readouts(b: Batch, sig: np.ndarray) -> dict:
         specs += [f"dissipated:r{k}" for k in range(b.heads)] + ["work:in"]
     return simulate(b.checked, sig[:, None, :], msp.INPUT_RATE, probes=[], reductions=specs,
                     tstop=b.tstop, method=METHOD, substeps=SUBSTEPS, precision="float64",
-                    batch=len(sig)).reductions
+                    batch=len(sig), check_step=b.judged).reductions
 
 
 def batch_loss(b: Batch, reds: dict, y: np.ndarray) -> tuple[np.ndarray, dict]:
@@ -327,9 +381,20 @@ def group_gradient(b: Batch, coef: dict, names: list) -> dict[str, np.ndarray]:
 
 def batch_gradient(sig_y: tuple[np.ndarray, np.ndarray], b: Batch) -> dict:
     """One worker's share of a batch: (clips, their indices into the targets) in; the loss
-    and the group gradients summed over its clips, the clips counted and those dropped out.
-    A clip whose readouts are not finite at RK4 x8 (louder than the compressors' planned full
-    scale) is dropped from the step rather than stopping the run."""
+    and the group gradients summed over its clips (and over the devices of `b.population`:
+    a device's coefficients are its fixed factors times the nominal ones, so its derivative
+    by a group's log factor is the same sum over its own coefficients), the clips counted
+    (once per device) and those dropped out."""
+    sig, y = sig_y
+    parts = [network_gradient(sig_y, d) for d in on_devices(b)] or [
+        network_gradient((sig[:0], y[:0]), b)]  # every device unstable: nothing to add
+    return {k: sum(p[k] for p in parts) for k in parts[0]}
+
+
+def network_gradient(sig_y: tuple[np.ndarray, np.ndarray], b: Batch) -> dict:
+    """`batch_gradient` on the network `b.checked` alone. A clip whose readouts are not
+    finite at RK4 x8 (louder than the compressors' planned full scale) is dropped from the
+    step rather than stopping the run."""
     from springc.grad import coefficient_gradient
 
     sig, y = sig_y
@@ -347,7 +412,7 @@ def batch_gradient(sig_y: tuple[np.ndarray, np.ndarray], b: Batch) -> dict:
     dd, dlogt = weights.pop("intercepts"), weights.pop("temperature")
     cg = coefficient_gradient(b.checked, list(weights), sig[:, None, :], msp.INPUT_RATE,
                               weights=weights, tstop=b.tstop, method=METHOD,
-                              substeps=SUBSTEPS)
+                              substeps=SUBSTEPS, check_step=b.judged)
     names = {t: getattr(b.checked.net, t).names for t in ("masses", "springs", "couplings",
                                                            "duffings", "forces", "quads")}
     out.update(group_gradient(b, cg.coefficients, names))
@@ -415,7 +480,7 @@ def run_key(opts: TuneOptions, model_settings: dict) -> str:
     what = {"model": model_settings, "params": opts.params, "batch": opts.batch,
             "clips": opts.clips, "val_clips": opts.val_clips, "lr": opts.lr,
             "il_weight": opts.il_weight, "seed": opts.seed, "data": str(opts.data),
-            "refit": [opts.refit, opts.refit_clips]}
+            "refit": [opts.refit, opts.refit_clips], "devices": [opts.devices, opts.spread]}
     return hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()
 
 
@@ -450,15 +515,17 @@ def load_start(model_dir: Path):
     from springc.kws.training.model import load_model
 
     model = load_model(model_dir)
-    if model.settings.get("realisation") != "mass-spring" or "transfer" not in model.settings:
+    if model.settings.get("realisation") not in ("mass-spring", "device") \
+            or "transfer" not in model.settings:
         raise DataError(str(Path(model_dir) / "settings.json"),
                         f"is a {model.settings.get('realisation')} model; tune needs a "
-                        "mass-spring model", hint="train one with --realisation mass-spring")
+                        "mass-spring or device model",
+                        hint="train one with --realisation mass-spring or device")
     if model.settings.get("tune"):
         raise DataError(str(Path(model_dir) / "settings.json"), "is already a tuned model",
                         hint="tune the SVM-transferred model it came from")
     s, heads = tr.model_heads(model)
-    return model, Start(s, heads)
+    return model, Start(s, heads, tr.model_design(model))
 
 
 def training_clips(opts: TuneOptions, model):
@@ -499,7 +566,21 @@ def validate(opts: TuneOptions) -> None:
                          hint="give --epochs 1 or more, or leave the refit on")
     if opts.il_weight < 0:
         raise UsageError("--il-weight must be >= 0")
+    validate_population(opts)
     check_out_folder(opts.out)
+
+
+def validate_population(opts: TuneOptions) -> None:
+    """UsageError unless --mc and --spread are both given (a count of devices >= 1 and a
+    finite spread > 0) or neither."""
+    from springc.kws.evaluation.device import Spread
+
+    if opts.devices < 0:
+        raise UsageError(f"--mc must be a number of devices >= 0, not {opts.devices}")
+    Spread(opts.spread, seed=opts.seed).validate()
+    if bool(opts.devices) != (opts.spread > 0):
+        raise UsageError("--mc N and --spread S go together: the loss over N devices "
+                         "fabricated with a relative spread S", hint="--mc 4 --spread 1e-3")
 
 
 def tune(opts: TuneOptions) -> dict:
@@ -510,6 +591,10 @@ def tune(opts: TuneOptions) -> dict:
     validate(opts)
     opts.params = check_params(opts.params)
     model, start = load_start(opts.model)
+    if opts.refit and start.design != tr.Design():
+        raise UsageError("the refit redesigns the paper's heads only, not these (buffered "
+                         "taps, stiffer multipliers or summing heads)",
+                         hint="tune with --no-refit")
     ds, clips, val = training_clips(opts, model)
     started = time.perf_counter()
     with session(opts.scheduler, opts.jobs or None):
@@ -554,7 +639,7 @@ def refit_start(opts: TuneOptions, model, start: Start, ds) -> tuple[Start, dict
         return start, record
     heads = tr.reweighted_heads(start.heads, fitted.weights, fitted.intercepts, start.s,
                                 float(transfer["amplitude"]), float(transfer["epsilon"]))
-    return Start(start.s, heads), record
+    return replace(start, heads=heads), record
 
 
 def _responses(opts: TuneOptions, model, start: Start, ds) -> list[tuple]:
@@ -566,7 +651,8 @@ def _responses(opts: TuneOptions, model, start: Start, ds) -> list[tuple]:
     from springc.lang import load_text
 
     eps = float(model.settings["transfer"]["epsilon"])
-    net = load_text(tr.classifier_text(start.heads, start.s, epsilon=eps), "<classifier>")
+    net = load_text(tr.classifier_text(start.heads, start.s, epsilon=eps, design=start.design),
+                    "<classifier>")
     out = []
     for clips in (_draw(ds.split("train"), opts.refit_clips, opts.seed),
                   ds.split("validation")):
@@ -619,8 +705,9 @@ def optimise(opts: TuneOptions, model, start: Start, clips: list, val: list
         t0, losses, dropped = time.perf_counter(), [], 0
         order = np.random.default_rng([opts.seed, epoch]).permutation(len(clips))
         for lo in range(0, len(clips), opts.batch):
+            devices = step_population(opts, epoch * per_epoch + lo // opts.batch)
             g, loss, lost = batch_step(opts, start, lay, z, eps, tstop, train,
-                                       order[lo:lo + opts.batch])
+                                       order[lo:lo + opts.batch], devices)
             dropped += lost
             z = adam.step(z, g)
             losses.append(loss)
@@ -639,9 +726,10 @@ def _val_loss(opts: TuneOptions, start: Start, z: np.ndarray, eps: float,
     if held is None:
         return {}
     value = loss_at(opts, start, z, eps, held.targets, held.signals,
-                    np.arange(len(held.signals)))
-    print(f"tune: validation loss {value:.4f} ({len(held.signals)} clips)", file=sys.stderr,
-          flush=True)
+                    np.arange(len(held.signals)), validation_population(opts))
+    on = f" on {opts.devices} devices" if opts.devices else ""
+    print(f"tune: validation loss {value:.4f} ({len(held.signals)} clips{on})",
+          file=sys.stderr, flush=True)
     return {"validation_loss": value}
 
 
@@ -655,24 +743,28 @@ def chosen_epoch(history: list[dict]) -> int:
 
 
 def make_batch(opts: TuneOptions, start: Start, lay: Layout, z: np.ndarray, eps: float,
-               tg: Targets, tstop: float) -> Batch:
-    """The checked network at z and what the loss needs (scales, intercepts, T)."""
+               tg: Targets, tstop: float, population: tuple[int, ...] = ()) -> Batch:
+    """The checked network at z and what the loss needs (scales, intercepts, T), and the
+    devices it is scored on (`population`, at `opts.spread`; none: the nominal network)."""
     s, heads = tuned(start, z, lay)
-    return Batch(network(s, heads, eps), np.array([h.scale for h in heads]),
+    return Batch(network(s, heads, eps, start.design), np.array([h.scale for h in heads]),
                  np.array([h.intercept for h in heads]), tg, opts.il_weight, tstop, s.bins,
                  len(heads), tuple(lay.keep),
-                 float(np.exp(z[lay.slices["temperature"]][0])))
+                 float(np.exp(z[lay.slices["temperature"]][0])), tuple(population),
+                 opts.spread, opts.seed)
 
 
 def batch_step(opts: TuneOptions, start: Start, lay: Layout, z: np.ndarray, eps: float,
-               tstop: float, train: Clips, idx: np.ndarray) -> tuple[np.ndarray, float, int]:
-    """The gradient in z and the mean loss of the clips `idx`, split over the workers, and
-    how many of them were dropped (not finite)."""
+               tstop: float, train: Clips, idx: np.ndarray, population: tuple[int, ...] = ()
+               ) -> tuple[np.ndarray, float, int]:
+    """The gradient in z and the mean loss of the clips `idx` (over the devices of
+    `population` too), split over the workers, and how many clips were dropped (not
+    finite)."""
     from functools import partial
 
     from springc.kws.features.distributed import cores, map_batches
 
-    b = make_batch(opts, start, lay, z, eps, train.targets, tstop)
+    b = make_batch(opts, start, lay, z, eps, train.targets, tstop, population)
     workers = opts.jobs or cores()
     parts = [(train.signals[p], p) for p in np.array_split(idx, min(workers, len(idx)))]
     out = map_batches(partial(batch_gradient, b=b), parts, opts.scheduler, workers=workers,
@@ -681,15 +773,19 @@ def batch_step(opts: TuneOptions, start: Start, lay: Layout, z: np.ndarray, eps:
 
 
 def loss_at(opts: TuneOptions, start: Start, z: np.ndarray, eps: float, tg: Targets,
-            signals: np.ndarray, idx: np.ndarray) -> float:
-    """The mean loss of clips `idx` at z (forward simulation only: what the gradient is the
-    gradient of); clips whose readouts are not finite are left out, as the steps leave them."""
+            signals: np.ndarray, idx: np.ndarray, population: tuple[int, ...] = ()) -> float:
+    """The mean loss of clips `idx` at z (over the devices of `population` too; forward
+    simulations only: what the gradient is the gradient of); clips whose readouts are not
+    finite are left out, as the steps leave them."""
     lay = layout(opts.params, start.s.bins, start.heads)
     b = make_batch(opts, start, lay, z, eps, tg,
-                   msp.horizon(start.s, signals.shape[1] / msp.INPUT_RATE))
-    reds = readouts(b, signals[idx].astype(np.float64))
-    ok = np.all([np.isfinite(v) for v in reds.values()], axis=0)
-    loss, _ = batch_loss(b, {k: v[ok] for k, v in reds.items()}, idx[ok])
+                   msp.horizon(start.s, signals.shape[1] / msp.INPUT_RATE), population)
+    losses = []
+    for d in on_devices(b):
+        reds = readouts(d, signals[idx].astype(np.float64))
+        ok = np.all([np.isfinite(v) for v in reds.values()], axis=0)
+        losses.append(batch_loss(d, {k: v[ok] for k, v in reds.items()}, idx[ok])[0])
+    loss = np.concatenate(losses)
     return float(loss.mean()) if len(loss) else float("nan")
 
 
@@ -703,7 +799,7 @@ def finish(opts: TuneOptions, model, ds, net: tuple, history: list, seconds: flo
     from springc.lang import load_text
 
     s, heads, untuned = net
-    eps = float(model.settings["transfer"]["epsilon"])
+    eps, design = float(model.settings["transfer"]["epsilon"]), tr.model_design(model)
     settings = json.loads(json.dumps(model.settings))
     settings["features"] = feature_key("mass-spring", s)
     settings["transfer"]["couplings"] = [(h.gamma / g.gamma).tolist()
@@ -719,17 +815,20 @@ def finish(opts: TuneOptions, model, ds, net: tuple, history: list, seconds: flo
                         "refit": opts.refit, "refit_clips": opts.refit_clips,
                         "refit_kept": bool(refit and refit["kept"]),
                         "lr": opts.lr, "il_weight": opts.il_weight, "seed": opts.seed,
+                        "devices": opts.devices, "spread": opts.spread,
                         "integration": f"{METHOD} x{SUBSTEPS} float64", "history": history,
                         "seconds": seconds}
     report: dict = {"tune": settings["tune"]}
     if opts.evaluate:
         tm = TrainedModel(Path(opts.out), settings, model.models)
-        whole = load_text(tr.classifier_text(heads, s, epsilon=eps), "<tuned classifier>")
+        whole = load_text(tr.classifier_text(heads, s, epsilon=eps, design=design),
+                          "<tuned classifier>")
         report = {**evaluate_network(tm, ds, scheduler=opts.scheduler, jobs=opts.jobs,
                                      heads=heads, net=whole), **report}
     files = {"features.spr": msp.feature_text(s),
-             "classifier.spr": tr.classifier_text(heads, s, include_heads=False, epsilon=eps)}
-    files.update({f"head{k}.spr": tr.head_text(k, h, s, len(heads))
+             "classifier.spr": tr.classifier_text(heads, s, include_heads=False, epsilon=eps,
+                                                  design=design)}
+    files.update({f"head{k}.spr": tr.head_text(k, h, s, len(heads), design.mvm_stiffness)
                   for k, h in enumerate(heads)})
     c = settings.get("C")
     fits = [(classes, m, c.get("-".join(classes)) if isinstance(c, dict) else c)

@@ -384,11 +384,14 @@ def batch_gradient(sig_y: tuple[np.ndarray, np.ndarray], b: Batch) -> dict:
     and the group gradients summed over its clips (and over the devices of `b.population`:
     a device's coefficients are its fixed factors times the nominal ones, so its derivative
     by a group's log factor is the same sum over its own coefficients), the clips counted
-    (once per device) and those dropped out."""
+    (once per device) and those dropped out (every clip of a device left out as unstable)."""
     sig, y = sig_y
-    parts = [network_gradient(sig_y, d) for d in on_devices(b)] or [
+    devices = on_devices(b)
+    parts = [network_gradient(sig_y, d) for d in devices] or [
         network_gradient((sig[:0], y[:0]), b)]  # every device unstable: nothing to add
-    return {k: sum(p[k] for p in parts) for k in parts[0]}
+    out = {k: sum(p[k] for p in parts) for k in parts[0]}
+    out["dropped"] += len(sig) * (len(b.population) - len(devices) if b.population else 0)
+    return out
 
 
 def network_gradient(sig_y: tuple[np.ndarray, np.ndarray], b: Batch) -> dict:

@@ -1,12 +1,12 @@
 """springc: a netlist compiler and toolchain for springtronics (nonlinear mass-spring networks).
 
 `springc.load(path_or_text)` is the way in from Python (`springc.api`, docs/api.md); keyword
-spotting's commands are `springc.train`, `evaluate`, `cross_validate` and `synthesise`
-(`springc.kws`)."""
+spotting's commands are `springc.train`, `evaluate`, `cross_validate`, `synthesise` and
+`tune` (`springc.kws`)."""
 
 from springc.version import __version__  # noqa: F401  (springc.__version__)
 
-_KWS = ("cross_validate", "evaluate", "synthesise", "train")
+_KWS = ("cross_validate", "evaluate", "synthesise", "train", "tune")
 __all__ = ["Netlist", "Result", "default_device", "load", *_KWS]
 
 

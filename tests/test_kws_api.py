@@ -1,6 +1,7 @@
-"""`springc.train`, `evaluate`, `cross_validate` and `synthesise`: each does what its command
-does (`springc train`, `eval`, `cv`, `data synth`), with the command's defaults, on a tiny
-generated corpus (the digital realisation: no kernel to compile)."""
+"""`springc.train`, `evaluate`, `cross_validate`, `synthesise` and `tune`: each does what its
+command does (`springc train`, `eval`, `cv`, `data synth`, `tune`), with the command's
+defaults, on a tiny generated corpus (the digital realisation: no kernel to compile; `tune`
+by its arguments, its runs in tests/test_kws_tune.py)."""
 
 from __future__ import annotations
 
@@ -16,9 +17,11 @@ from click.testing import CliRunner
 import springc
 from springc.errors import UsageError
 from springc.kws.evaluation import api
+from springc.kws.tuning.tune import tune_model
 from springc_cli.data import synth_cmd
 from springc_cli.kws import cv_cmd, eval_cmd, train_cmd
 from springc_cli.main import main
+from springc_cli.tune import tune_cmd
 from kws_corpora import make_corpus
 
 SMALL = dict(bins=4, delays=2, jobs=1)
@@ -127,6 +130,7 @@ def test_synthesise_writes_the_corpus_the_command_writes(tmp_path):
 
 # the Python name of an option and its default as the command spells it
 AS_OPTION = {"use_cache": ("no_cache", lambda v: not v), "mc": ("devices", None),
+             "params": ("params", ",".join),
              "realisations": ("realisations", lambda v: tuple(v or ())),
              "engines": ("engines", ",".join)}
 # device None: the innermost `springc.default_device`, the CPU outside one (--device cpu)
@@ -141,6 +145,7 @@ COMMAND_ONLY = {"as_json", "baseline", "plot_path"}
     (api.evaluate, eval_cmd, ["M"]),
     (api.cross_validate, cv_cmd, ["--data", "D", "-o", "O"]),
     (api.synthesise, synth_cmd, ["O"]),
+    (tune_model, tune_cmd, ["M", "-o", "O"]),
 ])
 def test_every_option_is_an_argument_with_the_commands_default(entry, command, required):
     given = command.make_context(command.name, list(required)).params
@@ -159,6 +164,8 @@ def test_the_entries_are_reached_from_the_top():
     for name in ("train", "evaluate", "cross_validate", "synthesise"):
         assert getattr(springc, name) is getattr(springc.kws, name) is getattr(api, name)
         assert name in springc.__all__ and name in springc.kws.__all__
+    assert springc.tune is springc.kws.tune is tune_model
+    assert "tune" in springc.__all__ and "tune" in springc.kws.__all__
     with pytest.raises(AttributeError, match="no attribute 'classify'"):
         springc.classify  # a model classifies: springc.kws.load_model
 

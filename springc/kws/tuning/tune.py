@@ -838,3 +838,19 @@ def finish(opts: TuneOptions, model, ds, net: tuple, history: list, seconds: flo
             for classes, m in model.models]
     write_model(opts.out, settings, fits, report, extra=files)
     return report
+
+
+def tune_model(model: str | Path, out: str | Path, *, data: str | Path | None = None,
+               params: tuple[str, ...] | list[str] = GROUPS, epochs: int = 2,
+               batch: int = 16, clips: int = 64, val_clips: int = 64, lr: float = 0.05,
+               il_weight: float = 0.0, mc: int = 0, spread: float = 0.0, seed: int = 0,
+               jobs: int = 0, scheduler: str | None = None, refit: bool = True,
+               refit_clips: int = 0) -> dict:
+    """Tune the mass-spring or device model folder `model` into the new folder `out`, as
+    `springc tune` does with the same options and defaults (`mc` devices at relative
+    `spread`: the loss over a fabricated population). Returns the report: the test split's
+    accuracy and insertion loss with settings.json's "tune" (history, chosen epoch)."""
+    return tune(TuneOptions(Path(model), Path(data) if data else None, Path(out),
+                            tuple(params), epochs, batch, clips, val_clips, lr, il_weight,
+                            seed, jobs, scheduler, refit=refit, refit_clips=refit_clips,
+                            devices=mc, spread=spread))

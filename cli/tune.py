@@ -60,14 +60,15 @@ def tune_cmd(model, data, out, params, refit, refit_clips, epochs, batch, clips,
     (netlists, settings, report of the test split, README); the parameters are saved
     beside OUT after every epoch and a rerun resumes from them."""
     from springc.kws.training.readme import tune_history_text
-    from springc.kws.tuning.tune import TuneOptions, tune
+    from springc.kws.tuning.tune import tune_model
 
-    opts = TuneOptions(model, data, out, tuple(p.strip() for p in params.split(",") if p),
-                       epochs, batch, clips, val_clips, lr, il_weight, seed, jobs,
-                       scheduler, refit=refit, refit_clips=refit_clips, devices=devices,
-                       spread=spread)
-    report = tune(opts)
-    click.echo(f"tuned {', '.join(opts.params)}: {tune_history_text(report['tune'])}")
+    report = tune_model(model, out, data=data,
+                        params=tuple(p.strip() for p in params.split(",") if p),
+                        epochs=epochs, batch=batch, clips=clips, val_clips=val_clips, lr=lr,
+                        il_weight=il_weight, mc=devices, spread=spread, seed=seed, jobs=jobs,
+                        scheduler=scheduler, refit=refit, refit_clips=refit_clips)
+    click.echo(f"tuned {', '.join(report['tune']['params'])}: "
+               f"{tune_history_text(report['tune'])}")
     if "accuracy" in report:
         click.echo(f"test accuracy {100 * report['accuracy']:.1f}% (n={report['n']}), "
                    f"insertion loss {report['insertion_loss_db']['median']:.1f} dB median")

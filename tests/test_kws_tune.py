@@ -1,7 +1,8 @@
 """`springc tune` on a tiny generated corpus: the loss gradient the tuner steps along agrees with
-central differences of the loss, steps lower the training loss, the validation loss picks
-the epoch kept, the tuned folder is what `springc eval` simulates, every tuned netlist passes
-the checks, bad inputs fail cleanly."""
+central differences of the loss, for the nominal network and for a fabricated population;
+tuning starts from the network the model simulates, as its design says; steps lower the
+training loss, the validation loss picks the epoch kept, the tuned folder is what `springc
+eval` simulates, every tuned netlist passes the checks, bad inputs fail cleanly."""
 
 from __future__ import annotations
 

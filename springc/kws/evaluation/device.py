@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from springc.check import check
+from springc.check import CheckedNetlist, check
 from springc.design.scale import P_REF, acoustic_gains, scale_netlist
 from springc.errors import CheckError, DataError, DivergedRuns, UsageError
 from springc.kws.data.task import open_task_data, targets
@@ -464,10 +464,11 @@ def fabricated_decisions(setup: Setup, ks: range, spread: Spread, scheduler=None
     out: dict[int, np.ndarray | str] = {}
     members = {}
     for k in ks:
-        try:
-            members[k] = check(fabricate(setup.net, spread, k), judge_step=False)
-        except CheckError as err:  # statically unstable
-            out[k] = err.message
+        device = checked_device(setup.net, spread, k)
+        if isinstance(device, str):
+            out[k] = device
+        else:
+            members[k] = device
     if members:
         d = device_decisions(setup, list(members.values()), scheduler=scheduler, jobs=jobs,
                              desc=f"devices {ks.start}-{ks.stop - 1}")
@@ -475,6 +476,16 @@ def fabricated_decisions(setup: Setup, ks: range, spread: Spread, scheduler=None
             out[k] = dk if np.isfinite(dk).all() else \
                 "its network diverged at every integration retry"
     return {k: out[k] for k in ks}
+
+
+def checked_device(net: FlatNetlist, spread: Spread, k: int) -> CheckedNetlist | str:
+    """Device k of the population, checked with its step not judged (mismatch turns the
+    heads' designed zero modes into slowly growing ones, `outputs`), or why the checks find
+    it statically unstable."""
+    try:
+        return check(fabricate(net, spread, k), judge_step=False)
+    except CheckError as err:
+        return err.message
 
 
 def diverged_row(k: int, why: str) -> dict:

@@ -248,8 +248,9 @@ def loss_terms(d: np.ndarray, t: Targets) -> tuple[np.ndarray, np.ndarray]:
             grad[:, lo] += np.where(mine, -np.where(y == 1, 1.0, -1.0) / (1 + np.exp(z)), 0)
             continue
         dd = d[:, lo:hi] - d[:, lo:hi].max(axis=1, keepdims=True)
-        total = np.exp(dd).sum(axis=1)
-        p = np.exp(dd) / total[:, None]
+        e = np.exp(dd)
+        total = e.sum(axis=1)
+        p = e / total[:, None]
         idx = np.maximum(y, 0)  # -log p[idx] as log(total) - dd[idx]: finite however far off
         loss += np.where(mine, np.log(total) - dd[np.arange(len(d)), idx], 0)
         onehot = np.eye(hi - lo)[idx]
@@ -301,18 +302,12 @@ def on_devices(b: Batch) -> list[Batch]:
     find statically unstable is left out, as eval scores it apart."""
     if not b.population:
         return [b]
-    from springc.errors import CheckError
-    from springc.kws.evaluation.device import Spread, fabricate
+    from springc.kws.evaluation.device import Spread, checked_device
 
-    spread, out = Spread(b.spread, seed=b.seed), []
-    for d in b.population:
-        try:
-            out.append(replace(b, checked=check(fabricate(b.checked.net, spread, d),
-                                                judge_step=False), population=(),
-                               judged=False))
-        except CheckError:
-            continue
-    return out
+    spread = Spread(b.spread, seed=b.seed)
+    devices = [checked_device(b.checked.net, spread, d) for d in b.population]
+    return [replace(b, checked=d, population=(), judged=False) for d in devices
+            if not isinstance(d, str)]
 
 
 def readouts(b: Batch, sig: np.ndarray) -> dict:

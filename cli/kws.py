@@ -250,9 +250,9 @@ def _summary(report: dict) -> str:
         lines += ["  " + row for row in counts_table(report["counts"]).splitlines()]
     lines.append(f"test accuracy {100 * report['accuracy']:.2f}% on {report['n']} clips "
                  f"(majority class {100 * _majority(report):.2f}%)")
-    if "digital_same_model" in report:  # the simulated mass-spring network
+    if "digital_same_model" in report:  # a simulated network: mass-spring or router
         t, il = report["throughput"], report["insertion_loss_db"]
-        lines[0] += (f" (mass-spring network); digital readout of the same model "
+        lines[0] += (f" ({report['realisation']}); digital readout of the same model "
                      f"{100 * report['digital_same_model']['accuracy']:.2f}%")
         lines.append(f"  insertion loss {il['median']:.1f} dB (median), readout error "
                      f"{100 * report['readout_error']:.2f}%, {t['clips_per_s']:.2f} clips/s "

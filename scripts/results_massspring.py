@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 
 from springc.kws.evaluation import energy
+from springc.kws.evaluation.evaluate import budget_signals
 from springc.kws.features import massspring as msp
 from springc.kws.features.digital import FeatureSettings
 from springc.kws.evaluation.evaluate import evaluate
@@ -154,7 +155,8 @@ def correlation(data: Path, clips: int = 16) -> list[str]:
 def budget_section(models: Path, data: Path, clips: int = 8) -> list[str]:
     """Where the input work goes in the 4 x 2 classifier (`springc eval MODEL --budget 8`)."""
     tag = f"kws12-n{SWEEP_SIZE[0]}-m{SWEEP_SIZE[1]}"
-    parts = energy.test_split_budget(models / f"mass-spring-{tag}", data, clips)
+    model = models / f"mass-spring-{tag}"
+    parts = energy.model_budget(model, budget_signals(model, data, clips))
     return [f"## Where the input work goes ({SWEEP_SIZE[0]} x {SWEEP_SIZE[1]}, {clips} test "
             "clips)", "",
             f"`springc eval MODEL --budget {clips}` (energy balance closes to "

@@ -27,7 +27,7 @@ LIB_TOPS = {
     "delayline": "X1 a b delayline n=10 term=1 term_in=1\nX2 c d delayline n=2 term=1 term_in=1\n",
     "featurechain": "X1 a featurechain\n",
     "lowpass": "X1 a lowpass\n",
-    "melfilter": "X1 a melfilter\nX2 b melfilter1\n",
+    "melfilter": "X1 a melfilter\nX2 b melfilter1\nX3 c d routedfilter\n",
     "readout": "X1 a readout\n",
     "squarer": "M1 a m=1 b=1\nK1 a k=1\nX1 a b squarer\nM2 b m=1 b=1\nK2 b k=1\n",
     "summer": "M1 a m=1 b=1\nK1 a k=1\nM2 c m=1 b=1\nK2 c k=1\nX1 a c b summer2 w1=-2\n",

@@ -75,7 +75,7 @@ def test_a_library_file_is_summarised_by_its_subcircuits(tmp_path) -> None:
     assert melbank["dofs"] == 6 and melbank["elements"]["M"] == 6
     assert melbank["elements"]["F"] == 6 and melbank["params"] == {"ch": "0"}
     text = _run("build", bank).output
-    assert "a library of 3 subcircuit(s), no top-level network" in text
+    assert "a library of 4 subcircuit(s), no top-level network" in text
     assert "melbank out0 out1 out2  ch=0" in text and "dofs 6" in text
     res = CliRunner().invoke(main, ["build", str(bank), "--emit-kernel", str(tmp_path / "k.py")])
     assert res.exit_code == 1 and "has no kernel" in res.output

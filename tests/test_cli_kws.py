@@ -124,5 +124,5 @@ def test_energy_budget_of_a_digital_model_is_a_user_error(env):
     data, model, _ = env
     result = CliRunner().invoke(main, ["eval", str(model), "--data", str(data), "--budget", "2"])
     assert result.exit_code == 1
-    assert "the energy budget needs a mass-spring model" in result.output
+    assert "the energy budget needs a mass-spring or router model" in result.output
     assert "Traceback" not in result.output

@@ -90,7 +90,7 @@ def test_evaluate_is_the_command_and_the_model(corpus, models):
     (dict(clips=3), "--clips goes with --mc or --temp"),
     (dict(mc=2, spread=0.01), "is a digital model; a device is a mass-spring network"),
     (dict(mc=2, spread=0.01, budget=2), "--budget is a study of its own"),
-    (dict(budget=2), "the energy budget needs a mass-spring model"),
+    (dict(budget=2), "the energy budget needs a mass-spring or router model"),
     (dict(mc=2), "--mc also needs --spread"),
 ])
 def test_evaluate_refuses_what_the_command_refuses(models, options, message):

@@ -208,6 +208,7 @@ def test_the_energy_budget_reads_a_test_only_folder(env, tmp_path):
     import shutil
 
     from springc.kws.evaluation import energy
+    from springc.kws.evaluation.evaluate import budget_signals
 
     root, data, _ = env
     for clip in held_out_words(data)[:2]:
@@ -216,6 +217,7 @@ def test_the_energy_budget_reads_a_test_only_folder(env, tmp_path):
     result = CliRunner().invoke(main, ["eval", str(root / "ms"), "--data", str(tmp_path / "t"),
                                        "--budget", "2", "--protocol", "lists"])
     assert result.exit_code == 0, result.output
-    want = energy.budget_table(energy.test_split_budget(root / "ms", data, 2))
+    want = energy.budget_table(energy.model_budget(root / "ms", budget_signals(root / "ms",
+                                                                                data, 2)))
     assert result.stdout.splitlines()[1:1 + len(want)] == want
     assert result.stdout.startswith("energy budget of the whole classifier, 2 test clips")

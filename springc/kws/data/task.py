@@ -15,7 +15,7 @@ import numpy as np
 from springc.errors import DataError, UsageError
 
 TASKS = ("kws12", "digits-pairs")
-REALISATIONS = ("digital", "baseline", "mass-spring")  # how a model computes its features
+REALISATIONS = ("digital", "baseline", "mass-spring", "router")  # how a model computes its features
 DIGITS = ("one", "two", "three", "four")
 PAPER_PAIRS = {("two", "three"): 0.997}  # the only pair accuracy the paper states in its text
 

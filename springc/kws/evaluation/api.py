@@ -127,6 +127,8 @@ def evaluate(model: str | Path, data: str | Path | None = None, *,
         mass = dv.unit_mass(model, device_mass, mass)
     study = dv.study(mc, spread, spread_kind, stage, seed, temp, mass, spl, area)
     with _on(device):
+        if study is not None and _is_router(model):
+            return _router_study(model, data, study, mc, clips, protocol, trim, progress)
         if study is not None or clips is not None:
             setup = _device_setup(model, data, study, realisation, budget, clips, protocol)
             if isinstance(study, dv.Spread) and trim is not None:
@@ -136,8 +138,35 @@ def evaluate(model: str | Path, data: str | Path | None = None, *,
                 return dv.evaluate_spread(setup, mc, study, scheduler=scheduler, jobs=jobs,
                                           progress=progress)
             return dv.evaluate_physical(setup, study, scheduler=scheduler, jobs=jobs)
+        if _is_router(model) and realisation in (None, "router"):
+            from springc.kws.evaluation.router import evaluate_model
+
+            return evaluate_model(model, data, protocol, jobs, use_cache)
         return evaluate_split(model, data, realisation, jobs=jobs, use_cache=use_cache,
                               scheduler=scheduler, protocol=protocol)
+
+
+def _is_router(model: Path) -> bool:
+    from springc.kws.training.model import load_model
+
+    return load_model(model).settings.get("realisation") == "router"
+
+
+def _router_study(model: Path, data: Path | None, study, devices: int | None,
+                  clips: int | None, protocol: str | None, trim: int | None,
+                  progress: Progress) -> dict:
+    """A device study of a router model (`springc.kws.evaluation.router`)."""
+    from springc.kws.evaluation import device as dv, router
+    from springc.kws.training.model import load_model
+
+    if trim is not None:
+        raise UsageError("--trim retunes a mass-spring network's readouts; a router has none "
+                         "to trim")
+    m = load_model(model)
+    signals, y = dv.split_signals(m, data, clips, protocol, "test")
+    if isinstance(study, dv.Spread):
+        return router.population(m, signals, y, devices, study, progress)
+    return router.physical(m, signals, y, study)
 
 
 def _trim_allowed(clips: int, budget: int | None, devices: int | None) -> None:

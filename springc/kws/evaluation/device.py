@@ -59,7 +59,8 @@ FABRICATED = (
 # couplings are the couplings
 _FRONT = {"Xf": "filters", "Xq": "compressors", "Xlp": "compressors", "Xc": "compressors",
           "Cfan": "delays", "Xd": "delays", "Ct": "delays",
-          "Mf": "delays", "Cbf": "delays", "Kgf": "delays"}  # a tap buffer's terminals
+          "Mf": "delays", "Cbf": "delays", "Kgf": "delays",  # a tap buffer's terminals
+          "Bra": "readouts", "Brb": "readouts"}  # a router's readouts
 _HEAD = {"Xm": "couplings", "Qy": "couplings", "Ms": "couplings", "Cs": "couplings",
          "Xr": "readouts"}
 
@@ -204,7 +205,7 @@ class Physical:
 def unit_mass(model_dir: Path, device_mass: float, mass: float | None) -> float:
     """kg per normalised mass unit of a model's whole network weighing `device_mass` kg
     (`--device-mass`, beside `--mass`, which gives the unit's mass directly)."""
-    from springc.kws.evaluation.energy import classifier_network
+    from springc.kws.evaluation.energy import model_network
 
     if mass is not None:
         raise UsageError("--device-mass (the whole device) and --mass (kg per unit) say the "
@@ -212,7 +213,7 @@ def unit_mass(model_dir: Path, device_mass: float, mass: float | None) -> float:
     if not (math.isfinite(device_mass) and device_mass > 0):
         raise UsageError(f"--device-mass must be a positive finite number of kg, not "
                          f"{device_mass:g}")
-    net, _ = classifier_network(model_dir)
+    net, _ = model_network(model_dir, 1.0)
     return device_mass / float(net.mass().sum())
 
 
@@ -624,6 +625,7 @@ def _summary_line(label: str, a: dict) -> str:
 def physical_lines(report: dict, phys: Physical) -> list[str]:
     """The physical-scale report as text."""
     snr = report["phi_snr_db"]
+    of = report.get("snr_of", "the features Phi")
     head = [f"device at physical scale: {phys.describe()}; {report['n']} test clips",
             f"  displacement scale {report['length']:.3g} m per unit, device mass "
             f"{report['device_mass']:.3g} kg"]
@@ -632,7 +634,7 @@ def physical_lines(report: dict, phys: Physical) -> list[str]:
                        f": no decision (scored 0); {100 * report['noiseless']:.2f}% noiseless"]
     return head + [f"  accuracy {100 * report['accuracy']:.2f}% with thermal noise, "
                    f"{100 * report['noiseless']:.2f}% noiseless",
-                   f"  SNR of the features Phi: median {snr['median']:.1f} dB over the "
-                   f"features, worst {snr['worst']:.1f} dB, pooled {snr['pooled']:.1f} dB",
+                   f"  SNR of {of}: median {snr['median']:.1f} dB over them, worst "
+                   f"{snr['worst']:.1f} dB, pooled {snr['pooled']:.1f} dB",
                    f"  decision error (median |noisy - noiseless| / median |noiseless|) "
                    f"{report['decision_error']:.3g}"]

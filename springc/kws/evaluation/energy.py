@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -37,6 +38,7 @@ STAGES: tuple[tuple[str, str], ...] = (
     ("terminals", r"^Mf\d+_\d+$"),
     ("mvm heads", r"^Xh\d+\.(Xm\.|Ms)"),  # zero-mode multipliers or summing nodes
     ("readouts", r"^Xh\d+\.Xr\."),
+    ("readouts", r"^Br[ab]\d+_"),  # a router's readout dashpots (`springc.kws.features.router`)
 )
 
 
@@ -168,13 +170,15 @@ def stage_of(mass_name: str) -> str:
 
 
 def stage_dampers(net: FlatNetlist) -> dict[str, list[str]]:
-    """{stage: names of its damped mass elements} in STAGES order (empty stages left out)."""
-    m = net.masses
+    """{stage: names of its damped mass elements and dashpots} in STAGES order (empty
+    stages left out)."""
+    m, d = net.masses, net.dashpots
+    damped = [m.names[e] for e in range(len(m)) if m.b[e] != 0]
+    damped += [d.names[e] for e in range(len(d)) if d.b[e] != 0]
     groups: dict[str, list[str]] = {}
-    for e in range(len(m)):
-        if m.b[e] != 0:
-            groups.setdefault(stage_of(m.names[e]), []).append(m.names[e])
-    order = [s for s, _ in STAGES] + ["other"]
+    for name in damped:
+        groups.setdefault(stage_of(name), []).append(name)
+    order = list(dict.fromkeys(s for s, _ in STAGES)) + ["other"]
     return {s: groups[s] for s in order if s in groups}
 
 
@@ -231,6 +235,28 @@ def model_budget(model_dir, signals: np.ndarray) -> dict[str, np.ndarray]:
     return run_budget(net, signals, msp.horizon(s, signals.shape[-1] / msp.INPUT_RATE))
 
 
+def model_network(model_dir, seconds: float) -> tuple[FlatNetlist, float]:
+    """(a trained model's whole network, sound to decision: the mass-spring classifier or
+    the router; the time it simulates for a clip of `seconds`)."""
+    from springc.kws.features import massspring as msp
+    from springc.kws.training.model import load_model
+
+    if load_model(model_dir).settings.get("realisation") == "router":
+        from springc.kws.features.router import RING_OUT
+        from springc.lang import load_file
+
+        return load_file(Path(model_dir) / "router.spr"), seconds + RING_OUT
+    net, s = classifier_network(model_dir)
+    return net, msp.horizon(s, seconds)
+
+
+def readout_count(net: FlatNetlist) -> int:
+    """The readouts of a classifier network (mass-spring heads or router dashpots)."""
+    heads = {n for n in net.masses.names if re.match(r"^Xh\d+\.Xr\.", n)}
+    routed = {n[3:].partition("_")[0] for n in net.dashpots.names if re.match(r"^Br[ab]\d+_", n)}
+    return len(heads) + len(routed)
+
+
 def classifier_network(model_dir):
     """(the whole classifier network of a trained mass-spring model, its feature settings)."""
     from springc.kws.training import transfer as tr
@@ -246,14 +272,14 @@ def classifier_network(model_dir):
 def physical_budget(model_dir, signals: np.ndarray, scale: Scale) -> dict:
     """`model_budget` at physical scale: {"stages": each stage's energy per clip in J,
     "normalised": the same in the network's units, "scale": the scale's settings, "sound_j",
-    "kt_j", "bound_db", "readouts", "seconds"}."""
+    "kt_j", "bound_db", "readouts", "seconds"}; of a mass-spring or a router model."""
     from springc.kws.features import massspring as msp
 
-    net, s = classifier_network(model_dir)
     seconds = signals.shape[-1] / msp.INPUT_RATE
-    parts = run_budget(net, signals, msp.horizon(s, seconds))
+    net, tstop = model_network(model_dir, seconds)
+    parts = run_budget(net, signals, tstop)
     joules = scale.joules(net)
-    readouts = sum(1 for name in net.masses.names if re.match(r"^Xh\d+\.Xr\.", name))
+    readouts = readout_count(net)
     return {"stages": {k: v * joules for k, v in parts.items()}, "normalised": parts,
             "scale": {"device_mass": scale.unit_mass(net) * float(net.mass().sum()),
                       "mass": scale.unit_mass(net), "spl": scale.spl, "area": scale.area,
@@ -262,23 +288,3 @@ def physical_budget(model_dir, signals: np.ndarray, scale: Scale) -> dict:
             "bound_db": scale.bound_db(readouts, seconds), "readouts": readouts,
             "seconds": seconds}
 
-
-def test_split_budget(model_dir, data=None, clips: int = 8) -> dict[str, np.ndarray]:
-    """`model_budget` on the first `clips` test clips of the model's data set (or `data`)."""
-    from pathlib import Path
-
-    from springc.errors import UsageError
-    from springc.kws.features import massspring as msp
-    from springc.kws.evaluation.evaluate import trained_data
-    from springc.kws.training.model import load_model
-    from springc.kws.data.task import open_task_data
-
-    model = load_model(model_dir)
-    if model.settings.get("realisation") != "mass-spring":
-        raise UsageError("the energy budget needs a mass-spring model",
-                         hint="train one with --realisation mass-spring")
-    data = Path(data) if data else trained_data(model)
-    ds = open_task_data(data, model.settings["task"], int(model.settings.get("seed", 0)),
-                        model.settings.get("protocol"))
-    signals = msp.load_signals(ds.split("test")[:clips], False, 0, [])
-    return model_budget(model_dir, signals)

@@ -56,11 +56,11 @@ def budget_signals(model_dir: Path, data: Path | None, clips: int,
                    protocol: str | None = None) -> np.ndarray:
     """The first `clips` test clips of `data` (default: the model's data set) as the network
     hears them, for `energy.model_budget`: the test split alone is read, as `evaluate` reads
-    it. UsageError for a model that is not mass-spring."""
+    it. UsageError for a model that is neither mass-spring nor a router."""
     model = load_model(model_dir)
-    if model.settings["realisation"] != "mass-spring":
-        raise UsageError("the energy budget needs a mass-spring model",
-                         hint="train one with --realisation mass-spring")
+    if model.settings["realisation"] not in ("mass-spring", "router"):
+        raise UsageError("the energy budget needs a mass-spring or router model",
+                         hint="train one with --realisation mass-spring or router")
     ds = open_task_data(Path(data) if data else trained_data(model), model.settings["task"],
                         int(model.settings.get("seed", 0)),
                         protocol or model.settings.get("protocol"), splits=("test",))
@@ -76,11 +76,15 @@ def trained_data(model) -> Path:
     return Path(path)
 
 
-def _feature_settings(model) -> FeatureSettings:
+def _feature_settings(model):
     feats = {k: v for k, v in model.settings["features"].items() if k != "realisation"}
     if model.settings["realisation"] == "baseline":
         return FeatureSettings()
     try:
+        if model.settings["realisation"] == "router":
+            from springc.kws.features.router import RouterSettings
+
+            return RouterSettings(**feats)
         return FeatureSettings(**feats)
     except TypeError as exc:
         raise DataError(str(model.folder / "settings.json"),

@@ -24,11 +24,13 @@ MAX_STEPS = 200
 
 
 def fit_rows(z: np.ndarray, signs: np.ndarray, costs: np.ndarray,
-             start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+             start: np.ndarray | None = None,
+             intercept: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Minimise f for every row: features z (N, d), signs (rows, N) of +-1, costs (rows, N)
     >= 0, optional starting weights (rows, d + 1). Returns (coef (rows, d), intercept
-    (rows,)) and leaves the weights in the last column as the intercept."""
-    xb = np.hstack([z, np.ones((len(z), 1))])
+    (rows,)) and leaves the weights in the last column as the intercept. Without
+    `intercept` the constant feature is 0, so the intercept stays at its start (0)."""
+    xb = np.hstack([z, np.full((len(z), 1), 1.0 if intercept else 0.0)])
     w = np.zeros((len(signs), xb.shape[1])) if start is None else np.array(start, float)
     for r in range(len(signs)):
         w[r] = _newton(xb, signs[r].astype(float), costs[r].astype(float), w[r])

@@ -104,7 +104,9 @@ def evaluated(report: dict) -> bool:
 
 def _title(settings: dict, report: dict) -> str:
     f = settings["features"]
-    size = f"{f['bins']}x{f['delays']} {f['filterbank']}" if "bins" in f else "log-Mel"
+    from springc.kws.training.readme import size_text
+
+    size = f"{f['bins']}x{f['delays']} {f['filterbank']}" if "delays" in f else size_text(f)
     return f"{f['realisation']} {size}: accuracy {100 * report['accuracy']:.1f}%"
 
 

@@ -28,6 +28,7 @@ MODEL_FILES = {
     "per_class.csv": "test clips, correct and true-positive rate per class",
     "features.spr": "the mass-spring feature network",
     "classifier.spr": "the whole classifier network, sound to decision (includes head{k}.spr)",
+    "router.spr": "the router network, sound to decision (`springc eval` simulates it)",
 }
 TUNED = ("filter_scale", "compression_scale")  # feature settings `springc tune` sets
 
@@ -41,8 +42,16 @@ def readme_text(folder: Path, settings: dict, report: dict, files: list[str]) ->
 
 
 def _size(settings: dict) -> str:
-    f = settings["features"]
-    return f"{f['bins']} bins x {f['delays']} delays" if "bins" in f else "log-Mel baseline"
+    return size_text(settings["features"])
+
+
+def size_text(features: dict) -> str:
+    """The features' size in words: "8 bins x 3 delays", "16 bins" (a router) or the
+    log-Mel baseline."""
+    if "bins" not in features:
+        return "log-Mel baseline"
+    delays = f" x {features['delays']} delays" if "delays" in features else ""
+    return f"{features['bins']} bins{delays}"
 
 
 def _header(settings: dict, report: dict) -> str:
@@ -131,6 +140,10 @@ def _accuracy(settings: dict, report: dict) -> str:
         lines += ["The SVM on the simulated feature network's Phi (the ideal readout c . Phi); "
                   "`springc eval` simulates the whole classifier network, sound to decision.",
                   ""]
+    elif settings["realisation"] == "router":
+        lines += ["The SVM on the filters' simulated energies D (the router's readouts "
+                  "W . D); `springc eval` simulates the router network, sound to decision.",
+                  ""]
     lines += ["| class | test clips | correct | true-positive rate |", "|---|---|---|---|"]
     for k, c in enumerate(classes):
         rate = "n/a" if np.isnan(tpr[k]) else f"{100 * tpr[k]:.1f}%"
@@ -192,6 +205,11 @@ def train_arguments(settings: dict) -> tuple[list[str], dict]:
             "--seed", str(settings.get("seed", 0))]
     if realisation == "baseline":
         return args, {}
+    if realisation == "router":
+        from springc.kws.features.router import RouterSettings
+
+        args += ["-n", str(f["bins"])]
+        return args, _differences(f, RouterSettings(bins=f["bins"]).to_dict())
     size = {"bins": f["bins"], "delays": f["delays"], "td": f["td"], "tau": f["tau"],
             "fc": f["fc"]}
     args += ["-n", str(f["bins"]), "-m", str(f["delays"]), "--td", f"{f['td']:g}",

@@ -58,9 +58,12 @@ class Standardiser:
     scale: np.ndarray
 
     @classmethod
-    def fit(cls, x: np.ndarray) -> "Standardiser":
-        scale = x.std(axis=0)
-        return cls(x.mean(axis=0), np.where(scale > 0, scale, 1.0))
+    def fit(cls, x: np.ndarray, centre: bool = True) -> "Standardiser":
+        """Fitted on x; `centre` False: scaled by the root mean square, mean 0 (a model
+        without intercept stays one)."""
+        scale = x.std(axis=0) if centre else np.sqrt((x * x).mean(axis=0))
+        mean = x.mean(axis=0) if centre else np.zeros(x.shape[1])
+        return cls(mean, np.where(scale > 0, scale, 1.0))
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         return (x - self.mean) / self.scale
@@ -94,14 +97,15 @@ def row_costs(y: np.ndarray, classes: np.ndarray, signs: np.ndarray,
 
 
 def fit_linear(x: np.ndarray, y: np.ndarray, c: float, kind: str = "svm",
-               class_weight: str | None = None) -> LinearModel:
+               class_weight: str | None = None, intercept: bool = True) -> LinearModel:
     """Fit one classifier with regularisation `c` on features x (samples, N), labels y;
-    `class_weight` None (every sample counts the same) or "balanced" (every class does)."""
-    return _fits(x, y, (c,), kind, class_weight)[0]
+    `class_weight` None (every sample counts the same) or "balanced" (every class does);
+    `intercept` False (SVM only): decisions linear in x, zero at x = 0."""
+    return _fits(x, y, (c,), kind, class_weight, intercept=intercept)[0]
 
 
 def _fits(x: np.ndarray, y: np.ndarray, grid: tuple[float, ...], kind: str,
-          class_weight: str | None, jobs: int = 1) -> list[LinearModel]:
+          class_weight: str | None, jobs: int = 1, intercept: bool = True) -> list[LinearModel]:
     """One model per C of `grid`, in its order. The SVM's are solved in increasing C, each
     starting from the last one's weights (BLAS on every core); logistic regression fits in
     `jobs` threads (lbfgs releases the GIL), one BLAS thread each."""
@@ -109,7 +113,9 @@ def _fits(x: np.ndarray, y: np.ndarray, grid: tuple[float, ...], kind: str,
     classes = np.unique(y)
     if len(classes) < 2:
         raise DataError("training split", f"needs at least two classes, found {list(classes)}")
-    std = Standardiser.fit(x)
+    if not intercept and kind != "svm":
+        raise ValueError("only the SVM fits without intercept")
+    std = Standardiser.fit(x, centre=intercept)
     z = std(x)
     if kind == "svm":
         rows = classes[1:] if len(classes) == 2 else classes
@@ -117,9 +123,9 @@ def _fits(x: np.ndarray, y: np.ndarray, grid: tuple[float, ...], kind: str,
         weight = row_costs(y, classes, signs, class_weight)
         out, start = {}, None
         for c in sorted(grid):
-            coef, intercept = hinge.fit_rows(z, signs, c * weight, start)
-            start = np.hstack([coef, intercept[:, None]])
-            out[c] = LinearModel(*std.to_raw(coef, intercept), classes.astype(str))
+            coef, icpt = hinge.fit_rows(z, signs, c * weight, start, intercept)
+            start = np.hstack([coef, icpt[:, None]])
+            out[c] = LinearModel(*std.to_raw(coef, icpt), classes.astype(str))
         return [out[c] for c in grid]
     if kind != "logreg":
         raise ValueError(f"unknown classifier kind {kind!r}")
@@ -147,14 +153,15 @@ def accuracy(model: LinearModel, x: np.ndarray, y: np.ndarray) -> float:
 def select(x_train: np.ndarray, y_train: np.ndarray, x_val: np.ndarray, y_val: np.ndarray,
            kind: str = "svm", grid: tuple[float, ...] = SVM_GRID, jobs: int = 1,
            class_weight: str | None = None, score: Callable = accuracy,
-           ) -> tuple[LinearModel, float, dict[float, float]]:
+           intercept: bool = True) -> tuple[LinearModel, float, dict[float, float]]:
     """Fit one model per C in `grid` (`_fits`: `jobs` threads for logistic regression),
     keep the best on the validation split by `score(model, x, y)` (default: accuracy;
-    ties: smaller C, the stronger regularisation). `class_weight` as in `fit_linear`.
+    ties: smaller C, the stronger regularisation). `class_weight`, `intercept` as in
+    `fit_linear`.
     Returns (model, C, {C: validation score})."""
     if not grid:
         raise ValueError("empty regularisation grid")
-    models = _fits(x_train, y_train, grid, kind, class_weight, jobs)
+    models = _fits(x_train, y_train, grid, kind, class_weight, jobs, intercept)
     scores = {c: score(m, x_val, y_val) for c, m in zip(grid, models)}
     best = max(range(len(grid)), key=lambda i: (scores[grid[i]], -grid[i]))
     return models[best], grid[best], scores

@@ -4,7 +4,9 @@ weights and report.
 
 Realisations: "digital" (the paper's architecture evaluated numerically, `digital` + `phi`),
 "baseline" (log-Mel + logistic regression), "mass-spring" (features simulated by
-`massspring`; the model folder also gets the classifier netlists of `transfer`)."""
+`massspring`; the model folder also gets the classifier netlists of `transfer`), "router"
+(a linear passive network, `router`: the filters' dissipated energies, an SVM without
+intercept, and the network in the model folder's router.spr)."""
 
 from __future__ import annotations
 
@@ -107,6 +109,10 @@ def _work(span: tuple[int, int]) -> list[np.ndarray]:
         for c in clips])
     if w["realisation"] == "baseline":
         return [baseline_features(signals, SAMPLE_RATE).astype(np.float32)]
+    if w["realisation"] == "router":
+        from springc.kws.features.router import filter_energies
+
+        return [filter_energies(signals, s) for s in w["settings_list"]]
     return _phi_for_all(signals, SAMPLE_RATE, w["settings_list"])
 
 
@@ -194,14 +200,15 @@ def split_features(ds, realisation: str, settings_list: list[FeatureSettings], *
 
 def fit_task(x: dict[str, np.ndarray], y: dict[str, np.ndarray], task: str, kind: str,
              grid: tuple[float, ...], jobs: int = 1, balance_weights: bool | None = None,
-             ) -> list[tuple[tuple[str, ...], LinearModel, float, dict]]:
+             intercept: bool = True) -> list[tuple[tuple[str, ...], LinearModel, float, dict]]:
     """[(classes, model, C, validation scores)]: one multiclass model, or one per digit pair.
     `jobs` threads fit the regularisation grid concurrently; class weights "balanced" when
-    `balance_weights` (None: the task's default, see `task_weights`)."""
+    `balance_weights` (None: the task's default, see `task_weights`); `intercept` False:
+    the kws12 model decides without one (the router)."""
     class_weight = task_weights(task, balance_weights)
     if task == "kws12":
         model, c, scores = select(x["train"], y["train"], x["validation"], y["validation"],
-                                  kind, grid, jobs, class_weight)
+                                  kind, grid, jobs, class_weight, intercept=intercept)
         return [(tuple(model.classes), model, c, scores)]
     fits = []
     for pair in itertools.combinations(DIGITS, 2):
@@ -218,8 +225,11 @@ def train(opts: TrainOptions) -> dict:
     """Train, evaluate on the test split and write the model folder. Returns the report,
     with the wall time of each phase ("seconds")."""
     check_realisation(opts.realisation)
-    if opts.realisation == "digital":
+    if opts.realisation in ("digital", "router"):
         opts.settings.validate(16000)
+    if opts.realisation == "router" and opts.task != "kws12":
+        raise UsageError("the router decides by the readout that dissipates most: it needs "
+                         "the multiclass kws12 task", hint="--task kws12")
     if opts.realisation == "mass-spring":
         from springc.kws.features.massspring import physical_settings
 
@@ -258,7 +268,7 @@ def _train(opts: TrainOptions, ds, phases: Phases) -> dict:
         if reference is None:  # the paper's steps: the heads' amplitude still needs it
             reference = reference_run(sample_signals(ds.split("train")), opts.massspring)
         phases.done("integration of the features")
-    feature_settings = opts.massspring if opts.realisation == "mass-spring" else opts.settings
+    feature_settings = _feature_settings(opts)
     feats = split_features(ds, opts.realisation, [feature_settings], seed=opts.seed,
                            jobs=opts.jobs, use_cache=opts.use_cache, scheduler=opts.scheduler)
     phases.done("features")
@@ -267,7 +277,7 @@ def _train(opts: TrainOptions, ds, phases: Phases) -> dict:
     kind = "logreg" if opts.realisation == "baseline" else "svm"
     grid = opts.grid or (LOGREG_GRID if kind == "logreg" else SVM_GRID)
     fits = fit_task(x, y, opts.task, kind, grid, opts.jobs or os.cpu_count() or 1,
-                    opts.balance_weights)
+                    opts.balance_weights, intercept=opts.realisation != "router")
     report = evaluate_fits(fits, x["test"], y["test"], opts.task)
     phases.done("classifier fit")
     report.update(data_summary(opts, ds))
@@ -281,9 +291,25 @@ def _train(opts: TrainOptions, ds, phases: Phases) -> dict:
 
         extra = write_classifier(opts, fits, settings, reference)
         phases.done("classifier network")
+    if opts.realisation == "router":
+        from springc.kws.features.router import router_file
+
+        extra = router_file(_feature_settings(opts), fits[0][1])
     report["seconds"] = phases.seconds
     write_model(opts.out, settings, fits, report, extra=extra)
     return report
+
+
+def _feature_settings(opts: TrainOptions):
+    """The settings the realisation's features follow (`feature_key`)."""
+    if opts.realisation == "mass-spring":
+        return opts.massspring
+    if opts.realisation == "router":
+        from springc.kws.features.router import RouterSettings
+
+        s = opts.settings
+        return RouterSettings(bins=s.bins, fmin=s.fmin, fmax=s.fmax)
+    return opts.settings
 
 
 def _session(opts: TrainOptions):
@@ -310,10 +336,10 @@ def model_settings(opts: TrainOptions, ds) -> dict:
         "springc_version": __version__,
         "realisation": opts.realisation,
         "task": opts.task,
-        "features": feature_key(opts.realisation, opts.massspring
-                                if opts.realisation == "mass-spring" else opts.settings),
+        "features": feature_key(opts.realisation, _feature_settings(opts)),
         "classifier": "logistic-regression" if opts.realisation == "baseline"
-        else "linear-svm squared-hinge l2 primal one-vs-rest",
+        else "linear-svm squared-hinge l2 primal one-vs-rest"
+        + (" without intercept" if opts.realisation == "router" else ""),
         "class_weight": task_weights(opts.task, opts.balance_weights),
         "protocol": task_protocol(opts.task, opts.protocol),
         "seed": opts.seed,

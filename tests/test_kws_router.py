@@ -1,0 +1,121 @@
+"""The router (`springc.kws.features.router`, `springc train --realisation router`): its
+weights decide as the classifier does, its readouts split the filters' energy exactly, the
+energy balance closes, and its physical scale converts back exactly; the commands train and
+evaluate it, sound to decision."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from scipy.signal import chirp
+
+from kws_corpora import corpus_and_model
+from springc.check import check
+from springc.kws.evaluation import device as dv, energy, router as rev
+from springc.kws.features import router as rt
+from springc.sim.simulate import simulate
+from springc_cli.main import main
+
+SMALL = rt.RouterSettings(bins=4)
+
+
+def sound(seconds: float = 0.2, seed: int = 0) -> np.ndarray:
+    """Two test signals: a chirp across the bank and a noise burst."""
+    t = np.arange(int(seconds * rt.INPUT_RATE)) / rt.INPUT_RATE
+    noise = np.random.default_rng(seed).normal(size=len(t)) * np.hanning(len(t))
+    return np.stack([chirp(t, 100, seconds, 6000, method="logarithmic"), noise])
+
+
+def test_router_weights_decide_as_the_classifier():
+    """W >= 0, no filter hands on more than its damping, and argmax W . D = argmax coef . D
+    for every D >= 0 (shifting a column moves every score alike)."""
+    rng = np.random.default_rng(1)
+    coef = rng.normal(size=(12, 8))
+    w = rt.router_weights(coef)
+    d = rng.exponential(size=(2000, 8))
+    assert (w >= 0).all() and w.sum(axis=0).max() == pytest.approx(1.0, abs=1e-15)
+    np.testing.assert_array_equal(np.argmax(d @ w.T, axis=1), np.argmax(d @ coef.T, axis=1))
+
+
+def test_the_readouts_split_the_filters_energy_exactly():
+    """Readout r of the router dissipates sum_i W[r, i] D_i, D from the bare filterbank: the
+    two networks move alike (each mass keeps its total damping), so the only difference is
+    rounding in the force sums; and the budget closes (work in = dissipated + left) to what
+    RK4 x8 integrates, fifth order in the step (4e-5 on speech, 3e-7 at x16)."""
+    w = rt.router_weights(np.random.default_rng(2).normal(size=(3, SMALL.bins)))
+    net = rt.router_network(SMALL, w)
+    x = sound()
+    e = rev.readouts(net, x)["E"]
+    d = rt.filter_energies(x, SMALL)
+    np.testing.assert_allclose(e, d @ w.T, rtol=1e-9)
+    res = simulate(check(net), x[:, None, :], rt.INPUT_RATE, probes=[],
+                   reductions=energy.budget_reductions(net),
+                   tstop=x.shape[1] / rt.INPUT_RATE + rt.RING_OUT, batch=len(x))
+    parts = energy.budget(net, res.reductions)
+    assert set(parts) == {"work in", "Mel filters", "readouts", "left at the end"}
+    assert energy.check_balance(parts).max() < 1e-3
+    assert energy.readout_count(net) == 3
+
+
+def test_at_physical_scale_without_noise_the_readouts_convert_back():
+    """At 0 K the physical network is the normalised one in other units: its readouts over
+    mu lambda^2 are the normalised readouts (`springc.design.scale`) to rounding."""
+    w = rt.router_weights(np.random.default_rng(3).normal(size=(3, SMALL.bins)))
+    net = rt.router_network(SMALL, w)
+    phys = dv.Physical(temp=0.0, mass=1e-10, spl=60.0, area=1e-6)
+    pnet, lam = dv.physical_network(net, phys)
+    x = sound()
+    np.testing.assert_allclose(rev.readouts(pnet, x)["E"] / (phys.mass * lam**2),
+                               rev.readouts(net, x)["E"], rtol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """A 4-bin router trained on the tiny corpus of chirps and tones."""
+    return corpus_and_model(tmp_path_factory.mktemp("router"), "--realisation", "router")
+
+
+def test_train_and_eval_simulate_the_router_sound_to_decision(trained):
+    """`springc eval` of a router model simulates router.spr: its decisions are the model's
+    on the simulated features (readout error at rounding), its insertion loss positive, and
+    `--budget` locates the energy in the filters' and the readouts' dampers."""
+    data, model = trained
+    settings = json.loads((model / "settings.json").read_text())
+    assert settings["classifier"].endswith("without intercept")
+    assert "router.spr" in (model / "README.md").read_text()
+    out = CliRunner().invoke(main, ["eval", str(model), "--json"])
+    assert out.exit_code == 0, out.output
+    report = json.loads(out.output)
+    assert report["accuracy"] == report["digital_same_model"]["accuracy"]
+    assert report["readout_error"] < 1e-9
+    assert report["insertion_loss_db"]["median"] > 0
+    out = CliRunner().invoke(main, ["eval", str(model), "--budget", "2", "--json"])
+    assert out.exit_code == 0, out.output
+    stages = json.loads(out.output)["stages"]
+    assert stages["readouts"]["db_of_work"] < 0 and stages["Mel filters"]["j"] > 0
+
+
+def test_a_router_population_at_no_spread_is_its_nominal_design(trained):
+    """`--mc 2 --spread 0`: every device is the nominal network, so each scores its
+    accuracy with a decision error of 0."""
+    _, model = trained
+    out = CliRunner().invoke(main, ["eval", str(model), "--mc", "2", "--spread", "0",
+                                    "--clips", "6", "--json"])
+    assert out.exit_code == 0, out.output
+    report = json.loads(out.stdout)  # progress goes to stderr
+    assert [d["accuracy"] for d in report["devices"]] == [report["nominal"]] * 2
+    assert [d["decision_error"] for d in report["devices"]] == [0.0, 0.0]
+
+
+def test_the_router_refuses_what_it_cannot_be(trained, tmp_path):
+    """Binary digit pairs (the router decides by the largest readout) and a trim."""
+    data, model = trained
+    out = CliRunner().invoke(main, ["train", "--data", str(data), "--realisation", "router",
+                                    "--task", "digits-pairs", "-o", str(tmp_path / "m")])
+    assert out.exit_code == 1 and "kws12" in out.output and "Traceback" not in out.output
+    out = CliRunner().invoke(main, ["eval", str(model), "--mc", "2", "--spread", "0.01",
+                                    "--trim", "4"])
+    assert out.exit_code == 1 and "router has none" in out.output

@@ -37,6 +37,7 @@ def test_router_weights_decide_as_the_classifier():
     w = rt.router_weights(coef)
     d = rng.exponential(size=(2000, 8))
     assert (w >= 0).all() and w.sum(axis=0).max() == pytest.approx(1.0, abs=1e-15)
+    rt.router_network(SMALL, rt.router_weights(coef[:, :SMALL.bins]))  # every keep >= 0
     np.testing.assert_array_equal(np.argmax(d @ w.T, axis=1), np.argmax(d @ coef.T, axis=1))
 
 

@@ -80,7 +80,8 @@ def router_text(s: RouterSettings, weights: np.ndarray | None = None,
         share = np.zeros(rows) if weights is None else weights[:, i]
         w.statement(f"Xf{i}", f"a{i}", f"y{i}", "routedfilter", f"fa={num(f.fa)}",
                     f"delta={num(f.delta)}", f"alpha={num(f.alpha)}",
-                    f"keep={num(1.0 - share.sum())}", "ch=0", f"gain={num(f.gain)}")
+                    f"keep={num(max(0.0, 1.0 - share.sum()))}", "ch=0",
+                    f"gain={num(f.gain)}")  # max: a full column sums to 1 +- rounding
         for r in np.flatnonzero(share > 0):
             b = num(f.alpha * share[r])
             w.statement(f"Bra{r}_{i}", f"a{i}", "0", f"b={b}")

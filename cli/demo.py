@@ -1,8 +1,8 @@
 """`springc demo`: the README's main command. From nothing to a mass-spring keyword spotter:
-synthesise a small corpus, train the digital, the mass-spring and the device realisations,
-simulate the whole mass-spring and device classifiers on the test split, print the accuracy
-table and the time of every stage, and write the plots (an orchestration of library calls, one
-per stage)."""
+synthesise a small corpus, train the digital, the mass-spring, the device and the router
+realisations, simulate the whole mass-spring, device and router networks on the test split,
+print the accuracy table and the time of every stage, and write the plots (an orchestration
+of library calls, one per stage)."""
 
 from __future__ import annotations
 
@@ -24,6 +24,7 @@ DEFAULT_CLIPS = 1200  # a few minutes on 2 cores with a cold kernel cache (READM
 # splits are class-balanced too. The full 35-word corpus: `springc data synth`.
 DEMO_WORDS = ("yes", "no", "up", "down", "left", "right", "on", "off", "stop", "go",
               "bed", "bird")
+ROUTER_BINS = 16  # the router reads band energies only: more bands than the 4 x 2 network's
 
 
 @dataclass
@@ -64,6 +65,7 @@ def run_demo(opts: DemoOptions, echo=click.echo) -> dict:
     from springc.kws.features.distributed import session
     from springc.kws.evaluation.api import train as train_model
     from springc.kws.evaluation.evaluate import evaluate
+    from springc.kws.evaluation.router import evaluate_model as evaluate_router
     from springc.kws.training.train import TrainOptions, train
 
     out = Path(opts.out)
@@ -93,6 +95,12 @@ def run_demo(opts: DemoOptions, echo=click.echo) -> dict:
         device = st.run("simulate the device classifier on the test split", evaluate,
                         out / "model-device", jobs=opts.jobs, scheduler=opts.scheduler)
     network["device"] = device
+    # the design inside the loss bound: a linear passive network (docs/results-device.md)
+    reports["router"] = st.run(
+        f"train router {ROUTER_BINS} bins", train_model, data, out / "model-router",
+        bins=ROUTER_BINS, realisation="router", jobs=opts.jobs, seed=opts.seed)
+    network["router"] = st.run("simulate the router on the test split", evaluate_router,
+                               out / "model-router", jobs=opts.jobs)
     st.run("plots", _plots, out, reports, network, data, opts)
     return _summary(out, opts, reports, network, st)
 
@@ -114,7 +122,9 @@ def accuracy_rows(reports: dict, network: dict) -> list[tuple[str, float]]:
     return [("digital (paper's architecture, numerical)", reports["digital"]["accuracy"]),
             ("mass-spring features, ideal readout c.Phi", ideal),
             ("mass-spring network (simulated end to end)", network["accuracy"]),
-            ("device network, summing heads (end to end)", network["device"]["accuracy"])]
+            ("device network, summing heads (end to end)", network["device"]["accuracy"]),
+            (f"router, linear passive, {ROUTER_BINS} bins (end to end)",
+             network["router"]["accuracy"])]
 
 
 def _summary(out: Path, opts: DemoOptions, reports: dict, network: dict, st: Stages) -> dict:
@@ -127,8 +137,9 @@ def _summary(out: Path, opts: DemoOptions, reports: dict, network: dict, st: Sta
     lines.append(f"  {'(always the most frequent class)':44s} "
                  f"{100 * counts.max() / max(counts.sum(), 1):6.2f}%")
     lines.append(f"  insertion loss {network['insertion_loss_db']['median']:.1f} dB (median; "
-                 f"device {network['device']['insertion_loss_db']['median']:.1f} dB); "
-                 f"simulation {t['clips_per_s']:.2f} clips/s on {t['cores'] or '?'} cores")
+                 f"device {network['device']['insertion_loss_db']['median']:.1f} dB, router "
+                 f"{network['router']['insertion_loss_db']['median']:.1f} dB); simulation "
+                 f"{t['clips_per_s']:.2f} clips/s on {t['cores'] or '?'} cores")
     lines += _integration_lines(reports, network)
     lines.append("time per stage:")
     lines += [f"  {name:56s} {sec:7.1f} s" for name, sec in st.times.items()]
@@ -221,9 +232,9 @@ def _feature_plot(path: Path, data: Path, opts: DemoOptions) -> None:
 @click.option("--jobs", "-j", default=0, help="Worker processes (0: all cores).")
 @run_user_errors
 def demo_cmd(out, clips, bins, delays, data, seed, scheduler, jobs) -> None:
-    """Synthesise a corpus, train digital, mass-spring and device keyword spotters, simulate
-    the whole mass-spring and device classifiers on the test split, print the accuracy table,
-    write the plots."""
+    """Synthesise a corpus, train digital, mass-spring, device and router keyword spotters,
+    simulate the whole mass-spring, device and router networks on the test split, print the
+    accuracy table, write the plots."""
     opts = DemoOptions(out=out, clips=clips, bins=bins, delays=delays, data=data, seed=seed,
                        scheduler=scheduler, jobs=jobs)
     summary = run_demo(opts)

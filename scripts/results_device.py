@@ -50,7 +50,8 @@ DESIGNS = {"zero-mode": "mass-spring", "summing": "device"}
 CV_DESIGNS = {"zero-mode": {"realisation": "mass-spring"},
               "summing": {"realisation": "device"},
               "summing-stiff": {"realisation": "device", "stage_stiffness": 1e4,
-                                "squarer_range": 1.0, "epsilon": 0.01}}
+                                "squarer_range": 1.0, "epsilon": 0.01},
+              "router": {"realisation": "router", "bins": 16}}
 SPREADS = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 3e-2)
 MASSES = (1e-40, 1e-36, 1e-30, 1e-20, 1e-10)
 
@@ -185,11 +186,11 @@ def _fold_row(view: Path, folder: Path, options: dict, args) -> dict:
     on `args.clips`)."""
     start = time.perf_counter()
     if not (folder / "settings.json").exists():
-        springc.train(view, folder, bins=8, delays=3, **options)
+        springc.train(view, folder, **{"bins": 8, "delays": 3, **options})
     rep = springc.evaluate(folder)
     row = {"accuracy": rep["accuracy"], "n": rep["n"],
            "loss_db": rep["insertion_loss_db"]["median"]}
-    if options["realisation"] == "device":
+    if options["realisation"] in ("device", "router"):
         row["spread"] = _spread(folder, 1e-3, args)
     row["seconds"] = time.perf_counter() - start
     return row

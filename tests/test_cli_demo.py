@@ -26,14 +26,15 @@ def test_demo_trains_every_realisation_and_simulates_the_networks(tmp_path):
     assert res.exit_code == 0, res.output
     assert "mass-spring network (simulated end to end)" in res.output
     assert "device network, summing heads (end to end)" in res.output
+    assert "router, linear passive, 16 bins (end to end)" in res.output
     assert "time per stage:" in res.output
     summary = json.loads((out / "summary.json").read_text())
-    assert len(summary["accuracy"]) == 4
+    assert len(summary["accuracy"]) == 5
     assert all(0.0 <= a <= 1.0 for a in summary["accuracy"].values())
     for name in ("accuracy.png", "features.png", "confusion-network.png",
                  "model-mass-spring/classifier.spr", "model-mass-spring/head0.spr",
                  "model-mass-spring/features.spr", "model-digital/weights.npz",
-                 "model-device/classifier.spr"):
+                 "model-device/classifier.spr", "model-router/router.spr"):
         assert (out / name).is_file(), name
 
 

@@ -1,6 +1,7 @@
 """The keyword spotter as a device: today's mass-spring design (zero-mode heads) beside the
-device design (summing heads, `springc train --realisation device`) under fabrication spread,
-thermal noise at physical scale, and the energy budget against the 53 dB a decision may lose.
+device design (summing heads, `springc train --realisation device`) and the router (a linear
+passive network) under fabrication spread, thermal noise at physical scale, and the energy
+budget against the 53 dB a decision may lose.
 
     python scripts/results_device.py run --data CORPUS --out DIR [--sizes 4x2 8x3]
     python scripts/results_device.py page --out DIR --md docs/results-device.md
@@ -10,6 +11,8 @@ thermal noise at physical scale, and the energy budget against the 53 dB a decis
         [--masses KG ...] [--spreads S ...]
     python scripts/results_device.py stiffness-page
     python scripts/results_device.py trim-page [--reports SIZE=REPORT.json ...]
+    python scripts/results_device.py router --data CORPUS --out DIR [--bins 8 16]
+    python scripts/results_device.py router-page
 
 `run` trains both designs per size on CORPUS (skipped where DIR holds the model), and
 through `springc.evaluate` measures the whole network's accuracy on the test split, the
@@ -31,7 +34,11 @@ DIR/models, the rows in --store, docs/results-stiffness.json, then docs/results-
 written from them; `stiffness-page` writes that page alone from the stored rows).
 `trim-page` writes docs/results-trim.md from its rows in docs/results-trim.json, after
 adding or replacing the rows of the given `springc eval MODEL --mc N --spread S [--trim K |
---stage X] --json` reports (SIZE: the model's, e.g. 8x3).
+--stage X] --json` reports (SIZE: the model's, e.g. 8x3). `router` trains a router of
+each --bins filters (`springc train --realisation router`) and measures it as `run` measures
+a design, on every test clip (the rows in --store, docs/results-router.json); `router-page`
+prints their table and draws the front, docs/results-router.png, beside the 8x3 squaring
+designs of docs/results-stiffness.json.
 """
 
 from __future__ import annotations
@@ -247,6 +254,34 @@ def trim_page(args) -> None:
     write_page(list(rows.values()), Path(args.md))
 
 
+def router(args) -> None:
+    """Routers of --bins filters (`springc train --realisation router`) on CORPUS, each
+    measured as `measure` measures a design (every test clip unless --clips), into --store,
+    then their table and the front's plot."""
+    out, path = Path(args.out), Path(args.store)
+    results = stored(path, {})
+    for bins in args.bins:
+        folder = out / "models" / f"router-{bins}"
+        if not (folder / "settings.json").exists():
+            springc.train(Path(args.data), folder, bins=bins, realisation="router")
+        if f"{bins} bins" not in results:
+            results[f"{bins} bins"] = measure(folder, args)
+            path.write_text(json.dumps(results, indent=1))
+    router_page(args)
+
+
+def router_page(args) -> None:
+    """The routers' table (printed) and docs/results-router.png (--png): the routers of
+    --store beside the 8x3 squaring designs of docs/results-stiffness.json."""
+    from springc.kws.evaluation.router_page import front_plot, router_rows
+
+    routers = json.loads(Path(args.store).read_text())
+    squaring = {f"8x3 S {r['factor']:g}": r for r in
+                json.loads(Path(args.stiffness).read_text()).values() if r["size"] == "8x3"}
+    print("\n".join(router_rows(routers)))
+    front_plot(routers, squaring, Path(args.png))
+
+
 def _stiffness_studies(row: dict, folder: Path, args) -> None:
     """The noise study at --masses and the population at --spreads, where asked and not
     yet in `row`."""
@@ -295,11 +330,39 @@ def _stiffness_options(st: argparse.ArgumentParser) -> None:
         st.add_argument(name, nargs="+", type=float, default=[])
 
 
+def _page_options(p, st, sp, tp) -> None:
+    """Where `page`, `stiffness`, `stiffness-page` and `trim-page` keep rows and pages."""
+    p.add_argument("--md", default="docs/results-device.md")
+    for stored in (st, sp):
+        stored.add_argument("--store", default="docs/results-stiffness.json")
+        stored.add_argument("--md", default="docs/results-stiffness.md")
+    tp.add_argument("--reports", nargs="*", default=[], metavar="SIZE=PATH")
+    tp.add_argument("--store", default="docs/results-trim.json")
+    tp.add_argument("--md", default="docs/results-trim.md")
+
+
+def _router_options(ro: argparse.ArgumentParser, rp: argparse.ArgumentParser) -> None:
+    """`router`'s and `router-page`'s options: what is measured, and where it is kept."""
+    ro.add_argument("--data", required=True)
+    ro.add_argument("--out", required=True)
+    ro.add_argument("--bins", nargs="+", type=int, default=[16])
+    ro.add_argument("--spreads", nargs="+", type=float, default=[1e-3, 1e-2, 3e-2])
+    ro.add_argument("--masses", nargs="+", type=float, default=[1e-8, 2e-9, 1e-10, 1e-12])
+    ro.add_argument("--devices", type=int, default=4)
+    ro.add_argument("--clips", type=int, default=None)
+    ro.add_argument("--budget", type=int, default=8)
+    for shown in (ro, rp):
+        shown.add_argument("--store", default="docs/results-router.json")
+        shown.add_argument("--stiffness", default="docs/results-stiffness.json")
+        shown.add_argument("--png", default="docs/results-router.png")
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    r, c, st, p, sp, tp = (sub.add_parser(name) for name in
-                           ("run", "cv", "stiffness", "page", "stiffness-page", "trim-page"))
+    names = ("run", "cv", "stiffness", "page", "stiffness-page", "trim-page", "router",
+             "router-page")
+    r, c, st, p, sp, tp, ro, rp = (sub.add_parser(name) for name in names)
     r.add_argument("--spreads", nargs="+", type=float, default=list(SPREADS))
     r.add_argument("--masses", nargs="+", type=float, default=list(MASSES))
     r.add_argument("--leave-out", choices=ENGINES, default="flite")
@@ -315,13 +378,8 @@ def _parser() -> argparse.ArgumentParser:
         studied.add_argument("--data", required=True)
         studied.add_argument("--devices", type=int, default=4)
         studied.add_argument("--clips", type=int, default=48)
-    p.add_argument("--md", default="docs/results-device.md")
-    for stored in (st, sp):
-        stored.add_argument("--store", default="docs/results-stiffness.json")
-        stored.add_argument("--md", default="docs/results-stiffness.md")
-    tp.add_argument("--reports", nargs="*", default=[], metavar="SIZE=PATH")
-    tp.add_argument("--store", default="docs/results-trim.json")
-    tp.add_argument("--md", default="docs/results-trim.md")
+    _page_options(p, st, sp, tp)
+    _router_options(ro, rp)
     for each in (r, c, st, p):
         each.add_argument("--out", required=True)
     return parser
@@ -330,7 +388,8 @@ def _parser() -> argparse.ArgumentParser:
 def main() -> None:
     args = _parser().parse_args()
     {"run": run, "cv": cv, "stiffness": stiffness, "page": page,
-     "stiffness-page": stiffness_page, "trim-page": trim_page}[args.command](args)
+     "stiffness-page": stiffness_page, "trim-page": trim_page, "router": router,
+     "router-page": router_page}[args.command](args)
 
 
 if __name__ == "__main__":

@@ -34,7 +34,7 @@ import time
 from pathlib import Path
 
 ENGINES = ("espeak", "flite", "festival")
-REALISATIONS = ("digital", "mass-spring", "device")
+REALISATIONS = ("digital", "mass-spring", "device", "router")
 LIST_FILES = ("validation_list.txt", "testing_list.txt")
 NOTES = "<!-- notes below are kept by scripts/results_voices.py -->"
 ROOT = Path(__file__).resolve().parents[1]
@@ -60,7 +60,8 @@ METHOD = [
     "by simulating its whole classifier network, which reproduces c.Phi and would take "
     "several times longer. A device model (summing heads, `--realisation device`) shares "
     "the mass-spring model's features and ideal readout, so it is tested by simulating its "
-    "whole network (`springc eval MODEL --data DIR --json`), own test split included.",
+    "whole network (`springc eval MODEL --data DIR --json`), own test split included; so "
+    "is a router (16 bins, `--realisation router`, its linear passive network simulated).",
     "",
     "**flite and festival share speakers**: kal (flite kal16, festival kal_diphone) and "
     "slt (flite slt, festival cmu_us_slt_arctic_hts) are the same recorded people. "
@@ -130,10 +131,12 @@ def features_eval(model: Path, data: Path, settings: dict) -> dict:
 
 
 def train(data: Path, model: Path, realisation: str) -> Path:
-    """An 8x3 model of `realisation` (reused if a previous run of this script made it)."""
+    """An 8x3 model of `realisation`, a router of 16 bins (reused if a previous run of this
+    script made it)."""
+    size = ["-n", "16"] if realisation == "router" else ["-n", "8", "-m", "3"]
     if not (model / "report.json").is_file():
-        springc(["train", "--data", str(data), "-n", "8", "-m", "3", "--realisation",
-                 realisation, "-o", str(model)])
+        springc(["train", "--data", str(data), *size, "--realisation", realisation,
+                 "-o", str(model)])
     return model
 
 

@@ -52,7 +52,7 @@ def front_plot(routers: dict, squaring: dict, png: Path) -> Path:
                          [100 * p["accuracy"] for p in noise], marker=marker, label=label)
     bound = next(iter(routers.values()))["budget"]["bound_db"] if routers else 52.9
     ax1.axvline(-bound, color="k", lw=1)
-    ax1.text(-bound, 5, f" bound -{bound:.1f} dB", ha="left")
+    ax1.text(-bound, 50, f"bound -{bound:.1f} dB ", ha="right")
     ax1.set_xlabel("readouts' energy, dB of the sound (2e-9 kg, 60 dB SPL, 1 mm^2)")
     ax2.set_xscale("log")
     ax2.set_xlabel("device mass (kg), 300 K, 60 dB SPL, 1 mm^2")

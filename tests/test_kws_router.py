@@ -38,6 +38,9 @@ def test_router_weights_decide_as_the_classifier():
     d = rng.exponential(size=(2000, 8))
     assert (w >= 0).all() and w.sum(axis=0).max() == pytest.approx(1.0, abs=1e-15)
     rt.router_network(SMALL, rt.router_weights(coef[:, :SMALL.bins]))  # every keep >= 0
+    never = coef.copy()
+    never[0] -= 100.0  # a class that never wins gets no readout dashpots
+    assert not rt.router_weights(never)[0].any()
     np.testing.assert_array_equal(np.argmax(d @ w.T, axis=1), np.argmax(d @ coef.T, axis=1))
 
 
@@ -49,7 +52,7 @@ def test_the_readouts_split_the_filters_energy_exactly():
     w = rt.router_weights(np.random.default_rng(2).normal(size=(3, SMALL.bins)))
     net = rt.router_network(SMALL, w)
     x = sound()
-    e = rev.readouts(net, x)["E"]
+    e = rev.readouts(net, x, 3)["E"]
     d = rt.filter_energies(x, SMALL)
     np.testing.assert_allclose(e, d @ w.T, rtol=1e-9)
     res = simulate(check(net), x[:, None, :], rt.INPUT_RATE, probes=[],
@@ -69,8 +72,8 @@ def test_at_physical_scale_without_noise_the_readouts_convert_back():
     phys = dv.Physical(temp=0.0, mass=1e-10, spl=60.0, area=1e-6)
     pnet, lam = dv.physical_network(net, phys)
     x = sound()
-    np.testing.assert_allclose(rev.readouts(pnet, x)["E"] / (phys.mass * lam**2),
-                               rev.readouts(net, x)["E"], rtol=1e-9)
+    np.testing.assert_allclose(rev.readouts(pnet, x, 3)["E"] / (phys.mass * lam**2),
+                               rev.readouts(net, x, 3)["E"], rtol=1e-9)
 
 
 @pytest.fixture(scope="module")

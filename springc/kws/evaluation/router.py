@@ -29,17 +29,17 @@ def router_net(model) -> FlatNetlist:
     return load_file(Path(model.folder) / "router.spr")
 
 
-def readouts(net: FlatNetlist, signals: np.ndarray, *, temp: float | None = None,
-             seed: int = 0, extra: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
-    """{"E": readout energies (clips, readouts), and each reduction of `extra`} of `signals`
-    (clips, samples) at 16 kHz through `net`, with thermal noise at `temp` kelvin (seeded
-    per batch, so a clip's noise does not depend on how many clips are evaluated)."""
+def readouts(net: FlatNetlist, signals: np.ndarray, rows: int, *,
+             temp: float | None = None, seed: int = 0,
+             extra: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """{"E": the energies (clips, rows) of readouts 0 .. rows - 1 (0 for one without
+    dashpots: its class never wins), and each reduction of `extra`} of `signals` (clips,
+    samples) at 16 kHz through `net`, with thermal noise at `temp` kelvin (seeded per batch
+    of BATCH clips)."""
     from springc.sim.simulate import simulate
 
     checked = check(net)
     specs = rt.readout_reductions(net) + list(extra)
-    rows = len({rt.READOUT.match(n).group(1) for n in net.dashpots.names
-                if rt.READOUT.match(n)})
     parts: dict[str, list] = {}
     for start in range(0, len(signals), BATCH):
         sig = np.asarray(signals[start:start + BATCH], dtype=np.float64)[:, None, :]
@@ -87,7 +87,8 @@ def evaluate_router(model, clips: list, y: np.ndarray, task: str, *, features=No
     net = router_net(model)
     classes = model.models[0][1].classes
     start = time.perf_counter()
-    out = readouts(net, msp.load_signals(clips, False, 0, []), extra=("work:in",))
+    out = readouts(net, msp.load_signals(clips, False, 0, []), len(classes),
+                   extra=("work:in",))
     seconds = time.perf_counter() - start
     report = score(readout_model(classes), out["E"], y, task)
     loss = -10 * np.log10(out["E"].sum(axis=1) / out["work:in"])
@@ -113,14 +114,15 @@ def physical(model, signals: np.ndarray, y: np.ndarray, phys: dv.Physical) -> di
     net = router_net(model)
     classes = model.models[0][1].classes
     pnet, lam = dv.physical_network(net, phys)
-    clean = readouts(net, signals)["E"]
+    clean = readouts(net, signals, len(classes))["E"]
     base = {"n": len(y), "temp": phys.temp, "mass": phys.mass, "spl": phys.spl,
             "area": phys.area, "seed": phys.seed, "pressure": phys.pressure, "length": lam,
             "device_mass": float(phys.mass * net.mass().sum()),
             "noiseless": _accuracy(classes, clean, y), "snr_of": "the readouts"}
     try:
         # energies scale as mu lambda^2 (`springc.design.scale`)
-        noisy = readouts(pnet, signals, temp=phys.temp, seed=phys.seed)["E"] / (
+        noisy = readouts(pnet, signals, len(classes), temp=phys.temp,
+                         seed=phys.seed)["E"] / (
             phys.mass * lam**2)
     except DivergedRuns as err:
         return {"accuracy": 0.0, "diverged": err.message, "phi_snr_db": None,
@@ -137,10 +139,10 @@ def population(model, signals: np.ndarray, y: np.ndarray, devices: int,
     spread.validate()
     net = router_net(model)
     classes = model.models[0][1].classes
-    nominal = readouts(net, signals)["E"]
+    nominal = readouts(net, signals, len(classes))["E"]
     rows, start = [], time.perf_counter()
     for k in range(devices):
-        dk = readouts(dv.fabricate(net, spread, k), signals)["E"]
+        dk = readouts(dv.fabricate(net, spread, k), signals, len(classes))["E"]
         rows.append({"device": k, "accuracy": _accuracy(classes, dk, y), "diverged": False,
                      "decision_error": dv.decision_error(dk, nominal)})
         if progress:

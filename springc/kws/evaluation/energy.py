@@ -252,8 +252,10 @@ def model_network(model_dir, seconds: float) -> tuple[FlatNetlist, float]:
 
 def readout_count(net: FlatNetlist) -> int:
     """The readouts of a classifier network (mass-spring heads or router dashpots)."""
+    from springc.kws.features.router import READOUT
+
     heads = {n for n in net.masses.names if re.match(r"^Xh\d+\.Xr\.", n)}
-    routed = {n[3:].partition("_")[0] for n in net.dashpots.names if re.match(r"^Br[ab]\d+_", n)}
+    routed = {found.group(1) for n in net.dashpots.names if (found := READOUT.match(n))}
     return len(heads) + len(routed)
 
 

@@ -12,11 +12,11 @@ readout r dissipates exactly
 D_i the energy filter i dissipates over the clip (the clip's power in that band, weighted by
 the filter's response). The decision is the readout that dissipates most: a linear
 classifier without intercept on the features D, which `springc train --realisation router`
-fits (`fit_intercept=False`) and `router_weights` makes realisable: adding the same u_i to
-every class's weight on D_i moves every score by u . D and no decision, so each column is
-shifted to a least weight of 0, and all are scaled by one factor so that no filter hands on
-more than all of its damping (the features' own scale, a per-feature factor, folds into the
-weights first).
+fits (`svm.select(intercept=False)`, on D scaled by its root mean square, which the raw
+weights absorb) and `router_weights` makes realisable: adding the same u_i to every class's
+weight on D_i moves every score by u . D and no decision, so each column is shifted to a
+least weight of 0, and all are scaled by one factor so that no filter hands on more than
+all of its damping.
 
 What a linear passive network cannot do, the router does not: its readouts see the clip's
 band powers, not when in the clip they came (the time structure the paper's squarers, delay

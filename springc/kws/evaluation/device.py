@@ -530,10 +530,8 @@ def evaluate_physical(setup: Setup, phys: Physical, *, reference: dict | None = 
                             scheduler=scheduler, jobs=jobs, desc="thermal noise")
         except DivergedRuns as err:
             noisy = {"decisions": None, "why": err.message}
-    scale = {"n": len(setup.y), "temp": phys.temp, "mass": phys.mass, "spl": phys.spl,
-             "area": phys.area, "seed": phys.seed, "pressure": phys.pressure, "length": lam,
-             "device_mass": float(phys.mass * setup.net.mass().sum()),
-             "noiseless": accuracy(setup, reference["decisions"])}
+    scale = physical_report(phys, lam, setup.net, len(setup.y),
+                            accuracy(setup, reference["decisions"]))
     if noisy["decisions"] is None:
         return {"accuracy": 0.0, "diverged": noisy["why"], "phi_snr_db": None,
                 "decision_error": float("inf"), **scale}
@@ -541,6 +539,15 @@ def evaluate_physical(setup: Setup, phys: Physical, *, reference: dict | None = 
             "phi_snr_db": phi_snr_db(reference["phi"], noisy["phi"]),
             "decision_error": decision_error(noisy["decisions"], reference["decisions"]),
             **scale}
+
+
+def physical_report(phys: Physical, lam: float, net: FlatNetlist, n: int,
+                    noiseless: float) -> dict:
+    """The part of a physical-scale report that says where it was measured: clips, scale,
+    length scale, device mass and the noiseless accuracy."""
+    return {"n": n, "temp": phys.temp, "mass": phys.mass, "spl": phys.spl, "area": phys.area,
+            "seed": phys.seed, "pressure": phys.pressure, "length": lam,
+            "device_mass": float(phys.mass * net.mass().sum()), "noiseless": noiseless}
 
 
 def phi_snr_db(clean: np.ndarray, noisy: np.ndarray) -> dict[str, float]:

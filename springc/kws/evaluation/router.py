@@ -115,10 +115,8 @@ def physical(model, signals: np.ndarray, y: np.ndarray, phys: dv.Physical) -> di
     classes = model.models[0][1].classes
     pnet, lam = dv.physical_network(net, phys)
     clean = readouts(net, signals, len(classes))["E"]
-    base = {"n": len(y), "temp": phys.temp, "mass": phys.mass, "spl": phys.spl,
-            "area": phys.area, "seed": phys.seed, "pressure": phys.pressure, "length": lam,
-            "device_mass": float(phys.mass * net.mass().sum()),
-            "noiseless": _accuracy(classes, clean, y), "snr_of": "the readouts"}
+    base = {**dv.physical_report(phys, lam, net, len(y), _accuracy(classes, clean, y)),
+            "snr_of": "the readouts"}
     try:
         # energies scale as mu lambda^2 (`springc.design.scale`)
         noisy = readouts(pnet, signals, len(classes), temp=phys.temp,

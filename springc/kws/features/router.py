@@ -26,6 +26,7 @@ lines and quadratic activations give), so it classifies from the long-term spect
 
 from __future__ import annotations
 
+import functools
 import re
 from dataclasses import asdict, dataclass
 
@@ -120,15 +121,23 @@ def readout_energies(reds: dict[str, np.ndarray], rows: int) -> np.ndarray:
     return out
 
 
+@functools.lru_cache(maxsize=4)
+def checked_bank(s: RouterSettings):
+    """The bare filterbank, checked once per settings (a feature pass calls for every chunk
+    of clips)."""
+    from springc.check import check
+
+    return check(router_network(s))
+
+
 def filter_energies(signals: np.ndarray, s: RouterSettings) -> np.ndarray:
     """D (clips, bins): the energy each filter of the bare filterbank dissipates on each
     clip of `signals` (clips, samples) at 16 kHz, simulated."""
-    from springc.check import check
     from springc.sim.simulate import simulate
 
     sig = np.atleast_2d(np.asarray(signals, dtype=np.float64))
     reds = filter_reductions(s)
-    res = simulate(check(router_network(s)), sig[:, None, :], INPUT_RATE, probes=[],
+    res = simulate(checked_bank(s), sig[:, None, :], INPUT_RATE, probes=[],
                    reductions=reds, tstop=sig.shape[1] / INPUT_RATE + RING_OUT,
                    batch=len(sig))
     r = res.reductions

@@ -83,11 +83,12 @@ _PAPER_STEPS = click.option(
                    "it to ground).")
 @click.option("--mvm-stiffness", type=float, default=None,
               help="Mass-spring: factor on the zero-mode multipliers' stiffness.")
-@click.option("--spl", type=float, default=None, help="Device: sound level (dB SPL) [60].")
-@click.option("--area", type=float, default=None, help="Device: membrane area (m^2) [1e-6].")
-@click.option("--temp", type=float, default=None, help="Device: temperature (K) [300].")
+@click.option("--spl", type=float, default=None, help="Device, router: sound level (dB SPL) [60].")
+@click.option("--area", type=float, default=None,
+              help="Device, router: membrane area (m^2) [1e-6].")
+@click.option("--temp", type=float, default=None, help="Device, router: temperature (K) [300].")
 @click.option("--device-mass", type=float, default=None,
-              help="Device: the whole device's mass (kg) [2e-9].")
+              help="Device, router: the whole device's mass (kg) [2e-9].")
 @click.option("--stage-stiffness", type=float, default=None, metavar="S",
               help="Mass-spring/device: every stage after the Mel filters S times stiffer, "
                    "up to S times more of the energy reaches them [1].")

@@ -120,3 +120,59 @@ def test_stage_stiffness_and_squarer_range_have_their_options():
     settings["features"] = replace(base, klp=1000.0).to_dict()
     args, missing = train_arguments(settings)
     assert "--stage-stiffness" not in args and missing == {"klp": 1000.0}
+
+
+@pytest.mark.parametrize("realisation, design, epsilon, scale, heads", [
+    ("device", {"heads": "summing", "mvm_stiffness": 1.0, "buffer": None}, 1e-5,
+     {"spl": 60.0, "area": 1e-6, "temp": 300.0, "device_mass": 2e-9}, []),
+    ("mass-spring", {"heads": "summing", "mvm_stiffness": 1.0, "buffer": None}, 1e-5, None,
+     ["--heads", "summing"]),
+    ("mass-spring", {"heads": "zero-mode", "mvm_stiffness": 10.0,
+                     "buffer": {"kb": 6e-5, "kg": 1e4}}, 1e-6, None,
+     ["--heads", "zero-mode", "--mvm-stiffness", "10", "--buffer", "6e-05", "10000"]),
+    ("mass-spring", {"heads": "zero-mode", "mvm_stiffness": 10.0,
+                     "buffer": {"kb": 6e-5, "kg": 1e4}}, 1.0, None, []),
+])
+def test_the_printed_options_rebuild_the_design_and_the_scale(realisation, design, epsilon,
+                                                               scale, heads):
+    """The heads and the physical scale a model records come back from the README's train
+    line: its options, read as `springc train` reads them, give the same design and scale
+    (a device model: `--realisation device` and its scale; heads named only where the
+    realisation and epsilon would not choose them by themselves)."""
+    from springc.kws.evaluation.api import _design
+    from springc.kws.features import massspring as msp
+    from springc.kws.training.transfer import Design, default_design
+
+    features = msp.from_features(FeatureSettings(bins=4, delays=2)).to_dict()
+    settings = {"realisation": "mass-spring", "task": "kws12", "features": features,
+                "transfer": {"epsilon": epsilon, "design": design},
+                **({"device": scale} if scale else {})}
+    args, missing = train_arguments(settings)
+    assert missing == {}
+    opts = dict(zip(args[::2], args[1::2]))
+    assert opts["--realisation"] == realisation
+    value = lambda name: float(opts[name]) if name in opts else None  # noqa: E731
+    given = {k: value("--" + k.replace("_", "-"))
+             for k in ("spl", "area", "temp", "device_mass")}
+    at = args.index("--epsilon") + 2
+    assert args[at:at + len(heads)] == heads
+    # --buffer takes two values: read them by position
+    buffer = (tuple(float(v) for v in args[args.index("--buffer") + 1:][:2])
+              if "--buffer" in args else None)
+    built, physical = _design(realisation, value("--epsilon"), opts.get("--heads"), buffer,
+                              value("--mvm-stiffness"), given)
+    assert (built or default_design(epsilon)) == Design.from_dict(design)
+    assert physical == scale
+
+
+def test_a_design_no_option_gives_is_named():
+    """Unbuffered zero-mode heads at an epsilon whose default is buffered: no option of
+    `springc train` builds them, so the design is named beside the command."""
+    from springc.kws.features import massspring as msp
+
+    design = {"heads": "zero-mode", "mvm_stiffness": 1.0, "buffer": None}
+    settings = {"realisation": "mass-spring", "task": "kws12",
+                "features": msp.from_features(FeatureSettings(bins=4, delays=2)).to_dict(),
+                "transfer": {"epsilon": 1.0, "design": design}}
+    args, missing = train_arguments(settings)
+    assert "--heads" not in args and missing == {"design": design}

@@ -78,8 +78,10 @@ def test_at_physical_scale_without_noise_the_readouts_convert_back():
 
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
-    """A 4-bin router trained on the tiny corpus of chirps and tones."""
-    return corpus_and_model(tmp_path_factory.mktemp("router"), "--realisation", "router")
+    """A 4-bin router trained on the tiny corpus of chirps and tones, built for a 1e-10 kg
+    device hearing 70 dB SPL."""
+    return corpus_and_model(tmp_path_factory.mktemp("router"), "--realisation", "router",
+                            "--spl", "70", "--device-mass", "1e-10")
 
 
 def test_train_and_eval_simulate_the_router_sound_to_decision(trained):
@@ -98,8 +100,16 @@ def test_train_and_eval_simulate_the_router_sound_to_decision(trained):
     assert report["insertion_loss_db"]["median"] > 0
     out = CliRunner().invoke(main, ["eval", str(model), "--budget", "2", "--json"])
     assert out.exit_code == 0, out.output
-    stages = json.loads(out.output)["stages"]
+    budget = json.loads(out.output)
+    stages = budget["stages"]
     assert stages["readouts"]["db_of_work"] < 0 and stages["Mel filters"]["j"] > 0
+    # the physical scale the model was trained for, recorded and used where none is given
+    assert settings["device"] == {"spl": 70.0, "area": 1e-6, "temp": 300.0,
+                                  "device_mass": 1e-10}
+    assert budget["scale"]["spl"] == 70.0
+    assert budget["scale"]["device_mass"] == pytest.approx(1e-10, rel=1e-12)
+    assert "--spl 70 --area 1e-06 --temp 300 --device-mass 1e-10" in (
+        model / "README.md").read_text()
 
 
 def test_a_router_population_at_no_spread_is_its_nominal_design(trained):

@@ -36,9 +36,10 @@ def train(data: str | Path, out: str | Path, *, bins: int = 8, delays: int = 3,
           squarer_range: float | None = None, device: str | None = None) -> dict:
     """Train the keyword spotter on the data set folder `data` (GSCD layout), test it and
     write the model folder `out`, as `springc train`: `bins` mel bins of `delays` delays
-    each, `realisation` digital, baseline, mass-spring or device (a mass-spring network
-    built for a fabricated device: summing heads, its physical scale `spl`, `area`, `temp`,
-    `device_mass` recorded, defaults `energy.DEFAULTS`), `filterbank`, `task` (kws12 or
+    each, `realisation` digital, baseline, mass-spring, device (a mass-spring network
+    built for a fabricated device: summing heads) or router (a linear passive network; the
+    device and the router record their physical scale `spl`, `area`, `temp`, `device_mass`,
+    defaults `energy.DEFAULTS`), `filterbank`, `task` (kws12 or
     digits-pairs), tap delay `td` (s), readout time constant `tau` (s), low-pass cut-off
     `fc` (Hz), `feature_rate` (Hz), held-out `protocol` (lists or balanced; None: the
     task's), `class_weights` (balanced or none; None: the task's), `jobs` worker processes
@@ -276,8 +277,9 @@ def synthesise(out: str | Path, *, clips: int = 2400, seed: int = 0, jobs: int =
 
 def _design(realisation: str, epsilon: float | None, heads: str | None, buffer,
             mvm_stiffness: float | None, scale: dict):
-    """(transfer.Design or None for the epsilon's default, the device's physical scale or
-    None) of `train`'s options; UsageError for head options on another realisation."""
+    """(transfer.Design or None for the epsilon's default, the physical scale of a device or
+    router model or None) of `train`'s options; UsageError for head options on another
+    realisation."""
     from springc.kws.training import tapbuffer, transfer
 
     device = realisation == "device"
@@ -285,11 +287,12 @@ def _design(realisation: str, epsilon: float | None, heads: str | None, buffer,
     if not device and realisation != "mass-spring" and (given or epsilon is not None):
         raise UsageError("--heads, --buffer, --mvm-stiffness and --epsilon build mass-spring "
                          "heads", hint="--realisation mass-spring or device")
-    if not device and any(v is not None for v in scale.values()):
+    scaled = device or realisation == "router"  # the models meant to be built
+    if not scaled and any(v is not None for v in scale.values()):
         raise UsageError("--spl, --area, --temp and --device-mass describe a device model",
-                         hint="--realisation device")
+                         hint="--realisation device or router")
     physical = None
-    if device:
+    if scaled:
         from springc.kws.evaluation.energy import Scale
 
         s = Scale.of(**scale)

@@ -199,10 +199,15 @@ def train_arguments(settings: dict) -> tuple[list[str], dict]:
 
     f = dict(settings["features"])
     realisation = settings["realisation"]
-    args = ["--realisation", realisation, "--task", settings["task"],
+    scale = settings.get("device")  # a device or router model's physical scale
+    named = "device" if scale and realisation == "mass-spring" else realisation
+    args = ["--realisation", named, "--task", settings["task"],
             "--protocol", str(settings.get("protocol")), "--class-weights",
             "balanced" if settings.get("class_weight") else "none",
             "--seed", str(settings.get("seed", 0))]
+    if scale:
+        args += ["--spl", f"{scale['spl']:g}", "--area", f"{scale['area']:g}",
+                 "--temp", f"{scale['temp']:g}", "--device-mass", f"{scale['device_mass']:g}"]
     if realisation == "baseline":
         return args, {}
     if realisation == "router":
@@ -242,10 +247,36 @@ def _massspring_arguments(settings: dict, f: dict, size: dict,
         args += ["--stage-stiffness", f"{factor:g}"]
         given = stage_scaled(given, factor)
     args += ["--epsilon", f"{settings['transfer']['epsilon']:g}"]
+    heads, unsaid = _design_arguments(settings)
+    args += heads
     tolerance = settings.get("integration", {}).get("features", {}).get("tolerance")
     args += ["--paper-steps"] if tolerance is None else ["--tolerance", f"{tolerance:g}"]
     chosen = ("method", "substeps")  # chosen by the integration, not given
-    return args, {k: v for k, v in _differences(f, given.to_dict()).items() if k not in chosen}
+    rest = {k: v for k, v in _differences(f, given.to_dict()).items() if k not in chosen}
+    return args, {**rest, **unsaid}
+
+
+def _design_arguments(settings: dict) -> tuple[list[str], dict]:
+    """(the head options that rebuild the recorded design where `train` would not choose it
+    by itself (a device model: summing heads; else `transfer.default_design` of the
+    epsilon), {"design": ...} where no option gives it: unbuffered zero-mode heads at an
+    epsilon whose default is buffered)."""
+    from springc.kws.training import transfer
+
+    t = settings["transfer"]
+    design = transfer.Design.from_dict(t.get("design"))
+    default = (transfer.Design("summing") if settings.get("device")
+               else transfer.default_design(float(t["epsilon"])))
+    if "design" not in t or design == default:
+        return [], {}
+    if design.heads == "summing":
+        return ["--heads", "summing"], {}
+    if design.buffer is None and default.buffer is not None:
+        return [], {"design": t["design"]}
+    args = ["--heads", "zero-mode", "--mvm-stiffness", f"{design.mvm_stiffness:g}"]
+    if design.buffer is not None:
+        args += ["--buffer", f"{design.buffer.kb:g}", f"{design.buffer.kg:g}"]
+    return args, {}
 
 
 def _differences(stored: dict, given: dict) -> dict:

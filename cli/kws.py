@@ -195,9 +195,10 @@ def eval_cmd(model_dir, data, realisation, protocol, as_json, jobs, no_cache, sc
                       mass=mass, spl=spl, area=area, seed=seed, clips=clips,
                       device_mass=device_mass, trim=trim,
                       progress=lambda s: click.echo(s, err=True))
+    # the scale the study ran at: what was given, else what a device or router model recorded
     which = None if budget else device.study(
         devices, spread, spread_kind, stage, seed, temp,
-        report.get("mass", mass), spl, area)
+        report.get("mass", mass), report.get("spl", spl), report.get("area", area))
     click.echo(_eval_text(report, which, budget, as_json))
 
 

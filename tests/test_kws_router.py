@@ -76,6 +76,46 @@ def test_at_physical_scale_without_noise_the_readouts_convert_back():
                                rev.readouts(net, x, 3)["E"], rtol=1e-9)
 
 
+def test_in_silence_each_readout_dissipates_its_equipartition_share():
+    """A router's dark offsets (`dark_offsets`: what each readout dissipates with no sound, at
+    300 K) against equilibrium statistics: every velocity has variance k_B T / m
+    (Maxwell-Boltzmann, whatever the springs), so a readout dashpot b to ground from a mass m
+    dissipates b k_B T / m on average, for the clips' whole simulated time (they start at
+    rest; the filters' damping, alpha >= 3000 rad/s, brings them to equilibrium within a
+    millisecond of the 250 ms). The simulated force is white only up to its step h (a draw
+    held over each substep, `springc.sim.thermal`): a mass damped at rate alpha then reaches
+    k_B T / m (1 - alpha h / 3) to first order, alpha h / 3 up to 8% here. Bound: that deficit
+    for the most damped mass a readout reads, plus four standard errors of the mean over the
+    silent clips, measured from the clips themselves."""
+    from springc.sim.thermal import K_B
+
+    w = rt.router_weights(np.random.default_rng(4).normal(size=(3, SMALL.bins)))
+    phys = dv.Physical(temp=300.0, mass=1e-10, spl=60.0, area=1e-6)
+    pnet, _ = dv.physical_network(rt.router_network(SMALL, w), phys)
+    samples = 3200
+    seconds = samples / rt.INPUT_RATE + rt.RING_OUT
+    dark = rev.dark_offsets(pnet, 3, samples, phys.temp, seed=5)
+    clips = rev.readouts(pnet, np.zeros((rev.DARK_CLIPS, samples)), 3, temp=phys.temp,
+                         seed=5 + rev.DARK_SEED)["E"]
+    np.testing.assert_array_equal(dark, clips.mean(axis=0))
+    mass, d = pnet.mass(), pnet.dashpots
+    damping = pnet.local_damping().copy()
+    np.add.at(damping, d.i, d.b)  # every readout dashpot runs to ground
+    alpha = damping / mass
+    h = 1 / rt.INPUT_RATE / rt.SUBSTEPS
+    want, deficit = np.zeros(3), np.zeros(3)
+    for name, i, j, b in zip(d.names, d.i, d.j, d.b):
+        found = rt.READOUT.match(name)
+        if found:
+            r = int(found.group(1))
+            assert j < 0  # to ground
+            want[r] += b * K_B * phys.temp / mass[i] * seconds
+            deficit[r] = max(deficit[r], alpha[i] * h / 3)
+    assert (want > 0).all() and deficit.max() < 0.1
+    sem = clips.std(axis=0, ddof=1) / np.sqrt(rev.DARK_CLIPS)
+    assert np.all(np.abs(dark - want) < deficit * want + 4 * sem), (dark / want, deficit)
+
+
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
     """A 4-bin router trained on the tiny corpus of chirps and tones, built for a 1e-10 kg
@@ -122,6 +162,25 @@ def test_a_router_population_at_no_spread_is_its_nominal_design(trained):
     report = json.loads(out.stdout)  # progress goes to stderr
     assert [d["accuracy"] for d in report["devices"]] == [report["nominal"]] * 2
     assert [d["decision_error"] for d in report["devices"]] == [0.0, 0.0]
+
+
+def test_thermal_noise_reports_the_decision_with_dark_offsets_subtracted(trained):
+    """`--temp` on a router model (at the scale it recorded): the accuracy with noise, and
+    beside it the calibrated one (each readout's mean on silent clips subtracted), both
+    printed; the offsets are positive energies, one per readout."""
+    _, model = trained
+    out = CliRunner().invoke(main, ["eval", str(model), "--temp", "300", "--clips", "8",
+                                    "--json"])
+    assert out.exit_code == 0, out.output
+    report = json.loads(out.stdout)
+    cal = report["calibrated"]
+    assert cal["dark_clips"] == rev.DARK_CLIPS and 0 <= cal["accuracy"] <= 1
+    classes = json.loads((model / "report.json").read_text())["classes"]
+    assert len(cal["offsets"]) == len(classes) and min(cal["offsets"]) > 0
+    assert report["device_mass"] == pytest.approx(1e-10, rel=1e-12)  # as recorded
+    text = dv.physical_lines(report, dv.Physical(temp=300.0, mass=report["mass"], spl=70.0,
+                                                 area=1e-6))
+    assert f"silent clips subtracted: accuracy {100 * cal['accuracy']:.2f}%" in text[-1]
 
 
 def test_the_router_refuses_what_it_cannot_be(trained, tmp_path):

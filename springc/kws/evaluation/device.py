@@ -644,4 +644,14 @@ def physical_lines(report: dict, phys: Physical) -> list[str]:
                    f"  SNR of {of}: median {snr['median']:.1f} dB over them, worst "
                    f"{snr['worst']:.1f} dB, pooled {snr['pooled']:.1f} dB",
                    f"  decision error (median |noisy - noiseless| / median |noiseless|) "
-                   f"{report['decision_error']:.3g}"]
+                   f"{report['decision_error']:.3g}", *_calibrated_lines(report)]
+
+
+def _calibrated_lines(report: dict) -> list[str]:
+    """A router's decision with its readouts' thermal offsets subtracted, if measured."""
+    cal = report.get("calibrated")
+    if not cal:
+        return []
+    return [f"  calibrated: each readout's mean dissipation on {cal['dark_clips']} silent "
+            f"clips subtracted: accuracy {100 * cal['accuracy']:.2f}%, decision error "
+            f"{cal['decision_error']:.3g}"]

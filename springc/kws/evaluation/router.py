@@ -20,6 +20,10 @@ from springc.kws.training.svm import LinearModel
 from springc.lang.ir import FlatNetlist
 
 BATCH = 256  # clips a kernel call: the readouts' reductions only, so memory stays small
+# silent clips a fabricated router is measured on for its readouts' thermal offsets: the
+# mean a readout dissipates with no sound, which the calibrated decision subtracts
+DARK_CLIPS = 8
+DARK_SEED = 1 << 40  # the silent clips' thermal draws: apart from every test clip's
 
 
 def router_net(model) -> FlatNetlist:
@@ -117,17 +121,34 @@ def physical(model, signals: np.ndarray, y: np.ndarray, phys: dv.Physical) -> di
     clean = readouts(net, signals, len(classes))["E"]
     base = {**dv.physical_report(phys, lam, net, len(y), _accuracy(classes, clean, y)),
             "snr_of": "the readouts"}
+    units = phys.mass * lam**2  # energies scale as mu lambda^2 (`springc.design.scale`)
     try:
-        # energies scale as mu lambda^2 (`springc.design.scale`)
         noisy = readouts(pnet, signals, len(classes), temp=phys.temp,
-                         seed=phys.seed)["E"] / (
-            phys.mass * lam**2)
+                         seed=phys.seed)["E"] / units
+        dark = dark_offsets(pnet, len(classes), signals.shape[1], phys.temp,
+                            phys.seed) / units
     except DivergedRuns as err:
         return {"accuracy": 0.0, "diverged": err.message, "phi_snr_db": None,
                 "decision_error": float("inf"), **base}
     return {"accuracy": _accuracy(classes, noisy, y), "diverged": None,
             "phi_snr_db": dv.phi_snr_db(clean, noisy),
-            "decision_error": dv.decision_error(noisy, clean), **base}
+            "decision_error": dv.decision_error(noisy, clean),
+            "calibrated": {"accuracy": _accuracy(classes, noisy - dark, y),
+                           "decision_error": dv.decision_error(noisy - dark, clean),
+                           "dark_clips": DARK_CLIPS, "offsets": dark.tolist()}, **base}
+
+
+def dark_offsets(pnet: FlatNetlist, rows: int, samples: int, temp: float,
+                 seed: int = 0) -> np.ndarray:
+    """Each readout's mean energy (rows,) over `DARK_CLIPS` silent clips of `samples`
+    samples with thermal noise at `temp` kelvin: what a fabricated router dissipates with no
+    sound, measured once per device (a readout's offset, as its reading circuit would
+    subtract it)."""
+    silent = np.zeros((DARK_CLIPS, samples))
+    from springc.lang.draws import MAX_SEED
+
+    return readouts(pnet, silent, rows, temp=temp,
+                    seed=(seed + DARK_SEED) % MAX_SEED)["E"].mean(axis=0)
 
 
 def population(model, signals: np.ndarray, y: np.ndarray, devices: int,

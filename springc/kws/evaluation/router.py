@@ -144,9 +144,9 @@ def dark_offsets(pnet: FlatNetlist, rows: int, samples: int, temp: float,
     samples with thermal noise at `temp` kelvin: what a fabricated router dissipates with no
     sound, measured once per device (a readout's offset, as its reading circuit would
     subtract it)."""
-    silent = np.zeros((DARK_CLIPS, samples))
     from springc.lang.draws import MAX_SEED
 
+    silent = np.zeros((DARK_CLIPS, samples))
     return readouts(pnet, silent, rows, temp=temp,
                     seed=(seed + DARK_SEED) % MAX_SEED)["E"].mean(axis=0)
 

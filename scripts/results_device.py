@@ -107,7 +107,8 @@ def _noise(folder: Path, mass: float, args) -> dict:
     rep = springc.evaluate(folder, temp=300.0, device_mass=mass, spl=60.0, area=1e-6,
                            clips=args.clips)
     return {"device_mass": mass, "accuracy": rep["accuracy"], "noiseless": rep["noiseless"],
-            "decision_error": rep["decision_error"], "diverged": bool(rep.get("diverged"))}
+            "decision_error": rep["decision_error"], "diverged": bool(rep.get("diverged")),
+            "calibrated": (rep.get("calibrated") or {}).get("accuracy")}
 
 
 WORDS = "yes,no,up,down,left,right,on,off,stop,go,one,two,three,four"
@@ -347,7 +348,8 @@ def _router_options(ro: argparse.ArgumentParser, rp: argparse.ArgumentParser) ->
     ro.add_argument("--out", required=True)
     ro.add_argument("--bins", nargs="+", type=int, default=[16])
     ro.add_argument("--spreads", nargs="+", type=float, default=[1e-3, 1e-2, 3e-2])
-    ro.add_argument("--masses", nargs="+", type=float, default=[1e-8, 2e-9, 1e-10, 1e-12])
+    ro.add_argument("--masses", nargs="+", type=float,
+                    default=[1e-6, 1e-7, 1e-8, 2e-9, 1e-10, 1e-12])
     ro.add_argument("--devices", type=int, default=4)
     ro.add_argument("--clips", type=int, default=None)
     ro.add_argument("--budget", type=int, default=8)

@@ -14,15 +14,16 @@ COMMAND = ("python scripts/results_device.py router --data CORPUS --out DIR; "
 
 def router_rows(rows: dict) -> list[str]:
     """Per router: its network and ideal-readout accuracy, the readouts' share of the input
-    work and of the sound, each readout's k_B T, then each noise and spread study."""
+    work and of the sound, each readout's k_B T, then each noise study (calibrated for the
+    readouts' dark offsets in brackets, where measured) and spread study."""
     out = ["| router | network % (ideal %) | readouts of the work dB | readouts of the sound "
-           "dB | each readout k_B T | with noise %, by device mass | mean device %, by "
-           "spread |", "|---|---|---|---|---|---|---|"]
+           "dB | each readout k_B T | with noise % (calibrated %), by device mass | mean "
+           "device %, by spread |", "|---|---|---|---|---|---|---|"]
     for name, r in rows.items():
         b = r["budget"]
         each = b["stages"]["readouts"]["kt"] / b["readouts"]
-        noise = ", ".join(f"{100 * p['accuracy']:.1f} at {p['device_mass']:g} kg"
-                          for p in r.get("noise", []))
+        noise = ", ".join(f"{100 * p['accuracy']:.1f}{_calibrated(p)} at "
+                          f"{p['device_mass']:g} kg" for p in r.get("noise", []))
         spread = ", ".join(f"{100 * p['mean']:.1f} +- {100 * p['stderr']:.1f} at "
                            f"{p['spread']:g}" for p in r.get("spread", []))
         out.append(f"| {name} | {100 * r['accuracy']:.1f} ({100 * r['ideal']:.1f}) | "
@@ -32,9 +33,15 @@ def router_rows(rows: dict) -> list[str]:
     return out
 
 
+def _calibrated(point: dict) -> str:
+    cal = point.get("calibrated")
+    return f" ({100 * cal:.1f})" if cal is not None else ""
+
+
 def front_plot(routers: dict, squaring: dict, png: Path) -> Path:
     """Two panels: accuracy against the readouts' dB of the sound (the bound drawn), and
-    accuracy with thermal noise against device mass, for routers and squaring designs."""
+    accuracy with thermal noise against device mass, for routers and squaring designs (a
+    router's calibrated accuracy dashed, where measured)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -48,8 +55,14 @@ def front_plot(routers: dict, squaring: dict, png: Path) -> Path:
                         [100 * r["accuracy"]], marker=marker, label=label)
             noise = sorted(r.get("noise", []), key=lambda p: p["device_mass"])
             if noise:
-                ax2.plot([p["device_mass"] for p in noise],
-                         [100 * p["accuracy"] for p in noise], marker=marker, label=label)
+                line, = ax2.plot([p["device_mass"] for p in noise],
+                                 [100 * p["accuracy"] for p in noise], marker=marker,
+                                 label=label)
+            cal = [p for p in noise if p.get("calibrated") is not None]
+            if cal:  # the same devices, each readout's dark offset subtracted
+                ax2.plot([p["device_mass"] for p in cal], [100 * p["calibrated"] for p in cal],
+                         marker=marker, ls="--", color=line.get_color(),
+                         label=f"{label}, calibrated")
     bound = next(iter(routers.values()))["budget"]["bound_db"] if routers else 52.9
     ax1.axvline(-bound, color="k", lw=1)
     ax1.text(-bound, 50, f"bound -{bound:.1f} dB ", ha="right")

@@ -100,7 +100,8 @@ def test_in_silence_each_readout_dissipates_its_equipartition_share():
     np.testing.assert_array_equal(dark, clips.mean(axis=0))
     mass, d = pnet.mass(), pnet.dashpots
     damping = pnet.local_damping().copy()
-    np.add.at(damping, d.i, d.b)  # every readout dashpot runs to ground
+    assert (d.j < 0).all()  # a router's dashpots all run to ground from their i end
+    np.add.at(damping, d.i, d.b)
     alpha = damping / mass
     h = 1 / rt.INPUT_RATE / rt.SUBSTEPS
     want, deficit = np.zeros(3), np.zeros(3)
@@ -108,7 +109,6 @@ def test_in_silence_each_readout_dissipates_its_equipartition_share():
         found = rt.READOUT.match(name)
         if found:
             r = int(found.group(1))
-            assert j < 0  # to ground
             want[r] += b * K_B * phys.temp / mass[i] * seconds
             deficit[r] = max(deficit[r], alpha[i] * h / 3)
     assert (want > 0).all() and deficit.max() < 0.1

@@ -1,6 +1,7 @@
 """The one description of the force terms (`springc.kernels.terms`): both renderings, the
-per-node sums and the shared kernel's element loops, evaluated as Python, give the
-accelerations of `springc.lang.physics` for a network with every term kind."""
+per-node sums and the shared kernel's element loops, and the adjoint's rendering of each
+kind's netlist form, evaluated as Python, give the accelerations of `springc.lang.physics`
+for a network with every term kind."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import string
 import numpy as np
 from reference_nets import every_kind
 
+from springc.grad import model, render
 from springc.kernels import terms
 from springc.lang import physics
 from springc.sim import marshal
@@ -87,3 +89,35 @@ def test_every_kind_reads_only_what_it_declares():
         for text in texts:
             fields = {f for _, f, _, _ in string.Formatter().parse(text) if f}
             assert fields <= known, (kind.name, fields - known)
+    for p in terms.ELEMENTS:  # the adjoint's descriptions
+        known = render.state_fields(p) | {f for f, _, _ in p.params} | {n for n, _ in p.temps}
+        for text in [t for _, t in p.force + p.temps] + [p.ground or ""]:
+            fields = {f for _, f, _, _ in string.Formatter().parse(text) if f}
+            assert fields <= known, (p.name, fields - known)
+
+
+def test_adjoint_descriptions_give_the_physics_forces():
+    """Every kernel kind carries its force in the netlist's coefficients (`Kind.physical`),
+    and those descriptions with the linear ones (`terms.ELEMENTS`, the adjoint's), rendered
+    by `springc.grad.render` and evaluated as Python on the gradient's model, give the
+    accelerations of physics."""
+    assert all(kind.physical in terms.ELEMENTS for kind in terms.KINDS)
+    net = every_kind()
+    md = model.build(net)
+    x, v, u, g = state(net)
+    f = -md.bn * v
+    for p in terms.ELEMENTS:
+        for e, i in enumerate(getattr(md, p.node_i).tolist()):
+            o = int(getattr(md, p.node_j)[e]) if p.node_j else -1
+            scope = {"xi": x[i], "vi": v[i], "xj": x[o], "vj": v[o]}
+            scope |= {"g": g[e]} if p.signal else {}
+            scope |= {"u": u[int(getattr(md, p.channel)[e])]} if p.channel else {}
+            scope |= {field: float(getattr(md, array)[e]) for field, array, _ in p.params}
+            names = {field: field for field in scope}
+            code = render.forward(p, p.ground is not None and o < 0, names, "", "")
+            for line in code.head + code.lane:
+                exec(line, {}, scope)  # noqa: S102
+            for end, term in code.force.items():
+                f[i if end == "i" else o] += eval("0.0 " + term, {}, scope)  # noqa: S307
+    want = reference(net, x, v, u, g)
+    np.testing.assert_allclose(f * md.minv, want, rtol=1e-12, atol=1e-12 * np.abs(want).max())

@@ -12,8 +12,10 @@ Memory is O((nsteps / every + every) * stages * dofs * lanes): `every` ~ sqrt(ns
 O(sqrt(nsteps)); `every` = nsteps stores one segment and recomputes nothing.
 
 The forces are plain loops over each term kind's arrays (`springc.grad.model.Model`) with
-the lanes innermost; accelerations are forces times the inverse mass. Gradients go to the
-blocks of `model.BLOCKS` (raw coefficients, not over mass), one column per lane.
+the lanes innermost, rendered from the element kinds with their transposes
+(`springc.grad.render.loop_source`); accelerations are forces times the inverse mass.
+Gradients go to the blocks of `model.BLOCKS` (raw coefficients, not over mass), one column
+per lane.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from springc.grad.model import B, BB, CA, CK, FC, FI, K, L, M, PC, QA, QG, V0, X0
+from springc.grad.model import B, FC, FI, M, PC, V0, X0
 
 # lanes per chunk: 0 here (read from the arrays); `springc.grad.lanes` compiles a copy of this
 # module with it set, so that the lane loops have a constant count (unrolled, vectorised)
@@ -32,55 +34,26 @@ JIT = dict(cache=True, nogil=True, error_model="numpy", fastmath={"contract"})
 INLINE = dict(JIT, inline="always")
 
 
+# `forces` and `forces_vjp`, which call these for the node terms and the monomials, are
+# rendered from the element kinds (`springc.grad.render.loop_source`) and appended to this
+# module's text by `springc.grad.lanes`.
+
+
 @njit(**INLINE)
-def forces(md, x, v, uc, gs, f):
-    """Forces (not over mass) on every node at positions x, velocities v (dofs, lanes),
-    inputs uc (channel, lane) and shared source values gs (per shared force)."""
-    nl = LANES or x.shape[1]
+def _own_forces(md, x, v, f):
+    """Each node's own damping force, the first term of its sum."""
     for i in range(x.shape[0]):
-        for b in range(nl):
+        for b in range(LANES or x.shape[1]):
             f[i, b] = -md.bn[i] * v[i, b]
-    for e in range(md.k_node.shape[0]):
-        i, k = md.k_node[e], md.k_k[e]
-        for b in range(nl):
-            f[i, b] -= k * x[i, b]
-    for e in range(md.d_node.shape[0]):
-        i, c = md.d_node[e], md.d_l[e]
-        for b in range(nl):
-            f[i, b] -= c * x[i, b] * x[i, b] * x[i, b]
-    for e in range(md.c_i.shape[0]):
-        i, j, a, k = md.c_i[e], md.c_j[e], md.c_a[e], md.c_k[e]
-        ka = k / a
-        for b in range(nl):
-            r = x[i, b] - a * x[j, b]
-            f[i, b] -= ka * r
-            f[j, b] += k * r
-    for e in range(md.q_i.shape[0]):
-        i, j, a, g = md.q_i[e], md.q_j[e], md.q_a[e], md.q_g[e]
-        ga = 2.0 * g / a
-        for b in range(nl):
-            s = x[i, b] * x[i, b] - a * x[j, b]
-            f[i, b] -= ga * x[i, b] * s
-            f[j, b] += g * s
-    for e in range(md.b_i.shape[0]):
-        i, j, c = md.b_i[e], md.b_j[e], md.b_b[e]
-        for b in range(nl):
-            dv = v[i, b] - (v[j, b] if j >= 0 else 0.0)
-            f[i, b] -= c * dv
-            if j >= 0:
-                f[j, b] += c * dv
+
+
+@njit(**INLINE)
+def _monomial_forces(md, x, f):
+    """-c d/dz_k of each monomial on each factor's node."""
     for e in range(md.p_c.shape[0]):
         for k in range(md.p_ptr[e], md.p_ptr[e + 1]):
-            for b in range(nl):
+            for b in range(LANES or x.shape[1]):
                 f[md.p_var[k], b] -= md.p_c[e] * _dmono(md.p_ptr, md.p_var, md.p_exp, x, e, k, b)
-    for e in range(md.fi_node.shape[0]):
-        i, c, ch = md.fi_node[e], md.fi_gain[e], md.fi_chan[e]
-        for b in range(nl):
-            f[i, b] += c * uc[ch, b]
-    for e in range(md.fc_node.shape[0]):
-        i, c = md.fc_node[e], md.fc_gain[e] * gs[e]
-        for b in range(nl):
-            f[i, b] += c
 
 
 @njit(**INLINE)
@@ -116,81 +89,23 @@ def _ddmono(ptr, var, exp, x, e, k, m, b):
 
 
 @njit(**INLINE)
-def forces_vjp(md, x, v, uc, gs, fb, xb, vb, gr):
-    """Given fb, the adjoint of `forces`' output, add its transpose into xb, vb (adjoints of
-    x and v) and into the coefficient gradient gr (coefficient, lane)."""
-    off, nl = md.off, LANES or x.shape[1]
+def _own_vjp(md, x, v, fb, vb, gr):
+    """The transpose of `_own_forces`."""
+    off = md.off
     for i in range(x.shape[0]):
         c = md.bn[i]
-        for b in range(nl):
+        for b in range(LANES or x.shape[1]):
             vb[i, b] -= c * fb[i, b]
             gr[off[B] + i, b] -= v[i, b] * fb[i, b]
-    for e in range(md.k_node.shape[0]):
-        i, k = md.k_node[e], md.k_k[e]
-        for b in range(nl):
-            xb[i, b] -= k * fb[i, b]
-            gr[off[K] + e, b] -= x[i, b] * fb[i, b]
-    for e in range(md.d_node.shape[0]):
-        i, c = md.d_node[e], md.d_l[e]
-        for b in range(nl):
-            xx = x[i, b] * x[i, b]
-            xb[i, b] -= 3.0 * c * xx * fb[i, b]
-            gr[off[L] + e, b] -= xx * x[i, b] * fb[i, b]
-    # the helpers take arrays, not md: a tuple of arrays passed per element is copied
-    for e in range(md.c_i.shape[0]):
-        _coupling_vjp(md.c_i[e], md.c_j[e], md.c_a[e], md.c_k[e], off[CK] + e, off[CA] + e,
-                      x, fb, xb, gr)
-    for e in range(md.q_i.shape[0]):
-        _quad_vjp(md.q_i[e], md.q_j[e], md.q_a[e], md.q_g[e], off[QG] + e, off[QA] + e,
-                  x, fb, xb, gr)
-    for e in range(md.b_i.shape[0]):
-        i, j, c = md.b_i[e], md.b_j[e], md.b_b[e]
-        for b in range(nl):
-            dv = v[i, b] - (v[j, b] if j >= 0 else 0.0)
-            fj = fb[j, b] if j >= 0 else 0.0
-            dvb = c * (fj - fb[i, b])
-            vb[i, b] += dvb
-            if j >= 0:
-                vb[j, b] -= dvb
-            gr[off[BB] + e, b] += dv * (fj - fb[i, b])
+
+
+@njit(**INLINE)
+def _monomials_vjp(md, x, fb, xb, gr):
+    """The transpose of `_monomial_forces` (the helper takes arrays, not md: a tuple of
+    arrays passed per element is copied)."""
     for e in range(md.p_c.shape[0]):
         _monomial_vjp(md.p_c[e], md.p_ptr, md.p_var, md.p_exp, md.off[PC] + e, x, e, fb, xb,
                       gr)
-    for e in range(md.fi_node.shape[0]):
-        i, ch = md.fi_node[e], md.fi_chan[e]
-        for b in range(nl):
-            gr[off[FI] + e, b] += uc[ch, b] * fb[i, b]
-    for e in range(md.fc_node.shape[0]):
-        i, g = md.fc_node[e], gs[e]
-        for b in range(nl):
-            gr[off[FC] + e, b] += g * fb[i, b]
-
-
-@njit(**INLINE)
-def _coupling_vjp(i, j, a, k, ck, ca, x, fb, xb, gr):
-    """C: r = x_i - a x_j, f_i = -(k/a) r, f_j = k r (gradient rows ck, ca)."""
-    ka, ia, kaa = k / a, 1.0 / a, k / (a * a)  # out of the lane loop: divisions are slow
-    for b in range(LANES or x.shape[1]):
-        r = x[i, b] - a * x[j, b]
-        rb = k * fb[j, b] - ka * fb[i, b]
-        xb[i, b] += rb
-        xb[j, b] -= a * rb
-        gr[ck, b] += r * (fb[j, b] - ia * fb[i, b])
-        gr[ca, b] += kaa * r * fb[i, b] - x[j, b] * rb
-
-
-@njit(**INLINE)
-def _quad_vjp(i, j, a, g, qg, qa, x, fb, xb, gr):
-    """Q: s = x_i^2 - a x_j, f_i = -(2g/a) x_i s, f_j = g s (gradient rows qg, qa)."""
-    ga, ia, gaa = 2.0 * g / a, 2.0 / a, 2.0 * g / (a * a)
-    for b in range(LANES or x.shape[1]):
-        xi = x[i, b]
-        s = xi * xi - a * x[j, b]
-        sb = g * fb[j, b] - ga * xi * fb[i, b]
-        xb[i, b] += 2.0 * xi * sb - ga * s * fb[i, b]
-        xb[j, b] -= a * sb
-        gr[qg, b] += s * (fb[j, b] - ia * xi * fb[i, b])
-        gr[qa, b] += gaa * xi * s * fb[i, b] - x[j, b] * sb
 
 
 @njit(**INLINE)
@@ -234,7 +149,7 @@ def _stages(md, ta, tc, h, x, v, u, gtab, step, substeps, X, V, KV, UC, f):
                         X[s, i, b] += ha * V[j, i, b]
                         V[s, i, b] += ha * KV[j, i, b]
         _interp(u, step, substeps, tc[s], UC[s])
-        forces(md, X[s], V[s], UC[s], gtab[step, s], f)
+        forces(md, X[s], V[s], UC[s], gtab[step, s], f)  # noqa: F821 (rendered)
         for i in range(n):
             for b in range(nl):
                 KV[s, i, b] = f[i, b] * md.minv[i]
@@ -386,7 +301,7 @@ def _step_vjp(md, ta, tb, h, step, gtab, X, V, KV, UC, xb, vb, VB, KB, XB, fb, g
                 fb[i, b] = KB[s, i, b] * mi
                 gr[md.off[M] + i, b] -= KB[s, i, b] * KV[s, i, b] * mi
                 XB[i, b] = 0.0
-        forces_vjp(md, X[s], V[s], UC[s], gtab[step, s], fb, XB, VB[s], gr)
+        forces_vjp(md, X[s], V[s], UC[s], gtab[step, s], fb, XB, VB[s], gr)  # noqa: F821
         for i in range(n):
             for b in range(nl):
                 xb[i, b] += XB[i, b]

@@ -142,7 +142,8 @@ def coefficient_gradient(checked: CheckedNetlist, of: Sequence[str], inputs=None
     start = time.perf_counter()
     vals, coefs = job.run(w)
     _require_finite(vals, names)
-    info = dict(settings=st, every=job.every, lanes=job.lanes, wall_s=time.perf_counter() - start)
+    info = dict(settings=st, every=job.every, lanes=job.lanes, written=job.written,
+                wall_s=time.perf_counter() - start)
     return CoefficientGradient(vals, coefs, names, info)
 
 

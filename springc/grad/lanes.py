@@ -22,6 +22,7 @@ import threading
 from pathlib import Path
 from types import ModuleType
 
+from springc.grad import render
 from springc.kernels.loader import cache_dir, compiling, on_own_thread
 
 CHOICES = (8, 4, 2, 1)  # lane counts compiled (each is a compile of its own)
@@ -74,13 +75,15 @@ def _import(text: str, name: str) -> ModuleType:
 
 
 def source(lanes: int) -> str:
-    """The adjoint module's text with `LANES = lanes` and every lane loop unrolled."""
+    """The adjoint module's text with `LANES = lanes`, its force functions rendered from the
+    element kinds (`render.loop_source`) and every lane loop unrolled."""
     # its text, not the module: importing it would import numba and compile nothing of use
     text = Path(importlib.util.find_spec("springc.grad.adjoint").origin).read_text()
     marker = "\nLANES = 0\n"
     if marker not in text:
         raise RuntimeError("springc.grad.adjoint has lost its `LANES = 0` line")
-    tree = ast.parse(text.replace(marker, f"\nLANES = {lanes}\n", 1))
+    text = text.replace(marker, f"\nLANES = {lanes}\n", 1) + render.loop_source()
+    tree = ast.parse(text)
     tree = ast.fix_missing_locations(_Unroll(lanes).visit(tree))
     return f"# springc.grad.adjoint for {lanes} lane(s), generated: do not edit\n" + \
         ast.unparse(tree) + "\n"

@@ -29,8 +29,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from springc.grad.model import Model
+from springc.grad import render
+from springc.grad.model import BLOCKS, Model
 from springc.kernels.integrators import Tableau
+from springc.kernels.terms import COMMON, ELEMENTS, INPUT_FORCE, Physical
 from springc.lang.ir import FlatNetlist
 
 NODES_MAX = 48  # as the written-out simulator kernels (`springc.kernels.terms.NODES_MAX`)
@@ -57,38 +59,49 @@ class Structure:
     the lane count."""
 
     n: int
-    springs: tuple[int, ...]
-    duffings: tuple[int, ...]
-    couplings: tuple[tuple[int, int], ...]
-    quads: tuple[tuple[int, int], ...]
-    dashpots: tuple[tuple[int, int], ...]
-    inputs: tuple[tuple[int, int], ...]  # (node, channel)
-    commons: tuple[int, ...]
+    # per kind of `terms.ELEMENTS`, each element's (i, other): its second node (< 0: the
+    # ground; -1 for one-node kinds) or, for an input force, its channel
+    elements: tuple[tuple[tuple[int, int], ...], ...]
     dampers: tuple[tuple[int, int], ...]  # the reductions' damper rows (i, j)
     a: tuple[tuple[float, ...], ...]
     b: tuple[float, ...]
     c: tuple[float, ...]
     lanes: int
 
+    @property
+    def inputs(self) -> tuple[tuple[int, int], ...]:
+        """The input forces' (node, channel)."""
+        return self.elements[ELEMENTS.index(INPUT_FORCE)]
+
+    @property
+    def commons(self) -> tuple[int, ...]:
+        """The shared forces' nodes."""
+        return tuple(i for i, _ in self.elements[ELEMENTS.index(COMMON.physical)])
+
 
 def structure(md: Model, ds: np.ndarray, tab: Tableau, lanes: int) -> Structure:
     """The structure of the kernel model `md` with damper rows `ds` (i, j, b)."""
-    t = lambda a: tuple(int(v) for v in a)  # noqa: E731
-    pairs = lambda i, j: tuple(zip(t(i), t(j)))  # noqa: E731
     a = tuple(tuple(float(tab.a[s][j]) if j < len(tab.a[s]) else 0.0 for j in range(s))
               for s in range(tab.stages))
     return Structure(
-        len(md.minv), t(md.k_node), t(md.d_node), pairs(md.c_i, md.c_j), pairs(md.q_i, md.q_j),
-        pairs(md.b_i, md.b_j), pairs(md.fi_node, md.fi_chan), t(md.fc_node),
+        len(md.minv), tuple(_pairs(md, p) for p in ELEMENTS),
         tuple((int(r[0]), int(r[1])) for r in ds), a, tuple(float(v) for v in tab.b),
         tuple(float(v) for v in tab.c), lanes)
+
+
+def _pairs(md: Model, p: Physical) -> tuple[tuple[int, int], ...]:
+    first = getattr(md, p.node_i)
+    other = getattr(md, p.node_j or p.channel or p.node_i)
+    if not (p.node_j or p.channel):
+        other = np.full(len(first), -1)
+    return tuple((int(i), int(j)) for i, j in zip(first, other))
 
 
 def coefficients(md: Model, ds: np.ndarray) -> np.ndarray:
     """The kernels' coefficient vector: inverse masses, local damping, then each kind's
     coefficients, then the damper rows' coefficients (the order of `_layout`)."""
-    parts = [md.minv, md.bn, md.k_k, md.d_l, md.c_k, md.c_a, md.q_g, md.q_a, md.b_b,
-             md.fi_gain, md.fc_gain, ds[:, 2] if len(ds) else np.zeros(0)]
+    parts = [md.minv, md.bn] + [getattr(md, array) for p in ELEMENTS for _, array, _ in p.params]
+    parts.append(ds[:, 2] if len(ds) else np.zeros(0))
     return np.ascontiguousarray(np.concatenate(parts), np.float64)
 
 
@@ -133,21 +146,22 @@ def source(st: Structure) -> str:
 
 
 def _layout(st: Structure) -> dict[str, int]:
-    """Offsets of each block in the coefficient vector and in the gradient rows (which
-    follow `springc.grad.model.BLOCKS`: m, b, x0, v0 per node, then per element)."""
+    """Offsets of each block in the coefficient vector (inverse masses, local damping, each
+    kind's coefficients `{field}_{kind}`, the damper rows') and in the gradient rows (which
+    follow `springc.grad.model.BLOCKS` as `g{block}`: m, b, x0, v0 per node, then per
+    element)."""
     n = st.n
-    sizes = [("minv", n), ("bn", n), ("ks", len(st.springs)), ("l", len(st.duffings)),
-             ("ck", len(st.couplings)), ("ca", len(st.couplings)), ("qg", len(st.quads)),
-             ("qa", len(st.quads)), ("bb", len(st.dashpots)), ("fi", len(st.inputs)),
-             ("fc", len(st.commons)), ("dc", len(st.dampers))]
+    sizes = [("minv", n), ("bn", n)]
+    sizes += [(f"{f}_{p.name}", len(els)) for p, els in zip(ELEMENTS, st.elements)
+              for f, _, _ in p.params]
+    sizes.append(("dc", len(st.dampers)))
     out, at = {}, 0
     for name, size in sizes:
         out[name] = at
         at += size
-    grads = [("gm", n), ("gb", n), ("gx0", n), ("gv0", n), ("gk", len(st.springs)),
-             ("gl", len(st.duffings)), ("gck", len(st.couplings)), ("gca", len(st.couplings)),
-             ("gqg", len(st.quads)), ("gqa", len(st.quads)), ("gbb", len(st.dashpots)),
-             ("gpc", 0), ("gfi", len(st.inputs)), ("gfc", len(st.commons))]
+    per_block = {b: len(els) for p, els in zip(ELEMENTS, st.elements) for _, _, b in p.params}
+    grads = [(f"g{b}", n) for b in BLOCKS[:4]] + [(f"g{b}", per_block.get(b, 0))
+                                                  for b in BLOCKS[4:]]
     at = 2 * n  # the adjoint rows: xb, vb, then the gradient, then the damper rows'
     for name, size in grads:
         out[name] = at
@@ -156,31 +170,58 @@ def _layout(st: Structure) -> dict[str, int]:
     return out
 
 
-def _emit_loads(c: _Code, st: Structure) -> None:
-    """Every coefficient into a named scalar, and the per-element constants."""
+def _each(st: Structure):
+    """(kind, element, i, other, at the ground) of every element, in `ELEMENTS` order."""
+    for p, elements in zip(ELEMENTS, st.elements):
+        for e, (i, o) in enumerate(elements):
+            yield p, e, i, o, p.ground is not None and o < 0
+
+
+def _elem(p: Physical, e: int) -> str:
+    """The suffix of element e's own scalars: its coefficients, its per-element values."""
+    return f"_{p.name}{e}"
+
+
+def _lane(p: Physical, s: int, e: int) -> str:
+    """The suffix of element e's values at stage s."""
+    return f"{s}_{p.name}{e}"
+
+
+def _state(p: Physical, s: int, e: int, i: int, o: int) -> dict[str, str]:
+    """The scalars element e reads at stage s (`render.state_fields`)."""
+    out = {"xi": _x(s, i), "vi": _v(s, i)}
+    if p.node_j and o >= 0:
+        out |= {"xj": _x(s, o), "vj": _v(s, o)}
+    if p.channel:
+        out["u"] = f"uc{s}_{o}"
+    if p.signal:
+        out["g"] = f"gv{s}_{e}"
+    return out
+
+
+def _emit_loads(c: _Code, st: Structure, reverse: bool = False) -> None:
+    """Every coefficient into a named scalar, the per-element values of the forces and, for
+    the reverse sweep, of their derivatives (divisions out of the loops)."""
     lay = _layout(st)
-    for name, count in (("minv", st.n), ("bn", st.n), ("ks", len(st.springs)),
-                        ("l", len(st.duffings)), ("ck", len(st.couplings)),
-                        ("ca", len(st.couplings)), ("qg", len(st.quads)), ("qa", len(st.quads)),
-                        ("bb", len(st.dashpots)), ("fi", len(st.inputs)),
-                        ("fc", len(st.commons)), ("dc", len(st.dampers))):
+    for name, count in (("minv", st.n), ("bn", st.n), ("dc", len(st.dampers))):
         for e in range(count):
             c(f"{name}{e} = cf[{lay[name] + e}]")
-    for e in range(len(st.couplings)):  # divisions out of the loops
-        c(f"cka{e} = ck{e} / ca{e}")
-        c(f"cia{e} = 1.0 / ca{e}")
-        c(f"ckaa{e} = ck{e} / (ca{e} * ca{e})")
-    for e in range(len(st.quads)):
-        c(f"qga{e} = 2.0 * qg{e} / qa{e}")
-        c(f"qia{e} = 2.0 / qa{e}")
-        c(f"qgaa{e} = 2.0 * qg{e} / (qa{e} * qa{e})")
+    for p, e, i, o, ground in _each(st):
+        for f, _, _ in p.params:
+            c(f"{f}{_elem(p, e)} = cf[{lay[f'{f}_{p.name}'] + e}]")
+        args = (p, ground, _state(p, 0, e, i, o), _elem(p, e), _lane(p, 0, e))
+        for line in render.forward(*args).head:
+            c(line)
+        if reverse:
+            for line in render.backward(*args).head:
+                c(line)
     for s in range(len(st.b)):
         c(f"w{s} = h * {st.b[s]!r}")
         for j, a in enumerate(st.a[s]):
             if a != 0.0:
                 c(f"ha{s}_{j} = h * {a!r}")
         for e in range(len(st.inputs)):
-            c(f"wfi{s}_{e} = w{s} * fi{e}")
+            c(f"wfi{s}_{e} = w{s} * gain{_elem(INPUT_FORCE, e)}")
         for d in range(len(st.dampers)):
             c(f"wdc{s}_{d} = w{s} * dc{d}")
 
@@ -216,7 +257,7 @@ def _emit_step_inputs(c: _Code, st: Structure) -> None:
                   f"+ fr * u[{ch}, ip + 1, b]")
         for e in range(len(st.commons)):
             c(f"gv{s}_{e} = gtab[step, {s}, {e}]")
-            c(f"wg{s}_{e} = w{s} * fc{e} * gv{s}_{e}")
+            c(f"wg{s}_{e} = w{s} * gain{_elem(COMMON.physical, e)} * gv{s}_{e}")
 
 
 def _emit_stages(c: _Code, st: Structure) -> None:
@@ -231,25 +272,10 @@ def _emit_stages(c: _Code, st: Structure) -> None:
                 c(f"V{s}_{i} = v{i} {' '.join(ks)}")
         _emit_temps(c, st, s)
         forces: list[list[str]] = [[f"- bn{i} * {_v(s, i)}"] for i in range(st.n)]
-        for e, i in enumerate(st.springs):
-            forces[i].append(f"- ks{e} * {_x(s, i)}")
-        for e, i in enumerate(st.duffings):
-            xi = _x(s, i)
-            forces[i].append(f"- l{e} * ({xi} * {xi} * {xi})")
-        for e, (i, j) in enumerate(st.couplings):
-            forces[i].append(f"- cka{e} * r{s}_{e}")
-            forces[j].append(f"+ ck{e} * r{s}_{e}")
-        for e, (i, j) in enumerate(st.quads):
-            forces[i].append(f"- qga{e} * {_x(s, i)} * q{s}_{e}")
-            forces[j].append(f"+ qg{e} * q{s}_{e}")
-        for e, (i, j) in enumerate(st.dashpots):
-            forces[i].append(f"- bb{e} * dv{s}_{e}")
-            if j >= 0:
-                forces[j].append(f"+ bb{e} * dv{s}_{e}")
-        for e, (i, ch) in enumerate(st.inputs):
-            forces[i].append(f"+ fi{e} * uc{s}_{ch}")
-        for e, i in enumerate(st.commons):
-            forces[i].append(f"+ fc{e} * gv{s}_{e}")
+        for p, e, i, o, ground in _each(st):
+            code = render.forward(p, ground, _state(p, s, e, i, o), _elem(p, e), _lane(p, s, e))
+            for end, term in code.force.items():
+                forces[i if end == "i" else o].append(term)
         for i in range(st.n):
             c(f"K{s}_{i} = ({_sum(forces[i])}) * minv{i}")
 
@@ -259,14 +285,10 @@ def _emit_temps(c: _Code, st: Structure, s: int) -> None:
     channels = _channels(st)
     for q, ch in enumerate(channels):
         c(f"uc{s}_{ch} = US[{s * len(channels) + q}, b]")
-    for e, (i, j) in enumerate(st.couplings):
-        c(f"r{s}_{e} = {_x(s, i)} - ca{e} * {_x(s, j)}")
-    for e, (i, j) in enumerate(st.quads):
-        xi = _x(s, i)
-        c(f"q{s}_{e} = {xi} * {xi} - qa{e} * {_x(s, j)}")
-    for e, (i, j) in enumerate(st.dashpots):
-        other = f" - {_v(s, j)}" if j >= 0 else ""
-        c(f"dv{s}_{e} = {_v(s, i)}{other}")
+    for p, e, i, o, ground in _each(st):
+        for line in render.forward(p, ground, _state(p, s, e, i, o), _elem(p, e),
+                                   _lane(p, s, e)).lane:
+            c(line)
 
 
 def _damper_dv(st: Structure, s: int, d: int) -> str:
@@ -464,7 +486,7 @@ def _emit_reverse_text(c: _Code, st: Structure) -> None:
     c("    final state's adjoint and the seeds on entry; the initial state's adjoint and the")
     c('    gradient on return), then scratch rows."""')
     c.depth += 1
-    _emit_loads(c, st)
+    _emit_loads(c, st, reverse=True)
     c("last = (nsteps - 1) // every")
     c(f"state_seeds(nsteps, {n}, SS[nsteps - last * every], AD, ms, msw, gp, gw, fac, gdecay)")
     c.block("for seg in range(last, -1, -1):")
@@ -581,8 +603,8 @@ def _emit_grad(c: _Code, grad: dict[int, list[str]]) -> None:
 
 
 def _emit_stage_vjp(c: _Code, st: Structure, s: int, add) -> None:
-    """Stage s's transposed force Jacobian (`adjoint.forces_vjp`) and the tableau's
-    coefficients back to the earlier stages."""
+    """Stage s's transposed force Jacobian (`adjoint.forces_vjp`, each kind's part rendered
+    by `render.backward`) and the tableau's coefficients back to the earlier stages."""
     n, lay = st.n, _layout(st)
     xb: list[list[str]] = [[] for _ in range(n)]
     vb: list[list[str]] = [[] for _ in range(n)]
@@ -591,37 +613,18 @@ def _emit_stage_vjp(c: _Code, st: Structure, s: int, add) -> None:
         add(lay["gm"] + i, f"- KB{s}_{i} * K{s}_{i} * minv{i}")
         vb[i].append(f"- bn{i} * fb{s}_{i}")
         add(lay["gb"] + i, f"- {_v(s, i)} * fb{s}_{i}")
-    for e, i in enumerate(st.springs):
-        xb[i].append(f"- ks{e} * fb{s}_{i}")
-        add(lay["gk"] + e, f"- {_x(s, i)} * fb{s}_{i}")
-    for e, i in enumerate(st.duffings):
-        xi = _x(s, i)
-        xb[i].append(f"- 3.0 * l{e} * {xi} * {xi} * fb{s}_{i}")
-        add(lay["gl"] + e, f"- {xi} * {xi} * {xi} * fb{s}_{i}")
-    for e, (i, j) in enumerate(st.couplings):
-        c(f"rb{s}_{e} = ck{e} * fb{s}_{j} - cka{e} * fb{s}_{i}")
-        xb[i].append(f"+ rb{s}_{e}")
-        xb[j].append(f"- ca{e} * rb{s}_{e}")
-        add(lay["gck"] + e, f"+ r{s}_{e} * (fb{s}_{j} - cia{e} * fb{s}_{i})")
-        add(lay["gca"] + e, f"+ ckaa{e} * r{s}_{e} * fb{s}_{i} - {_x(s, j)} * rb{s}_{e}")
-    for e, (i, j) in enumerate(st.quads):
-        xi = _x(s, i)
-        c(f"qb{s}_{e} = qg{e} * fb{s}_{j} - qga{e} * {xi} * fb{s}_{i}")
-        xb[i].append(f"+ 2.0 * {xi} * qb{s}_{e} - qga{e} * q{s}_{e} * fb{s}_{i}")
-        xb[j].append(f"- qa{e} * qb{s}_{e}")
-        add(lay["gqg"] + e, f"+ q{s}_{e} * (fb{s}_{j} - qia{e} * {xi} * fb{s}_{i})")
-        add(lay["gqa"] + e, f"+ qgaa{e} * {xi} * q{s}_{e} * fb{s}_{i} - {_x(s, j)} * qb{s}_{e}")
-    for e, (i, j) in enumerate(st.dashpots):
-        diff = f"(fb{s}_{j} - fb{s}_{i})" if j >= 0 else f"(-fb{s}_{i})"
-        c(f"db{s}_{e} = bb{e} * {diff}")
-        vb[i].append(f"+ db{s}_{e}")
-        if j >= 0:
-            vb[j].append(f"- db{s}_{e}")
-        add(lay["gbb"] + e, f"+ dv{s}_{e} * {diff}")
-    for e, (i, ch) in enumerate(st.inputs):
-        add(lay["gfi"] + e, f"+ uc{s}_{ch} * fb{s}_{i}")
-    for e, i in enumerate(st.commons):
-        add(lay["gfc"] + e, f"+ gv{s}_{e} * fb{s}_{i}")
+    for p, e, i, o, ground in _each(st):
+        fb = {"i": f"fb{s}_{i}", "j": f"fb{s}_{o}"}
+        code = render.backward(p, ground, _state(p, s, e, i, o), _elem(p, e), _lane(p, s, e),
+                               fb)
+        for line in code.lane:
+            c(line)
+        for f, terms in code.state.items():
+            (xb if f[0] == "x" else vb)[i if f[1] == "i" else o].extend(terms)
+        blocks = {q: b for q, _, b in p.params}
+        for f, terms in code.params.items():
+            for term in terms:
+                add(lay[f"g{blocks[f]}"] + e, term)
     for i in range(n):
         c(f"XB{i} = {_sum(xb[i])}")
         if vb[i]:

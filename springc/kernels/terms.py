@@ -16,8 +16,14 @@ coefficient arrays it reads, the subexpressions both ends share, and the force o
                                          the register kernels (regkernel): coefficients in
                                          scalars (`scalar_loads`), indices constants
 
-A new term kind is a `Kind` here, its arrays in `springc.sim.marshal.coefficient_arrays`
-and its flag in `codegen.Features`. Monomials (any number of factors) keep their own loop,
+A `Kind` also carries its force in the netlist's own coefficients, not over the mass
+(`physical`, a `Physical`); with the springs, couplings and input forces that the kernels
+fold into the rows these are `ELEMENTS`, from which the adjoint renders each force and its
+derivatives (`springc.grad.render`).
+
+A new term kind is a `Kind` here with its `physical`, its arrays in
+`springc.sim.marshal.coefficient_arrays` and `springc.grad.model`, and its flag in
+`codegen.Features`. Monomials (any number of factors) keep their own loop,
 `codegen.emit_monomials`, in every form.
 """
 
@@ -30,6 +36,38 @@ from dataclasses import dataclass
 import numpy as np
 
 STATE = ("xi", "xj", "vi", "vj")  # the template fields that read the state (per lane)
+
+
+@dataclass(frozen=True)
+class Physical:
+    """An element kind in the netlist's own coefficients, its forces not over the mass: what
+    the adjoint differentiates (`springc.grad.render`). `params`: (template field, its
+    array in `springc.grad.model.Model`, its block of `model.BLOCKS`), the fields named as
+    the element's keywords in the netlist (`letter`); `temps`, `force` and `ground` as a
+    `Kind`'s; `channel`: the Model array of each element's input channel, read as {u}."""
+
+    name: str
+    letter: str  # the element's letter in a netlist
+    node_i: str
+    node_j: str | None
+    params: tuple[tuple[str, str, str], ...]
+    temps: tuple[tuple[str, str], ...]
+    force: tuple[tuple[str, str], ...]
+    ground: str | None = None
+    channel: str | None = None
+    signal: bool = False  # reads its shared source's value {g}
+
+
+# the linear elements and input forces, which the simulator's kernels fold into each node's
+# stiffness row and input terms (`ROW`, `INPUT`, `own_sum`) and the adjoint keeps apart
+SPRING = Physical("spring", "K", "k_node", None, (("k", "k_k", "k"),), (),
+                  (("i", "- {k} * {xi}"),))
+COUPLING = Physical(  # U = k/(2a) (x_i - a x_j)^2
+    "coupling", "C", "c_i", "c_j", (("k", "c_k", "ck"), ("a", "c_a", "ca")),
+    (("KA", "{k} / {a}"), ("R", "{xi} - {a} * {xj}")),
+    (("i", "- {KA} * {R}"), ("j", "+ {k} * {R}")))
+INPUT_FORCE = Physical("input", "F", "fi_node", None, (("gain", "fi_gain", "fi"),), (),
+                       (("i", "+ {gain} * {u}"),), channel="fi_chan")
 
 
 @dataclass(frozen=True)
@@ -48,6 +86,7 @@ class Kind:
     force: tuple[tuple[str, str], ...]  # (end, template): added to that end's acceleration
     ground: str | None = None
     signal: bool = False  # reads the element's shared-signal value {g} (`grow[e]`)
+    physical: Physical | None = None  # the same force in the netlist's coefficients
 
     def reads_velocity(self) -> bool:
         """Whether its force reads its ends' velocities (a damper)."""
@@ -57,21 +96,37 @@ class Kind:
 
 QUAD = Kind(  # U = g/(2a) (x_i^2 - a x_j)^2; q_gi, q_gj: each end's factor over its mass
     "quad", "quads", "q_i", "q_j", (("a", "q_a"), ("gi", "q_gi"), ("gj", "q_gj")),
-    (("S", "{xi} * {xi} - {a} * {xj}"),), (("i", "- {gi} * {xi} * {S}"), ("j", "+ {gj} * {S}")))
+    (("S", "{xi} * {xi} - {a} * {xj}"),), (("i", "- {gi} * {xi} * {S}"), ("j", "+ {gj} * {S}")),
+    physical=Physical(
+        "quad", "Q", "q_i", "q_j", (("g", "q_g", "qg"), ("a", "q_a", "qa")),
+        (("GA", "2.0 * {g} / {a}"), ("S", "{xi} * {xi} - {a} * {xj}")),
+        (("i", "- {GA} * {xi} * {S}"), ("j", "+ {g} * {S}"))))
 DUFFING = Kind("duffing", "duffings", "d_node", None, (("lm", "d_lm"),), (),
-               (("i", "- {lm} * ({xi} * {xi} * {xi})"),))
+               (("i", "- {lm} * ({xi} * {xi} * {xi})"),),
+               physical=Physical("duffing", "D", "d_node", None, (("l", "d_l", "l"),), (),
+                                 (("i", "- {l} * ({xi} * {xi} * {xi})"),)))
 DASHPOT = Kind(
     "dashpot", "dashpots", "b_i", "b_j", (("bi", "b_bi"), ("bj", "b_bj")),
     (("R", "{vi} - {vj}"),), (("i", "- {bi} * {R}"), ("j", "+ {bj} * {R}")),
-    ground="- {bi} * {vi}")
+    ground="- {bi} * {vi}",
+    physical=Physical("dashpot", "B", "b_i", "b_j", (("b", "b_b", "bb"),),
+                      (("R", "{vi} - {vj}"),), (("i", "- {b} * {R}"), ("j", "+ {b} * {R}")),
+                      ground="- {b} * {vi}"))
 COMMON = Kind("common", "common_forces", "fc_node", None, (("gm", "fc_gm"),),
-              (("F", "{gm} * {g}"),), (("i", "+ {F}"),), signal=True)
+              (("F", "{gm} * {g}"),), (("i", "+ {F}"),), signal=True,
+              physical=Physical("common", "F", "fc_node", None,
+                                (("gain", "fc_gain", "fc"),), (),
+                                (("i", "+ {gain} * {g}"),), signal=True))
 
 # The order of a node's sum (after its own, row and input terms). The shared kernel's loops
 # run in `LOOP_ORDER`: another order would round differently from the kernels it replaced.
 KINDS = (QUAD, DUFFING, DASHPOT, COMMON)
 LOOP_ORDER = (DUFFING, QUAD, DASHPOT)  # then monomials, then COMMON (codegen.emit_accel_body)
 BY_NAME = {k.name: k for k in KINDS}
+# every element kind as the adjoint sees it, in the order of `springc.grad.model.BLOCKS`
+# (the monomials, between the dashpots and the input forces there, keep their own loop)
+ELEMENTS = (SPRING, DUFFING.physical, COUPLING, QUAD.physical, DASHPOT.physical, INPUT_FORCE,
+            COMMON.physical)
 ROW = "+ {w} * {xj}"  # an off-diagonal stiffness entry (l_val) times the other node's position
 INPUT = "+ {gm} * {u}"  # an input force's gain over the mass (fi_gm) times its channel
 

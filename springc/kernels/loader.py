@@ -15,6 +15,7 @@ thread of its own (`on_own_thread`).
 from __future__ import annotations
 
 import contextlib
+import functools
 import fcntl
 import gc
 import importlib.machinery
@@ -151,14 +152,53 @@ call_types_remembered = _HeldSetting(_remember_on, _remember_off)
 
 
 @contextlib.contextmanager
-def compiling(path: Path) -> Iterator[None]:
+def compiling(path: Path, blas: bool = True) -> Iterator[None]:
     """The scope of a kernel's first call, which compiles it (or loads it from numba's cache):
-    scipy's BLAS module loaded alone (`blas_module_alone`), the kernel file's lock
-    (`compile_lock`), the SLP vectoriser on, the collector paused, each call's type resolved
-    once (`call_types_remembered`)."""
-    blas_module_alone()
+    scipy's BLAS module loaded alone (`blas_module_alone`; `blas` False: the caller's cache
+    does that on a miss), the kernel file's lock (`compile_lock`), the SLP vectoriser on, the
+    collector paused, each call's type resolved once (`call_types_remembered`)."""
+    if blas:
+        blas_module_alone()
     with gc_paused(), compile_lock(path), slp_vectorize(), call_types_remembered():
         yield
+
+
+def load_first(dispatcher) -> bool:
+    """Let `dispatcher` load a cached compile without first setting up numba's lowering
+    registries (`_cache_load_alone`): a warm command's kernel then loads in tens of
+    milliseconds instead of after 0.2-0.4 s of registries it does not read
+    (docs/performance.md, "A warm kernel without numba's registries"). False, and nothing
+    changed, where the dispatcher does not cache or numba's cache is not the one this knows."""
+    from numba.core.caching import FunctionCache
+
+    cache = getattr(dispatcher, "_cache", None)
+    if type(cache) is not FunctionCache or not hasattr(cache, "_load_overload"):
+        return False
+    dispatcher._cache = _cache_load_alone()(dispatcher.py_func)
+    return True
+
+
+@functools.cache
+def _cache_load_alone() -> type:
+    """numba's function cache, loading an entry without `target_context.refresh()` first.
+    The refresh imports and installs every lowering registry (numpy's array functions,
+    random generators, cffi, ...), which only compiling reads: a loaded entry is machine
+    code whose symbols numba resolves from its runtime (initialised here, as the refresh
+    would) and its C helpers (registered when numba is imported). On a miss numba's compiler
+    refreshes the context itself (`numba.core.compiler.CompilerBase`), so scipy's BLAS module
+    is loaded alone first (`blas_module_alone`)."""
+    from numba.core.caching import FunctionCache
+    from numba.core.runtime import rtsys
+
+    class CacheLoadAlone(FunctionCache):
+        def load_overload(self, sig, target_context):
+            rtsys.initialize(target_context)
+            found = self._load_overload(sig, target_context)
+            if found is None:
+                blas_module_alone()
+            return found
+
+    return CacheLoadAlone
 
 
 BLAS_MODULE = "scipy.linalg.cython_blas"
@@ -301,7 +341,8 @@ class Kernel:
 
         start = time.perf_counter()
         signature = tuple(numba.typeof(v) for v in values)
-        with compiling(self.path):
+        alone = not as_python() and load_first(self.module.run)
+        with compiling(self.path, blas=not alone):
             if not as_python():
                 on_own_thread(lambda: self.module.run.compile(signature))
         self.compile_s = time.perf_counter() - start

@@ -121,3 +121,19 @@ def test_adjoint_descriptions_give_the_physics_forces():
                 f[i if end == "i" else o] += eval("0.0 " + term, {}, scope)  # noqa: S307
     want = reference(net, x, v, u, g)
     np.testing.assert_allclose(f * md.minv, want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
+
+
+def test_adjoint_descriptions_follow_the_gradient_layout():
+    """`terms.ELEMENTS`' coefficients, in order, are the gradient's element blocks
+    (`grad.model.BLOCKS` after the node blocks; the monomials' own loop keeps theirs), and
+    name `Model` arrays; no field or subexpression name ends in a digit, which a lane or
+    stage number appended to it could turn into another's name."""
+    blocks = [b for p in terms.ELEMENTS for _, _, b in p.params]
+    assert blocks == [b for b in model.BLOCKS[4:] if b != "pc"]
+    for p in terms.ELEMENTS:
+        arrays = [p.node_i, p.node_j, p.channel] + [a for _, a, _ in p.params]
+        assert all(a in model.Model._fields for a in arrays if a), p.name
+    for kind in terms.KINDS:
+        names = [f for f, _ in kind.coefs + kind.temps]
+        names += [f for f, _, _ in kind.physical.params] + [n for n, _ in kind.physical.temps]
+        assert not [n for n in names if n[-1].isdigit()], kind.name

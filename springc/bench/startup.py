@@ -84,7 +84,8 @@ def rows(folder: Path) -> list[Row]:
     """Every measured command line (files written to `folder`)."""
     out = [Row("import numba", [sys.executable, "-c", "import numba"], "the floor"),
            Row("numba cached function", [sys.executable, str(numba_floor(folder))],
-               "one small function from numba's cache: a warm kernel's floor")]
+               "one small function loaded from numba's cache as numba loads it (its "
+               "lowering registries first; springc's kernels load without them)")]
     for path in sorted(EXAMPLES.glob("*.spr")):
         out.append(Row(f"build {path.name}", springc_argv("build", str(path))))
         out.append(Row(f"sim {path.name}", springc_argv("sim", str(path), "-o",

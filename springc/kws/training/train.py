@@ -34,6 +34,10 @@ from springc.kws.data.task import (DIGITS, REALISATIONS, open_task_data, targets
                                    task_protocol, task_weights)
 
 CHUNK = 8  # clips per work item: big enough for batched FFTs, small enough for memory
+# the router's filter energies are simulated in one process, this many clips a kernel call:
+# the kernel runs its clips on every core, and a process per core beside it would only
+# load the kernel again in each and contend for the cores
+ROUTER_CHUNK = 64
 
 
 @dataclass
@@ -130,9 +134,10 @@ def _phi_for_all(signals: np.ndarray, rate: int, settings_list: list) -> list[np
 
 def _run(clips: list, realisation: str, settings_list: list, augment: bool, seed: int,
          noise_files: list, jobs: int, desc: str) -> list[np.ndarray]:
-    spans = [(i, min(i + CHUNK, len(clips))) for i in range(0, len(clips), CHUNK)]
+    chunk = ROUTER_CHUNK if realisation == "router" else CHUNK
+    spans = [(i, min(i + chunk, len(clips))) for i in range(0, len(clips), chunk)]
     init = (clips, realisation, settings_list, augment, seed, noise_files)
-    jobs = jobs or os.cpu_count() or 1
+    jobs = 1 if realisation == "router" else jobs or os.cpu_count() or 1
     bar = tqdm(total=len(clips), desc=desc, unit="clip", file=sys.stderr, leave=False,
                disable=None)
     parts = []

@@ -2,8 +2,9 @@
 helpers: `every_kind` (every force kind, with its inputs and its scipy solution) of
 test_written_out, test_regkernel and test_kernels_terms; `nonlinear_net` of test_simulate and
 test_reference; the 16 kHz `kicked_pair` of test_checks and test_accuracy; the example netlist
-`TWOMODE` of test_accuracy and test_stepcheck; `rel_error` of the integrator tests; and
-`GRAD_NETLIST` of test_grad_cli and test_points_commands."""
+`TWOMODE` of test_accuracy and test_stepcheck; `rel_error` of the integrator tests;
+`GRAD_NETLIST` of test_grad_cli and test_points_commands; and `every_kind_netlist`, generated
+from the element kinds, of test_grad and test_grad_written."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from springc.errors import SourceLoc
+from springc.kernels.terms import ELEMENTS
 from springc.lang.ir import IRBuilder, Source, Tran
 
 W = 2 * np.pi * 40.0  # rad/s: every node's local frequency scale
@@ -195,3 +197,35 @@ Fa a in(0) gain={gain}
 Fs b sin({amp} 50)
 .tran {1/8000} 0.03
 """
+
+
+def every_kind_netlist(options: str = ".options method=rk4") -> tuple[str, list[str]]:
+    """The gradients' network, generated from `terms.ELEMENTS`: a hub mass `h` that every kind
+    touches (the two-node kinds once at each end, a grounded end where a kind has one), so
+    every pair of kinds meets at a node, and a satellite mass `s0`, `s1`, ... per two-node
+    kind; every coefficient a `.param`, the input forces on channel 0. Returns the text and
+    the parameters. The integration is pinned (`options`): in a finite-difference test each
+    difference is a netlist of its own, whose choice of integration would cost more than its
+    simulation."""
+    value = {"k": 7.0, "a": 1.3, "l": 2.0, "g": 0.6, "b": 0.2, "gain": 1.5}
+    params: dict[str, float] = {}
+    lines = ["M1 h m=1 b=0.05 x0=0.3", "K0 h k=9"]
+    two = [p for p in ELEMENTS if p.node_j]
+    for n, p in enumerate(two):
+        lines += [f"Ms{n} s{n} m={1.2 + 0.2 * n} x0={0.1 * (n + 1)} v0=-0.2",
+                  f"Ks{n} s{n} k={5 + n}"]
+    for k, p in enumerate(ELEMENTS):
+        if p.node_j:
+            n = two.index(p)
+            sites = [f"s{n} h", f"h s{n}"] + ([f"s{n} 0"] if p.ground else [])
+        else:
+            sites = ["h", f"s{k % len(two)}"]
+        for e, site in enumerate(sites):
+            keys = []
+            for f, _, _ in p.params:  # values apart, so no two coefficients coincide
+                params[f"{p.name}{e}_{f}"] = value[f] * (1 + 0.1 * len(params) / 7)
+                keys.append(f"{f}={{{p.name}{e}_{f}}}")
+            source = " in(0)" if p.channel else " sin(1 1.2 0.5)" if p.signal else ""
+            lines.append(f"{p.letter}{p.name}{e} {site}{source} {' '.join(keys)}")
+    head = ".param " + " ".join(f"{k}={v!r}" for k, v in params.items())
+    return "\n".join([head, *lines, options, ".tran 10ms 0.5", ""]), list(params)

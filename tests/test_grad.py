@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import soundfile as sf
+from reference_nets import every_kind_netlist
 
 from springc.check import check
 from springc.errors import UsageError
@@ -113,50 +114,18 @@ GRAM = "gram:0.5:x,y"
 DASHPOTS_SPECS = ["work:in", "dissipated:all", "dissipated:B1", "loss:all", "final:v(y)"]
 
 
-def every_kind_netlist() -> tuple[str, list[str], list[str]]:
-    """A netlist generated from `terms.ELEMENTS`: a hub mass that every kind touches (the
-    two-node kinds once at each end, a grounded end where a kind has one), so every pair of
-    kinds meets at a node, and a satellite mass per two-node kind; every coefficient a
-    `.param`. Returns the text, the parameters and the reductions to check."""
-    from springc.kernels.terms import ELEMENTS
-
-    value = {"k": 7.0, "a": 1.3, "l": 2.0, "g": 0.6, "b": 0.2, "gain": 1.5}
-    params: dict[str, float] = {}
-    lines = ["M1 h m=1 b=0.05 x0=0.3", "K0 h k=9"]
-    two = [p for p in ELEMENTS if p.node_j]
-    for n, p in enumerate(two):
-        lines += [f"Ms{n} s{n} m={1.2 + 0.2 * n} x0={0.1 * (n + 1)} v0=-0.2",
-                  f"Ks{n} s{n} k={5 + n}"]
-    for k, p in enumerate(ELEMENTS):
-        if p.node_j:
-            n = two.index(p)
-            sites = [f"s{n} h", f"h s{n}"] + ([f"s{n} 0"] if p.ground else [])
-        else:
-            sites = ["h", f"s{k % len(two)}"]
-        for e, site in enumerate(sites):
-            keys = []
-            for f, _, _ in p.params:  # values apart, so no two coefficients coincide
-                params[f"{p.name}{e}_{f}"] = value[f] * (1 + 0.1 * len(params) / 7)
-                keys.append(f"{f}={{{p.name}{e}_{f}}}")
-            source = " in(0)" if p.channel else " sin(1 1.2 0.5)" if p.signal else ""
-            lines.append(f"{p.letter}{p.name}{e} {site}{source} {' '.join(keys)}")
-    head = ".param " + " ".join(f"{k}={v!r}" for k, v in params.items())
-    specs = ["msq:x(h)", "work:in", "dissipated:all"] + [f"final:v(s{n})" for n in range(len(two))]
-    # the integration pinned: each of the differences is a netlist of its own, whose choice
-    # of integration would cost more than its simulation
-    return ("\n".join([head, *lines, ".options method=rk4", ".tran 10ms 0.5", ""]),
-            list(params), specs)
-
-
-def test_every_kind_and_pair_of_kinds_matches_finite_differences(monkeypatch):
+def test_every_kind_and_pair_of_kinds_matches_finite_differences():
     """Each kind's force and the transpose of its Jacobian are rendered from its description
-    (`springc.grad.render`): a kind added to `terms.ELEMENTS` joins this network, and its
-    gradient, in the written-out kernels and in the element loops, is checked here against
-    central differences of `simulate` for every coefficient."""
-    from springc.grad import lanes, written
+    (`springc.grad.render`): a kind added to `terms.ELEMENTS` joins this network
+    (`reference_nets.every_kind_netlist`), and its gradient in the written-out adjoint is
+    checked here against central differences of `simulate` for every coefficient (the
+    element loops against the written-out adjoint on the same network: test_grad_written)."""
+    from springc.grad import written
     from springc.kernels import codegen, lower, terms
 
-    src, wrt, specs = every_kind_netlist()
+    src, wrt = every_kind_netlist()
+    specs = ["msq:x(h)", "work:in", "dissipated:all", "final:v(s0)", "final:v(s1)",
+             "final:v(s2)"]
     pn = ParamNetlist.from_text(src)
     net = check(pn.netlist()).net
     assert all(getattr(codegen.features(lower.kernel_netlist(net)), kind.feature)
@@ -164,18 +133,13 @@ def test_every_kind_and_pair_of_kinds_matches_finite_differences(monkeypatch):
     assert written.eligible(net)
     inputs = 0.4 * np.sin(np.arange(51) * 0.7)[None, None, :]
     want = {name: fd(pn, specs, name, inputs) for name in wrt}
-    for form in ("written", "loops"):
-        if form == "loops":
-            monkeypatch.setattr(written, "eligible", lambda net: False)
-            monkeypatch.setattr(lanes, "CHOICES", (1,))
-        for spec in specs:
-            res = gradient(pn, specs, wrt, inputs, weights=only(specs, spec))
-            assert res.info["written"] == (form == "written")
-            scale = np.max(np.abs(res.grad)) + 1e-300
-            for k, name in enumerate(wrt):
-                np.testing.assert_allclose(res.grad[:, k], want[name][spec].reshape(-1),
-                                           rtol=RTOL, atol=1e-9 * scale,
-                                           err_msg=f"{form} {spec} d/d{name}")
+    for spec in specs:
+        res = gradient(pn, specs, wrt, inputs, weights=only(specs, spec))
+        assert res.info["written"]
+        scale = np.max(np.abs(res.grad)) + 1e-300
+        for k, name in enumerate(wrt):
+            np.testing.assert_allclose(res.grad[:, k], want[name][spec].reshape(-1),
+                                       rtol=RTOL, atol=1e-9 * scale, err_msg=f"{spec} d/d{name}")
 
 
 def test_duffing_matches_finite_differences():

@@ -68,6 +68,21 @@ def test_a_new_file_that_shadows_a_library_block_is_seen(parses, tmp_path,
     assert springc.load(tmp_path / "net.spr").flat.masses.m.tolist() == [5.0]
 
 
+def test_a_model_file_is_checked_once_and_shares_loads_entry(parses, tmp_path) -> None:
+    """`store.checked_file` (a keyword-spotting model's classifier.spr in `eval` and
+    `classify`) keeps the entry `springc.load` keeps; a file with `.step` is checked at its
+    nominal design each time."""
+    first = store.checked_file(tmp_path / "net.spr")
+    assert first.entry is not None and len(parses) == 2
+    again = store.checked_file(tmp_path / "net.spr")
+    assert len(parses) == 2 and again.entry == first.entry
+    assert springc.load(tmp_path / "net.spr").checked.entry == first.entry and len(parses) == 2
+    (tmp_path / "swept.spr").write_text(NET + ".step param k 1 2 1\n.param k=3\n")
+    for _ in range(2):
+        assert store.checked_file(tmp_path / "swept.spr").net.n == 1
+    assert parses.count(str(tmp_path / "swept.spr")) == 2
+
+
 def test_options_text_and_points_make_their_own_entries(parses, tmp_path) -> None:
     plain = springc.load(tmp_path / "net.spr")
     pinned = springc.load(tmp_path / "net.spr", method="rk4")

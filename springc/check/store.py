@@ -80,6 +80,29 @@ def lookup(entry: str) -> CheckedNetlist | None:
     return checked
 
 
+def checked_file(path: Path) -> CheckedNetlist:
+    """The netlist file at `path` checked with the default options, from the store where it
+    was checked before and is unchanged (the entry `springc.load` keeps for it), else parsed,
+    elaborated, checked and kept. A file with `.step` or `.mc` is checked at its nominal
+    design and not kept."""
+    from springc.check.checks import check
+    from springc.lang import files, read_source, variation
+    from springc.lang.parser import parse
+
+    text = read_source(path)
+    entry = key(text, str(path), method=None, lib_dirs=None, tstep=None, substeps=None,
+                judge_step=None)
+    found = lookup(entry)
+    if found is not None:
+        return found
+    with files.recording() as reads:
+        var = variation.read(parse(text, str(path)), None)
+        checked = check(var.nominal())
+    if not var.varies:
+        save(entry, checked, reads)
+    return checked
+
+
 def save(entry: str, checked: CheckedNetlist, deps: list[Read]) -> None:
     """Store `checked` under `entry` with the files it read (atomically: a reader sees the
     whole entry or none)."""

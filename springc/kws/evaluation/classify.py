@@ -144,12 +144,12 @@ def network_rows(model: TrainedModel, signals: np.ndarray, jobs: int = 0,
     """Decision rows (clips, rows) of a mass-spring model: its whole classifier network
     simulated on the clips (float32 input, as the data sets' clips), integrated as
     settings.json says."""
+    from springc.check.store import checked_file
     from springc.kws.evaluation.evaluate import model_integration, simulate_network
     from springc.kws.training.transfer import model_heads
-    from springc.lang import load_file
 
     s, heads = model_heads(model)
-    net = load_file(model.folder / "classifier.spr")
+    net = checked_file(model.folder / "classifier.spr")
     d, _, _ = simulate_network(net, heads, s, signals.astype(np.float32), scheduler=scheduler,
                                jobs=jobs, plan=model_integration(model))
     return d

@@ -22,6 +22,7 @@ from springc.kws.training.svm import LinearModel
 from springc.kws.data.task import open_task_data, targets
 from springc.kws.training.train import check_realisation, feature_matrices
 from springc.check import check
+from springc.check.checks import CheckedNetlist
 from springc.kws.training.transfer import (Head, classifier_batch, decisions, insertion_loss_db,
                                            model_heads, readout_reductions)
 
@@ -110,13 +111,15 @@ def selection_models(models) -> list:
 def simulate_network(net, heads: list[Head], s: msp.MassSpringSettings,
                      signals: np.ndarray, *, scheduler: str | None = None, jobs: int = 0,
                      plan: Integration = PAPER) -> tuple[np.ndarray, np.ndarray, float]:
-    """Run clips (clips, samples) through a classifier network on Dask, integrated as `plan`
-    says: (row decisions, insertion loss in dB per clip, wall seconds)."""
+    """Run clips (clips, samples) through a classifier network (flat, or checked already) on
+    Dask, integrated as `plan` says: (row decisions, insertion loss in dB per clip, wall
+    seconds)."""
     import time
     from functools import partial
 
     start = time.perf_counter()
-    fn = partial(classifier_batch, checked=check(net), specs=readout_reductions(heads),
+    checked = net if isinstance(net, CheckedNetlist) else check(net)
+    fn = partial(classifier_batch, checked=checked, specs=readout_reductions(heads),
                  tstop=msp.horizon(s, signals.shape[1] / msp.INPUT_RATE), plan=plan, s=s)
     reds = msp.map_pooled(fn, signals, "mass-spring classifier", scheduler, jobs or None)
     seconds = time.perf_counter() - start
@@ -136,12 +139,12 @@ def evaluate_network(model, ds, *, scheduler: str | None = None, jobs: int = 0,
     test split: accuracy, confusion, per-class TPR and insertion loss of the physical
     decisions, next to the digital readout c . Phi of the same model on the same features.
     `heads` and `net` replace the model folder's (the epsilon study)."""
+    from springc.check.store import checked_file
     from springc.kws.features.distributed import cores, session
-    from springc.lang import load_file
 
     s, model_heads_ = model_heads(model)
     heads = heads or model_heads_
-    net = net or load_file(model.folder / "classifier.spr")
+    net = net or checked_file(model.folder / "classifier.spr")  # warm: no parser, no check
     clips = ds.split("test")
     task = model.settings["task"]
     signals = msp.load_signals(clips, False, 0, [])

@@ -63,7 +63,7 @@ def _fields(p: Physical, ground: bool) -> tuple[list[str], list[tuple[str, str, 
     """The coefficients and the subexpressions the forces read, in order, each subexpression
     with whether it reads the state (per lane)."""
     used = " ".join(t for _, t in ends(p, ground))
-    temps = [(n, t) for n, t in p.temps]
+    temps = list(p.temps)
     for name, temp in reversed(temps):  # subexpressions read by used ones are used
         if "{" + name + "}" in used:
             used += " " + temp

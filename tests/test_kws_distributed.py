@@ -1,5 +1,6 @@
-"""Data-set simulation on Dask: a local multi-process cluster gives exactly the results of a
-single-process run, in order, and worker failures reach the caller as the user error."""
+"""Data-set simulation on Dask: a local multi-process cluster, and threads in this process for
+work of fewer than `LOCAL_CLUSTER_FROM` clips, give exactly the results of a single-process
+run, in order, and worker failures reach the caller as the user error."""
 
 from __future__ import annotations
 
@@ -37,22 +38,41 @@ def _fail(batch):
     raise SimulationError("run run0 diverged (test)")
 
 
-def test_two_worker_cluster_equals_a_single_process_run():
+def test_two_worker_cluster_and_two_threads_equal_a_single_process_run(monkeypatch):
+    """Six clips in three batches: on two threads here (fewer clips than
+    `LOCAL_CLUSTER_FROM`), and on a two-worker local cluster (the bound lowered to them)."""
+    from springc.kws.features import distributed
+
     parts = msp.batches(clips(), 2)
+    sizes = [len(p) for p in parts]
     fn = partial(msp.phi_batch, s=S)
     alone = map_batches(fn, parts, workers=1)
-    cluster = map_batches(fn, parts, workers=2, sizes=[len(p) for p in parts])
-    assert len(cluster) == len(parts)
-    for a, b in zip(alone, cluster):
-        np.testing.assert_array_equal(a, b)  # bit for bit, in order
+    threads = map_batches(fn, parts, workers=2, sizes=sizes)
+    monkeypatch.setattr(distributed, "_stays_here", lambda *a: False)
+    cluster = map_batches(fn, parts, workers=2, sizes=sizes)
+    for got in (threads, cluster):
+        assert len(got) == len(parts)
+        for a, b in zip(alone, got):
+            np.testing.assert_array_equal(a, b)  # bit for bit, in order
     whole = msp.simulate_phi(clips().astype(np.float64), S, chunk=msp.BATCH,
                              precision=msp.DATASET_PRECISION)  # the batches' kernel
     np.testing.assert_allclose(np.concatenate(cluster), whole, rtol=1e-12)
 
 
-def test_worker_errors_reach_the_caller():
+@pytest.mark.parametrize("sizes", [None, [1, 1, 1]], ids=["cluster", "threads"])
+def test_worker_errors_reach_the_caller(sizes):
     with pytest.raises(SimulationError, match="diverged"):
-        map_batches(_fail, [1, 2, 3], workers=2)
+        map_batches(_fail, [1, 2, 3], workers=2, sizes=sizes)
+
+
+def test_a_small_session_starts_no_cluster():
+    """A session for fewer clips than `LOCAL_CLUSTER_FROM` opens no client (its batches run
+    on threads here); one for an unknown count does (the next test)."""
+    from springc.kws.features import distributed
+
+    with distributed.session(None, 2, clips=distributed.LOCAL_CLUSTER_FROM - 1):
+        assert distributed._OPEN == []
+        assert map_batches(abs, [-1, -2], workers=2, sizes=[1, 1]) == [1, 2]
 
 
 def test_an_existing_scheduler_by_address_gives_the_same_results():
@@ -81,10 +101,12 @@ def _touch(path: str) -> None:
 def test_work_ahead_runs_on_a_session_worker_and_drops_its_errors(tmp_path):
     """`ahead` outside a session does nothing; inside, the task runs on a worker (its file
     appears), and a failing one neither raises here nor stops the session's batches."""
+    from springc.kws.features import distributed
     from springc.kws.features.distributed import ahead, session
 
     ahead(_touch, str(tmp_path / "outside"))
     with session(None, 2):
+        assert len(distributed._OPEN) == 1  # a local cluster: the clips are not counted
         ahead(_fail, None)
         ahead(_touch, str(tmp_path / "inside"))
         assert map_batches(abs, [-1, -2]) == [1, 2]

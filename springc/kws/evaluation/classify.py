@@ -207,7 +207,8 @@ def classify(model_dir: Path, inputs: Sequence[Path], realisation: str | None = 
     model = model_for(model_dir, realisation)
     paths = sound_files(inputs)
     out = []
-    with session(scheduler, jobs or None) if _simulated(model) else nullcontext():
+    with session(scheduler, jobs or None, clips=len(paths)) if _simulated(model) \
+            else nullcontext():
         for k in range(0, len(paths), FILES_AT_ONCE):
             recordings = read_recordings(paths[k:k + FILES_AT_ONCE])
             signals = np.stack([clip_signal(r) for r in recordings])

@@ -149,7 +149,7 @@ def evaluate_network(model, ds, *, scheduler: str | None = None, jobs: int = 0,
     task = model.settings["task"]
     signals = msp.load_signals(clips, False, 0, [])
     plan = model_integration(model)
-    with session(scheduler, jobs or None):
+    with session(scheduler, jobs or None, clips=len(clips)):
         d, loss, seconds = simulate_network(net, heads, s, signals, scheduler=scheduler,
                                             jobs=jobs, plan=plan)
         phi = feature_matrices(clips, "test", "mass-spring", [s], noise_files=[], jobs=jobs,

@@ -1,7 +1,10 @@
 """Data-set simulation on Dask: batches of clips to worker processes, results back in order.
 
 Default: a `LocalCluster` on this machine, one single-threaded worker process per core (each
-batch is simulated in lockstep by one core; numba's own threads would only compete). With
+batch is simulated in lockstep by one core; numba's own threads would only compete). Work of
+fewer than `LOCAL_CLUSTER_FROM` clips runs on one thread per core in this process instead (the
+kernels release the GIL): a cluster's start, its workers' imports and their kernel loads cost
+more than such work gains from processes. With
 `scheduler=ADDRESS` the batches go to an existing cluster (`dask scheduler` / `dask worker`
 on other machines). Workers compile a kernel once and reuse it: the generated source and
 numba's machine code live in the shared on-disk cache (`SPRINGC_CACHE`, passed on to local
@@ -21,6 +24,10 @@ from tqdm import tqdm
 
 from springc.errors import SimulationError, UsageError
 
+# clips: from here a local cluster's processes pay (docs/performance.md, "Small jobs on
+# threads"); below, the batches run on threads here
+LOCAL_CLUSTER_FROM = 512
+
 
 def cores() -> int:
     """Cores this process may use."""
@@ -39,21 +46,51 @@ def map_batches(fn: Callable[[Any], Any], batches: Sequence[Any], scheduler: str
     `gpu.default_device('cuda')` the batches run here, one after the other: the GPU is this
     process's."""
     workers = workers or cores()
+    clips = int(sum(sizes)) if sizes is not None else None
     bar = tqdm(total=int(sum(sizes)) if sizes is not None else len(batches), desc=desc,
                unit="clip" if sizes is not None else "batch", file=sys.stderr, disable=None,
                smoothing=0.1)
     step = (lambda k: sizes[k]) if sizes is not None else (lambda k: 1)
     with bar:
-        if on_gpu() or not _OPEN and scheduler is None and (workers == 1 or len(batches) <= 1):
-            out = []
-            for k, b in enumerate(batches):
-                out.append(fn(b))
-                bar.update(step(k))
-            return out
+        if on_gpu():
+            return _here(fn, batches, bar, step, 1)
+        if not _OPEN and _stays_here(scheduler, workers, clips, len(batches)):
+            return _here(fn, batches, bar, step, workers)
         if _OPEN:
             return _gather(_OPEN[-1], fn, batches, bar, step)
         with _client(scheduler, workers) as client:
             return _gather(client, fn, batches, bar, step)
+
+
+def _stays_here(scheduler: str | None, workers: int, clips: int | None,
+                batches: int | None = None) -> bool:
+    """Whether work runs in this process: no scheduler named, and one worker, one batch or
+    fewer than `LOCAL_CLUSTER_FROM` clips."""
+    small = clips is not None and clips < LOCAL_CLUSTER_FROM
+    return scheduler is None and (workers == 1 or batches == 1 or small)
+
+
+def _here(fn, batches, bar, step, workers: int) -> list[Any]:
+    """[fn(b) for b in batches] in this process: on this thread where one worker or one
+    batch, else on up to `workers` threads (pending batches cancelled after an error)."""
+    from concurrent.futures import ThreadPoolExecutor, as_completed
+
+    out: list[Any] = [None] * len(batches)
+    if workers <= 1 or len(batches) <= 1:
+        for k, b in enumerate(batches):
+            out[k] = fn(b)
+            bar.update(step(k))
+        return out
+    pool = ThreadPoolExecutor(min(workers, len(batches)))
+    try:
+        futures = {pool.submit(fn, b): k for k, b in enumerate(batches)}
+        for fut in as_completed(futures):
+            k = futures[fut]
+            out[k] = fut.result()  # the first error in completion order propagates
+            bar.update(step(k))
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+    return out
 
 
 def on_gpu() -> bool:
@@ -84,13 +121,15 @@ def _quietly(fn: Callable[..., Any], *args: Any) -> None:
 
 
 @contextmanager
-def session(scheduler: str | None = None, workers: int | None = None) -> Iterator[None]:
+def session(scheduler: str | None = None, workers: int | None = None,
+            clips: int | None = None) -> Iterator[None]:
     """One Dask client for every `map_batches` call inside: a local cluster starts (and its
     workers import springc and load their kernels) once per command, not once per split. No
-    cluster for one local worker or on the GPU; a session inside a session is the outer
-    one."""
+    cluster for one local worker, for work of fewer than `LOCAL_CLUSTER_FROM` `clips` (each
+    `map_batches` inside then runs here) or on the GPU; a session inside a session is the
+    outer one."""
     workers = workers or cores()
-    if _OPEN or on_gpu() or (scheduler is None and workers == 1):
+    if _OPEN or on_gpu() or _stays_here(scheduler, workers, clips):
         yield
         return
     with _client(scheduler, workers) as client:

@@ -42,7 +42,8 @@ def map_batches(fn: Callable[[Any], Any], batches: Sequence[Any], scheduler: str
                 sizes: Sequence[int] | None = None) -> list[Any]:
     """[fn(b) for b in batches], computed on Dask; progress in clips (`sizes[k]` per batch) or
     batches. `scheduler`: None for a local cluster of `workers` processes (default: all
-    cores; 1 runs here, without Dask), or the address of a running scheduler. Inside
+    cores; 1, or fewer than `LOCAL_CLUSTER_FROM` clips by `sizes`, runs here without Dask,
+    on that many threads), or the address of a running scheduler. Inside
     `gpu.default_device('cuda')` the batches run here, one after the other: the GPU is this
     process's."""
     workers = workers or cores()
@@ -64,10 +65,11 @@ def map_batches(fn: Callable[[Any], Any], batches: Sequence[Any], scheduler: str
 
 def _stays_here(scheduler: str | None, workers: int, clips: int | None,
                 batches: int | None = None) -> bool:
-    """Whether work runs in this process: no scheduler named, and one worker, one batch or
-    fewer than `LOCAL_CLUSTER_FROM` clips."""
+    """Whether work runs in this process: no scheduler named, and one worker, at most one
+    batch or fewer than `LOCAL_CLUSTER_FROM` clips."""
     small = clips is not None and clips < LOCAL_CLUSTER_FROM
-    return scheduler is None and (workers == 1 or batches == 1 or small)
+    return scheduler is None and (workers == 1 or (batches is not None and batches <= 1)
+                                  or small)
 
 
 def _here(fn, batches, bar, step, workers: int) -> list[Any]:

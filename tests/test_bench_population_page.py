@@ -19,6 +19,13 @@ def test_quiet_run_records_its_ratio() -> None:
     assert "AMD EPYC, 2 cores; measured 2026-11-28 20:29:00" in page
 
 
+def test_paired_run_gives_its_median_ratio_and_range() -> None:
+    walls = {"nominal": [0.33, 0.37, 0.43], "population": [0.47, 0.52, 0.55]}
+    page = markdown({**NUMBERS, "load": 0.5, "ratio": 1.40, "ratio_range": [1.27, 1.42],
+                     "walls": walls})
+    assert "**1.40x** (median, 1.27-1.42 over 3 alternating pairs; target" in page
+
+
 def test_loaded_run_says_why_it_records_no_ratio() -> None:
     load = max_load(2) + 0.01
     page = markdown({**NUMBERS, "load": load})

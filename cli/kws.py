@@ -18,12 +18,15 @@ from springc.kws.data.task import REALISATIONS
 _REALISATION = click.Choice(REALISATIONS)
 _SCHEDULER = click.option("--scheduler", default=None, metavar="ADDRESS",
                           help="Mass-spring: Dask scheduler to send the simulations to "
-                               "(default: a local cluster on all cores).")
+                               "(default: a local cluster on all cores; `eval` and "
+                               "`classify` of under 512 clips: threads in this process).")
 _DATA = click.option("--data", "data", required=True, type=click.Path(path_type=Path),
                      help="Data set folder in the GSCD layout (e.g. from `springc data synth`).")
 _BINS = click.option("--bins", "-n", default=8, show_default=True, help="Mel filter bins n.")
 _DELAYS = click.option("--delays", "-m", default=3, show_default=True, help="Delays per bin m.")
-_JOBS = click.option("--jobs", "-j", default=0, help="Worker processes (0: all cores).")
+_JOBS = click.option("--jobs", "-j", default=0,
+                     help="Worker processes, or threads where no cluster starts "
+                          "(0: all cores).")
 _NO_CACHE = click.option("--no-cache", is_flag=True,
                          help="Recompute features, ignore the cache.")
 _THRESHOLD = click.option("--threshold", type=float, default=None,
